@@ -1,0 +1,200 @@
+"""Frozen datatypes shared by every stage.
+
+One internal frame everywhere: metres, seconds, radians, yaw counter-clockwise from +x,
+positions at the vehicle's geometric centre. SUMO's front-bumper positions and
+navigational degrees live only in :mod:`sumo_ethics.sim`.
+
+Axis letters: N agents, K candidates, T horizon steps, H history steps.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class RoadUserClass(enum.IntEnum):
+    """What kind of road user an agent is; decides mass and which harm model applies."""
+
+    CAR = 0
+    TRUCK = 1
+    BUS = 2
+    MOTORCYCLE = 3  # motorcycles and mopeds
+    BICYCLE = 4
+    PEDESTRIAN = 5
+    OTHER = 6  # rail, emergency, ... treated as a protected vehicle
+
+    @property
+    def is_vulnerable(self) -> bool:
+        """Pedestrians, cyclists and motorcyclists: booked as VRU, harmed with the unprotected model."""
+        return self in (RoadUserClass.MOTORCYCLE, RoadUserClass.BICYCLE, RoadUserClass.PEDESTRIAN)
+
+    @property
+    def label(self) -> str:
+        return self.name.lower()
+
+
+#: (C,) bool lookup: VULNERABLE[cls] for an int array of RoadUserClass values.
+VULNERABLE = np.array([c.is_vulnerable for c in RoadUserClass], dtype=bool)
+
+
+class HarmClass(enum.Enum):
+    """Booking of harm, as in the paper's Table 1."""
+
+    EGO = "ego"
+    THIRD_PARTY = "third_party"
+    VRU = "vru"  # the third-party harm that fell on vulnerable road users (subset of THIRD_PARTY)
+
+
+class RunStatus(enum.Enum):
+    COMPLETED = "completed"
+    COLLISION = "collision"
+    TIMEOUT = "timeout"
+    ERROR = "error"
+
+
+def _frozen_array(a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class AgentStates:
+    """N road users at one instant, internal frame.
+
+    ids: (N,) tuple of SUMO ids; x, y: (N,) centre position [m]; yaw: (N,) [rad, CCW from +x];
+    speed: (N,) [m/s]; accel: (N,) [m/s^2]; length, width: (N,) true size [m];
+    mass: (N,) [kg]; cls: (N,) int8 RoadUserClass values; type_id: (N,) SUMO vType ids.
+    """
+
+    ids: tuple[str, ...]
+    x: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray
+    speed: np.ndarray
+    accel: np.ndarray
+    length: np.ndarray
+    width: np.ndarray
+    mass: np.ndarray
+    cls: np.ndarray
+    type_id: tuple[str, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        n = len(self.ids)
+        for name in ("x", "y", "yaw", "speed", "accel", "length", "width", "mass", "cls"):
+            arr = getattr(self, name)
+            if np.shape(arr) != (n,):
+                raise ValueError(f"AgentStates.{name} has shape {np.shape(arr)}, expected ({n},)")
+            object.__setattr__(self, name, _frozen_array(arr))
+        if not self.type_id:
+            object.__setattr__(self, "type_id", ("",) * n)
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @property
+    def xy(self) -> np.ndarray:
+        """(N, 2) centre positions [m]."""
+        return np.stack([self.x, self.y], axis=-1)
+
+    def take(self, index: np.ndarray | list[int]) -> "AgentStates":
+        """The subset of agents at integer positions ``index``."""
+        idx = np.asarray(index, dtype=int)
+        return AgentStates(
+            ids=tuple(self.ids[i] for i in idx),
+            x=self.x[idx], y=self.y[idx], yaw=self.yaw[idx], speed=self.speed[idx],
+            accel=self.accel[idx], length=self.length[idx], width=self.width[idx],
+            mass=self.mass[idx], cls=self.cls[idx],
+            type_id=tuple(self.type_id[i] for i in idx),
+        )
+
+    @staticmethod
+    def empty() -> "AgentStates":
+        z = np.zeros(0)
+        return AgentStates((), z, z, z, z, z, z, z, z, np.zeros(0, dtype=np.int8), ())
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What a predictor sees: the recent past of N neighbours around the ego.
+
+    history: (N, H, 2) centre positions [m], oldest first, last row = now;
+    valid: (N, H) bool, False where an agent was not yet observed (padding);
+    dt: history sample interval [s]; current: the agents' full states now;
+    ego: the ego's state now (1 agent).
+    """
+
+    time: float
+    dt: float
+    history: np.ndarray
+    valid: np.ndarray
+    current: AgentStates
+    ego: AgentStates
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "history", _frozen_array(self.history))
+        object.__setattr__(self, "valid", _frozen_array(self.valid))
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Per-agent Gaussian trajectories over the horizon.
+
+    mean: (N, T, 2) [m]; cov: (N, T, 2, 2) [m^2]; yaw: (N, T) heading [rad];
+    dt: horizon step [s]; step t is at time now + (t + 1) * dt.
+    """
+
+    ids: tuple[str, ...]
+    dt: float
+    mean: np.ndarray
+    cov: np.ndarray
+    yaw: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("mean", "cov", "yaw"):
+            object.__setattr__(self, name, _frozen_array(getattr(self, name)))
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """K candidate ego trajectories over T steps of ``dt`` (step t at now + (t + 1) * dt).
+
+    x, y: (K, T) centre [m]; yaw: (K, T) [rad]; speed: (K, T) [m/s]; accel: (K, T) longitudinal
+    [m/s^2]; curvature: (K, T) [1/m]; s, d: (K, T) Frenet arc length and lateral offset [m];
+    horizon: (K,) horizon of each candidate [s] (steps past it repeat the last state and are
+    masked out by ``valid``); valid: (K, T) bool.
+    """
+
+    dt: float
+    x: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray
+    speed: np.ndarray
+    accel: np.ndarray
+    curvature: np.ndarray
+    s: np.ndarray
+    d: np.ndarray
+    horizon: np.ndarray
+    valid: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("x", "y", "yaw", "speed", "accel", "curvature", "s", "d", "horizon", "valid"):
+            object.__setattr__(self, name, _frozen_array(getattr(self, name)))
+
+    def __len__(self) -> int:
+        return int(self.x.shape[0])
+
+
+@dataclass(frozen=True)
+class CostBreakdown:
+    """Every named cost term per candidate, each (K,); ``total`` is what selection minimises."""
+
+    terms: dict[str, np.ndarray]
+    total: np.ndarray
+
+    def row(self, k: int) -> dict[str, float]:
+        """The terms of candidate k as plain floats, for logging."""
+        return {name: float(v[k]) for name, v in self.terms.items()} | {"total": float(self.total[k])}
