@@ -1,0 +1,45 @@
+"""Trajectory prediction: constant velocity baseline and LSTM predictors (CS-LSTM, attention).
+
+Importing this package is cheap: torch is imported only when an LSTM class or the
+training/evaluation code is first used (attributes resolve lazily).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+
+class PredictorError(RuntimeError):
+    """A predictor cannot be built: missing, corrupt or incompatible weights file."""
+
+
+_LAZY = {
+    "ConstantVelocityPredictor": "sumo_ethics.predict.constant_velocity",
+    "LSTMPredictor": "sumo_ethics.predict.predictor",
+    "build_dataset": "sumo_ethics.predict.dataset",
+    "train_model": "sumo_ethics.predict.train",
+    "evaluate": "sumo_ethics.predict.evaluate",
+    "dataset_main": "sumo_ethics.predict.commands",
+    "train_main": "sumo_ethics.predict.commands",
+    "evaluate_main": "sumo_ethics.predict.commands",
+}
+
+__all__ = ["PredictorError", *_LAZY]
+
+if TYPE_CHECKING:  # pragma: no cover
+    from sumo_ethics.predict.commands import dataset_main, evaluate_main, train_main
+    from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor
+    from sumo_ethics.predict.dataset import build_dataset
+    from sumo_ethics.predict.evaluate import evaluate
+    from sumo_ethics.predict.predictor import LSTMPredictor
+    from sumo_ethics.predict.train import train_model
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'sumo_ethics.predict' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
