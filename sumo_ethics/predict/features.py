@@ -115,7 +115,16 @@ def resample_history(hist: np.ndarray, valid: np.ndarray, dt: float) -> tuple[np
         return backfill(hist, valid), valid.copy()
     out = np.zeros((n, HIST_STEPS, 2))
     out_valid = np.zeros((n, HIST_STEPS), dtype=bool)
-    for i in range(n):
+    full = valid.all(axis=1)
+    if full.any() and h >= 2:
+        # all samples valid: one vectorised interpolation (extrapolating linearly before the oldest)
+        q = (t_mod - t_obs[0]) / float(dt)
+        i0 = np.clip(np.floor(q).astype(int), 0, h - 2)
+        w = (q - i0)[None, :, None]
+        hf = hist[full]
+        out[full] = hf[:, i0] * (1.0 - w) + hf[:, i0 + 1] * w
+        out_valid[full] = t_mod >= t_obs[0] - 1e-9
+    for i in np.flatnonzero(~full if h >= 2 else np.ones(n, dtype=bool)):
         idx = np.flatnonzero(valid[i])
         if idx.size == 0:
             continue

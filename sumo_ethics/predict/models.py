@@ -1,0 +1,256 @@
+"""CS-LSTM and the paper's attention variant, the bivariate Gaussian NLL, weight files.
+
+Both models share one interface::
+
+    model(tgt_hist, tgt_group, nbr_hist, nbr_group, nbr_batch, nbr_cell, nbr_valid=None)
+        -> (B, FUT_STEPS, 5) = (mu_x, mu_y, sigma_x, sigma_y, rho)
+
+Inputs are in the target's frame and NORMALISED: positions divided by
+``model.scale(tgt_group)`` (per target group, see ``features.POS_SCALE``); outputs are
+in the same normalised units (multiply mu and sigma by the scale for metres).
+Neighbours come packed: row p of ``nbr_*`` belongs to target ``nbr_batch[p]`` and sits in
+social-grid cell ``nbr_cell[p]`` (lon * 3 + lat); ``nbr_valid[p] = False`` removes it
+entirely (a padded neighbour changes nothing).
+
+Sizes follow Deo & Trivedi / METHOD.md section 4: Linear(2->32) input embedding (plus a
+32-d embedding of the agent class group, added), shared LSTM encoder 64, dynamics
+embedding 32, 13 x 3 social grid, Conv 3x3 (64) -> Conv 3x1 (16) -> MaxPool(2,1) = 80,
+decoder LSTM 128, linear output of 5 per future step. No manoeuvre classes.
+
+Attention (kind="attention"): X = the target's encoder state, H_i = the neighbours'
+encoder states. The paper's ``A_i = cos(X,H_i) / sum_j cos(X,H_j)`` is undefined when the
+cosines sum to ~0 and gives negative weights; we use the guarded form
+``A = softmax_i(cos(X, H_i) / tau)`` over valid neighbours, tau a learned temperature
+(clamped to >= 0.01, initialised at 0.1). ``W_H = sum_i A_i H_i`` (0 without neighbours),
+projected 64 -> 80 without bias and added to the pooled grid: ``E = cs_pool + P W_H``;
+``[E, dyn]`` goes to the decoder, as in CS-LSTM.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn.functional as Fn
+from torch import nn
+
+from sumo_ethics.predict import PredictorError
+from sumo_ethics.predict import features as F
+
+KINDS = ("cslstm", "attention")
+FILE_FORMAT = "sumo-ethics-predictor"
+FILE_FORMAT_VERSION = 1
+
+
+class TrajectoryLSTM(nn.Module):
+    """CS-LSTM (kind="cslstm") or CS-LSTM + cosine attention (kind="attention")."""
+
+    def __init__(
+        self,
+        kind: str = "attention",
+        hist_steps: int = F.HIST_STEPS,
+        fut_steps: int = F.FUT_STEPS,
+        in_emb: int = 32,
+        enc: int = 64,
+        dyn: int = 32,
+        dec: int = 128,
+        conv1: int = 64,
+        conv2: int = 16,
+        n_groups: int = F.N_GROUPS,
+        pos_scale: tuple[float, ...] = tuple(F.POS_SCALE),
+    ) -> None:
+        super().__init__()
+        if kind not in KINDS:
+            raise ValueError(f"unknown model kind {kind!r}, expected one of {KINDS}")
+        self.kind = kind
+        self.hist_steps, self.fut_steps = hist_steps, fut_steps
+        self.enc_size = enc
+        self.input_emb = nn.Linear(2, in_emb)
+        self.class_emb = nn.Embedding(n_groups, in_emb)
+        self.encoder = nn.LSTM(in_emb, enc, batch_first=True)
+        self.dyn_emb = nn.Linear(enc, dyn)
+        self.soc_conv = nn.Conv2d(enc, conv1, 3)
+        self.conv_3x1 = nn.Conv2d(conv1, conv2, (3, 1))
+        self.soc_maxpool = nn.MaxPool2d((2, 1), padding=(1, 0))
+        self.soc_size = ((F.GRID_LON - 4) + 1) // 2 * conv2
+        if kind == "attention":
+            self.att_proj = nn.Linear(enc, self.soc_size, bias=False)
+            self.log_tau = nn.Parameter(torch.tensor(math.log(0.1)))
+        self.decoder = nn.LSTM(self.soc_size + dyn, dec, batch_first=True)
+        self.output = nn.Linear(dec, 5)
+        self.act = nn.LeakyReLU(0.1)
+        self.register_buffer("pos_scale", torch.tensor(pos_scale, dtype=torch.float32))
+
+    def scale(self, group: torch.Tensor) -> torch.Tensor:
+        """(B,) class groups -> (B,) position scale [m]."""
+        return self.pos_scale[group]
+
+    def encode(self, seq: torch.Tensor, group: torch.Tensor) -> torch.Tensor:
+        """(S, H, 2), (S,) -> (S, enc) final encoder hidden state."""
+        emb = self.act(self.input_emb(seq) + self.class_emb(group)[:, None, :])
+        _, (h, _) = self.encoder(emb)
+        return h[0]
+
+    def forward(
+        self,
+        tgt_hist: torch.Tensor,
+        tgt_group: torch.Tensor,
+        nbr_hist: torch.Tensor,
+        nbr_group: torch.Tensor,
+        nbr_batch: torch.Tensor,
+        nbr_cell: torch.Tensor,
+        nbr_valid: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        b = tgt_hist.shape[0]
+        hidden = self.encode(torch.cat([tgt_hist, nbr_hist]), torch.cat([tgt_group, nbr_group]))
+        tgt_enc, nbr_enc = hidden[:b], hidden[b:]
+        if nbr_valid is not None:
+            keep = nbr_valid.to(torch.bool)
+            nbr_enc, nbr_batch, nbr_cell = nbr_enc[keep], nbr_batch[keep], nbr_cell[keep]
+        dyn = self.act(self.dyn_emb(tgt_enc))
+        grid = tgt_enc.new_zeros(b * F.N_CELLS, self.enc_size)
+        grid = grid.index_add(0, nbr_batch * F.N_CELLS + nbr_cell, nbr_enc)
+        grid = grid.view(b, F.GRID_LON, F.GRID_LAT, self.enc_size).permute(0, 3, 1, 2)
+        soc = self.act(self.soc_conv(grid))
+        soc = self.act(self.conv_3x1(soc))
+        soc = self.soc_maxpool(soc).reshape(b, self.soc_size)
+        if self.kind == "attention":
+            soc = soc + self.att_proj(self.attend(tgt_enc, nbr_enc, nbr_batch))
+        enc = torch.cat([soc, dyn], dim=-1)
+        h_dec, _ = self.decoder(enc[:, None, :].expand(b, self.fut_steps, enc.shape[-1]))
+        out = self.output(h_dec)
+        mu = out[..., :2]
+        sigma = Fn.softplus(out[..., 2:4]) + 1e-3
+        rho = 0.95 * torch.tanh(out[..., 4:5])
+        return torch.cat([mu, sigma, rho], dim=-1)
+
+    def attend(self, x: torch.Tensor, h: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
+        """W_H per target: softmax over its neighbours of cos(X, H_i)/tau, times H_i; 0 if none."""
+        b = x.shape[0]
+        if h.shape[0] == 0:
+            return x.new_zeros(b, h.shape[-1])
+        tau = self.log_tau.exp().clamp_min(0.01)
+        logits = Fn.cosine_similarity(x[batch], h, dim=-1, eps=1e-6) / tau
+        top = x.new_full((b,), -1e9).scatter_reduce(0, batch, logits, reduce="amax", include_self=True)
+        e = torch.exp(logits - top[batch])
+        denom = x.new_zeros(b).index_add(0, batch, e)
+        a = e / denom[batch].clamp_min(1e-12)
+        return x.new_zeros(b, h.shape[-1]).index_add(0, batch, a[:, None] * h)
+
+
+def bivariate_nll(params: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean negative log-likelihood of ``target`` (..., 2) under N(mu, Sigma) from ``params``.
+
+    params (..., 5) = (mu_x, mu_y, sigma_x, sigma_y, rho), Sigma = [[sx^2, rho sx sy],
+    [rho sx sy, sy^2]]. NLL = log(2 pi) + log sx + log sy + 0.5 log(1 - rho^2)
+    + (dx^2 + dy^2 - 2 rho dx dy) / (2 (1 - rho^2)), with dx = (x - mu_x) / sx etc.
+    ``mask`` (...) bool/float selects the terms averaged (all by default).
+    """
+    nll = bivariate_nll_terms(params, target)
+    if mask is None:
+        return nll.mean()
+    mask = mask.to(nll.dtype)
+    return (nll * mask).sum() / mask.sum().clamp_min(1.0)
+
+
+def bivariate_nll_terms(params: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Per-point NLL (...) of :func:`bivariate_nll`, unreduced."""
+    mux, muy, sx, sy, rho = params.unbind(-1)
+    dx = (target[..., 0] - mux) / sx
+    dy = (target[..., 1] - muy) / sy
+    one_m = 1.0 - rho * rho
+    z = dx * dx + dy * dy - 2.0 * rho * dx * dy
+    return 0.5 * z / one_m + torch.log(sx) + torch.log(sy) + 0.5 * torch.log(one_m) + math.log(2.0 * math.pi)
+
+
+def masked_mse(params: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean squared distance of the predicted means (warm-up loss)."""
+    d = ((params[..., :2] - target) ** 2).sum(-1)
+    if mask is None:
+        return d.mean()
+    mask = mask.to(d.dtype)
+    return (d * mask).sum() / mask.sum().clamp_min(1.0)
+
+
+def model_config(model: TrajectoryLSTM) -> dict[str, Any]:
+    return {
+        "kind": model.kind,
+        "hist_steps": model.hist_steps,
+        "fut_steps": model.fut_steps,
+        "pos_scale": [float(v) for v in model.pos_scale.tolist()],
+    }
+
+
+def save_model(model: TrajectoryLSTM, path: Path, info: dict[str, Any] | None = None) -> Path:
+    """Write weights with a header: kind, feature layout version, history/horizon/dt, scales."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    blob = {
+        "format": FILE_FORMAT,
+        "format_version": FILE_FORMAT_VERSION,
+        "kind": model.kind,
+        "feature_version": F.FEATURE_VERSION,
+        "dt": F.MODEL_DT,
+        "hist_steps": model.hist_steps,
+        "fut_steps": model.fut_steps,
+        "grid": [F.GRID_LON, F.GRID_LAT],
+        "grid_cell": F.GRID_CELL.tolist(),
+        "pos_scale": [float(v) for v in model.pos_scale.tolist()],
+        "config": model_config(model),
+        "info": info or {},
+        "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
+    }
+    torch.save(blob, path)
+    return path
+
+
+def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dict[str, Any]]:
+    """Read a weights file; any problem -> PredictorError naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise PredictorError(f"predictor weights file not found: {path}")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is the same error to the user
+        raise PredictorError(f"predictor weights file is corrupt or unreadable: {path} ({type(exc).__name__})") from None
+    if not isinstance(blob, dict) or blob.get("format") != FILE_FORMAT:
+        raise PredictorError(f"not a sumo-ethics predictor weights file: {path}")
+    if kind is not None and blob.get("kind") != kind:
+        raise PredictorError(f"predictor weights file {path} holds a {blob.get('kind')!r} model, expected {kind!r}")
+    checks = {
+        "feature_version": F.FEATURE_VERSION,
+        "hist_steps": F.HIST_STEPS,
+        "fut_steps": F.FUT_STEPS,
+        "grid": [F.GRID_LON, F.GRID_LAT],
+    }
+    for key, want in checks.items():
+        if blob.get(key) != want:
+            raise PredictorError(f"predictor weights file {path} has {key}={blob.get(key)!r}, this code needs {want!r}")
+    if abs(float(blob.get("dt", -1)) - F.MODEL_DT) > 1e-9 or blob.get("grid_cell") != F.GRID_CELL.tolist():
+        raise PredictorError(f"predictor weights file {path} was trained for another time step or grid")
+    try:
+        cfg = blob["config"]
+        model = TrajectoryLSTM(kind=cfg["kind"], pos_scale=tuple(cfg["pos_scale"]))
+        model.load_state_dict(blob["state_dict"])
+    except Exception as exc:  # noqa: BLE001
+        raise PredictorError(f"predictor weights file {path} does not match the model: {exc}") from None
+    model.eval()
+    return model, blob
+
+
+def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE) -> dict[str, torch.Tensor]:
+    """numpy sample batch (see dataset.subset) -> model input tensors, normalised."""
+    g = torch.as_tensor(batch["tgt_group"], dtype=torch.long)
+    nb = torch.as_tensor(batch["nbr_batch"], dtype=torch.long)
+    scale = torch.as_tensor(pos_scale, dtype=torch.float32)[g]
+    out = {
+        "tgt_hist": torch.as_tensor(batch["tgt_hist"], dtype=torch.float32) / scale[:, None, None],
+        "tgt_group": g,
+        "nbr_hist": torch.as_tensor(batch["nbr_hist"], dtype=torch.float32) / scale[nb][:, None, None],
+        "nbr_group": torch.as_tensor(batch["nbr_group"], dtype=torch.long),
+        "nbr_batch": nb,
+        "nbr_cell": torch.as_tensor(batch["nbr_cell"], dtype=torch.long),
+    }
+    return out

@@ -1,0 +1,166 @@
+"""LSTMPredictor: Observation (numpy) -> Prediction (numpy) with a trained CS-LSTM / attention model.
+
+Run-time path, per call, one batched forward pass for all N agents:
+
+1. The history (obs.dt spacing, any length) is resampled to the model's 5 Hz, 3 s grid
+   (:func:`features.resample_history`); an agent with fewer than two observed samples
+   gets a straight history from its current speed and yaw.
+2. The ego (obs.ego) has no history in an Observation; it joins as a NEIGHBOUR (never a
+   target) with a constant-velocity history built backwards from its current state.
+3. Features in each target's frame (:func:`features.build_features`), one forward pass.
+4. Outputs (target frame, 0.2 s steps up to 4 s) are rotated back to the world frame and
+   resampled to the requested ``dt`` x ``horizon_steps`` by linear interpolation of
+   mean and covariance (from the current position with covariance ``sigma0^2 I`` at
+   t = 0). Beyond the model horizon the mean continues at the last predicted velocity and
+   the covariance grows as ``cov_end * (t / t_end)^2`` (standard deviations linear in t).
+5. Yaw along the prediction is the direction of motion of the mean path, kept at the
+   previous value while the mean moves slower than 0.3 m/s.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from sumo_ethics.predict import PredictorError
+from sumo_ethics.predict import features as F
+from sumo_ethics.predict.models import load_model
+from sumo_ethics.types import AgentStates, Observation, Prediction
+
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+MIN_YAW_SPEED = 0.3  # [m/s] below this the predicted yaw is held
+
+
+def default_weights(kind: str) -> Path:
+    """Path of the weights shipped in the package for ``kind`` ("attention" or "cslstm")."""
+    return WEIGHTS_DIR / f"{kind}.pt"
+
+
+def straight_history(xy: np.ndarray, yaw: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """(N, 2), (N,), (N,) -> (N, HIST_STEPS, 2) constant-velocity history ending at xy."""
+    t = (np.arange(F.HIST_STEPS) - (F.HIST_STEPS - 1)) * F.MODEL_DT
+    v = np.stack([np.cos(yaw), np.sin(yaw)], -1) * np.asarray(speed, dtype=float)[:, None]
+    return np.asarray(xy, dtype=float)[:, None, :] + t[None, :, None] * v[:, None, :]
+
+
+class LSTMPredictor:
+    """A trained TrajectoryLSTM behind the ``predict(obs, horizon_steps, dt)`` interface."""
+
+    def __init__(self, model: torch.nn.Module, header: dict, path: Path | None = None, sigma0: float = 0.1) -> None:
+        self.model = model.eval()
+        self.header = header
+        self.path = path
+        self.kind = header.get("kind", getattr(model, "kind", "?"))
+        self.sigma0 = sigma0
+        self._scale = np.asarray(header.get("pos_scale", F.POS_SCALE), dtype=np.float32)
+
+    @classmethod
+    def from_file(cls, path: Path | str, kind: str | None = None) -> "LSTMPredictor":
+        """Load weights; ``kind`` (optional) must match the file's. Problems -> PredictorError."""
+        model, header = load_model(Path(path), kind=kind)
+        return cls(model, header, Path(path))
+
+    @classmethod
+    def default(cls, kind: str = "attention") -> "LSTMPredictor":
+        """The weights shipped with the package (sumo_ethics/predict/weights/<kind>.pt)."""
+        if kind not in ("attention", "cslstm"):
+            raise PredictorError(f"unknown predictor kind {kind!r}: expected 'attention' or 'cslstm'")
+        return cls.from_file(default_weights(kind), kind=kind)
+
+    def __repr__(self) -> str:
+        return f"LSTMPredictor(kind={self.kind!r}, path={str(self.path)!r})"
+
+    # ------------------------------------------------------------------ run-time
+    def model_outputs(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+        """World-frame (N, FUT_STEPS, 2) means and (N, FUT_STEPS, 2, 2) covariances at 0.2 s steps."""
+        cur = obs.current
+        n = len(cur)
+        xy, yaw = cur.xy, np.asarray(cur.yaw, dtype=float)
+        if np.asarray(obs.history).shape[1] > 0:
+            hist, hvalid = F.resample_history(obs.history, obs.valid, obs.dt)
+        else:
+            hist, hvalid = np.zeros((n, F.HIST_STEPS, 2)), np.zeros((n, F.HIST_STEPS), dtype=bool)
+        hist[:, -1] = xy
+        few = hvalid.sum(axis=1) < 2
+        if few.any():
+            hist[few] = straight_history(xy[few], yaw[few], cur.speed[few])
+        cls = np.asarray(cur.cls, dtype=np.int64)
+        ego: AgentStates = obs.ego
+        if len(ego) > 0:
+            hist = np.concatenate([hist, straight_history(ego.xy, ego.yaw, ego.speed)])
+            cls = np.concatenate([cls, np.asarray(ego.cls, dtype=np.int64)])
+            yaw_all = np.concatenate([yaw, np.asarray(ego.yaw, dtype=float)])
+        else:
+            yaw_all = yaw
+        feats = F.build_features(hist, cls, yaw_all, targets=np.arange(n))
+        g = feats["tgt_group"]
+        s = self._scale[g]
+        with torch.inference_mode():
+            out = self.model(
+                torch.from_numpy(feats["tgt_hist"] / s[:, None, None]),
+                torch.from_numpy(g),
+                torch.from_numpy(feats["nbr_hist"] / s[feats["nbr_batch"]][:, None, None]),
+                torch.from_numpy(feats["nbr_group"]),
+                torch.from_numpy(feats["nbr_batch"]),
+                torch.from_numpy(feats["nbr_cell"]),
+            ).numpy().astype(float)
+        mu = out[..., :2] * s[:, None, None]
+        sx, sy, rho = out[..., 2] * s[:, None], out[..., 3] * s[:, None], out[..., 4]
+        cov_t = np.empty(out.shape[:2] + (2, 2))
+        cov_t[..., 0, 0] = sx * sx
+        cov_t[..., 1, 1] = sy * sy
+        cov_t[..., 0, 1] = cov_t[..., 1, 0] = rho * sx * sy
+        rot = F.rotation(yaw)[:, None]  # (N, 1, 2, 2)
+        mean = xy[:, None, :] + (rot @ mu[..., None])[..., 0]
+        cov = rot @ cov_t @ np.swapaxes(rot, -1, -2)
+        return mean, cov
+
+    def predict(self, obs: Observation, horizon_steps: int, dt: float) -> Prediction:
+        cur = obs.current
+        n = len(cur)
+        t = (np.arange(horizon_steps) + 1) * float(dt)
+        if n == 0:
+            return Prediction((), float(dt), np.zeros((0, horizon_steps, 2)), np.zeros((0, horizon_steps, 2, 2)), np.zeros((0, horizon_steps)))
+        mean_m, cov_m = self.model_outputs(obs)
+        mean, cov = resample_outputs(cur.xy, mean_m, cov_m, t, self.sigma0)
+        yaw = path_yaw(cur.xy, np.asarray(cur.yaw, dtype=float), mean, float(dt))
+        return Prediction(ids=cur.ids, dt=float(dt), mean=mean, cov=cov, yaw=yaw)
+
+
+def resample_outputs(xy: np.ndarray, mean_m: np.ndarray, cov_m: np.ndarray, t: np.ndarray, sigma0: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """Model outputs at 0.2 s steps -> times ``t`` [s] (see module docstring, step 4)."""
+    n, k = mean_m.shape[:2]
+    tau = np.arange(k + 1) * F.MODEL_DT  # 0, 0.2, ..., 4.0
+    m_full = np.concatenate([np.asarray(xy, dtype=float)[:, None, :], mean_m], axis=1)
+    c0 = np.broadcast_to(np.eye(2) * sigma0**2, (n, 1, 2, 2))
+    c_full = np.concatenate([c0, cov_m], axis=1)
+    t_end = tau[-1]
+    inside = t <= t_end + 1e-9
+    ti = np.clip(t, 0.0, t_end)
+    j = np.clip(np.searchsorted(tau, ti, side="left"), 1, k)
+    w = (ti - tau[j - 1]) / F.MODEL_DT
+    mean = m_full[:, j - 1] * (1 - w)[None, :, None] + m_full[:, j] * w[None, :, None]
+    cov = c_full[:, j - 1] * (1 - w)[None, :, None, None] + c_full[:, j] * w[None, :, None, None]
+    if not inside.all():
+        extra = ~inside
+        v_end = (mean_m[:, -1] - mean_m[:, -2]) / F.MODEL_DT  # (N, 2)
+        dt_extra = t[extra] - t_end
+        mean[:, extra] = mean_m[:, -1][:, None, :] + dt_extra[None, :, None] * v_end[:, None, :]
+        cov[:, extra] = cov_m[:, -1][:, None] * ((t[extra] / t_end) ** 2)[None, :, None, None]
+    return mean, cov
+
+
+def path_yaw(xy: np.ndarray, yaw0: np.ndarray, mean: np.ndarray, dt: float) -> np.ndarray:
+    """(N, T) heading of the mean path; held where it moves slower than MIN_YAW_SPEED."""
+    prev = np.concatenate([np.asarray(xy, dtype=float)[:, None, :], mean[:, :-1]], axis=1)
+    d = mean - prev
+    moving = np.hypot(d[..., 0], d[..., 1]) > MIN_YAW_SPEED * dt
+    ang = np.arctan2(d[..., 1], d[..., 0])
+    out = np.empty(mean.shape[:2])
+    last = np.asarray(yaw0, dtype=float).copy()
+    for k in range(mean.shape[1]):
+        last = np.where(moving[:, k], ang[:, k], last)
+        out[:, k] = last
+    return out

@@ -1,0 +1,170 @@
+"""Training: MSE warm-up, then bivariate Gaussian NLL; Adam, early stopping on validation NLL.
+
+Deterministic for a given seed on CPU (torch.manual_seed, deterministic algorithms,
+shuffling from a seeded numpy Generator). One torch thread by default (shared machines).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from sumo_ethics.predict import features as F
+from sumo_ethics.predict.dataset import load_samples, subset
+from sumo_ethics.predict.models import (
+    TrajectoryLSTM,
+    batch_to_tensors,
+    bivariate_nll,
+    masked_mse,
+    save_model,
+)
+
+SPLITS = {"train": 0, "val": 1, "test": 2}
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """epochs: maximum epochs in all; mse_epochs: warm-up epochs with the MSE loss;
+    patience: NLL epochs without validation improvement before stopping; max_minutes:
+    wall-clock budget [min]; max_train/max_val: caps on sample counts (random subset)."""
+
+    epochs: int = 40
+    mse_epochs: int = 4
+    batch_size: int = 128
+    lr: float = 1e-3
+    patience: int = 4
+    grad_clip: float = 10.0
+    seed: int = 0
+    threads: int = 1
+    max_minutes: float = 14.0
+    max_train: int | None = None
+    max_val: int | None = 8000
+
+
+def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
+    idx = np.flatnonzero(samples["split"] == SPLITS[name])
+    if cap is not None and len(idx) > cap:
+        idx = np.sort(rng.choice(idx, size=cap, replace=False))
+    return idx
+
+
+def _loss(model: TrajectoryLSTM, samples: dict[str, np.ndarray], index: np.ndarray, use_nll: bool) -> torch.Tensor:
+    batch = subset(samples, index)
+    x = batch_to_tensors(batch, model.pos_scale)
+    scale = model.scale(x["tgt_group"])
+    y = torch.as_tensor(batch["fut"], dtype=torch.float32) / scale[:, None, None]
+    out = model(**x)
+    return bivariate_nll(out, y) if use_nll else masked_mse(out, y)
+
+
+@torch.no_grad()
+def validate(model: TrajectoryLSTM, samples: dict[str, np.ndarray], index: np.ndarray, batch_size: int = 512) -> dict[str, float]:
+    """Validation NLL (normalised units) and ADE [m] over ``index``."""
+    model.eval()
+    nll_sum, ade_sum, n = 0.0, 0.0, 0
+    for start in range(0, len(index), batch_size):
+        idx = index[start: start + batch_size]
+        batch = subset(samples, idx)
+        x = batch_to_tensors(batch, model.pos_scale)
+        scale = model.scale(x["tgt_group"])
+        fut = torch.as_tensor(batch["fut"], dtype=torch.float32)
+        out = model(**x)
+        nll_sum += float(bivariate_nll(out, fut / scale[:, None, None])) * len(idx)
+        ade_sum += float(((out[..., :2] * scale[:, None, None] - fut).norm(dim=-1)).mean()) * len(idx)
+        n += len(idx)
+    model.train()
+    return {"nll": nll_sum / max(n, 1), "ade": ade_sum / max(n, 1)}
+
+
+def train_model(
+    dataset: Path,
+    kind: str,
+    out: Path,
+    config: TrainConfig = TrainConfig(),
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Train one model on ``dataset`` (folder with samples.npz) and save it to ``out`` (.pt).
+
+    Returns a summary dict (also stored in the weights header under ``info``).
+    """
+    torch.set_num_threads(max(1, config.threads))
+    torch.manual_seed(config.seed)
+    torch.use_deterministic_algorithms(True)
+    rng = np.random.default_rng(config.seed)
+    samples = load_samples(dataset)
+    train_idx = _split_index(samples, "train", config.max_train, rng)
+    val_idx = _split_index(samples, "val", config.max_val, rng)
+    if len(train_idx) == 0 or len(val_idx) == 0:
+        raise ValueError(f"dataset {dataset} has no train or no validation samples")
+    model = TrajectoryLSTM(kind=kind)
+    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    n_batches = math.ceil(len(train_idx) / config.batch_size)
+    best, best_state, best_epoch, bad = math.inf, None, -1, 0
+    history: list[dict[str, float]] = []
+    t0 = time.monotonic()
+    deadline = t0 + 60.0 * config.max_minutes
+
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(
+        TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+        TextColumn("{task.fields[info]}"), TimeElapsedColumn(), disable=not progress,
+    ) as bar:
+        task = bar.add_task(f"{kind}", total=config.epochs * n_batches, info="")
+        stopped = "max epochs"
+        for epoch in range(config.epochs):
+            use_nll = epoch >= config.mse_epochs
+            perm = rng.permutation(train_idx)
+            running = 0.0
+            for b in range(n_batches):
+                idx = np.sort(perm[b * config.batch_size: (b + 1) * config.batch_size])
+                loss = _loss(model, samples, idx, use_nll)
+                opt.zero_grad()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
+                opt.step()
+                running += loss.item()
+                bar.update(task, advance=1, info=f"ep {epoch} {'nll' if use_nll else 'mse'} {running / (b + 1):.3f}")
+                if time.monotonic() > deadline:
+                    break
+            val = validate(model, samples, val_idx)
+            history.append({"epoch": epoch, "loss": running / max(b + 1, 1), "val_nll": val["nll"], "val_ade": val["ade"],
+                            "phase": "nll" if use_nll else "mse", "minutes": (time.monotonic() - t0) / 60})
+            bar.update(task, info=f"ep {epoch} val nll {val['nll']:.3f} ade {val['ade']:.2f} m")
+            if use_nll:
+                if val["nll"] < best - 1e-4:
+                    best, best_epoch, bad = val["nll"], epoch, 0
+                    best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+                else:
+                    bad += 1
+                    if bad >= config.patience:
+                        stopped = "early stopping"
+                        break
+            if time.monotonic() > deadline:
+                stopped = "time budget"
+                break
+    if best_state is not None:
+        model.load_state_dict(best_state)
+    info = {
+        "kind": kind,
+        "dataset": str(dataset),
+        "config": asdict(config),
+        "n_train": int(len(train_idx)),
+        "n_val": int(len(val_idx)),
+        "best_epoch": best_epoch,
+        "best_val_nll": best,
+        "stopped": stopped,
+        "minutes": (time.monotonic() - t0) / 60,
+        "history": history,
+        "feature_version": F.FEATURE_VERSION,
+    }
+    save_model(model, Path(out), info)
+    Path(out).with_suffix(".json").write_text(json.dumps(info, indent=2))
+    return info
