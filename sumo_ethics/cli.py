@@ -1,0 +1,87 @@
+"""The ``sumo-ethics`` command: thin click commands over the Python API.
+
+Every user-facing failure is printed as one line ``error: ...`` with a non-zero exit code
+(2 bad input, 3 simulation failure), never a traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from sumo_ethics.errors import SumoEthicsError
+
+
+def _console():
+    from rich.console import Console
+
+    return Console(stderr=False, highlight=False, soft_wrap=True)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="sumo-ethics")
+def cli() -> None:
+    """Ethical decision-making of automated vehicles in SUMO."""
+
+
+@cli.command()
+@click.argument("scenario", type=click.Path(path_type=Path))
+@click.option("--ego", "ego_id", help="Take over this vehicle of the scenario's route files when it departs.")
+@click.option("--ego-from", help="Insert our own ego on a route from this edge ...")
+@click.option("--ego-to", help="... to this edge.")
+@click.option("--ego-depart", type=float, default=0.0, show_default=True, help="Departure time [s] of the inserted ego.")
+@click.option("--seed", type=int, default=42, show_default=True, help="SUMO and route seed.")
+@click.option("--end", type=float, help="Simulation time limit [s] (default: the scenario's end, else 3600).")
+@click.option("--out", type=click.Path(path_type=Path), help="Run folder (default runs/<scenario>-seed<N>).")
+@click.option("--controller", default="baseline", show_default=True, help="Ego controller.")
+@click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")
+@click.option("--radius", type=float, default=80.0, show_default=True, help="Sensing radius around the ego [m].")
+@click.option("--quiet", is_flag=True, help="No progress display.")
+def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float,
+        seed: int, end: float | None, out: Path | None, controller: str, continue_after_collision: bool,
+        radius: float, quiet: bool) -> None:
+    """Run SCENARIO (a .sumocfg) with one vehicle taken over by the ego controller."""
+    from sumo_ethics.config import RunConfig
+    from sumo_ethics.runner import run as run_scenario
+
+    out = out or Path("runs") / f"{scenario.stem}-seed{seed}"
+    cfg = RunConfig(scenario=scenario, out=out, seed=seed, end=end, ego_id=ego_id, ego_from=ego_from, ego_to=ego_to,
+                    ego_depart=ego_depart, stop_at_collision=not continue_after_collision, controller=controller,
+                    sensing_radius=radius, progress=not quiet)
+    summary = run_scenario(cfg)
+    d = summary.data
+    con = _console()
+    h = d["harm"]
+    con.print(f"[bold]{d['status']}[/bold]: {d['message']}")
+    con.print(f"  ego {d['ego_id']} on {len(d['route_edges'])} edges ({d['route_length']:.0f} m), "
+              f"drove {d['distance']:.0f} m in {d['steps']} steps, wall {d['wall_time']:.1f} s")
+    con.print(f"  collisions: ego {d['collisions']['ego']}, others {d['collisions']['others']}; harm total "
+              f"{h['total']:.3f} = ego {h['ego']:.3f} + third party {h['third_party']:.3f} (VRU {h['vru']:.3f})")
+    con.print(f"  outputs in {summary.out}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: runs the CLI and turns every expected failure into one line."""
+    try:
+        cli.main(args=argv, prog_name="sumo-ethics", standalone_mode=False)
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
+    except click.exceptions.Abort:
+        click.echo("error: aborted", err=True)
+        return 130
+    except click.ClickException as exc:
+        click.echo(f"error: {exc.format_message()}", err=True)
+        return exc.exit_code
+    except SumoEthicsError as exc:
+        click.echo(f"error: {exc}", err=True)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        click.echo("error: interrupted", err=True)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,80 @@
+"""Frozen, self-validating run configuration. Units in the field comments."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sumo_ethics.errors import ConfigError
+
+
+def _positive(name: str, value: float, allow_zero: bool = False) -> None:
+    ok = isinstance(value, (int, float)) and math.isfinite(value) and (value >= 0 if allow_zero else value > 0)
+    if not ok:
+        raise ConfigError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} number, got {value!r}")
+
+
+@dataclass(frozen=True)
+class EgoVehicle:
+    """The ego's body and limits. Defaults: Origin's BMW 320i body, realistic limits."""
+
+    length: float = 4.508  # m
+    width: float = 1.610  # m
+    mass: float = 1475.0  # kg
+    max_speed: float = 36.0  # m/s
+    max_accel: float = 3.0  # m/s^2, longitudinal
+    comfort_decel: float = 3.0  # m/s^2
+    max_decel: float = 8.0  # m/s^2, emergency braking
+    max_lat_accel: float = 4.0  # m/s^2
+    max_curvature: float = 0.2  # 1/m (about a 5 m turning radius)
+
+    def __post_init__(self) -> None:
+        for name, value in asdict(self).items():
+            _positive(f"ego.{name}", value)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything one run needs. ``end`` and ``ego_depart`` are simulation times [s]."""
+
+    scenario: Path
+    out: Path
+    seed: int = 42
+    end: float | None = None  # s; default: the scenario's own end, else 3600
+    ego_id: str | None = None  # take over this vehicle of the user's route files
+    ego_from: str | None = None  # else insert our own ego on a route from this edge ...
+    ego_to: str | None = None  # ... to this edge (both or neither); else a seeded random route
+    ego_depart: float = 0.0  # s; when the inserted ego departs (traffic warm-up before it)
+    min_route_length: float = 300.0  # m; for the random route
+    stop_at_collision: bool = True  # end the run at the ego's first collision
+    controller: str = "baseline"
+    sensing_radius: float = 80.0  # m; neighbours read around the ego each step
+    collision_gap: float = 1.0  # s; a pair apart for longer than this collides anew
+    ego: EgoVehicle = field(default_factory=EgoVehicle)
+    sumo_args: tuple[str, ...] = ()  # extra SUMO command-line options
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "scenario", Path(self.scenario))
+        object.__setattr__(self, "out", Path(self.out))
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed < 2**31:
+            raise ConfigError(f"seed must be an integer in [0, 2^31), got {self.seed!r}")
+        if self.end is not None:
+            _positive("--end", self.end)
+        _positive("--ego-depart", self.ego_depart, allow_zero=True)
+        _positive("sensing_radius", self.sensing_radius)
+        _positive("collision_gap", self.collision_gap)
+        _positive("min_route_length", self.min_route_length)
+        if (self.ego_from is None) != (self.ego_to is None):
+            raise ConfigError("--ego-from and --ego-to go together: give both or neither")
+        if self.ego_id is not None and self.ego_from is not None:
+            raise ConfigError("--ego takes over an existing vehicle; it cannot be combined with --ego-from/--ego-to")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["scenario"] = str(self.scenario)
+        d["out"] = str(self.out)
+        d["sumo_args"] = list(self.sumo_args)
+        return d

@@ -1,0 +1,1 @@
+"""Run outputs: column schemas defined once, Parquet writers, the summary."""

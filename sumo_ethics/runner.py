@@ -1,0 +1,426 @@
+"""The one simulation loop: ``run(config) -> RunSummary``.
+
+read scene -> controller.act -> moveToXY -> simulationStep -> detect collisions -> record.
+Whatever happens (a SUMO error, the ego leaving the network, Ctrl-C), the rows recorded so
+far and a summary saying why the run ended are written to the run folder.
+"""
+
+from __future__ import annotations
+
+import platform
+import time as wallclock
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import libsumo
+import numpy as np
+
+from sumo_ethics import __version__
+from sumo_ethics.collision import PairEvents, previous_of, swept_contacts
+from sumo_ethics.config import RunConfig
+from sumo_ethics.errors import ConfigError, SimulationError, SumoEthicsError
+from sumo_ethics.ethics.harm import CrashOutcome, ImpactArea, Party, crash_outcome
+from sumo_ethics.plan.controller import Controller, Scene
+from sumo_ethics.record.writer import RunRecorder, write_json
+from sumo_ethics.sim import session
+from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld, party_state, sumo_collisions
+from sumo_ethics.types import VULNERABLE, AgentStates, RoadUserClass, RunStatus
+
+EGO_TYPE = "sumo_ethics_ego"
+EGO_ROUTE = "sumo_ethics_ego_route"
+DEFAULT_END = 3600.0  # s, when neither --end nor the scenario sets one
+INSERT_PATIENCE = 120.0  # s of simulation time to wait for the ego's insertion
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    status: RunStatus
+    message: str
+    out: Path
+    data: dict[str, Any] = field(default_factory=dict)
+
+
+def prepare_out(out: Path) -> None:
+    """Create the run folder and prove it is writable (ConfigError otherwise)."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".write-test"
+        probe.write_text("ok")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
+
+
+# ---- ego selection ----------------------------------------------------------------------------
+def _step_until(pred: Callable[[], bool], limit: float) -> bool:
+    while libsumo.simulation.getTime() < limit:
+        libsumo.simulationStep()
+        if pred():
+            return True
+    return False
+
+
+def wait_for_vehicle(ego_id: str, end: float) -> None:
+    """Step until ``ego_id`` departs; ConfigError if it never does before ``end``."""
+    if ego_id in libsumo.vehicle.getIDList():
+        return
+    while libsumo.simulation.getTime() < end:
+        libsumo.simulationStep()
+        if ego_id in libsumo.simulation.getDepartedIDList():
+            return
+        if libsumo.simulation.getMinExpectedNumber() == 0:
+            break
+    raise ConfigError(f"vehicle '{ego_id}' never departed (simulated until t={libsumo.simulation.getTime():g} s)")
+
+
+def _usable_edges() -> list[str]:
+    """Non-internal edges with at least one lane a passenger car may use."""
+    from sumo_ethics.sim.route import lane_allows
+
+    return sorted(e for e in libsumo.edge.getIDList() if not e.startswith(":") and any(
+        lane_allows(f"{e}_{i}", "passenger") for i in range(libsumo.edge.getLaneNumber(e))))
+
+
+def find_ego_route(cfg: RunConfig) -> tuple[str, ...]:
+    """Edges for the inserted ego: --ego-from/--ego-to, else a seeded random route."""
+    known = set(libsumo.edge.getIDList())
+    if cfg.ego_from is not None:
+        for e in (cfg.ego_from, cfg.ego_to):
+            if e not in known:
+                raise ConfigError(f"unknown edge '{e}' in --ego-from/--ego-to")
+        stage = libsumo.simulation.findRoute(cfg.ego_from, cfg.ego_to, vType=EGO_TYPE)
+        if not stage.edges:
+            raise ConfigError(f"no route from edge '{cfg.ego_from}' to edge '{cfg.ego_to}'")
+        return tuple(stage.edges)
+    edges = _usable_edges()
+    if len(edges) < 1:
+        raise ConfigError("the network has no edge a passenger car may use")
+    rng = np.random.default_rng(cfg.seed)
+    best: tuple[float, tuple[str, ...]] = (0.0, ())
+    for _ in range(300):
+        a, b = rng.choice(len(edges), size=2)
+        stage = libsumo.simulation.findRoute(edges[a], edges[b], vType=EGO_TYPE)
+        if stage.edges and stage.length > best[0]:
+            best = (stage.length, tuple(stage.edges))
+            if stage.length >= cfg.min_route_length:
+                break
+    if not best[1]:
+        raise ConfigError("found no route for the ego on this network; give --ego-from and --ego-to")
+    return best[1]
+
+
+def insert_ego(cfg: RunConfig, ego_id: str) -> tuple[str, ...]:
+    """Define the ego's vType, wait until ``ego_depart``, insert it, step until it departs."""
+    vt = libsumo.vehicletype
+    vt.copy("DEFAULT_VEHTYPE", EGO_TYPE)
+    vt.setVehicleClass(EGO_TYPE, "passenger")
+    vt.setLength(EGO_TYPE, cfg.ego.length)
+    vt.setWidth(EGO_TYPE, cfg.ego.width)
+    vt.setMass(EGO_TYPE, cfg.ego.mass)
+    vt.setMaxSpeed(EGO_TYPE, cfg.ego.max_speed)
+    vt.setAccel(EGO_TYPE, cfg.ego.max_accel)
+    vt.setDecel(EGO_TYPE, cfg.ego.comfort_decel)
+    vt.setEmergencyDecel(EGO_TYPE, cfg.ego.max_decel)
+    edges = find_ego_route(cfg)
+    _step_until(lambda: False, cfg.ego_depart)
+    libsumo.route.add(EGO_ROUTE, list(edges))
+    libsumo.vehicle.add(ego_id, EGO_ROUTE, typeID=EGO_TYPE, depart="now", departLane="best", departSpeed="max")
+    limit = libsumo.simulation.getTime() + INSERT_PATIENCE
+    if not _step_until(lambda: ego_id in libsumo.simulation.getDepartedIDList(), limit):
+        raise SimulationError(f"the ego could not be inserted on edge '{edges[0]}' within {INSERT_PATIENCE:g} s")
+    return edges
+
+
+# ---- harm of a collision --------------------------------------------------------------------
+def _party(s: AgentStates, i: int) -> Party:
+    return Party(x=s.x[i], y=s.y[i], yaw=s.yaw[i], speed=s.speed[i], mass=s.mass[i], cls=s.cls[i])
+
+
+def collision_row(event: int, t: float, step: int, a: AgentStates, b: AgentStates, involves_ego: bool,
+                  detector: str, sumo_type: str) -> dict[str, Any]:
+    """One collisions.parquet row for parties a and b (1 agent each, states before impact)."""
+    out: CrashOutcome = crash_outcome(_party(a, 0), _party(b, 0))
+    harm_a, harm_b = float(out.harm_a), float(out.harm_b)
+    vru_b = bool(VULNERABLE[int(b.cls[0])])
+    return {
+        "event": event, "time": t, "step": step, "involves_ego": involves_ego, "detector": detector,
+        "sumo_type": sumo_type, "id_a": a.ids[0], "id_b": b.ids[0],
+        "class_a": RoadUserClass(int(a.cls[0])).label, "class_b": RoadUserClass(int(b.cls[0])).label,
+        "type_a": a.type_id[0], "type_b": b.type_id[0],
+        "x_a": float(a.x[0]), "y_a": float(a.y[0]), "x_b": float(b.x[0]), "y_b": float(b.y[0]),
+        "speed_a": float(a.speed[0]), "speed_b": float(b.speed[0]),
+        "yaw_a": float(a.yaw[0]), "yaw_b": float(b.yaw[0]),
+        "mass_a": float(a.mass[0]), "mass_b": float(b.mass[0]),
+        "delta_v": float(out.delta_v), "dv_a": float(out.dv_a), "dv_b": float(out.dv_b),
+        "area_a": ImpactArea(int(out.area_a)).name.lower(), "area_b": ImpactArea(int(out.area_b)).name.lower(),
+        "harm_a": harm_a, "harm_b": harm_b,
+        "harm_ego": harm_a if involves_ego else 0.0,
+        "harm_third_party": harm_b if involves_ego else 0.0,
+        "harm_vru": harm_b if involves_ego and vru_b else 0.0,
+    }
+
+
+def _with_speed(s: AgentStates, speed: float) -> AgentStates:
+    return AgentStates(s.ids, s.x, s.y, s.yaw, np.array([speed]), s.accel, s.length, s.width, s.mass, s.cls,
+                       s.type_id)
+
+
+# ---- the run ----------------------------------------------------------------------------------
+class Run:
+    """State of one run; :meth:`execute` is the loop."""
+
+    def __init__(self, cfg: RunConfig, controller: Controller) -> None:
+        self.cfg = cfg
+        self.controller = controller
+        self.rec = RunRecorder(cfg.out)
+        self.events = PairEvents(cfg.collision_gap)
+        self.status = RunStatus.ERROR
+        self.message = ""
+        self.meta: dict[str, Any] = {}
+        self.step = 0
+
+    # -- collisions --
+    def _book(self, row: dict[str, Any], a: str, b: str) -> None:
+        self.rec.collisions.append(row)
+        self.events.bind(a, b, len(self.rec.collisions) - 1)
+
+    def detect(self, before: Snapshot, now: Snapshot) -> bool:
+        """Log this step's collisions; True if the ego had a new one."""
+        ego_id = now.ego.ids[0]
+        t = now.time
+        hits = swept_contacts(before.ego, now.ego, now.others, previous_of(now.others, before.others))
+        geo = {now.others.ids[i] for i in np.flatnonzero(hits)}
+        reports = {}
+        for c in sumo_collisions():
+            reports.setdefault(frozenset((c[0], c[1])), c)
+        ego_new = False
+        before_index = {k: i for i, k in enumerate(before.others.ids)}
+        now_index = {k: i for i, k in enumerate(now.others.ids)}
+        sumo_ego = {next(iter(p - {ego_id})) for p in reports if ego_id in p and len(p) == 2}
+        for other in sorted(geo | sumo_ego):
+            detector = "both" if other in geo and other in sumo_ego else ("geometry" if other in geo else "sumo")
+            is_new, idx = self.events.observe(t, ego_id, other)
+            report = reports.get(frozenset((ego_id, other)))
+            if not is_new:
+                if idx is not None and self.rec.collisions[idx]["detector"] != detector:
+                    self.rec.collisions[idx]["detector"] = "both"
+                    if report and not self.rec.collisions[idx]["sumo_type"]:
+                        self.rec.collisions[idx]["sumo_type"] = report[6]
+                continue
+            if other in before_index:  # states just before impact
+                b = before.others.take([before_index[other]])
+            elif other in now_index:
+                b = now.others.take([now_index[other]])
+            else:
+                b = party_state(other, self.world)
+                if b is None:
+                    continue
+            row = collision_row(len(self.rec.collisions), t, self.step, before.ego, b, True, detector,
+                                report[6] if report else "")
+            self._book(row, ego_id, other)
+            ego_new = True
+        for pair, c in sorted(reports.items(), key=lambda kv: sorted(kv[0])):
+            if ego_id in pair or len(pair) != 2:
+                continue
+            is_new, _ = self.events.observe(t, c[0], c[1])
+            if not is_new:
+                continue
+            a, b = party_state(c[0], self.world), party_state(c[1], self.world)
+            if a is None or b is None:
+                continue
+            a, b = _with_speed(a, c[4]), _with_speed(b, c[5])
+            self._book(collision_row(len(self.rec.collisions), t, self.step, a, b, False, "sumo", c[6]), c[0], c[1])
+        return ego_new
+
+    def stop_line(self, s_front: float) -> float | None:
+        """Arc length of the next red/yellow stop line within 100 m ahead of the ego's front."""
+        for link in self.world.route.links:
+            if link.s < s_front - 0.5:
+                continue
+            if link.s - s_front > 100.0:
+                return None
+            if self.world.link_state(link) in STOP_STATES:
+                return link.s
+        return None
+
+    def execute(self) -> None:
+        cfg = self.cfg
+        files = session.read_scenario(cfg.scenario)
+        prepare_out(cfg.out)
+        end = cfg.end if cfg.end is not None else (files.end or DEFAULT_END)
+        ego_id = cfg.ego_id or "ego"
+        declared = session.route_vehicle_ids(files)
+        if cfg.ego_id is not None and declared is not None:
+            vehicles, flows = declared
+            flow_of = cfg.ego_id.rsplit(".", 1)[0]
+            if cfg.ego_id not in vehicles and flow_of not in flows:
+                raise ConfigError(f"unknown --ego '{cfg.ego_id}': no vehicle, trip or flow of that id in the route files")
+        elif declared is not None and ego_id in declared[0]:
+            ego_id = "sumo_ethics_ego"
+        self.meta.update(scenario=str(files.config), end=end, ego_id=ego_id,
+                         forced_sumo_options=session.forced_option_report(files))
+        write_json(cfg.out / "config.json", cfg.to_dict() | {"resolved": {"end": end, "ego_id": ego_id}})
+        session.start(files, cfg.seed, cfg.out / "sumo-errors.log", cfg.sumo_args)
+        self.meta["sumo_version"] = session.version()
+        try:
+            self._loop(ego_id, end)
+        except libsumo.TraCIException as exc:
+            raise SimulationError(f"SUMO failed at t={self.meta.get('last_time', 0):g} s: "
+                                  f"{session.first_line(exc, cfg.out / 'sumo-errors.log')}") from None
+        finally:
+            session.close()
+
+    def _loop(self, ego_id: str, end: float) -> None:
+        cfg = self.cfg
+        dt = libsumo.simulation.getDeltaT()
+        if cfg.ego_id is not None:
+            wait_for_vehicle(ego_id, end)
+            edges = tuple(libsumo.vehicle.getRoute(ego_id))
+        else:
+            edges = insert_ego(cfg, ego_id)
+        self.world = world = SumoWorld(ego_id, cfg.sensing_radius)
+        route = world.takeover()
+        self.meta.update(step_length=dt, route_edges=list(edges), route_length=route.length,
+                         takeover_time=libsumo.simulation.getTime(), controller=self.controller.name)
+        libsumo.simulationStep()  # subscription results arrive with the next step
+        snap = world.read(libsumo.simulation.getTime())
+        half = float(snap.ego.length[0]) / 2
+        s, d = (float(v) for v in route.path.project(snap.ego.xy[0]))
+        progress = _progress(cfg.progress, snap.time, end)
+        try:
+            while True:
+                t = snap.time
+                self.meta["last_time"] = t
+                if t >= end - 1e-9:
+                    self.status, self.message = RunStatus.TIMEOUT, f"time limit {end:g} s reached"
+                    return
+                w0 = wallclock.perf_counter()
+                scene = Scene(time=t, dt=dt, ego=snap.ego, others=snap.others, route=route, s=s, d=d,
+                              stop_s=self.stop_line(s + half), vehicle=cfg.ego)
+                decision = self.controller.act(scene)
+                w1 = wallclock.perf_counter()
+                world.apply(decision.command)
+                libsumo.simulationStep()
+                w2 = wallclock.perf_counter()
+                self.step += 1
+                if world.ego_id not in libsumo.vehicle.getContextSubscriptionResults(world.ego_id):
+                    # SUMO removes a vehicle that passes its route's end: within one step of travel
+                    # of our goal that is arrival, anywhere else a failure
+                    reach = s + half + max(float(snap.ego.speed[0]), decision.command.speed) * dt + 1.0
+                    if reach >= route.length - 0.5:
+                        self.status, self.message = RunStatus.COMPLETED, f"goal reached at t={t + dt:g} s"
+                        return
+                    raise SimulationError(f"the ego '{world.ego_id}' left the simulation at t={t + dt:g} s "
+                                          f"{route.length - s - half:.1f} m before its goal")
+                new = world.read(libsumo.simulation.getTime())
+                w3 = wallclock.perf_counter()
+                ego_hit = self.detect(snap, new)
+                w4 = wallclock.perf_counter()
+                s, d = (float(v) for v in route.path.project(new.ego.xy[0]))
+                self._record(new, snap, decision, s, d, dt, (w1 - w0, w2 - w1, w3 - w2, w4 - w3))
+                snap = new
+                if progress is not None and self.step % 50 == 0:
+                    progress[0].update(progress[1], completed=min(snap.time, end))
+                if ego_hit and cfg.stop_at_collision:
+                    first = next(r for r in self.rec.collisions if r["involves_ego"])
+                    self.status = RunStatus.COLLISION
+                    self.message = f"ego hit {first['class_b']} '{first['id_b']}' at t={first['time']:g} s"
+                    return
+                if s + half >= route.length - 0.5:
+                    self.status, self.message = RunStatus.COMPLETED, f"goal reached at t={snap.time:g} s"
+                    return
+        finally:
+            if progress is not None:
+                progress[0].stop()
+
+    def _record(self, now: Snapshot, before: Snapshot, decision: Any, s: float, d: float, dt: float,
+                w: tuple[float, float, float, float]) -> None:
+        e, o = now.ego, now.others
+        dist = np.hypot(o.x - e.x[0], o.y - e.y[0]) if len(o) else np.empty(0)
+        row = {
+            "step": self.step, "time": now.time, "x": float(e.x[0]), "y": float(e.y[0]), "yaw": float(e.yaw[0]),
+            "speed": float(e.speed[0]), "speed_cmd": float(decision.command.speed),
+            "accel": (float(e.speed[0]) - float(before.ego.speed[0])) / dt, "s": s, "d": d,
+            "lane": self.world.sumo_lane(), "n_neighbours": len(o), "n_vru": int(VULNERABLE[o.cls].sum()),
+            "min_distance": float(dist.min()) if len(dist) else float("nan"),
+        }
+        row.update(decision.info)
+        self.rec.steps.append(row)
+        timing = {"step": self.step, "controller_ms": 1e3 * w[0], "sumo_ms": 1e3 * w[1], "read_ms": 1e3 * w[2],
+                  "collision_ms": 1e3 * w[3]}
+        timing.update(decision.timings_ms)
+        self.rec.timings.append(timing)
+
+    def summary(self, wall: float) -> dict[str, Any]:
+        ego_rows = [r for r in self.rec.collisions if r["involves_ego"]]
+        harm = {k: float(sum(r[f"harm_{k}"] for r in ego_rows)) for k in ("ego", "third_party", "vru")}
+        harm["total"] = harm["ego"] + harm["third_party"]
+        steps = self.rec.steps
+        return {
+            "status": self.status.value,
+            "message": self.message,
+            "completed": self.status is RunStatus.COMPLETED,
+            "harm": harm,
+            "collisions": {"ego": len(ego_rows), "others": len(self.rec.collisions) - len(ego_rows)},
+            "seed": self.cfg.seed,
+            "steps": len(steps),
+            "distance": float(steps[-1]["s"] - steps[0]["s"]) if steps else 0.0,
+            "sim_time": float(steps[-1]["time"]) if steps else None,
+            "wall_time": wall,
+            **{k: v for k, v in self.meta.items() if k != "last_time"},
+            "versions": {"sumo_ethics": __version__, "sumo": self.meta.get("sumo_version", "unknown"),
+                         "python": platform.python_version(), "numpy": np.__version__},
+        }
+
+
+def _progress(enabled: bool, start: float, end: float) -> Any:
+    if not enabled:
+        return None
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    prog = Progress(TextColumn("[bold]simulating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+                    TimeRemainingColumn(), transient=True)
+    if not prog.console.is_terminal:
+        return None
+    task = prog.add_task("sim", total=end, completed=start)
+    prog.start()
+    return prog, task
+
+
+def make_controller(name: str) -> Controller:
+    from sumo_ethics.plan.baseline import RouteFollower
+
+    controllers: dict[str, Callable[[], Controller]] = {"baseline": RouteFollower}
+    if name not in controllers:
+        raise ConfigError(f"unknown controller '{name}'; known: {', '.join(sorted(controllers))}")
+    return controllers[name]()
+
+
+def run(cfg: RunConfig, controller: Controller | None = None) -> RunSummary:
+    """Run one scenario; writes the run folder and returns the summary.
+
+    Raises ConfigError for bad input found before the simulation starts; SUMO failures and
+    errors during the run are reported as status ``error`` in the summary (and raised as
+    SimulationError after the outputs are written).
+    """
+    controller = controller or make_controller(cfg.controller)
+    r = Run(cfg, controller)
+    t0 = wallclock.perf_counter()
+    error: BaseException | None = None
+    try:
+        r.execute()
+    except SumoEthicsError as exc:
+        r.status, r.message, error = RunStatus.ERROR, str(exc), exc
+    except KeyboardInterrupt as exc:
+        r.status, r.message, error = RunStatus.ERROR, "interrupted", exc
+    finally:
+        if cfg.out.is_dir() and (cfg.out / "config.json").exists():
+            r.rec.flush()
+            data = r.summary(wallclock.perf_counter() - t0)
+            write_json(cfg.out / "summary.json", data)
+        else:
+            data = {"status": r.status.value, "message": r.message}
+    if error is not None:
+        raise error
+    return RunSummary(r.status, r.message, cfg.out, data)

@@ -1,0 +1,175 @@
+"""The ego's route as a reference path: lanes (with internal junction lanes) -> Polyline.
+
+Lanes are chosen backwards from the route's end, so every chosen lane can still reach the
+rest of the route (choosing the first link forwards breaks before turns; SUMO.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import libsumo
+import numpy as np
+
+from sumo_ethics.errors import SimulationError
+from sumo_ethics.geometry import Polyline
+
+
+@dataclass(frozen=True)
+class JunctionLink:
+    """A link the path takes into a junction: stop line at arc length ``s`` [m]."""
+
+    s: float
+    lane: str
+    index: int  # position of the link in libsumo.lane.getLinks(lane)
+
+
+@dataclass(frozen=True)
+class RoutePath:
+    """Reference path along the ego's route.
+
+    path: centre line of the chosen lanes; lane_of_vertex: (M,) lane id per vertex;
+    speed_limit, left, right: (M,) lane speed limit [m/s] and drivable area as lateral
+    offsets [m] (left > 0 > right) over the lanes of the same edge the ego may use.
+    """
+
+    edges: tuple[str, ...]
+    path: Polyline
+    lane_of_vertex: tuple[str, ...]
+    speed_limit: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    links: tuple[JunctionLink, ...]
+
+    @property
+    def length(self) -> float:
+        return self.path.length
+
+    def vertex_at(self, s: float) -> int:
+        return int(np.clip(np.searchsorted(self.path.s, s, side="right") - 1, 0, len(self.path.s) - 1))
+
+
+def lane_allows(lane: str, vclass: str) -> bool:
+    allowed = libsumo.lane.getAllowed(lane)
+    if allowed:
+        return vclass in allowed
+    return vclass not in libsumo.lane.getDisallowed(lane)
+
+
+def _lanes(edge: str) -> list[str]:
+    return [f"{edge}_{i}" for i in range(libsumo.edge.getLaneNumber(edge))]
+
+
+def _drivable(edge: str, lane: str, vclass: str) -> tuple[float, float]:
+    """Lateral extent [m] of the contiguous usable lanes of ``edge`` around ``lane``."""
+    lanes = _lanes(edge) if not edge.startswith(":") else [lane]
+    widths = [libsumo.lane.getWidth(x) for x in lanes]
+    usable = [lane_allows(x, vclass) for x in lanes]
+    i = lanes.index(lane)
+    left = widths[i] / 2
+    j = i + 1
+    while j < len(lanes) and usable[j]:  # higher index = further left in SUMO
+        left += widths[j]
+        j += 1
+    right = -widths[i] / 2
+    j = i - 1
+    while j >= 0 and usable[j]:
+        right -= widths[j]
+        j -= 1
+    return left, right
+
+
+def lane_change_shape(lane: str, target: str, start_xy: np.ndarray | None, length: float = 60.0) -> np.ndarray:
+    """Centre line that moves from ``lane`` to the parallel ``target`` lane of the same edge.
+
+    The blend (smoothstep) runs over ``length`` metres starting at the point of ``lane``
+    nearest ``start_xy`` (or 10% into the lane), ending by 90% of the lane at the latest.
+    """
+    a = Polyline.from_points(np.asarray(libsumo.lane.getShape(lane), dtype=float))
+    b = Polyline.from_points(np.asarray(libsumo.lane.getShape(target), dtype=float))
+    n = max(len(a.s), len(b.s), int(np.ceil(a.length / 2.0)) + 1)
+    f = np.linspace(0.0, 1.0, n)
+    xa, ya, _ = a.to_xy(f * a.length, np.zeros(n))
+    xb, yb, _ = b.to_xy(f * b.length, np.zeros(n))
+    f0 = 0.1 if start_xy is None else float(np.clip(a.project(start_xy)[0] / a.length, 0.0, 0.9))
+    f1 = min(max(f0 + length / a.length, f0 + 0.05), 1.0)
+    u = np.clip((f - f0) / (f1 - f0), 0.0, 1.0)
+    w = (u * u * (3.0 - 2.0 * u))[:, None]
+    return (1.0 - w) * np.stack([xa, ya], axis=-1) + w * np.stack([xb, yb], axis=-1)
+
+
+def build_route_path(edges: tuple[str, ...], start_lane: str, vclass: str,
+                     start_xy: np.ndarray | None = None) -> RoutePath:
+    """Lane-level reference path for ``edges`` starting from the ego's current lane.
+
+    Lane changes the route needs (an acceleration lane, a turn from another lane) become a
+    smooth blend between the two lane centre lines along the edge.
+    """
+    edges = tuple(e for e in edges if not e.startswith(":"))
+    if not edges:
+        raise SimulationError("the ego's route has no edges")
+    usable = [[ln for ln in _lanes(e) if lane_allows(ln, vclass)] for e in edges]
+    # exits[i]: lanes of edge i with a connection to edge i + 1 (any lane of the last edge);
+    # the other usable lanes of an edge reach an exit by changing lanes along it
+    exits: list[list[str]] = [[] for _ in edges]
+    exits[-1] = usable[-1]
+    for i in range(len(edges) - 1):
+        nxt = set(usable[i + 1])
+        exits[i] = [ln for ln in usable[i] if any(lk[0] in nxt for lk in libsumo.lane.getLinks(ln))]
+        if not exits[i]:
+            raise SimulationError(f"the ego's route is not drivable: no lane of {edges[i]} leads to {edges[i + 1]}")
+
+    def index(lane_id: str) -> int:
+        return int(lane_id.rsplit("_", 1)[1])
+
+    lane = start_lane if start_lane in usable[0] else exits[0][0]
+
+    pts: list[np.ndarray] = []
+    lane_ids: list[str] = []
+    vmax: list[float] = []
+    bounds: list[tuple[float, float]] = []
+    link_at: list[tuple[int, str, int]] = []  # (vertex index of the stop line, lane, link index)
+
+    def add(lane_id: str, edge_id: str, shape: np.ndarray | None = None) -> None:
+        shape = np.asarray(libsumo.lane.getShape(lane_id), dtype=float) if shape is None else shape
+        pts.append(shape)
+        lane_ids.extend([lane_id] * len(shape))
+        vmax.extend([libsumo.lane.getMaxSpeed(lane_id)] * len(shape))
+        bounds.extend([_drivable(edge_id, lane_id, vclass)] * len(shape))
+
+    for i, edge in enumerate(edges):
+        target = lane if lane in exits[i] else min(exits[i], key=lambda x: abs(index(x) - index(lane)))
+        if target == lane:
+            add(lane, edge)
+        else:
+            add(target, edge, lane_change_shape(lane, target, start_xy if i == 0 else None))
+        lane = target
+        if i + 1 == len(edges):
+            break
+        lane_links = libsumo.lane.getLinks(lane)
+        choices = [(j, lk) for j, lk in enumerate(lane_links) if lk[0] in usable[i + 1]]
+        j, link = min(choices, key=lambda c: c[1][0] not in exits[i + 1])  # prefer no further lane change
+        link_at.append((len(lane_ids) - 1, lane, j))
+        via = link[4]
+        while via and via.startswith(":"):
+            add(via, via)
+            nxt = libsumo.lane.getLinks(via)
+            via = (nxt[0][4] or nxt[0][0]) if nxt else ""
+        lane = link[0]
+
+    xy = np.vstack(pts)
+    keep = np.ones(len(xy), dtype=bool)
+    keep[1:] = np.hypot(*np.diff(xy, axis=0).T) > 1e-6
+    path = Polyline.from_points(xy[keep])
+    new_index = np.cumsum(keep) - 1  # vertex index after dropping duplicates
+    links = [JunctionLink(s=float(path.s[new_index[v]]), lane=ln, index=j) for v, ln, j in link_at]
+    lb = np.asarray(bounds)[keep]
+    return RoutePath(
+        edges=edges,
+        path=path,
+        lane_of_vertex=tuple(np.asarray(lane_ids)[keep]),
+        speed_limit=np.asarray(vmax)[keep],
+        left=lb[:, 0],
+        right=lb[:, 1],
+        links=tuple(links),
+    )

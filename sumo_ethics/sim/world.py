@@ -1,0 +1,183 @@
+"""Reading the scene around the ego and actuating it: the libsumo side of each step.
+
+One context subscription per domain (vehicles, persons) returns every neighbour in range in
+one call. Both come back merged in one dict, the ego included; persons are told apart by
+the variable set (only vehicles are subscribed with acceleration).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import libsumo
+import numpy as np
+from libsumo import constants as tc
+
+from sumo_ethics.errors import SimulationError
+from sumo_ethics.ethics.harm import MassModel
+from sumo_ethics.sim.frames import centre_to_front, front_to_centre
+from sumo_ethics.sim.route import JunctionLink, RoutePath, build_route_path
+from sumo_ethics.types import AgentStates, RoadUserClass
+
+_VCLASS: dict[str, RoadUserClass] = {
+    **{v: RoadUserClass.CAR for v in (
+        "passenger", "private", "taxi", "evehicle", "delivery", "emergency", "authority", "army",
+        "vip", "hov", "custom1", "custom2", "ignoring")},
+    **{v: RoadUserClass.TRUCK for v in ("truck", "trailer")},
+    **{v: RoadUserClass.BUS for v in ("bus", "coach")},
+    **{v: RoadUserClass.MOTORCYCLE for v in ("motorcycle", "moped")},
+    **{v: RoadUserClass.BICYCLE for v in ("bicycle", "scooter")},
+    **{v: RoadUserClass.PEDESTRIAN for v in ("pedestrian", "wheelchair")},
+}
+
+_VEH_VARS = (tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE, tc.VAR_ACCELERATION)
+_PER_VARS = (tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE)
+
+#: red or yellow link states: the baseline stops before these.
+STOP_STATES = frozenset("rRyYu")
+
+
+def road_user_class(vclass: str) -> RoadUserClass:
+    return _VCLASS.get(vclass, RoadUserClass.OTHER)
+
+
+@dataclass(frozen=True)
+class TypeInfo:
+    cls: RoadUserClass
+    length: float
+    width: float
+    mass: float
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """The scene at one instant: ego (1 agent) and neighbours within the sensing radius."""
+
+    time: float
+    ego: AgentStates
+    others: AgentStates
+
+
+@dataclass(frozen=True)
+class EgoCommand:
+    """Where the ego is to be after the next step: centre pose [m, rad], speed [m/s]."""
+
+    x: float
+    y: float
+    yaw: float
+    speed: float
+
+
+class SumoWorld:
+    """The ego's view of the running SUMO simulation."""
+
+    def __init__(self, ego_id: str, radius: float, masses: MassModel = MassModel()) -> None:
+        self.ego_id = ego_id
+        self.radius = radius
+        self.masses = masses
+        self._types: dict[str, TypeInfo] = {}
+        self.route: RoutePath | None = None
+        self.ego_length = 0.0
+
+    # ---- types -------------------------------------------------------------------------
+    def type_info(self, type_id: str) -> TypeInfo:
+        info = self._types.get(type_id)
+        if info is None:
+            vt = libsumo.vehicletype
+            cls = road_user_class(vt.getVehicleClass(type_id))
+            length, width = vt.getLength(type_id), vt.getWidth(type_id)
+            mass = float(self.masses.mass(np.array([int(cls)]), np.array([length]), np.array([width]),
+                                          np.array([vt.getMass(type_id)]))[0])
+            info = self._types[type_id] = TypeInfo(cls, length, width, mass)
+        return info
+
+    # ---- takeover ----------------------------------------------------------------------
+    def takeover(self) -> RoutePath:
+        """Take control of the ego: speed/lane-change modes, context subscriptions, route path."""
+        v = libsumo.vehicle
+        ego = self.ego_id
+        edges = v.getRoute(ego)
+        lane = v.getLaneID(ego)
+        vclass = v.getVehicleClass(ego)
+        start = np.asarray(v.getPosition(ego), dtype=float)
+        self.route = build_route_path(tuple(edges[v.getRouteIndex(ego):]), lane, vclass, start)
+        self.ego_length = v.getLength(ego)
+        speed = v.getSpeed(ego)
+        v.setSpeedMode(ego, 32)  # no safety checks: the controller decides
+        v.setLaneChangeMode(ego, 0)
+        v.setSpeedFactor(ego, 3.0)  # moveToXY infers speed from displacement, capped by limit x factor
+        v.setPreviousSpeed(ego, speed)
+        v.subscribeContext(ego, tc.CMD_GET_VEHICLE_VARIABLE, self.radius, _VEH_VARS)
+        v.subscribeContext(ego, tc.CMD_GET_PERSON_VARIABLE, self.radius, _PER_VARS)
+        return self.route
+
+    # ---- reading -----------------------------------------------------------------------
+    def read(self, time: float) -> Snapshot:
+        res = libsumo.vehicle.getContextSubscriptionResults(self.ego_id)
+        if self.ego_id not in res:
+            raise SimulationError(f"the ego '{self.ego_id}' left the simulation")
+        ids = sorted(k for k in res if k != self.ego_id)
+        ego = self._states([self.ego_id], res)
+        others = self._states(ids, res) if ids else AgentStates.empty()
+        return Snapshot(time, ego, others)
+
+    def _states(self, ids: list[str], res: dict) -> AgentStates:
+        n = len(ids)
+        raw = np.empty((n, 5))
+        info = []
+        for i, k in enumerate(ids):
+            r = res[k]
+            pos = r[tc.VAR_POSITION]
+            raw[i] = pos[0], pos[1], r[tc.VAR_ANGLE], r[tc.VAR_SPEED], r.get(tc.VAR_ACCELERATION, 0.0)
+            info.append(self.type_info(r[tc.VAR_TYPE]))
+        length = np.array([t.length for t in info])
+        x, y, yaw = front_to_centre(raw[:, 0], raw[:, 1], raw[:, 2], length)
+        return AgentStates(
+            ids=tuple(ids), x=x, y=y, yaw=yaw, speed=raw[:, 3], accel=raw[:, 4], length=length,
+            width=np.array([t.width for t in info]), mass=np.array([t.mass for t in info]),
+            cls=np.array([int(t.cls) for t in info], dtype=np.int8),
+            type_id=tuple(res[k][tc.VAR_TYPE] for k in ids),
+        )
+
+    def link_state(self, link: JunctionLink) -> str:
+        """Current signal state character of a link on the ego's path ('G', 'r', ...)."""
+        return libsumo.lane.getLinks(link.lane)[link.index][5]
+
+    def sumo_lane(self) -> str:
+        return libsumo.vehicle.getLaneID(self.ego_id)
+
+    def sumo_speed(self) -> float:
+        return libsumo.vehicle.getSpeed(self.ego_id)
+
+    # ---- acting ------------------------------------------------------------------------
+    def apply(self, cmd: EgoCommand) -> None:
+        """Place the ego at ``cmd`` during the next step, with its true speed."""
+        fx, fy, angle = centre_to_front(cmd.x, cmd.y, cmd.yaw, self.ego_length)
+        v = libsumo.vehicle
+        v.moveToXY(self.ego_id, "", -1, float(fx), float(fy), float(angle), 2)
+        v.setSpeed(self.ego_id, max(0.0, float(cmd.speed)))
+
+
+def sumo_collisions() -> list[tuple[str, str, str, str, float, float, str, str]]:
+    """This step's SUMO collision reports: (collider, victim, colliderType, victimType,
+    colliderSpeed, victimSpeed, type, lane)."""
+    return [(c.collider, c.victim, c.colliderType, c.victimType, c.colliderSpeed, c.victimSpeed, c.type, c.lane)
+            for c in libsumo.simulation.getCollisions()]
+
+
+def party_state(agent_id: str, world: SumoWorld) -> AgentStates | None:
+    """Full state of any vehicle or person by id (for collisions outside the ego's range)."""
+    for dom, is_person in ((libsumo.vehicle, False), (libsumo.person, True)):
+        try:
+            x, y = dom.getPosition(agent_id)
+            angle, speed, type_id = dom.getAngle(agent_id), dom.getSpeed(agent_id), dom.getTypeID(agent_id)
+        except libsumo.TraCIException:
+            continue
+        info = world.type_info(type_id)
+        cx, cy, yaw = front_to_centre(np.array([x]), np.array([y]), np.array([angle]), np.array([info.length]))
+        return AgentStates(
+            ids=(agent_id,), x=cx, y=cy, yaw=yaw, speed=np.array([speed]), accel=np.zeros(1),
+            length=np.array([info.length]), width=np.array([info.width]), mass=np.array([info.mass]),
+            cls=np.array([int(info.cls)], dtype=np.int8), type_id=(type_id,),
+        )
+    return None
