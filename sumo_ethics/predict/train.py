@@ -7,6 +7,7 @@ shuffling from a seeded numpy Generator). One torch thread by default (shared ma
 from __future__ import annotations
 
 import json
+import logging
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -27,6 +28,7 @@ from sumo_ethics.predict.models import (
 )
 
 SPLITS = {"train": 0, "val": 1, "test": 2}
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -138,6 +140,8 @@ def train_model(
             history.append({"epoch": epoch, "loss": running / max(b + 1, 1), "val_nll": val["nll"], "val_ade": val["ade"],
                             "phase": "nll" if use_nll else "mse", "minutes": (time.monotonic() - t0) / 60})
             bar.update(task, info=f"ep {epoch} val nll {val['nll']:.3f} ade {val['ade']:.2f} m")
+            log.info("%s epoch %d (%s): train loss %.4f, val nll %.4f, val ade %.3f m, %.1f min", kind, epoch,
+                     history[-1]["phase"], history[-1]["loss"], val["nll"], val["ade"], history[-1]["minutes"])
             if use_nll:
                 if val["nll"] < best - 1e-4:
                     best, best_epoch, bad = val["nll"], epoch, 0

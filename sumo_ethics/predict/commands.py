@@ -1,0 +1,64 @@
+"""Plain functions behind the CLI commands (wired into click by sumo_ethics.cli)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Sequence
+
+log = logging.getLogger(__name__)
+
+
+def dataset_main(
+    scenarios: Sequence[Path | str],
+    out: Path | str,
+    seeds: Sequence[int] = tuple(range(1, 8)),
+    sim_seconds: float = 600.0,
+    anchor_every: float = 2.0,
+    scales: Sequence[float] = (0.7, 1.0, 1.3),
+    workers: int = 1,
+) -> Path:
+    """Simulate ``scenarios`` (.sumocfg) x ``seeds`` and write a prediction dataset folder to ``out``."""
+    from sumo_ethics.predict.dataset import build_dataset
+
+    return build_dataset(
+        [Path(s) for s in scenarios], list(seeds), Path(out), scales=tuple(scales),
+        sim_seconds=sim_seconds, anchor_every=anchor_every, workers=workers,
+    )
+
+
+def train_main(
+    dataset: Path | str,
+    model: str,
+    out: Path | str,
+    epochs: int = 40,
+    mse_epochs: int = 2,
+    max_minutes: float = 14.0,
+    max_train: int | None = 150_000,
+    seed: int = 0,
+    threads: int = 1,
+    progress: bool = True,
+) -> dict:
+    """Train ``model`` ("attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt)."""
+    from sumo_ethics.predict.train import TrainConfig, train_model
+
+    cfg = TrainConfig(epochs=epochs, mse_epochs=mse_epochs, max_minutes=max_minutes, max_train=max_train,
+                      seed=seed, threads=threads)
+    return train_model(Path(dataset), model, Path(out), cfg, progress=progress)
+
+
+def evaluate_main(
+    dataset: Path | str,
+    out: Path | str,
+    weights: dict[str, Path | str] | None = None,
+    max_samples: int | None = 50_000,
+    seed: int = 0,
+) -> "object":
+    """Evaluate constant velocity and the LSTM models on the test seeds of ``dataset``.
+
+    ``weights`` maps model name -> weights file (default: the shipped attention and
+    cslstm). Writes ``out``/prediction_eval.csv and .md; returns the DataFrame.
+    """
+    from sumo_ethics.predict.evaluate import evaluate
+
+    return evaluate(Path(dataset), Path(out), weights=weights, max_samples=max_samples, seed=seed)

@@ -1,0 +1,275 @@
+"""Prediction: features, models, NLL, predictors, weight files (fast, no SUMO)."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from sumo_ethics.types import AgentStates, Observation, RoadUserClass
+
+torch = pytest.importorskip("torch")
+
+from sumo_ethics.predict import PredictorError  # noqa: E402
+from sumo_ethics.predict import features as F  # noqa: E402
+from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor  # noqa: E402
+from sumo_ethics.predict.dataset import samples_from_run, subset  # noqa: E402
+from sumo_ethics.predict.models import (  # noqa: E402
+    TrajectoryLSTM,
+    batch_to_tensors,
+    bivariate_nll,
+    bivariate_nll_terms,
+    masked_mse,
+    save_model,
+)
+from sumo_ethics.predict.predictor import LSTMPredictor, default_weights  # noqa: E402
+
+
+def states(xy, yaw, speed, cls, prefix="a") -> AgentStates:
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    n = len(xy)
+    z = np.zeros(n)
+    return AgentStates(tuple(f"{prefix}{i}" for i in range(n)), xy[:, 0], xy[:, 1], np.asarray(yaw, float) + z,
+                       np.asarray(speed, float) + z, z, z + 4.5, z + 1.8, z + 1500, (np.asarray(cls) + z).astype(np.int8))
+
+
+def straight_obs(speed=10.0, yaw=0.0, dt=0.1, hist_s=3.0, cls=RoadUserClass.CAR, x0=(0.0, 0.0)) -> Observation:
+    h = int(round(hist_s / dt)) + 1
+    t = (np.arange(h) - (h - 1)) * dt
+    d = np.array([math.cos(yaw), math.sin(yaw)])
+    hist = np.asarray(x0)[None, :] + t[:, None] * speed * d[None, :]
+    cur = states(x0, yaw, speed, int(cls))
+    ego = states((x0[0] - 60.0, x0[1] - 60.0), 0.0, 0.0, int(RoadUserClass.CAR), prefix="ego")
+    return Observation(0.0, dt, hist[None], np.ones((1, h), dtype=bool), cur, ego)
+
+
+# ---------------------------------------------------------------- import cost
+def test_import_predict_does_not_import_torch():
+    code = "import sys, sumo_ethics.predict as p; p.PredictorError; assert 'torch' not in sys.modules"
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[1])
+
+
+# ---------------------------------------------------------------- features
+def test_grid_cell_in_target_frame():
+    # target at origin heading north; neighbour 10 m ahead (north) -> lon +10 m, lat 0
+    hist = np.zeros((2, F.HIST_STEPS, 2))
+    hist[1, :, 1] = 10.0
+    feats = F.build_features(hist, np.array([0, 0]), np.array([math.pi / 2, 0.0]), targets=np.array([0]))
+    assert feats["nbr_agent"].tolist() == [1]
+    lon = int(10.0 / 4.6 + 6.5)  # 8
+    assert feats["nbr_cell"].tolist() == [lon * F.GRID_LAT + 1]
+    np.testing.assert_allclose(feats["nbr_hist"][0, -1], [10.0, 0.0], atol=1e-5)
+
+
+def test_resample_history_rates_agree():
+    o1 = straight_obs(dt=0.1)
+    o2 = straight_obs(dt=1.0)
+    h1, v1 = F.resample_history(o1.history, o1.valid, 0.1)
+    h2, v2 = F.resample_history(o2.history, o2.valid, 1.0)
+    np.testing.assert_allclose(h1, h2, atol=1e-9)
+    np.testing.assert_allclose(h1[0, 0], [-30.0, 0.0], atol=1e-9)
+    assert v1.all() and v2.all()
+
+
+def test_backfill_extrapolates_backwards():
+    hist = np.zeros((1, 5, 2))
+    hist[0, 2:, 0] = [0.0, 1.0, 2.0]
+    valid = np.array([[False, False, True, True, True]])
+    np.testing.assert_allclose(F.backfill(hist, valid)[0, :, 0], [-2, -1, 0, 1, 2])
+
+
+def test_samples_from_synthetic_run():
+    t = np.round(np.arange(0, 10.0, 0.1), 3)
+    df = pd.DataFrame({"time": t, "agent_id": "v", "cls": 0, "x": 5.0 * t, "y": 0.0, "yaw": 0.0, "speed": 5.0})
+    s = samples_from_run(df, anchor_every=1.0)
+    assert len(s["tgt_hist"]) > 0
+    np.testing.assert_allclose(s["fut"][0, :, 0], 5.0 * F.MODEL_DT * (np.arange(F.FUT_STEPS) + 1), atol=1e-4)
+    np.testing.assert_allclose(s["tgt_hist"][0, -1], [0, 0], atol=1e-5)
+    assert s["nbr_count"].sum() == 0
+
+
+# ---------------------------------------------------------------- NLL
+def test_nll_matches_torch_distributions():
+    g = torch.Generator().manual_seed(0)
+    n = 64
+    mu = torch.randn(n, 2, generator=g)
+    sig = torch.rand(n, 2, generator=g) * 2 + 0.1
+    rho = torch.rand(n, 1, generator=g) * 1.8 - 0.9
+    x = torch.randn(n, 2, generator=g) * 2
+    params = torch.cat([mu, sig, rho], -1)
+    cov = torch.stack([
+        torch.stack([sig[:, 0] ** 2, rho[:, 0] * sig[:, 0] * sig[:, 1]], -1),
+        torch.stack([rho[:, 0] * sig[:, 0] * sig[:, 1], sig[:, 1] ** 2], -1),
+    ], -2)
+    ref = -torch.distributions.MultivariateNormal(mu, covariance_matrix=cov).log_prob(x)
+    torch.testing.assert_close(bivariate_nll_terms(params, x), ref, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(bivariate_nll(params, x), ref.mean(), rtol=1e-4, atol=1e-4)
+    mask = torch.arange(n) < 10
+    torch.testing.assert_close(bivariate_nll(params, x, mask), ref[:10].mean(), rtol=1e-4, atol=1e-4)
+
+
+# ---------------------------------------------------------------- models
+def random_batch(b=3, p=5, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    return {
+        "tgt_hist": torch.randn(b, F.HIST_STEPS, 2, generator=g),
+        "tgt_group": torch.tensor([0, 1, 2][:b] + [0] * max(0, b - 3)),
+        "nbr_hist": torch.randn(p, F.HIST_STEPS, 2, generator=g),
+        "nbr_group": torch.zeros(p, dtype=torch.long),
+        "nbr_batch": torch.tensor([0, 0, 1, 0, 1][:p]),
+        "nbr_cell": torch.tensor([3, 20, 7, 33, 19][:p]),
+    }
+
+
+@pytest.mark.parametrize("kind", ["cslstm", "attention"])
+def test_model_shapes_and_padding(kind):
+    torch.manual_seed(0)
+    model = TrajectoryLSTM(kind).eval()
+    x = random_batch()
+    with torch.no_grad():
+        out = model(**x)
+        assert out.shape == (3, F.FUT_STEPS, 5)
+        assert (out[..., 2:4] > 0).all() and (out[..., 4].abs() < 1).all()
+        # a padded (invalid) neighbour, even with garbage history, changes nothing
+        xp = dict(x)
+        xp["nbr_hist"] = torch.cat([x["nbr_hist"], 100 * torch.ones(1, F.HIST_STEPS, 2)])
+        xp["nbr_group"] = torch.cat([x["nbr_group"], torch.tensor([2])])
+        xp["nbr_batch"] = torch.cat([x["nbr_batch"], torch.tensor([2])])
+        xp["nbr_cell"] = torch.cat([x["nbr_cell"], torch.tensor([5])])
+        valid = torch.ones(6, dtype=torch.bool)
+        valid[-1] = False
+        torch.testing.assert_close(model(**xp, nbr_valid=valid), out)
+        # neighbours of one target do not affect another (target 2 has none)
+        x2 = dict(x)
+        x2["nbr_hist"] = x["nbr_hist"] + 1.0
+        out2 = model(**x2)
+        torch.testing.assert_close(out2[2], out[2])
+        assert not torch.allclose(out2[0], out[0])
+        # no neighbours at all
+        empty = dict(x, nbr_hist=x["nbr_hist"][:0], nbr_group=x["nbr_group"][:0], nbr_batch=x["nbr_batch"][:0],
+                     nbr_cell=x["nbr_cell"][:0])
+        assert torch.isfinite(model(**empty)).all()
+
+
+def test_attention_weights_sum_to_one():
+    torch.manual_seed(0)
+    model = TrajectoryLSTM("attention")
+    x = torch.randn(2, 64)
+    h = torch.randn(3, 64)
+    batch = torch.tensor([0, 0, 0])
+    w = model.attend(x, h, batch)
+    assert torch.equal(w[1], torch.zeros(64))  # target without neighbours
+    # one neighbour: all weight on it
+    torch.testing.assert_close(model.attend(x, h[:1], torch.tensor([1]))[1], h[0])
+
+
+def tiny_dataset(n=16):
+    t = (np.arange(F.HIST_STEPS) - (F.HIST_STEPS - 1)) * F.MODEL_DT
+    tf = (np.arange(F.FUT_STEPS) + 1) * F.MODEL_DT
+    rng = np.random.default_rng(0)
+    v = rng.uniform(2, 12, n)
+    a = rng.uniform(-1, 1, n)
+    hist = np.stack([v[:, None] * t + 0.5 * a[:, None] * t**2, np.zeros((n, len(t)))], -1)
+    fut = np.stack([v[:, None] * tf + 0.5 * a[:, None] * tf**2, 0.05 * a[:, None] * tf**2], -1)
+    return {
+        "tgt_hist": hist.astype(np.float32), "tgt_group": np.zeros(n, dtype=np.int64), "fut": fut.astype(np.float32),
+        "nbr_hist": hist[:4].astype(np.float32) + 5, "nbr_group": np.zeros(4, dtype=np.int64),
+        "nbr_cell": np.array([1, 5, 9, 30]), "nbr_ptr": np.concatenate([[0, 1, 2, 3, 4], np.full(n - 4, 4)]),
+        "tgt_speed": v.astype(np.float32), "tgt_cls": np.zeros(n, dtype=np.int64),
+    }
+
+
+def test_model_overfits_tiny_dataset():
+    torch.manual_seed(0)
+    torch.set_num_threads(1)
+    data = subset(tiny_dataset(), np.arange(16))
+    model = TrajectoryLSTM("attention")
+    x = batch_to_tensors(data)
+    y = torch.as_tensor(data["fut"]) / model.scale(x["tgt_group"])[:, None, None]
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    first = None
+    for _ in range(300):
+        loss = masked_mse(model(**x), y)
+        first = loss.item() if first is None else first
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert loss.item() < first / 10
+
+
+# ---------------------------------------------------------------- predictors
+def test_constant_velocity_hand_numbers():
+    cv = ConstantVelocityPredictor(sigma0=0.1, growth=(0.5, 0.15))
+    obs = straight_obs(speed=2.0, yaw=math.pi / 2, x0=(1.0, 2.0))
+    p = cv.predict(obs, horizon_steps=2, dt=0.5)
+    np.testing.assert_allclose(p.mean[0], [[1.0, 3.0], [1.0, 4.0]], atol=1e-12)
+    # heading north: longitudinal std along y, lateral along x
+    np.testing.assert_allclose(p.cov[0, 0], [[0.175**2, 0], [0, 0.35**2]], atol=1e-12)
+    np.testing.assert_allclose(p.cov[0, 1], [[0.25**2, 0], [0, 0.6**2]], atol=1e-12)
+    np.testing.assert_allclose(p.yaw, math.pi / 2)
+    assert p.dt == 0.5 and p.ids == ("a0",)
+    ped = cv.predict(straight_obs(speed=1.0, cls=RoadUserClass.PEDESTRIAN), 1, 1.0)
+    g = cv.growth_pedestrian
+    np.testing.assert_allclose(np.diag(ped.cov[0, 0]), [(0.1 + g[0]) ** 2, (0.1 + g[1]) ** 2])
+    assert g[1] > cv.growth[1]
+
+
+@pytest.mark.parametrize("kind", ["attention", "cslstm"])
+def test_shipped_weights_car_straight(kind):
+    pred = LSTMPredictor.default(kind)
+    p = pred.predict(straight_obs(speed=10.0), horizon_steps=60, dt=0.1)
+    assert p.mean.shape == (1, 60, 2) and p.cov.shape == (1, 60, 2, 2) and p.yaw.shape == (1, 60)
+    assert np.isfinite(p.mean).all() and np.isfinite(p.cov).all()
+    assert np.linalg.norm(p.mean[0, 9] - [10.0, 0.0]) < 1.5
+    assert (np.linalg.eigvalsh(p.cov) > 0).all()
+    # beyond the 4 s model horizon: keeps moving, covariance keeps growing
+    assert p.mean[0, 59, 0] > p.mean[0, 39, 0] + 10
+    assert np.trace(p.cov[0, 59]) > np.trace(p.cov[0, 39])
+    # rotation invariance: same car heading north
+    q = pred.predict(straight_obs(speed=10.0, yaw=math.pi / 2), horizon_steps=60, dt=0.1)
+    np.testing.assert_allclose(q.mean[0][:, ::-1] * [1, -1], p.mean[0], atol=1e-3)
+    # history at another spacing gives about the same answer
+    r = pred.predict(straight_obs(speed=10.0, dt=0.5), horizon_steps=60, dt=0.1)
+    np.testing.assert_allclose(r.mean, p.mean, atol=0.05)
+
+
+def test_predictor_empty_observation():
+    pred = LSTMPredictor.default("attention")
+    o = straight_obs()
+    empty = Observation(0.0, 0.1, np.zeros((0, 31, 2)), np.zeros((0, 31), bool), AgentStates.empty(), o.ego)
+    p = pred.predict(empty, 10, 0.1)
+    assert p.mean.shape == (0, 10, 2)
+
+
+def test_missing_corrupt_and_wrong_kind_weights(tmp_path):
+    missing = tmp_path / "nope.pt"
+    with pytest.raises(PredictorError, match="nope.pt"):
+        LSTMPredictor.from_file(missing)
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(b"this is not a torch file")
+    with pytest.raises(PredictorError, match="corrupt.pt"):
+        LSTMPredictor.from_file(corrupt)
+    cs = save_model(TrajectoryLSTM("cslstm"), tmp_path / "cs.pt")
+    with pytest.raises(PredictorError, match="cs.pt"):
+        LSTMPredictor.from_file(cs, kind="attention")
+    assert LSTMPredictor.from_file(cs, kind="cslstm").kind == "cslstm"
+    blob = torch.load(cs, weights_only=True)
+    blob["feature_version"] = 999
+    torch.save(blob, tmp_path / "old.pt")
+    with pytest.raises(PredictorError, match="old.pt"):
+        LSTMPredictor.from_file(tmp_path / "old.pt")
+    torch.save({"state_dict": {}}, tmp_path / "foreign.pt")
+    with pytest.raises(PredictorError, match="foreign.pt"):
+        LSTMPredictor.from_file(tmp_path / "foreign.pt")
+    with pytest.raises(PredictorError):
+        LSTMPredictor.default("transformer")
+
+
+def test_default_weights_are_small():
+    for kind in ("attention", "cslstm"):
+        assert default_weights(kind).stat().st_size < 5e6
