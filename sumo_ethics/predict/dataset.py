@@ -37,7 +37,9 @@ DEFAULT_SCALES = (0.7, 1.0, 1.3)
 
 _VCLASS = {
     "bicycle": RoadUserClass.BICYCLE,
+    "scooter": RoadUserClass.BICYCLE,
     "pedestrian": RoadUserClass.PEDESTRIAN,
+    "wheelchair": RoadUserClass.PEDESTRIAN,
     "motorcycle": RoadUserClass.MOTORCYCLE,
     "moped": RoadUserClass.MOTORCYCLE,
     "truck": RoadUserClass.TRUCK,
@@ -56,7 +58,7 @@ _VCLASS = {
 
 
 def vclass_to_class(vclass: str) -> RoadUserClass:
-    """SUMO vClass -> RoadUserClass (passenger, taxi, delivery, ... -> CAR)."""
+    """SUMO vClass -> RoadUserClass (passenger, taxi, delivery, ... -> CAR; same groups as sim.world)."""
     return _VCLASS.get(vclass, RoadUserClass.CAR)
 
 
