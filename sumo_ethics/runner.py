@@ -265,7 +265,7 @@ class Run:
         self.meta["sumo_version"] = session.version()
         try:
             self._loop(ego_id, end)
-        except libsumo.TraCIException as exc:
+        except (libsumo.TraCIException, libsumo.FatalTraCIError) as exc:
             raise SimulationError(f"SUMO failed at t={self.meta.get('last_time', 0):g} s: "
                                   f"{session.first_line(exc, cfg.out / 'sumo-errors.log')}") from None
         finally:
@@ -285,6 +285,8 @@ class Run:
                          takeover_time=libsumo.simulation.getTime(), controller=self.controller.name)
         libsumo.simulationStep()  # subscription results arrive with the next step
         snap = world.read(libsumo.simulation.getTime())
+        if snap is None:
+            raise SimulationError(f"the ego '{ego_id}' left the simulation right after the takeover")
         half = float(snap.ego.length[0]) / 2
         s, d = (float(v) for v in route.path.project(snap.ego.xy[0]))
         progress = _progress(cfg.progress, snap.time, end)
@@ -304,7 +306,8 @@ class Run:
                 libsumo.simulationStep()
                 w2 = wallclock.perf_counter()
                 self.step += 1
-                if world.ego_id not in libsumo.vehicle.getContextSubscriptionResults(world.ego_id):
+                new = world.read(libsumo.simulation.getTime())
+                if new is None:
                     # SUMO removes a vehicle that passes its route's end: within one step of travel
                     # of our goal that is arrival, anywhere else a failure
                     reach = s + half + max(float(snap.ego.speed[0]), decision.command.speed) * dt + 1.0
@@ -313,7 +316,6 @@ class Run:
                         return
                     raise SimulationError(f"the ego '{world.ego_id}' left the simulation at t={t + dt:g} s "
                                           f"{route.length - s - half:.1f} m before its goal")
-                new = world.read(libsumo.simulation.getTime())
                 w3 = wallclock.perf_counter()
                 ego_hit = self.detect(snap, new)
                 w4 = wallclock.perf_counter()

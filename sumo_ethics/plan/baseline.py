@@ -62,11 +62,20 @@ class RouteFollower:
                 gap, v_lead = stop_gap, 0.0
         return gap, v_lead
 
+    def allowed_speed(self, scene: Scene) -> float:
+        """Highest speed [m/s] from which every lower speed limit ahead is reached braking at the
+        comfortable rate: min over vertices ahead of sqrt(limit^2 + 2 b distance)."""
+        r = scene.route
+        i = r.vertex_at(scene.s)
+        j = r.vertex_at(scene.s + self.p.lookahead) + 1
+        dist = np.maximum(r.path.s[i:j + 1] - scene.s - scene.ego.length[0] / 2.0, 0.0)
+        lim = r.speed_limit[i:j + 1]
+        return float(np.min(np.sqrt(lim**2 + 2.0 * scene.vehicle.comfort_decel * dist)))
+
     def act(self, scene: Scene) -> Decision:
         veh = scene.vehicle
         v = float(scene.ego.speed[0])
-        i = scene.route.vertex_at(scene.s)
-        v0 = min(float(scene.route.speed_limit[i]), veh.max_speed)
+        v0 = min(self.allowed_speed(scene), veh.max_speed)
         gap, v_lead = self.leader_gap(scene)
         acc = idm_accel(v, v0, gap, v - v_lead, veh.max_accel, veh.comfort_decel, self.p)
         acc = float(np.clip(acc, -veh.max_decel, veh.max_accel))

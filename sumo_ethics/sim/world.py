@@ -112,14 +112,36 @@ class SumoWorld:
         return self.route
 
     # ---- reading -----------------------------------------------------------------------
-    def read(self, time: float) -> Snapshot:
+    def read(self, time: float) -> Snapshot | None:
+        """The scene now; None once the ego is no longer in the simulation."""
         res = libsumo.vehicle.getContextSubscriptionResults(self.ego_id)
         if self.ego_id not in res:
-            raise SimulationError(f"the ego '{self.ego_id}' left the simulation")
+            res = self._read_off_network()
+            if res is None:
+                return None
         ids = sorted(k for k in res if k != self.ego_id)
         ego = self._states([self.ego_id], res)
         others = self._states(ids, res) if ids else AgentStates.empty()
         return Snapshot(time, ego, others)
+
+    def _read_off_network(self) -> dict | None:
+        """Context subscriptions return nothing while the ego is off every lane (moved there by
+        moveToXY): read everyone within the radius one by one instead (slow, rare)."""
+        v, p = libsumo.vehicle, libsumo.person
+        if self.ego_id not in v.getIDList():
+            return None
+        ex, ey = v.getPosition(self.ego_id)
+        res: dict = {}
+        for dom, vars_ in ((v, _VEH_VARS), (p, _PER_VARS)):
+            for k in dom.getIDList():
+                x, y = dom.getPosition(k)
+                if k == self.ego_id or (x - ex) ** 2 + (y - ey) ** 2 <= self.radius**2:
+                    r = {tc.VAR_POSITION: (x, y), tc.VAR_ANGLE: dom.getAngle(k), tc.VAR_SPEED: dom.getSpeed(k),
+                         tc.VAR_TYPE: dom.getTypeID(k)}
+                    if tc.VAR_ACCELERATION in vars_:
+                        r[tc.VAR_ACCELERATION] = dom.getAcceleration(k)
+                    res[k] = r
+        return res
 
     def _states(self, ids: list[str], res: dict) -> AgentStates:
         n = len(ids)

@@ -1,0 +1,91 @@
+"""The command line: bad input gives one clear line and a non-zero exit, never a traceback."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from conftest import SCENARIOS, write_scenario
+
+URBAN = SCENARIOS / "urban" / "urban.sumocfg"
+
+
+def cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "sumo_ethics.cli", *args], capture_output=True, text=True,
+                          cwd=cwd, timeout=300)
+
+
+def assert_one_line_error(p: subprocess.CompletedProcess, fragment: str, code: int | None = None) -> None:
+    assert p.returncode != 0
+    if code is not None:
+        assert p.returncode == code
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert lines == [lines[0]] and lines[0].startswith("error: "), p.stderr
+    assert fragment in lines[0], lines[0]
+    assert "Traceback" not in p.stderr + p.stdout
+
+
+def test_missing_scenario(tmp_path):
+    assert_one_line_error(cli("run", str(tmp_path / "nope.sumocfg"), "--out", str(tmp_path / "o")),
+                          "scenario file not found", 2)
+
+
+def test_malformed_scenario(tmp_path):
+    bad = tmp_path / "bad.sumocfg"
+    bad.write_text("<configuration><input><net-file value='x.net.xml'/></input")
+    assert_one_line_error(cli("run", str(bad), "--out", str(tmp_path / "o")), "malformed SUMO config", 2)
+
+
+def test_missing_network(tmp_path):
+    cfg = tmp_path / "c.sumocfg"
+    cfg.write_text('<configuration><input><net-file value="gone.net.xml"/></input></configuration>')
+    assert_one_line_error(cli("run", str(cfg), "--out", str(tmp_path / "o")), "net-file does not exist", 2)
+
+
+def test_unknown_ego(tmp_path):
+    assert_one_line_error(cli("run", str(URBAN), "--ego", "nobody", "--out", str(tmp_path / "o")),
+                          "unknown --ego 'nobody'", 2)
+
+
+@pytest.mark.parametrize("value", ["0", "-5", "abc", "nan", "inf"])
+def test_end_must_be_positive(tmp_path, value):
+    assert_one_line_error(cli("run", str(URBAN), "--end", value, "--out", str(tmp_path / "o")), "--end")
+
+
+def test_unwritable_out(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert_one_line_error(cli("run", str(URBAN), "--out", str(blocker / "sub")), "cannot write to --out", 2)
+
+
+def test_unknown_edges_and_no_route(tmp_path):
+    assert_one_line_error(cli("run", str(URBAN), "--ego-from", "W_in", "--ego-to", "nowhere", "--out",
+                              str(tmp_path / "o")), "unknown edge 'nowhere'", 2)
+    assert_one_line_error(cli("run", str(URBAN), "--ego-from", "W_in", "--out", str(tmp_path / "o")),
+                          "--ego-from and --ego-to go together", 2)
+
+
+def test_ego_that_never_departs(tmp_path):
+    cfg = write_scenario(tmp_path / "s", '<vehicle id="late" type="car" route="r_main" depart="500"/>', end=50)
+    assert_one_line_error(cli("run", str(cfg), "--ego", "late", "--out", str(tmp_path / "o")), "never departed", 2)
+
+
+@pytest.mark.sumo
+def test_run_bundled_scenario_prints_summary(tmp_path):
+    out = tmp_path / "o"
+    p = cli("run", str(URBAN), "--end", "90", "--ego-depart", "20", "--out", str(out), "--seed", "3")
+    assert p.returncode == 0, p.stderr
+    assert "completed" in p.stdout or "timeout" in p.stdout or "collision" in p.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["seed"] == 3 and summary["forced_sumo_options"]["collision.action"]["forced"] == "warn"
+    assert set(summary["harm"]) == {"ego", "third_party", "vru", "total"}
+    steps = pd.read_parquet(out / "steps.parquet")
+    # other drivers see the ego's true speed: SUMO reports what the controller commanded
+    assert (steps.speed - steps.speed_cmd).abs().max() < 1e-6
+    assert json.loads((out / "config.json").read_text())["resolved"]["end"] == 90.0
