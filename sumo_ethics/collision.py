@@ -22,14 +22,13 @@ MAX_SUBSTEPS = 64
 
 def previous_of(now: AgentStates, before: AgentStates) -> np.ndarray:
     """(N, 3) x, y, yaw of each agent of ``now`` at the earlier snapshot; its current pose
-    where it was not seen before."""
+    where it was not seen before. Both snapshots list ids in sorted order."""
     pose = np.stack([now.x, now.y, now.yaw], axis=-1)
     if len(before) and len(now):
-        index = {k: i for i, k in enumerate(before.ids)}
-        for i, k in enumerate(now.ids):
-            j = index.get(k)
-            if j is not None:
-                pose[i] = before.x[j], before.y[j], before.yaw[j]
+        b_ids = np.asarray(before.ids)
+        j = np.clip(np.searchsorted(b_ids, np.asarray(now.ids)), 0, len(b_ids) - 1)
+        seen = b_ids[j] == np.asarray(now.ids)
+        pose[seen] = np.stack([before.x[j[seen]], before.y[j[seen]], before.yaw[j[seen]]], axis=-1)
     return pose
 
 

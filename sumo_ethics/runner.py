@@ -179,6 +179,7 @@ class Run:
         self.message = ""
         self.meta: dict[str, Any] = {}
         self.step = 0
+        self.t_start = wallclock.perf_counter()
 
     # -- collisions --
     def _book(self, row: dict[str, Any], a: str, b: str) -> None:
@@ -282,7 +283,8 @@ class Run:
         self.world = world = SumoWorld(ego_id, cfg.sensing_radius)
         route = world.takeover()
         self.meta.update(step_length=dt, route_edges=list(edges), route_length=route.length,
-                         takeover_time=libsumo.simulation.getTime(), controller=self.controller.name)
+                         takeover_time=libsumo.simulation.getTime(), controller=self.controller.name,
+                         takeover_wall=wallclock.perf_counter() - self.t_start)
         libsumo.simulationStep()  # subscription results arrive with the next step
         snap = world.read(libsumo.simulation.getTime())
         if snap is None:
@@ -319,7 +321,7 @@ class Run:
                 w3 = wallclock.perf_counter()
                 ego_hit = self.detect(snap, new)
                 w4 = wallclock.perf_counter()
-                s, d = (float(v) for v in route.path.project(new.ego.xy[0]))
+                s, d = (float(v) for v in route.path.project(new.ego.xy[0], near=(s - 20.0, s + 60.0)))
                 self._record(new, snap, decision, s, d, dt, (w1 - w0, w2 - w1, w3 - w2, w4 - w3))
                 snap = new
                 if progress is not None and self.step % 50 == 0:

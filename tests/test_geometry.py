@@ -188,3 +188,15 @@ def test_heading_and_curvature():
     total = circle.heading[-1] - circle.heading[0]
     np.testing.assert_allclose(total, -PI + PI / 180, rtol=1e-12)
     np.testing.assert_allclose(np.trapezoid(circle.curvature_at(s), s), total, rtol=1e-6)
+
+
+def test_windowed_projection_matches_full():
+    # a zig-zag path; points near the middle project the same with a window around them
+    t = np.linspace(0, 200, 81)
+    path = Polyline.from_points(np.stack([t, 5 * np.sin(t / 15)], axis=-1))
+    rng = np.random.default_rng(1)
+    pts = np.stack([rng.uniform(60, 140, 200), rng.uniform(-8, 8, 200)], axis=-1)
+    s_full, d_full = path.project(pts)
+    s_win, d_win = path.project(pts, near=(40.0, 180.0))
+    np.testing.assert_allclose(s_win, s_full, atol=1e-9)
+    np.testing.assert_allclose(d_win, d_full, atol=1e-9)

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -116,22 +120,23 @@ def test_same_seed_same_parquet(tmp_path):
 
 
 def test_sumo_failure_mid_run_keeps_rows(scenario_dir, tmp_path):
-    from sumo_ethics.errors import SimulationError
-
     # SUMO parses the next route chunk when vehicle "b" departs: the broken one fails at t = 300 s
     cfg = write_scenario(scenario_dir, """
       <vehicle id="ego" type="car" route="r_main" depart="10" departLane="1" departSpeed="0"/>
       <vehicle id="b" type="car" route="r_main" depart="300"/>
       <vehicle id="late" type="car" depart="450"><route edges="main_0 nowhere"/></vehicle>""", end=600)
     out = tmp_path / "run"
-    with pytest.raises(SimulationError, match="nowhere"):
-        run(RunConfig(cfg, out, ego_id="ego", progress=False), controller=Scripted(1.0))
+    # after a fatal SUMO error libsumo cannot be restarted in the same process: run it in its own
+    code = (f"import sys; sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+            "from conftest import Scripted\n"
+            "from sumo_ethics.config import RunConfig\nfrom sumo_ethics.runner import run\n"
+            f"run(RunConfig({str(cfg)!r}, {str(out)!r}, ego_id='ego', progress=False), controller=Scripted(1.0))\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert p.returncode != 0 and "SimulationError" in p.stderr and "nowhere" in p.stderr
     steps = pd.read_parquet(out / "steps.parquet")
     assert len(steps) > 100 and steps.time.max() < 300.01
-    import json
-
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["status"] == "error" and "nowhere" in summary["message"]
+    assert summary["status"] == "error" and "nowhere" in summary["message"] and "t=300" in summary["message"]
 
 
 from conftest import SCENARIOS  # noqa: E402

@@ -50,7 +50,8 @@ class RouteFollower:
         if len(o):
             vehicles = o.cls != RoadUserClass.PEDESTRIAN
             if vehicles.any():
-                s, d = scene.route.path.project(np.stack([o.x, o.y], axis=-1))
+                s, d = scene.route.path.project(np.stack([o.x, o.y], axis=-1),
+                                                near=(scene.s - 10.0, scene.s + self.p.lookahead + 10.0))
                 ahead = vehicles & (np.abs(d) < self.p.corridor) & (s > scene.s) & (s - scene.s < self.p.lookahead)
                 if ahead.any():
                     gaps = s - scene.s - (o.length + scene.ego.length[0]) / 2.0

@@ -144,21 +144,17 @@ class SumoWorld:
         return res
 
     def _states(self, ids: list[str], res: dict) -> AgentStates:
-        n = len(ids)
-        raw = np.empty((n, 5))
-        info = []
-        for i, k in enumerate(ids):
-            r = res[k]
-            pos = r[tc.VAR_POSITION]
-            raw[i] = pos[0], pos[1], r[tc.VAR_ANGLE], r[tc.VAR_SPEED], r.get(tc.VAR_ACCELERATION, 0.0)
-            info.append(self.type_info(r[tc.VAR_TYPE]))
+        rows = [res[k] for k in ids]
+        info = [self.type_info(r[tc.VAR_TYPE]) for r in rows]
+        pos = np.array([r[tc.VAR_POSITION] for r in rows], dtype=float).reshape(-1, 2)
+        angle = np.array([r[tc.VAR_ANGLE] for r in rows], dtype=float)
         length = np.array([t.length for t in info])
-        x, y, yaw = front_to_centre(raw[:, 0], raw[:, 1], raw[:, 2], length)
+        x, y, yaw = front_to_centre(pos[:, 0], pos[:, 1], angle, length)
         return AgentStates(
-            ids=tuple(ids), x=x, y=y, yaw=yaw, speed=raw[:, 3], accel=raw[:, 4], length=length,
+            ids=tuple(ids), x=x, y=y, yaw=yaw, speed=np.array([r[tc.VAR_SPEED] for r in rows], dtype=float),
+            accel=np.array([r.get(tc.VAR_ACCELERATION, 0.0) for r in rows], dtype=float), length=length,
             width=np.array([t.width for t in info]), mass=np.array([t.mass for t in info]),
-            cls=np.array([int(t.cls) for t in info], dtype=np.int8),
-            type_id=tuple(res[k][tc.VAR_TYPE] for k in ids),
+            cls=np.array([t.cls for t in info], dtype=np.int8), type_id=tuple(r[tc.VAR_TYPE] for r in rows),
         )
 
     def link_state(self, link: JunctionLink) -> str:
@@ -176,7 +172,8 @@ class SumoWorld:
         """Place the ego at ``cmd`` during the next step, with its true speed."""
         fx, fy, angle = centre_to_front(cmd.x, cmd.y, cmd.yaw, self.ego_length)
         v = libsumo.vehicle
-        v.moveToXY(self.ego_id, "", -1, float(fx), float(fy), float(angle), 2)
+        # keepRoute 2: exact pose, may leave the road; search lanes only within 10 m (faster)
+        v.moveToXY(self.ego_id, "", -1, float(fx), float(fy), float(angle), 2, 10.0)
         v.setSpeed(self.ego_id, max(0.0, float(cmd.speed)))
 
 

@@ -1,0 +1,89 @@
+"""Wall time of a run with the takeover, collision checks and recording vs the same SUMO run
+with no plug-in attached, on the dense bundled scenario (~200 vehicles, ~50 pedestrians).
+
+Both sides run the same scenario, seed and forced collision options; the plain side inserts
+the same ego route as an ordinary SUMO vehicle. Timed is the window from the ego's takeover
+to the end of the run (the warm-up before it is identical on both sides). Repeats are
+interleaved; medians are reported.
+
+    python tools/bench_overhead.py [--repeats 5] [--scenario scenarios/urban_grid/urban_grid.sumocfg]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import libsumo
+
+from sumo_ethics.config import RunConfig
+from sumo_ethics.runner import run
+from sumo_ethics.sim import session
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def plugin_run(cfg: Path, out: Path, seed: int, depart: float, end: float, ego_from: str, ego_to: str) -> dict:
+    s = run(RunConfig(cfg, out, seed=seed, end=end, ego_depart=depart, ego_from=ego_from, ego_to=ego_to,
+                      stop_at_collision=False, progress=False))
+    d = s.data
+    return {"window": d["wall_time"] - d["takeover_wall"], "t0": d["takeover_time"], "t1": d["sim_time"],
+            "steps": d["steps"], "vehicles": None}
+
+
+def plain_run(cfg: Path, seed: int, t0: float, t1: float, route: list[str]) -> tuple[float, int, int]:
+    files = session.read_scenario(cfg)
+    with tempfile.TemporaryDirectory() as tmp:
+        session.start(files, seed, Path(tmp) / "err.log")
+        try:
+            libsumo.route.add("bench_ego_route", route)
+            while libsumo.simulation.getTime() < t0 - 1e-9:
+                libsumo.simulationStep()
+                if abs(libsumo.simulation.getTime() - (t0 - 5.0)) < 1e-6:
+                    libsumo.vehicle.add("bench_ego", "bench_ego_route", depart="now", departLane="best")
+            nveh, nper = libsumo.vehicle.getIDCount(), libsumo.person.getIDCount()
+            w = time.perf_counter()
+            while libsumo.simulation.getTime() < t1 - 1e-9:
+                libsumo.simulationStep()
+            return time.perf_counter() - w, nveh, nper
+        finally:
+            session.close()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", type=Path, default=ROOT / "scenarios/urban_grid/urban_grid.sumocfg")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--seed", type=int, default=2)
+    ap.add_argument("--depart", type=float, default=300.0)
+    ap.add_argument("--end", type=float, default=480.0)
+    ap.add_argument("--ego-from", default="W0_in")
+    ap.add_argument("--ego-to", default="E1_out")
+    a = ap.parse_args()
+    plug, plain = [], []
+    info = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(a.repeats):
+            r = plugin_run(a.scenario, Path(tmp) / f"run{i}", a.seed, a.depart, a.end, a.ego_from, a.ego_to)
+            plug.append(r["window"])
+            import json
+
+            route = json.loads((Path(tmp) / f"run{i}" / "summary.json").read_text())["route_edges"]
+            w, nveh, nper = plain_run(a.scenario, a.seed, r["t0"], r["t1"], route)
+            plain.append(w)
+            info = {"window_s": r["t1"] - r["t0"], "steps": r["steps"], "vehicles": nveh, "persons": nper}
+            print(f"repeat {i}: plug-in {plug[-1]:.3f} s, plain {plain[-1]:.3f} s, ratio {plug[-1] / plain[-1]:.3f}")
+    mp, mq = statistics.median(plug), statistics.median(plain)
+    ratios = sorted(p / q for p, q in zip(plug, plain))
+    print(f"scenario {a.scenario.name}: {info['vehicles']} vehicles and {info['persons']} persons at takeover, "
+          f"{info['window_s']:.0f} s simulated after takeover ({info['steps']} ego steps)")
+    print(f"median wall: plug-in {mp:.3f} s, plain SUMO {mq:.3f} s; ratio of medians {mp / mq:.3f}; "
+          f"median of paired ratios {statistics.median(ratios):.3f} (target <= 1.3)")
+    print(f"per step: plug-in {1e3 * mp / info['steps']:.3f} ms, plain {1e3 * mq / info['steps']:.3f} ms")
+
+
+if __name__ == "__main__":
+    main()
