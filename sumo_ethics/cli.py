@@ -12,6 +12,7 @@ from pathlib import Path
 import click
 
 from sumo_ethics.errors import SumoEthicsError
+from sumo_ethics.predict import PredictorError
 
 
 def _console():
@@ -77,6 +78,9 @@ def main(argv: list[str] | None = None) -> int:
     except SumoEthicsError as exc:
         click.echo(f"error: {exc}", err=True)
         return exc.exit_code
+    except PredictorError as exc:
+        click.echo(f"error: {exc}", err=True)
+        return 2
     except KeyboardInterrupt:
         click.echo("error: interrupted", err=True)
         return 130
