@@ -1,0 +1,199 @@
+"""The cost of each candidate: Origin's J_origin, the paper's J_utility and J_risk (METHOD.md section 2).
+
+Definitions, per candidate k, with N predicted agents, ego_risk / other_risk (K, N) and
+boundary harm b (K,) from :class:`~sumo_ethics.ethics.risk.RiskTerms`:
+
+- Bayes ``B = (sum_n ego_risk + sum_n other_risk + b) / (2N)``;
+- Equality ``E = sum_n |ego_risk - other_risk| / N``;
+- Maximin ``M = h_max ** maximin_exponent`` with h_max the largest harm among the parties the
+  candidate can collide with: max over n of the ego's and agent n's harm at the steps with
+  P > 0 (``ego_harm_max``, ``other_harm_max``), and b. A party with P = 0 everywhere (beyond the
+  5 m gate or below ``p_min``) contributes nothing. (Origin keeps harms only where the risk is
+  below 1e-9, the opposite of its comment; not copied.)
+- Ego ``Ego = sum_n ego_risk + b``;
+- ``J_origin = w_risk (w_B B + w_E E + w_M M + w_ego Ego) + w_v |v_desired - mean v| + w_d mean |d|``,
+  means over the candidate's valid steps;
+- ``J(s) = sum_n ego_risk + sum_n other_risk + b``: leaving the road is an ego risk with
+  probability 1, as in Bayes and Ego;
+- ``J_mean``: UtilityMode.CANDIDATE_MEAN (default) the mean of J over the feasible candidates of
+  this step (all candidates if ``feasible`` is None or selects none); UtilityMode.LITERAL
+  ``J / N_r`` with N_r = N + 1 parties (the ego and the N agents);
+- ``J_utility = 0 if J <= J_mean else J`` (J counts as <= J_mean within a relative 1e-9, so
+  candidates tied at the mean are not penalised by rounding);
+- ``J_risk = omega_o J_origin + omega_u J_utility``, the total that selection minimises.
+
+With N = 0: B = b, E = 0, M = b ** exponent, Ego = J = b.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from sumo_ethics.ethics.probability import EthicsConfigError, _check_number
+from sumo_ethics.ethics.risk import RiskTerms
+from sumo_ethics.types import Candidates, CostBreakdown
+
+__all__ = ["PrincipleWeights", "PRESETS", "UtilityMode", "CostConfig", "score", "TERMS"]
+
+_TIE_RTOL = 1e-9
+
+
+@dataclass(frozen=True)
+class PrincipleWeights:
+    """Weights of J_origin; defaults are Origin's "ethical" set.
+
+    bayes, equality, maximin, ego: weights of the four principles [-]; risk: factor on their
+    weighted sum [-]; velocity: per m/s of |v_desired - mean v| [1/(m/s)]; lateral: per m of
+    mean |d| [1/m].
+    """
+
+    bayes: float = 33.3
+    equality: float = 33.3
+    maximin: float = 33.3
+    ego: float = 0.0
+    risk: float = 250.0
+    velocity: float = 1.0
+    lateral: float = 10.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            _check_number("PrincipleWeights", f.name, getattr(self, f.name))
+
+    @staticmethod
+    def preset(name: str) -> "PrincipleWeights":
+        """One of :data:`PRESETS` by name; ValueError listing the known names otherwise."""
+        try:
+            return PRESETS[name]
+        except (KeyError, TypeError):
+            raise EthicsConfigError(
+                f"unknown principle-weight preset {name!r}; known presets: {', '.join(sorted(PRESETS))}"
+            ) from None
+
+
+#: Named weight sets. "ethical": Origin's. "standard": Origin's with every principle 0, so risk is
+#: ignored (``risk`` keeps 250 but multiplies zero). "ego": only the ego principle, at 100 = about
+#: the sum of the ethical principle weights (99.9), so the risk scale matches "ethical".
+PRESETS: dict[str, PrincipleWeights] = {
+    "ethical": PrincipleWeights(),
+    "standard": PrincipleWeights(bayes=0.0, equality=0.0, maximin=0.0, ego=0.0),
+    "ego": PrincipleWeights(bayes=0.0, equality=0.0, maximin=0.0, ego=100.0),
+}
+
+
+class UtilityMode(enum.Enum):
+    """How J_mean of J_utility is read; record it with every run."""
+
+    CANDIDATE_MEAN = "candidate_mean"  # mean of J over this step's feasible candidates
+    LITERAL = "literal"  # J / N_r, N_r = number of parties (ego + N agents)
+
+
+@dataclass(frozen=True)
+class CostConfig:
+    """Weights of J_risk = omega_o J_origin + omega_u J_utility.
+
+    weights: J_origin's weights (a PrincipleWeights or a preset name); omega_o, omega_u [-];
+    utility: UtilityMode (or its value string); desired_speed: default v_desired [m/s] for
+    :func:`score`; maximin_exponent: M = h_max ** exponent [-].
+    """
+
+    weights: PrincipleWeights = PrincipleWeights()
+    omega_o: float = 1.0
+    omega_u: float = 0.5
+    utility: UtilityMode = UtilityMode.CANDIDATE_MEAN
+    desired_speed: float | None = None
+    maximin_exponent: float = 10.0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.weights, str):
+            object.__setattr__(self, "weights", PrincipleWeights.preset(self.weights))
+        if not isinstance(self.weights, PrincipleWeights):
+            raise EthicsConfigError(f"CostConfig.weights must be PrincipleWeights or a preset name, got {self.weights!r}")
+        if not isinstance(self.utility, UtilityMode):
+            try:
+                object.__setattr__(self, "utility", UtilityMode(self.utility))
+            except ValueError:
+                known = ", ".join(m.value for m in UtilityMode)
+                raise EthicsConfigError(f"CostConfig.utility must be one of {known}, got {self.utility!r}") from None
+        _check_number("CostConfig", "omega_o", self.omega_o)
+        _check_number("CostConfig", "omega_u", self.omega_u)
+        _check_number("CostConfig", "maximin_exponent", self.maximin_exponent, positive=True)
+        if self.desired_speed is not None:
+            _check_number("CostConfig", "desired_speed", self.desired_speed)
+
+
+#: Names of the (K,) terms in every CostBreakdown from :func:`score`, in order.
+TERMS = (
+    "bayes", "equality", "maximin", "ego", "progress", "lateral", "j_origin",
+    "j_total_risk", "j_mean", "j_utility", "j_risk",
+    "ego_risk_sum", "other_risk_sum", "vru_risk_sum", "boundary_harm", "max_harm",
+)
+
+
+def score(
+    cand: Candidates,
+    risk: RiskTerms,
+    cfg: CostConfig = CostConfig(),
+    desired_speed: float | None = None,
+    feasible: np.ndarray | None = None,
+) -> CostBreakdown:
+    """Every cost term of K candidates, each (K,), and total = J_risk.
+
+    desired_speed: v_desired [m/s] (default ``cfg.desired_speed``); feasible: (K,) bool, the
+    candidates J_mean averages over in CANDIDATE_MEAN mode (None: all).
+    """
+    v_des = cfg.desired_speed if desired_speed is None else desired_speed
+    if v_des is None or not math.isfinite(v_des) or v_des < 0:
+        raise ValueError(f"score needs a finite non-negative desired_speed (argument or CostConfig), got {v_des!r}")
+    K = cand.x.shape[0]
+    er, orr = risk.ego_risk, risk.other_risk
+    if er.shape[0] != K or risk.boundary_harm.shape != (K,):
+        raise ValueError(f"risk terms are for {er.shape[0]} candidates, cand has {K}")
+    N = er.shape[1]
+    w = cfg.weights
+    bh = risk.boundary_harm
+    se, so = er.sum(axis=1), orr.sum(axis=1)
+    vru = (orr * risk.vulnerable).sum(axis=1)
+    j_total = se + so + bh
+    if N:
+        bayes = j_total / (2 * N)
+        equality = np.abs(er - orr).sum(axis=1) / N
+        h_max = np.maximum(np.maximum(risk.ego_harm_max.max(axis=1), risk.other_harm_max.max(axis=1)), bh)
+    else:
+        bayes, equality, h_max = bh.copy(), np.zeros(K), bh.copy()
+    maximin = h_max**cfg.maximin_exponent
+    ego = se + bh
+
+    valid = cand.valid.astype(bool)
+    count = np.maximum(valid.sum(axis=1), 1)
+    mean_v = np.where(valid, cand.speed, 0.0).sum(axis=1) / count
+    progress = np.abs(v_des - mean_v)
+    lateral = np.where(valid, np.abs(cand.d), 0.0).sum(axis=1) / count
+    j_origin = (
+        w.risk * (w.bayes * bayes + w.equality * equality + w.maximin * maximin + w.ego * ego)
+        + w.velocity * progress
+        + w.lateral * lateral
+    )
+
+    if cfg.utility is UtilityMode.LITERAL:
+        j_mean = j_total / (N + 1)
+    else:
+        pool = np.ones(K, bool) if feasible is None else np.asarray(feasible, dtype=bool)
+        if pool.shape != (K,):
+            raise ValueError(f"feasible must have shape ({K},), got {pool.shape}")
+        if not pool.any():
+            pool = np.ones(K, bool)
+        j_mean = np.full(K, j_total[pool].mean() if K else 0.0)
+    above = j_total > j_mean + _TIE_RTOL * np.abs(j_mean)
+    j_utility = np.where(above, j_total, 0.0)
+    j_risk = cfg.omega_o * j_origin + cfg.omega_u * j_utility
+
+    values = (
+        bayes, equality, maximin, ego, progress, lateral, j_origin,
+        j_total, j_mean, j_utility, j_risk,
+        se, so, vru, bh, h_max,
+    )
+    return CostBreakdown(terms=dict(zip(TERMS, values)), total=j_risk)

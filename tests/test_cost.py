@@ -1,0 +1,267 @@
+"""Risk terms (METHOD.md section 1) and the cost J_origin / J_utility / J_risk (section 2)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sumo_ethics.ethics.cost import PRESETS, TERMS, CostConfig, PrincipleWeights, UtilityMode, score
+from sumo_ethics.ethics.harm import HarmCoefficients, Party, crash_outcome, leave_road_harm
+from sumo_ethics.ethics.probability import collision_probability
+from sumo_ethics.ethics.risk import RiskTerms, assess_risk, boundary_harm
+from sumo_ethics.types import AgentStates, Candidates, Prediction, RoadUserClass
+
+DT = 0.1
+EGO_L, EGO_W, EGO_M = 4.508, 1.610, 1475.0
+
+
+def candidates(x, y, yaw, speed, d=None, valid=None) -> Candidates:
+    x = np.asarray(x, float)
+    shape = x.shape
+    full = lambda v: np.broadcast_to(np.asarray(v, float), shape).copy()  # noqa: E731
+    z = np.zeros(shape)
+    return Candidates(
+        dt=DT, x=x, y=full(y), yaw=full(yaw), speed=full(speed), accel=z, curvature=z, s=z,
+        d=z if d is None else full(d), horizon=np.full(shape[0], shape[1] * DT),
+        valid=np.ones(shape, bool) if valid is None else np.asarray(valid, bool),
+    )
+
+
+def risk_terms(ego_risk, other_risk, ego_harm_max, other_harm_max, boundary, vulnerable=None, T=3) -> RiskTerms:
+    return RiskTerms.from_risks(ego_risk, other_risk, ego_harm_max, other_harm_max, boundary, vulnerable, T)
+
+
+# ------------------------------------------------------------------ the toy case, by hand
+# 2 candidates x 2 agents, T = 3 (step 3 invalid, its values must be ignored).
+TOY_CAND = candidates(
+    x=np.zeros((2, 3)), y=0.0, yaw=0.0,
+    speed=[[10.0, 12.0, 99.0], [8.0, 8.0, 99.0]],
+    d=[[0.0, -1.0, 99.0], [-2.0, -2.0, 99.0]],
+    valid=[[True, True, False], [True, True, False]],
+)
+TOY_RISK = risk_terms(
+    ego_risk=[[0.10, 0.00], [0.02, 0.04]],
+    other_risk=[[0.30, 0.00], [0.02, 0.01]],
+    ego_harm_max=[[0.5, 0.0], [0.2, 0.4]],
+    other_harm_max=[[0.6, 0.0], [0.1, 0.1]],
+    boundary=[0.0, 0.5],
+    vulnerable=[False, True],
+)
+
+
+def test_toy_case_every_term_by_hand():
+    c = score(TOY_CAND, TOY_RISK, CostConfig(), desired_speed=10.0).terms
+    # sums: ego 0.10 | 0.06, other 0.30 | 0.03, boundary 0 | 0.5
+    # Bayes = (ego + other + boundary) / (2N = 4): 0.40 / 4 = 0.1 | 0.59 / 4 = 0.1475
+    np.testing.assert_allclose(c["bayes"], [0.1, 0.1475])
+    # Equality = sum |ego - other| / N: (0.2 + 0) / 2 = 0.1 | (0 + 0.03) / 2 = 0.015
+    np.testing.assert_allclose(c["equality"], [0.1, 0.015])
+    # Maximin = (max harm)^10: max(0.5, 0, 0.6, 0, 0) = 0.6 -> 0.0060466176 | max(.2, .4, .1, .1, .5) = 0.5 -> 0.0009765625
+    np.testing.assert_allclose(c["max_harm"], [0.6, 0.5])
+    np.testing.assert_allclose(c["maximin"], [0.0060466176, 0.0009765625])
+    # Ego = sum ego risk + boundary: 0.1 | 0.06 + 0.5 = 0.56
+    np.testing.assert_allclose(c["ego"], [0.1, 0.56])
+    # progress = |10 - mean(10, 12)| = 1 | |10 - mean(8, 8)| = 2 (the invalid 99 ignored)
+    np.testing.assert_allclose(c["progress"], [1.0, 2.0])
+    # lateral = mean |d| = 0.5 | 2
+    np.testing.assert_allclose(c["lateral"], [0.5, 2.0])
+    # J_origin (ethical) = 250 * 33.3 * (B + E + M) + 1 * progress + 10 * lateral
+    #   = 8325 * 0.2060466176 + 1 + 5 = 1715.33809152 + 6 = 1721.33809152
+    #   | 8325 * 0.1634765625 + 2 + 20 = 1360.9423828125 + 22 = 1382.9423828125
+    np.testing.assert_allclose(c["j_origin"], [1721.33809152, 1382.9423828125])
+    # J(s) = 0.40 | 0.59; candidate mean 0.495: candidate 0 below -> J_utility 0, candidate 1 -> 0.59
+    np.testing.assert_allclose(c["j_total_risk"], [0.40, 0.59])
+    np.testing.assert_allclose(c["j_mean"], [0.495, 0.495])
+    np.testing.assert_allclose(c["j_utility"], [0.0, 0.59])
+    # J_risk = 1 * J_origin + 0.5 * J_utility = 1721.33809152 | 1382.9423828125 + 0.295 = 1383.2373828125
+    np.testing.assert_allclose(c["j_risk"], [1721.33809152, 1383.2373828125])
+    # VRU risk: agent 1 is vulnerable: other_risk[:, 1] = 0 | 0.01
+    np.testing.assert_allclose(c["vru_risk_sum"], [0.0, 0.01])
+    assert set(TERMS) == set(c)
+
+
+def test_toy_case_feasible_pool_literal_mode_and_presets():
+    # Only candidate 0 feasible: J_mean = 0.40, candidate 0 sits on the mean (not penalised), 1 is above.
+    c = score(TOY_CAND, TOY_RISK, CostConfig(), 10.0, feasible=np.array([True, False])).terms
+    np.testing.assert_allclose(c["j_mean"], [0.40, 0.40])
+    np.testing.assert_allclose(c["j_utility"], [0.0, 0.59])
+    # Literal: J_mean = J / (N + 1) = 0.40 / 3 | 0.59 / 3, always below J > 0 -> J_utility = J.
+    lit = score(TOY_CAND, TOY_RISK, CostConfig(utility=UtilityMode.LITERAL), 10.0).terms
+    np.testing.assert_allclose(lit["j_mean"], [0.40 / 3, 0.59 / 3])
+    np.testing.assert_allclose(lit["j_utility"], [0.40, 0.59])
+    # "standard": principles 0 -> J_origin = progress + 10 lateral = 1 + 5 = 6 | 2 + 20 = 22.
+    std = score(TOY_CAND, TOY_RISK, CostConfig(weights="standard"), 10.0).terms
+    np.testing.assert_allclose(std["j_origin"], [6.0, 22.0])
+    # "ego": 250 * 100 * Ego + ... = 25000 * 0.1 + 6 = 2506 | 25000 * 0.56 + 22 = 14022.
+    ego = score(TOY_CAND, TOY_RISK, CostConfig(weights=PrincipleWeights.preset("ego")), 10.0).terms
+    np.testing.assert_allclose(ego["j_origin"], [2506.0, 14022.0])
+    # omega_o = 0: J_risk = 0.5 * J_utility = 0 | 0.295.
+    only_u = score(TOY_CAND, TOY_RISK, CostConfig(omega_o=0.0), 10.0)
+    np.testing.assert_allclose(only_u.total, [0.0, 0.295])
+    assert only_u.row(1)["j_risk"] == pytest.approx(0.295)
+
+
+def test_no_agents_gives_boundary_terms_only():
+    cand = candidates(np.zeros((2, 3)), 0.0, 0.0, 10.0)
+    r = risk_terms(np.zeros((2, 0)), np.zeros((2, 0)), np.zeros((2, 0)), np.zeros((2, 0)), [0.0, 0.25])
+    c = score(cand, r, CostConfig(), 10.0).terms
+    np.testing.assert_allclose(c["bayes"], [0.0, 0.25])
+    np.testing.assert_allclose(c["equality"], [0.0, 0.0])
+    np.testing.assert_allclose(c["maximin"], [0.0, 0.25**10])
+    np.testing.assert_allclose(c["ego"], [0.0, 0.25])
+    np.testing.assert_allclose(c["j_total_risk"], [0.0, 0.25])
+    # Literal with N = 0: N_r = 1, J_mean = J -> never above -> J_utility = 0.
+    lit = score(cand, r, CostConfig(utility="literal"), 10.0).terms
+    np.testing.assert_allclose(lit["j_utility"], [0.0, 0.0])
+
+
+def random_risk(rng: np.random.Generator, K: int, N: int) -> RiskTerms:
+    er = rng.random((K, N)) * (rng.random((K, N)) < 0.3)
+    orr = rng.random((K, N)) * (er > 0)
+    return risk_terms(er, orr, np.minimum(er * 2, 1), np.minimum(orr * 2, 1), rng.random(K) * (rng.random(K) < 0.1))
+
+
+def test_utility_zero_below_mean_and_argmin_never_above_mean():
+    rng = np.random.default_rng(11)
+    cfg = CostConfig(omega_o=0.0, omega_u=1.0)
+    for _ in range(200):
+        K, N = int(rng.integers(1, 40)), int(rng.integers(0, 6))
+        cand = candidates(np.zeros((K, 4)), 0.0, 0.0, rng.uniform(0, 20, (K, 4)))
+        risk = random_risk(rng, K, N)
+        feasible = rng.random(K) < 0.6
+        c = score(cand, risk, cfg, 10.0, feasible=feasible)
+        J, Jm, Ju = c.terms["j_total_risk"], c.terms["j_mean"], c.terms["j_utility"]
+        pool = feasible if feasible.any() else np.ones(K, bool)
+        assert np.allclose(Jm, J[pool].mean())
+        np.testing.assert_array_equal(Ju, np.where(J > Jm * (1 + 1e-9), J, 0.0))
+        best = np.flatnonzero(pool)[np.argmin(c.total[pool])]
+        assert J[best] <= J[pool].mean() * (1 + 1e-9)
+
+
+def test_tied_candidates_are_not_penalised_by_rounding():
+    # mean(0.1, 0.1, 0.1) rounds to 0.10000000000000002 > 0.1 or below it depending on the sum order.
+    cand = candidates(np.zeros((3, 2)), 0.0, 0.0, 10.0)
+    risk = risk_terms(np.full((3, 1), 0.1), np.zeros((3, 1)), np.zeros((3, 1)), np.zeros((3, 1)), np.zeros(3))
+    np.testing.assert_array_equal(score(cand, risk, CostConfig(), 10.0).terms["j_utility"], 0.0)
+
+
+# ------------------------------------------------------------------ configs
+def test_unknown_preset_lists_the_known_ones():
+    with pytest.raises(ValueError, match="known presets: ego, ethical, standard"):
+        PrincipleWeights.preset("utilitarian")
+    with pytest.raises(ValueError, match="known presets"):
+        CostConfig(weights="nope")
+    assert PrincipleWeights.preset("ethical") == PRESETS["ethical"] == PrincipleWeights()
+
+
+@pytest.mark.parametrize("field", ["bayes", "equality", "maximin", "ego", "risk", "velocity", "lateral"])
+@pytest.mark.parametrize("value", [-1.0, float("nan"), float("inf")])
+def test_weights_reject_negative_and_nan(field, value):
+    with pytest.raises(ValueError, match=f"PrincipleWeights.{field} must be a non-negative finite number"):
+        PrincipleWeights(**{field: value})
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"omega_o": -0.1}, "omega_o"),
+        ({"omega_u": float("nan")}, "omega_u"),
+        ({"maximin_exponent": 0.0}, "maximin_exponent"),
+        ({"utility": "mean"}, "candidate_mean, literal"),
+        ({"desired_speed": -3.0}, "desired_speed"),
+        ({"weights": 3}, "weights"),
+    ],
+)
+def test_cost_config_rejects_nonsense(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        CostConfig(**kwargs)
+
+
+def test_score_needs_a_desired_speed():
+    with pytest.raises(ValueError, match="desired_speed"):
+        score(TOY_CAND, TOY_RISK, CostConfig())
+    assert score(TOY_CAND, TOY_RISK, CostConfig(desired_speed=10.0)).total.shape == (2,)
+
+
+# ------------------------------------------------------------------ risk terms
+def agents_and_prediction(xy, yaw, speed, cls, length, width, mass, T):
+    """Agents moving at constant velocity along their yaw; covariance 0.05 I."""
+    xy, yaw, speed = np.atleast_2d(np.asarray(xy, float)), np.asarray(yaw, float), np.asarray(speed, float)
+    n = len(yaw)
+    ids = tuple(f"a{i}" for i in range(n))
+    agents = AgentStates(
+        ids=ids, x=xy[:, 0], y=xy[:, 1], yaw=yaw, speed=speed, accel=np.zeros(n),
+        length=np.asarray(length, float), width=np.asarray(width, float), mass=np.asarray(mass, float),
+        cls=np.asarray(cls, np.int8),
+    )
+    t = (np.arange(T) + 1) * DT
+    heading = np.stack([np.cos(yaw), np.sin(yaw)], -1)
+    mean = xy[:, None] + (speed[:, None] * t)[..., None] * heading[:, None]
+    pred = Prediction(ids=ids, dt=DT, mean=mean, cov=np.broadcast_to(0.05 * np.eye(2), (n, T, 2, 2)),
+                      yaw=np.broadcast_to(yaw[:, None], (n, T)))
+    return agents, pred
+
+
+def test_assess_risk_matches_dense_probability_times_harm():
+    T = 40
+    t = (np.arange(T) + 1) * DT
+    # Two candidates driving +x at 10 m/s: one in lane y = 0, one at y = 3.5.
+    cand = candidates(np.stack([10 * t, 10 * t]), np.array([[0.0], [3.5]]), 0.0, 10.0)
+    # A car coming head-on in lane 0 at 5 m/s, and a pedestrian crossing at x = 25 towards y = 3.5.
+    agents, pred = agents_and_prediction(
+        xy=[[40.0, 0.0], [25.0, 1.0]], yaw=[math.pi, math.pi / 2], speed=[5.0, 1.5],
+        cls=[RoadUserClass.CAR, RoadUserClass.PEDESTRIAN], length=[4.5, 0.5], width=[1.8, 0.5],
+        mass=[1500.0, 75.0], T=T,
+    )
+    r = assess_risk(cand, pred, agents, EGO_M, RoadUserClass.CAR, EGO_L, EGO_W)
+    p = collision_probability(cand, pred, agents.length, agents.width, EGO_L, EGO_W)
+    np.testing.assert_array_equal(r.p, p)
+    # Dense reference harm on every (k, n, t), agent speed 5 | 1.5 m/s exactly (constant velocity).
+    ego = Party(cand.x[:, None], cand.y[:, None], cand.yaw[:, None], cand.speed[:, None], np.asarray(EGO_M), np.asarray(0))
+    oth = Party(pred.mean[None, ..., 0], pred.mean[None, ..., 1], pred.yaw[None], np.array([5.0, 1.5])[None, :, None],
+                agents.mass[None, :, None], agents.cls[None, :, None])
+    ref = crash_outcome(ego, oth, HarmCoefficients())
+    on = p > 0
+    np.testing.assert_allclose(r.ego_harm[on], ref.harm_a[on], rtol=1e-9)
+    np.testing.assert_allclose(r.other_harm[on], ref.harm_b[on], rtol=1e-9)
+    assert np.all(r.ego_harm[~on] == 0) and np.all(r.other_harm[~on] == 0)
+    np.testing.assert_allclose(r.ego_risk, (p * ref.harm_a).max(axis=2), rtol=1e-9)
+    np.testing.assert_allclose(r.other_risk, (p * ref.harm_b).max(axis=2), rtol=1e-9)
+    np.testing.assert_allclose(r.other_harm_max, np.where(on, ref.harm_b, 0).max(axis=2), rtol=1e-9)
+    np.testing.assert_array_equal(r.vulnerable, [False, True])
+    # The car (closing at 15 m/s, dv 7.5 m/s each, front: harm ~0.04) threatens only candidate 0;
+    # the pedestrian (hit at ~10 m/s: harm ~0.40) only candidate 1.
+    assert r.ego_risk[0, 0] > 0.01 and r.ego_risk[1, 0] == 0 and r.other_risk[0, 1] == 0
+    # Crossing at right angles: closing speed sqrt(10^2 + 1.5^2) = 10.1119, pedestrian's share m_e / (m_e + 75).
+    dv_ped = math.hypot(10.0, 1.5) * EGO_M / (EGO_M + 75.0)
+    assert r.other_harm_max[1, 1] == pytest.approx(1 / (1 + math.exp(3.164 - 0.288 * dv_ped)), rel=1e-6)
+    # So the ethical cost prefers the (mild) car crash to hitting the pedestrian, and books VRU risk.
+    c = score(cand, r, CostConfig(), desired_speed=10.0).terms
+    assert c["j_risk"][1] > c["j_risk"][0]
+    assert c["vru_risk_sum"][0] == 0 and c["vru_risk_sum"][1] == pytest.approx(r.other_risk[1, 1])
+    np.testing.assert_array_equal(c["j_utility"] > 0, [False, True])
+
+
+def test_assess_risk_without_agents_and_boundary_harm():
+    T = 10
+    cand = candidates(np.zeros((3, T)), 0.0, 0.0, np.array([[5.0], [10.0], [20.0]]) + np.zeros(T))
+    agents = AgentStates.empty()
+    pred = Prediction(ids=(), dt=DT, mean=np.zeros((0, T, 2)), cov=np.zeros((0, T, 2, 2)), yaw=np.zeros((0, T)))
+    off = np.array([False, True, True])
+    r = assess_risk(cand, pred, agents, EGO_M, RoadUserClass.CAR, EGO_L, EGO_W, off_road=off)
+    assert r.p.shape == r.ego_harm.shape == (3, 0, T) and r.ego_risk.shape == (3, 0)
+    np.testing.assert_allclose(r.boundary_harm, [0.0, leave_road_harm(10.0), leave_road_harm(20.0)])
+    # (K, T): the speed at the first off-road step.
+    speed = np.tile(np.arange(T, dtype=float), (3, 1))
+    cand2 = candidates(np.zeros((3, T)), 0.0, 0.0, speed)
+    off2 = np.zeros((3, T), bool)
+    off2[1, 4:] = True
+    off2[2, 7] = True
+    np.testing.assert_allclose(boundary_harm(cand2, off2), [0.0, leave_road_harm(4.0), leave_road_harm(7.0)])
+    c = score(cand, r, CostConfig(), 10.0).terms
+    np.testing.assert_allclose(c["ego"], r.boundary_harm)
+    with pytest.raises(ValueError, match="same agents"):
+        other_agents, _ = agents_and_prediction([[0.0, 0.0]], [0.0], [1.0], [0], [4.5], [1.8], [1500.0], T)
+        assess_risk(cand, pred, other_agents, EGO_M, RoadUserClass.CAR, EGO_L, EGO_W)
