@@ -173,9 +173,9 @@ def tiny_dataset(n=16):
     tf = (np.arange(F.FUT_STEPS) + 1) * F.MODEL_DT
     rng = np.random.default_rng(0)
     v = rng.uniform(2, 12, n)
-    a = rng.uniform(-1, 1, n)
+    a = rng.uniform(-3, 3, n)
     hist = np.stack([v[:, None] * t + 0.5 * a[:, None] * t**2, np.zeros((n, len(t)))], -1)
-    fut = np.stack([v[:, None] * tf + 0.5 * a[:, None] * tf**2, 0.05 * a[:, None] * tf**2], -1)
+    fut = np.stack([v[:, None] * tf + 0.5 * a[:, None] * tf**2, 0.3 * a[:, None] * tf**2], -1)
     return {
         "tgt_hist": hist.astype(np.float32), "tgt_group": np.zeros(n, dtype=np.int64), "fut": fut.astype(np.float32),
         "nbr_hist": hist[:4].astype(np.float32) + 5, "nbr_group": np.zeros(4, dtype=np.int64),
@@ -236,6 +236,20 @@ def test_shipped_weights_car_straight(kind):
     # history at another spacing gives about the same answer
     r = pred.predict(straight_obs(speed=10.0, dt=0.5), horizon_steps=60, dt=0.1)
     np.testing.assert_allclose(r.mean, p.mean, atol=0.05)
+
+
+def test_padded_history_changes_nothing():
+    pred = LSTMPredictor.default("attention")
+    full = straight_obs(speed=8.0)
+    hist = np.array(full.history)
+    valid = np.array(full.valid)
+    hist[0, :20] = 1e3  # garbage where not observed
+    valid[0, :20] = False
+    padded = Observation(0.0, 0.1, hist, valid, full.current, full.ego)
+    a = pred.predict(full, 40, 0.1)
+    b = pred.predict(padded, 40, 0.1)
+    np.testing.assert_allclose(b.mean, a.mean, atol=1e-4)
+    np.testing.assert_allclose(b.cov, a.cov, atol=1e-6)
 
 
 def test_predictor_empty_observation():

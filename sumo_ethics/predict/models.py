@@ -16,6 +16,13 @@ Sizes follow Deo & Trivedi / METHOD.md section 4: Linear(2->32) input embedding 
 32-d embedding of the agent class group, added), shared LSTM encoder 64, dynamics
 embedding 32, 13 x 3 social grid, Conv 3x3 (64) -> Conv 3x1 (16) -> MaxPool(2,1) = 80,
 decoder LSTM 128, linear output of 5 per future step. No manoeuvre classes.
+Residual decoding (residual=True, the default): mu = constant-velocity rollout of the
+target's last observed displacement + the decoder's output, so an untrained decoder
+already predicts constant velocity and training learns the corrections (absolute
+positions up to ~60 m ahead were otherwise learnt less precisely than CV predicts them).
+sigma = softplus(.) + sigma_min (normalised units; 0.01 = 10 cm for vehicles, 2 cm for
+pedestrians), rho = 0.95 tanh(.): SUMO's exactly-standing agents would otherwise drive
+sigma to zero and make the NLL explode on the first one that starts moving.
 
 Attention (kind="attention"): X = the target's encoder state, H_i = the neighbours'
 encoder states. The paper's ``A_i = cos(X,H_i) / sum_j cos(X,H_j)`` is undefined when the
@@ -60,11 +67,15 @@ class TrajectoryLSTM(nn.Module):
         conv2: int = 16,
         n_groups: int = F.N_GROUPS,
         pos_scale: tuple[float, ...] = tuple(F.POS_SCALE),
+        sigma_min: float = 0.01,
+        residual: bool = True,
     ) -> None:
         super().__init__()
         if kind not in KINDS:
             raise ValueError(f"unknown model kind {kind!r}, expected one of {KINDS}")
         self.kind = kind
+        self.sigma_min = float(sigma_min)
+        self.residual = bool(residual)
         self.hist_steps, self.fut_steps = hist_steps, fut_steps
         self.enc_size = enc
         self.input_emb = nn.Linear(2, in_emb)
@@ -80,6 +91,10 @@ class TrajectoryLSTM(nn.Module):
             self.log_tau = nn.Parameter(torch.tensor(math.log(0.1)))
         self.decoder = nn.LSTM(self.soc_size + dyn, dec, batch_first=True)
         self.output = nn.Linear(dec, 5)
+        if self.residual:  # start exactly at constant velocity
+            with torch.no_grad():
+                self.output.weight[:2].zero_()
+                self.output.bias[:2].zero_()
         self.act = nn.LeakyReLU(0.1)
         self.register_buffer("pos_scale", torch.tensor(pos_scale, dtype=torch.float32))
 
@@ -122,7 +137,11 @@ class TrajectoryLSTM(nn.Module):
         h_dec, _ = self.decoder(enc[:, None, :].expand(b, self.fut_steps, enc.shape[-1]))
         out = self.output(h_dec)
         mu = out[..., :2]
-        sigma = Fn.softplus(out[..., 2:4]) + 1e-3
+        if self.residual:
+            steps = torch.arange(1, self.fut_steps + 1, dtype=mu.dtype, device=mu.device)
+            v_last = tgt_hist[:, -1] - tgt_hist[:, -2]  # displacement over the last model step
+            mu = mu + steps[None, :, None] * v_last[:, None, :]
+        sigma = Fn.softplus(out[..., 2:4]) + self.sigma_min
         rho = 0.95 * torch.tanh(out[..., 4:5])
         return torch.cat([mu, sigma, rho], dim=-1)
 
@@ -180,6 +199,8 @@ def model_config(model: TrajectoryLSTM) -> dict[str, Any]:
         "hist_steps": model.hist_steps,
         "fut_steps": model.fut_steps,
         "pos_scale": [float(v) for v in model.pos_scale.tolist()],
+        "sigma_min": model.sigma_min,
+        "residual": model.residual,
     }
 
 
@@ -232,7 +253,8 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
         raise PredictorError(f"predictor weights file {path} was trained for another time step or grid")
     try:
         cfg = blob["config"]
-        model = TrajectoryLSTM(kind=cfg["kind"], pos_scale=tuple(cfg["pos_scale"]))
+        model = TrajectoryLSTM(kind=cfg["kind"], pos_scale=tuple(cfg["pos_scale"]), sigma_min=cfg.get("sigma_min", 1e-3),
+                               residual=cfg.get("residual", False))
         model.load_state_dict(blob["state_dict"])
     except Exception as exc:  # noqa: BLE001
         raise PredictorError(f"predictor weights file {path} does not match the model: {exc}") from None

@@ -34,14 +34,16 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class TrainConfig:
     """epochs: maximum epochs in all; mse_epochs: warm-up epochs with the MSE loss;
-    patience: NLL epochs without validation improvement before stopping; max_minutes:
+    patience: NLL epochs without validation improvement before stopping; lr_decay: factor
+    applied to the learning rate after each NLL epoch without improvement; max_minutes:
     wall-clock budget [min]; max_train/max_val: caps on sample counts (random subset)."""
 
     epochs: int = 40
     mse_epochs: int = 4
     batch_size: int = 128
     lr: float = 1e-3
-    patience: int = 4
+    patience: int = 6
+    lr_decay: float = 0.5
     grad_clip: float = 10.0
     seed: int = 0
     threads: int = 1
@@ -148,6 +150,8 @@ def train_model(
                     best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
                 else:
                     bad += 1
+                    for group in opt.param_groups:
+                        group["lr"] *= config.lr_decay
                     if bad >= config.patience:
                         stopped = "early stopping"
                         break
