@@ -36,22 +36,38 @@ def cli() -> None:
 @click.option("--seed", type=int, default=42, show_default=True, help="SUMO and route seed.")
 @click.option("--end", type=float, help="Simulation time limit [s] (default: the scenario's end, else 3600).")
 @click.option("--out", type=click.Path(path_type=Path), help="Run folder (default runs/<scenario>-seed<N>).")
-@click.option("--controller", default="baseline", show_default=True, help="Ego controller.")
+@click.option("--controller", type=click.Choice(["ethical", "baseline"]), default="ethical", show_default=True,
+              help="Ego controller: the ethical planner, or the naive route-following baseline.")
+@click.option("--omega-u", type=float, help="Weight w_u of the utility term J_utility (default 0.5).")
+@click.option("--omega-o", type=float, help="Weight w_o of Origin's cost J_origin (default 1.0).")
+@click.option("--weights", help="J_origin principle weights: ethical (default), standard or ego.")
+@click.option("--utility", type=click.Choice(["candidate_mean", "literal"]),
+              help="Reading of J_mean in J_utility (default candidate_mean).")
+@click.option("--predictor", type=click.Choice(["attention", "cslstm", "cv"]),
+              help="Neighbour prediction (default attention).")
+@click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")
 @click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")
 @click.option("--radius", type=float, default=80.0, show_default=True, help="Sensing radius around the ego [m].")
 @click.option("--quiet", is_flag=True, help="No progress display.")
 def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float,
-        seed: int, end: float | None, out: Path | None, controller: str, continue_after_collision: bool,
-        radius: float, quiet: bool) -> None:
+        seed: int, end: float | None, out: Path | None, controller: str, omega_u: float | None,
+        omega_o: float | None, weights: str | None, utility: str | None, predictor: str | None,
+        config_file: Path | None, continue_after_collision: bool, radius: float, quiet: bool) -> None:
     """Run SCENARIO (a .sumocfg) with one vehicle taken over by the ego controller."""
     from sumo_ethics.config import RunConfig
-    from sumo_ethics.runner import run as run_scenario
+    from sumo_ethics.runner import make_controller, run as run_scenario
+    from sumo_ethics.settings import load_toml, planner_config
+
+    table = load_toml(config_file) if config_file is not None else None
+    planner = planner_config(table, omega_u=omega_u, omega_o=omega_o, weights=weights, utility=utility,
+                             predictor=predictor)
 
     out = out or Path("runs") / f"{scenario.stem}-seed{seed}"
     cfg = RunConfig(scenario=scenario, out=out, seed=seed, end=end, ego_id=ego_id, ego_from=ego_from, ego_to=ego_to,
                     ego_depart=ego_depart, stop_at_collision=not continue_after_collision, controller=controller,
-                    sensing_radius=radius, progress=not quiet)
-    summary = run_scenario(cfg)
+                    sensing_radius=radius, progress=not quiet, planner=planner)
+    # built before SUMO starts, so a bad weights file or setting fails at once
+    summary = run_scenario(cfg, controller=make_controller(cfg))
     d = summary.data
     con = _console()
     h = d["harm"]

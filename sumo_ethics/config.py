@@ -49,12 +49,13 @@ class RunConfig:
     ego_depart: float = 0.0  # s; when the inserted ego departs (traffic warm-up before it)
     min_route_length: float = 300.0  # m; for the random route
     stop_at_collision: bool = True  # end the run at the ego's first collision
-    controller: str = "baseline"
+    controller: str = "ethical"  # or "baseline"
     sensing_radius: float = 80.0  # m; neighbours read around the ego each step
     collision_gap: float = 1.0  # s; a pair apart for longer than this collides anew
     ego: EgoVehicle = field(default_factory=EgoVehicle)
     sumo_args: tuple[str, ...] = ()  # extra SUMO command-line options
     progress: bool = True
+    planner: Any = None  # sumo_ethics.plan.ethical.PlannerConfig for the "ethical" controller (None: defaults)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "scenario", Path(self.scenario))
@@ -77,4 +78,18 @@ class RunConfig:
         d["scenario"] = str(self.scenario)
         d["out"] = str(self.out)
         d["sumo_args"] = list(self.sumo_args)
+        d["planner"] = _plain(d["planner"])
         return d
+
+
+def _plain(value: Any) -> Any:
+    """JSON-ready copy: enums by value, tuples as lists."""
+    import enum
+
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, enum.Enum):
+        return value.value
+    return value

@@ -22,6 +22,7 @@ from sumo_ethics.config import RunConfig
 from sumo_ethics.errors import ConfigError, SimulationError, SumoEthicsError
 from sumo_ethics.ethics.harm import CrashOutcome, ImpactArea, Party, crash_outcome
 from sumo_ethics.plan.controller import Controller, Scene
+from sumo_ethics.plan.history import History
 from sumo_ethics.record.writer import RunRecorder, write_json
 from sumo_ethics.sim import session
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld, party_state, sumo_collisions
@@ -292,6 +293,7 @@ class Run:
         half = float(snap.ego.length[0]) / 2
         s, d = (float(v) for v in route.path.project(snap.ego.xy[0]))
         progress = _progress(cfg.progress, snap.time, end)
+        history = History(dt) if getattr(self.controller, "needs_history", False) else None
         try:
             while True:
                 t = snap.time
@@ -300,8 +302,12 @@ class Run:
                     self.status, self.message = RunStatus.TIMEOUT, f"time limit {end:g} s reached"
                     return
                 w0 = wallclock.perf_counter()
+                obs = None
+                if history is not None:
+                    history.push(snap.others)
+                    obs = history.observation(t, snap.ego, snap.others)
                 scene = Scene(time=t, dt=dt, ego=snap.ego, others=snap.others, route=route, s=s, d=d,
-                              stop_s=self.stop_line(s + half), vehicle=cfg.ego)
+                              stop_s=self.stop_line(s + half), vehicle=cfg.ego, history=obs)
                 decision = self.controller.act(scene)
                 w1 = wallclock.perf_counter()
                 world.apply(decision.command)
@@ -392,13 +398,20 @@ def _progress(enabled: bool, start: float, end: float) -> Any:
     return prog, task
 
 
-def make_controller(name: str) -> Controller:
-    from sumo_ethics.plan.baseline import RouteFollower
+CONTROLLERS = ("ethical", "baseline")
 
-    controllers: dict[str, Callable[[], Controller]] = {"baseline": RouteFollower}
-    if name not in controllers:
-        raise ConfigError(f"unknown controller '{name}'; known: {', '.join(sorted(controllers))}")
-    return controllers[name]()
+
+def make_controller(cfg: RunConfig) -> Controller:
+    """The controller named by ``cfg.controller``: "ethical" (the planner) or "baseline"."""
+    if cfg.controller == "baseline":
+        from sumo_ethics.plan.baseline import RouteFollower
+
+        return RouteFollower()
+    if cfg.controller == "ethical":
+        from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
+
+        return EthicalPlanner(cfg.planner or PlannerConfig())
+    raise ConfigError(f"unknown controller '{cfg.controller}'; known: {', '.join(CONTROLLERS)}")
 
 
 def run(cfg: RunConfig, controller: Controller | None = None) -> RunSummary:
@@ -408,7 +421,7 @@ def run(cfg: RunConfig, controller: Controller | None = None) -> RunSummary:
     errors during the run are reported as status ``error`` in the summary (and raised as
     SimulationError after the outputs are written).
     """
-    controller = controller or make_controller(cfg.controller)
+    controller = controller or make_controller(cfg)
     r = Run(cfg, controller)
     t0 = wallclock.perf_counter()
     error: BaseException | None = None

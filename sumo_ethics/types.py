@@ -164,8 +164,8 @@ class Candidates:
 
     x, y: (K, T) centre [m]; yaw: (K, T) [rad]; speed: (K, T) [m/s]; accel: (K, T) longitudinal
     [m/s^2]; curvature: (K, T) [1/m]; s, d: (K, T) Frenet arc length and lateral offset [m];
-    horizon: (K,) horizon of each candidate [s] (steps past it repeat the last state and are
-    masked out by ``valid``); valid: (K, T) bool.
+    horizon: (K,) horizon of each candidate [s] (past it the candidate keeps its end speed and
+    lateral offset: what the ego would do next); valid: (K, T) bool, False only for padding.
     """
 
     dt: float

@@ -15,20 +15,29 @@ pytestmark = pytest.mark.sumo
 GAME = Path(sumo.SUMO_HOME) / "tools" / "game"
 
 
-@pytest.mark.parametrize("name, ego", [("ramp", None), ("ramp", "onramp.0"), ("cross", None),
-                                       ("cross", "1_right.0"), ("corridor", None), ("square", None)])
-def test_runs_on_shipped_scenario(tmp_path, name, ego):
+@pytest.mark.parametrize("name, ego, controller", [
+    ("ramp", None, "baseline"), ("ramp", "onramp.0", "baseline"), ("cross", None, "baseline"),
+    ("cross", "1_right.0", "baseline"), ("corridor", None, "baseline"), ("square", None, "baseline"),
+    ("ramp", "onramp.0", "ethical"), ("cross", "1_right.0", "ethical"),
+])
+def test_runs_on_shipped_scenario(tmp_path, name, ego, controller):
+    from sumo_ethics.plan.ethical import PlannerConfig
+
     cfg = GAME / f"{name}.sumocfg"
     out = tmp_path / "run"
-    summary = run(RunConfig(cfg, out, seed=1, end=150, ego_id=ego, progress=False))
+    summary = run(RunConfig(cfg, out, seed=1, end=150 if controller == "baseline" else 40, ego_id=ego,
+                            progress=False, controller=controller, planner=PlannerConfig(predictor="cv")))
     assert summary.status.value in ("completed", "timeout", "collision")
     steps = pd.read_parquet(out / "steps.parquet")
     assert len(steps) > 10
     dt = summary.data["step_length"]
     assert dt == pytest.approx(steps.time.diff().dropna().median())  # their own step length (0.1 or 0.2 s)
-    # SUMO reports the commanded speed; at an edge change it re-derives it from the moved distance,
-    # which differs from our path's arc length by millimetres
-    assert (steps.speed - steps.speed_cmd).abs().max() < 0.01
+    # SUMO reports the commanded speed while the ego is on a lane (at a few edge changes it
+    # re-derives it from the moved distance: millimetres per second off); off every lane (a tight
+    # turn cut by the smoothed path) it reports the previous step's speed
+    on_lane = steps.lane != ""
+    assert (~on_lane).mean() < 0.05
+    assert (steps.speed - steps.speed_cmd)[on_lane].abs().max() < 0.05
     assert steps.accel.abs().max() <= 8.0 + 1e-6  # no teleports: within the ego's braking limit
     if ego is not None:
         assert summary.data["ego_id"] == ego

@@ -98,6 +98,23 @@ def lane_change_shape(lane: str, target: str, start_xy: np.ndarray | None, lengt
     return (1.0 - w) * np.stack([xa, ya], axis=-1) + w * np.stack([xb, yb], axis=-1)
 
 
+def smooth_path(raw: Polyline, spacing: float = 1.0, half_window: int = 2) -> tuple[Polyline, np.ndarray]:
+    """Resample ``raw`` every ``spacing`` metres and smooth it with a moving average of
+    2 * half_window + 1 points (ends kept), so that SUMO's coarse junction shapes do not give
+    curvature spikes. Returns the new path and each new vertex's arc length on ``raw``."""
+    n = max(int(np.ceil(raw.length / spacing)), 1) + 1
+    s = np.linspace(0.0, raw.length, n)
+    x, y, _ = raw.to_xy(s, np.zeros(n))
+    pts = np.stack([x, y], axis=-1)
+    if n > 2 * half_window + 1:
+        kernel = np.ones(2 * half_window + 1) / (2 * half_window + 1)
+        padded = np.concatenate([np.repeat(pts[:1], half_window, 0), pts, np.repeat(pts[-1:], half_window, 0)])
+        sm = np.stack([np.convolve(padded[:, i], kernel, mode="valid") for i in (0, 1)], axis=-1)
+        sm[0], sm[-1] = pts[0], pts[-1]
+        pts = sm
+    return Polyline.from_points(pts), s
+
+
 def build_route_path(edges: tuple[str, ...], start_lane: str, vclass: str,
                      start_xy: np.ndarray | None = None) -> RoutePath:
     """Lane-level reference path for ``edges`` starting from the ego's current lane.
@@ -160,15 +177,18 @@ def build_route_path(edges: tuple[str, ...], start_lane: str, vclass: str,
     xy = np.vstack(pts)
     keep = np.ones(len(xy), dtype=bool)
     keep[1:] = np.hypot(*np.diff(xy, axis=0).T) > 1e-6
-    path = Polyline.from_points(xy[keep])
-    new_index = np.cumsum(keep) - 1  # vertex index after dropping duplicates
-    links = [JunctionLink(s=float(path.s[new_index[v]]), lane=ln, index=j) for v, ln, j in link_at]
-    lb = np.asarray(bounds)[keep]
+    raw = Polyline.from_points(xy[keep])
+    path, raw_s = smooth_path(raw)
+    vertex = np.clip(np.searchsorted(raw.s, raw_s, side="right") - 1, 0, len(raw.s) - 1)  # raw vertex per new one
+    new_index = np.cumsum(keep) - 1  # raw vertex index after dropping duplicates
+    links = [JunctionLink(s=float(np.interp(raw.s[new_index[v]], raw_s, path.s)), lane=ln, index=j)
+             for v, ln, j in link_at]
+    lb = np.asarray(bounds)[keep][vertex]
     return RoutePath(
         edges=edges,
         path=path,
-        lane_of_vertex=tuple(np.asarray(lane_ids)[keep]),
-        speed_limit=np.asarray(vmax)[keep],
+        lane_of_vertex=tuple(np.asarray(lane_ids)[keep][vertex]),
+        speed_limit=np.asarray(vmax)[keep][vertex],
         left=lb[:, 0],
         right=lb[:, 1],
         links=tuple(links),

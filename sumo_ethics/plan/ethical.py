@@ -1,0 +1,167 @@
+"""The ethical planner: candidate trajectories scored by J_risk = w_o J_origin + w_u J_utility.
+
+predict (neighbours) -> sample (Frenet candidates) -> check (feasibility) -> assess risk
+(P(collision) x harm) -> score (named cost terms) -> select (validity class, then lowest J_risk).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Protocol
+
+import numpy as np
+
+from sumo_ethics.errors import ConfigError
+from sumo_ethics.ethics.cost import CostConfig, UtilityMode, score
+from sumo_ethics.ethics.probability import ProbabilityConfig
+from sumo_ethics.ethics.risk import RiskTerms, assess_risk
+from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
+from sumo_ethics.plan.controller import Decision, Scene
+from sumo_ethics.plan.feasibility import check
+from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, sample
+from sumo_ethics.sim.world import EgoCommand
+from sumo_ethics.types import Candidates, Observation, Prediction
+
+PREDICTORS = ("attention", "cslstm", "cv")
+
+#: validity classes, best first (the selected candidate's class is logged as ``validity``)
+VALIDITY = ("safe", "no_overlap_on_road", "no_overlap", "feasible", "emergency")
+
+
+class Predictor(Protocol):
+    def predict(self, obs: Observation, horizon_steps: int, dt: float) -> Prediction: ...
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Everything the ethical planner decides with.
+
+    max_risk: a candidate is "safe" when its largest risk against any party (ego's plus the
+    other's) stays below this [-]; predictor: "attention", "cslstm" or "cv" (constant velocity).
+    """
+
+    cost: CostConfig = field(default_factory=CostConfig)
+    # 4 horizons (1 s gives hard stops) x 15 end speeds x 17 lateral offsets = 1020 candidates
+    sampling: SamplingConfig = field(default_factory=lambda: SamplingConfig(horizons=(1.0, 2.0, 3.0, 4.0),
+                                                                            n_offsets=17))
+    probability: ProbabilityConfig = field(default_factory=ProbabilityConfig)
+    predictor: str = "attention"
+    max_risk: float = 0.01
+
+    def __post_init__(self) -> None:
+        if self.predictor not in PREDICTORS:
+            raise ConfigError(f"unknown predictor '{self.predictor}'; known: {', '.join(PREDICTORS)}")
+        if not (isinstance(self.max_risk, (int, float)) and 0.0 < self.max_risk <= 1.0):
+            raise ConfigError(f"max_risk must be in (0, 1], got {self.max_risk!r}")
+
+
+def make_predictor(name: str) -> Predictor:
+    from sumo_ethics.predict import ConstantVelocityPredictor, LSTMPredictor
+
+    return ConstantVelocityPredictor() if name == "cv" else LSTMPredictor.default(name)
+
+
+def mean_path_overlap(cand: Candidates, pred: Prediction, risk: RiskTerms, length: np.ndarray,
+                      width: np.ndarray, ego_length: float, ego_width: float) -> np.ndarray:
+    """(K,) bool: the ego box meets an agent's box at its predicted mean at some step.
+
+    Only (k, n, t) with a non-zero collision probability can overlap, so only those are tested.
+    """
+    sp = risk.sparse
+    k, n, t = sp.k, sp.n, sp.t
+    hit = np.zeros(len(cand), dtype=bool)
+    if len(k):
+        ov = boxes_overlap(
+            OrientedBoxes(cand.x[k, t], cand.y[k, t], cand.yaw[k, t], ego_length, ego_width),
+            OrientedBoxes(pred.mean[n, t, 0], pred.mean[n, t, 1], pred.yaw[n, t], length[n], width[n]),
+        )
+        hit[k[ov]] = True
+    return hit
+
+
+def select(classes: list[np.ndarray], total: np.ndarray) -> tuple[int, int]:
+    """(candidate, class index) of the lowest total within the best non-empty class; (-1, len) if none."""
+    for c, members in enumerate(classes):
+        if members.any():
+            return int(np.argmin(np.where(members, total, np.inf))), c
+    return -1, len(classes)
+
+
+class EthicalPlanner:
+    """The default controller: the paper's utility-risk planner on top of Origin's J_origin."""
+
+    name = "ethical"
+    needs_history = True
+
+    def __init__(self, cfg: PlannerConfig = PlannerConfig(), predictor: Predictor | None = None) -> None:
+        self.cfg = cfg
+        self.predictor = predictor or make_predictor(cfg.predictor)
+        self._lateral = (0.0, 0.0)  # d', d'' of the last chosen candidate at the next step
+        self._accel = 0.0
+        self._sampling: SamplingConfig | None = None
+
+    def act(self, scene: Scene) -> Decision:
+        veh = scene.vehicle
+        ego_length, ego_width = float(scene.ego.length[0]), float(scene.ego.width[0])
+        if self._sampling is None:  # plan at the simulation's step so commands fall on samples
+            self._sampling = replace(self.cfg.sampling, dt=scene.dt)
+        sc = self._sampling
+        w0 = time.perf_counter()
+        horizon_steps = int(round(max(sc.horizons) / sc.dt))
+        obs = scene.history
+        agents = scene.others
+        pred = self.predictor.predict(obs, horizon_steps, sc.dt)
+        w1 = time.perf_counter()
+        route = scene.route
+        i = route.vertex_at(scene.s)
+        v_limit = min(float(route.speed_limit[i]), veh.max_speed)
+        state = FrenetState(s=scene.s, d=scene.d, s_dot=float(scene.ego.speed[0]), s_ddot=self._accel,
+                            d_dot=self._lateral[0], d_ddot=self._lateral[1])
+        cand = sample(route.path, state, sc, v_max=v_limit, left=route.left, right=route.right,
+                      margin=ego_width / 2.0)
+        # an ego above the limit (e.g. at takeover) must be allowed to slow down to it
+        feas = check(cand, route, veh, speed_limit_factor=max(1.0, (state.s_dot + 0.01) / max(v_limit, 0.1)))
+        w2 = time.perf_counter()
+        risk = assess_risk(cand, pred, agents, ego_mass=float(scene.ego.mass[0]), ego_cls=int(scene.ego.cls[0]),
+                           ego_length=ego_length, ego_width=ego_width, prob_cfg=self.cfg.probability,
+                           off_road=~feas.on_road)
+        cost = score(cand, risk, self.cfg.cost, desired_speed=v_limit, feasible=feas.feasible)
+        w3 = time.perf_counter()
+        overlap = mean_path_overlap(cand, pred, risk, agents.length, agents.width, ego_length, ego_width)
+        legal = np.ones(len(cand), dtype=bool)
+        if scene.stop_s is not None:  # do not cross a red/yellow stop line with the front bumper
+            legal = ~np.any(cand.valid & (cand.s + ego_length / 2.0 > scene.stop_s), axis=1)
+        worst = np.max(risk.ego_risk + risk.other_risk, axis=1) if len(agents) else np.zeros(len(cand))
+        base = feas.feasible & legal
+        # METHOD.md's classes: criteria are dropped from the last: max risk, then staying on the
+        # road, then avoiding the predicted mean paths; a red light counts like the road edge
+        classes = [base & ~overlap & feas.on_road & (worst < self.cfg.max_risk),
+                   base & ~overlap & feas.on_road, feas.feasible & ~overlap, feas.feasible]
+        k, cls = select(classes, cost.total)
+        w4 = time.perf_counter()
+        timings = {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1), "risk_cost_ms": 1e3 * (w3 - w2),
+                   "select_ms": 1e3 * (w4 - w3)}
+        if k < 0:
+            return self._emergency(scene, timings)
+        info: dict[str, Any] = {f"cost_{name}": v for name, v in cost.row(k).items()}
+        info.update(validity=float(cls), n_candidates=float(len(cand)), n_feasible=float(feas.feasible.sum()),
+                    horizon=float(cand.horizon[k]), utility_literal=float(self.cfg.cost.utility is UtilityMode.LITERAL))
+        d0 = scene.d
+        dt = sc.dt
+        d1, d2 = float(cand.d[k, 0]), float(cand.d[k, min(1, cand.d.shape[1] - 1)])
+        self._lateral = ((d2 - d0) / (2 * dt), (d2 - 2 * d1 + d0) / dt**2)
+        self._accel = float(cand.accel[k, 0])
+        cmd = EgoCommand(float(cand.x[k, 0]), float(cand.y[k, 0]), float(cand.yaw[k, 0]), float(cand.speed[k, 0]))
+        return Decision(cmd, info=info, timings_ms=timings)
+
+    def _emergency(self, scene: Scene, timings: dict[str, float]) -> Decision:
+        """Nothing is feasible: brake as hard as allowed along the reference path, keeping d."""
+        veh = scene.vehicle
+        v = float(scene.ego.speed[0])
+        v_next = max(0.0, v - veh.max_decel * scene.dt)
+        s_next = scene.s + 0.5 * (v + v_next) * scene.dt
+        x, y, yaw = scene.route.path.to_xy(np.array(s_next), np.array(scene.d))
+        self._lateral, self._accel = (0.0, 0.0), (v_next - v) / scene.dt
+        return Decision(EgoCommand(float(x), float(y), float(yaw), v_next),
+                        info={"validity": float(len(VALIDITY) - 1)}, timings_ms=timings)

@@ -1,0 +1,76 @@
+"""Planner settings from the command line and TOML files, validated before SUMO starts.
+
+A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, predictor,
+max_risk) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
+``[planner.principles]`` (custom J_origin weights); unknown keys are errors.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+from sumo_ethics.errors import ConfigError
+
+
+def _known(table: dict[str, Any], allowed: set[str], where: str) -> None:
+    unknown = set(table) - allowed
+    if unknown:
+        raise ConfigError(f"unknown key(s) in {where}: {', '.join(sorted(unknown))}; known: {', '.join(sorted(allowed))}")
+
+
+def _weight(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise ConfigError(f"{name} must be a finite non-negative number, got {value!r}")
+    return float(value)
+
+
+def load_toml(path: Path) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigError(f"config file not found: {path}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"malformed TOML in {path}: {exc}") from None
+    _known(data, {"planner"}, str(path))
+    return data.get("planner", {})
+
+
+def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
+    """A validated PlannerConfig from a ``[planner]`` table and command-line overrides (None = unset)."""
+    from sumo_ethics.ethics.cost import CostConfig, PrincipleWeights, UtilityMode
+    from sumo_ethics.ethics.probability import ProbabilityConfig
+    from sumo_ethics.plan.ethical import PlannerConfig
+    from sumo_ethics.plan.sampling import SamplingConfig
+
+    t = dict(table or {})
+    t.update({k: v for k, v in overrides.items() if v is not None})
+    simple = {"omega_u", "omega_o", "weights", "utility", "predictor", "max_risk"}
+    _known(t, simple | {"sampling", "probability", "principles"}, "[planner]")
+    try:
+        weights = PrincipleWeights.preset(t.get("weights", "ethical"))
+        if "principles" in t:
+            p = t["principles"]
+            _known(p, {f.name for f in fields(PrincipleWeights)}, "[planner.principles]")
+            weights = PrincipleWeights(**{**{f.name: getattr(weights, f.name) for f in fields(PrincipleWeights)},
+                                          **{k: _weight(f"principles.{k}", v) for k, v in p.items()}})
+        utility = t.get("utility", UtilityMode.CANDIDATE_MEAN.value)
+        cost = CostConfig(weights=weights, omega_o=_weight("omega_o", t.get("omega_o", 1.0)),
+                          omega_u=_weight("omega_u", t.get("omega_u", 0.5)), utility=utility)
+        sampling = t.get("sampling", {})
+        _known(sampling, {f.name for f in fields(SamplingConfig)}, "[planner.sampling]")
+        if "horizons" in sampling:
+            sampling["horizons"] = tuple(sampling["horizons"])
+        probability = t.get("probability", {})
+        _known(probability, {f.name for f in fields(ProbabilityConfig)}, "[planner.probability]")
+        return PlannerConfig(cost=cost, sampling=SamplingConfig(**sampling),
+                             probability=ProbabilityConfig(**probability),
+                             predictor=t.get("predictor", "attention"), max_risk=t.get("max_risk", 0.01))
+    except ConfigError:
+        raise
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"invalid planner setting: {exc}") from None
