@@ -7,6 +7,7 @@ agents x horizon steps; no Python loops over boxes or points.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -141,9 +142,9 @@ class Polyline:
         """Total arc length [m]."""
         return float(self.s[-1])
 
-    @property
+    @functools.cached_property
     def _unit(self) -> np.ndarray:
-        """(M-1, 2) unit direction of each segment."""
+        """(M-1, 2) unit direction of each segment (computed once)."""
         return np.stack([np.cos(self.heading), np.sin(self.heading)], axis=-1)
 
     def _segment_index(self, s: np.ndarray) -> np.ndarray:
@@ -172,8 +173,8 @@ class Polyline:
         nseg = len(self.heading)
         lo, hi = 0, nseg
         if near is not None:
-            lo = int(self._segment_index(np.asarray(near[0], dtype=float)))
-            hi = int(self._segment_index(np.asarray(near[1], dtype=float))) + 1
+            lo, hi = (int(i) for i in np.searchsorted(self.s, near, side="right") - 1)
+            lo, hi = min(max(lo, 0), nseg - 1), min(max(hi, 0), nseg - 1) + 1
         block = max(1, _PROJECT_BLOCK_PAIRS // (hi - lo))
         s_out = np.empty(flat.shape[0])
         d_out = np.empty(flat.shape[0])
