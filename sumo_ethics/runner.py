@@ -28,6 +28,9 @@ from sumo_ethics.sim import session
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld, party_state, sumo_collisions
 from sumo_ethics.types import VULNERABLE, AgentStates, RoadUserClass, RunStatus
 
+#: called every ego step with (snapshot, world) before the controller acts
+StepHook = Callable[[Snapshot, SumoWorld], None]
+
 EGO_TYPE = "sumo_ethics_ego"
 EGO_ROUTE = "sumo_ethics_ego_route"
 DEFAULT_END = 3600.0  # s, when neither --end nor the scenario sets one
@@ -171,9 +174,10 @@ def _with_speed(s: AgentStates, speed: float) -> AgentStates:
 class Run:
     """State of one run; :meth:`execute` is the loop."""
 
-    def __init__(self, cfg: RunConfig, controller: Controller) -> None:
+    def __init__(self, cfg: RunConfig, controller: Controller, hooks: tuple[StepHook, ...] = ()) -> None:
         self.cfg = cfg
         self.controller = controller
+        self.hooks = hooks
         self.rec = RunRecorder(cfg.out)
         self.events = PairEvents(cfg.collision_gap)
         self.status = RunStatus.ERROR
@@ -302,6 +306,8 @@ class Run:
                     self.status, self.message = RunStatus.TIMEOUT, f"time limit {end:g} s reached"
                     return
                 w0 = wallclock.perf_counter()
+                for hook in self.hooks:  # e.g. hazards injected relative to the ego
+                    hook(snap, world)
                 obs = None
                 if history is not None:
                     history.push(snap.others)
@@ -414,15 +420,19 @@ def make_controller(cfg: RunConfig) -> Controller:
     raise ConfigError(f"unknown controller '{cfg.controller}'; known: {', '.join(CONTROLLERS)}")
 
 
-def run(cfg: RunConfig, controller: Controller | None = None) -> RunSummary:
+def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepHook, ...] = ()) -> RunSummary:
     """Run one scenario; writes the run folder and returns the summary.
+
+    hooks: callables ``hook(snapshot, world)`` called every ego step after the scene is read
+    and before the controller acts (they may act on SUMO, e.g. inject hazards; only code
+    under ``sumo_ethics/sim`` should).
 
     Raises ConfigError for bad input found before the simulation starts; SUMO failures and
     errors during the run are reported as status ``error`` in the summary (and raised as
     SimulationError after the outputs are written).
     """
     controller = controller or make_controller(cfg)
-    r = Run(cfg, controller)
+    r = Run(cfg, controller, tuple(hooks))
     t0 = wallclock.perf_counter()
     error: BaseException | None = None
     try:
