@@ -1,0 +1,147 @@
+"""The sweep's Parquet dataset: run folders -> ``DIR/dataset/{runs,collisions,steps}``.
+
+Each table is one pyarrow dataset, hive-partitioned by the swept parameters except the seed
+(``DIR/dataset/runs/scenario=urban/omega_u=0.5/part-0.parquet``); every row carries ``run_id``
+and all sweep parameters (the partition keys come back as columns when read with
+:func:`sumo_ethics.analysis.load`). The dataset is built under a temporary name and swapped in,
+so a reader never sees half of it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.dataset as ds
+import pyarrow.parquet as pq
+
+TABLES = ("runs", "collisions", "steps")
+FINISHED = ("completed", "collision", "timeout", "error")
+
+
+def read_manifest(out: Path) -> dict[str, Any]:
+    from sumo_ethics.errors import ConfigError
+
+    path = Path(out) / "manifest.json"
+    if not path.exists():
+        raise ConfigError(f"{out} is not a sweep folder (no manifest.json)")
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"{path} is unreadable: {exc}") from None
+
+
+def _arrow_type(values: list[Any]) -> pa.DataType:
+    vals = [v for v in values if v is not None]
+    if vals and all(isinstance(v, bool) for v in vals):
+        return pa.bool_()
+    if vals and all(isinstance(v, int) and not isinstance(v, bool) for v in vals):
+        return pa.int64()
+    if vals and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals):
+        return pa.float64()
+    return pa.string()
+
+
+def parameter_schema(manifest: dict[str, Any]) -> pa.Schema:
+    """Arrow types of the sweep parameters (scenario, omega_u, seed, --set keys)."""
+    d = manifest["definition"]
+    fields = [("scenario", pa.string()), ("omega_u", pa.float64()), ("seed", pa.int64())]
+    fields += [(k, _arrow_type(v)) for k, v in d.get("set", {}).items()]
+    return pa.schema(fields)
+
+
+def partition_schema(manifest: dict[str, Any]) -> pa.Schema:
+    sch = parameter_schema(manifest)
+    return pa.schema([f for f in sch if f.name != "seed"])
+
+
+def _run_row(run: dict[str, Any], folder: Path) -> dict[str, Any]:
+    s = json.loads((folder / "summary.json").read_text())
+    harm = s.get("harm", {})
+    coll = s.get("collisions", {})
+    wall = s.get("wall_time")
+    if (folder / "params.json").exists():
+        wall = json.loads((folder / "params.json").read_text()).get("wall_time", wall)
+    return {
+        "run_id": run["run_id"], **run["params"],
+        "status": s.get("status", "error"), "message": s.get("message", ""),
+        "completed": bool(s.get("completed", False)),
+        "harm_ego": float(harm.get("ego", 0.0)), "harm_third_party": float(harm.get("third_party", 0.0)),
+        "harm_vru": float(harm.get("vru", 0.0)), "harm_total": float(harm.get("total", 0.0)),
+        "collisions_ego": int(coll.get("ego", 0)), "collisions_others": int(coll.get("others", 0)),
+        "steps": int(s.get("steps", 0) or 0), "distance": float(s.get("distance", 0.0) or 0.0),
+        "sim_time": float(s["sim_time"]) if s.get("sim_time") is not None else None,
+        "route_length": float(s["route_length"]) if s.get("route_length") is not None else None,
+        "controller": s.get("controller"), "wall_time": float(wall) if wall is not None else None,
+        "path": f"runs/{run['run_id']}",
+    }
+
+
+RUN_COLUMNS = pa.schema([
+    ("run_id", pa.string()), ("status", pa.string()), ("message", pa.string()), ("completed", pa.bool_()),
+    ("harm_ego", pa.float64()), ("harm_third_party", pa.float64()), ("harm_vru", pa.float64()),
+    ("harm_total", pa.float64()), ("collisions_ego", pa.int64()), ("collisions_others", pa.int64()),
+    ("steps", pa.int64()), ("distance", pa.float64()), ("sim_time", pa.float64()), ("route_length", pa.float64()),
+    ("controller", pa.string()), ("wall_time", pa.float64()), ("path", pa.string()),
+])
+
+
+def _with_params(table: pa.Table, run_id: str, params: dict[str, Any], psch: pa.Schema) -> pa.Table:
+    n = table.num_rows
+    cols = [pa.array([run_id] * n, pa.string())] + [pa.array([params.get(f.name)] * n, f.type) for f in psch]
+    names = ["run_id"] + psch.names
+    for name in table.column_names:
+        if name not in names:
+            cols.append(table[name])
+            names.append(name)
+    return pa.Table.from_arrays(cols, names=names)
+
+
+def build_dataset(out: Path) -> dict[str, int]:
+    """(Re)build ``out/dataset`` from the finished run folders listed in the manifest; row counts."""
+    out = Path(out)
+    manifest = read_manifest(out)
+    psch = parameter_schema(manifest)
+    part = partition_schema(manifest)
+    run_rows: list[dict[str, Any]] = []
+    tables: dict[str, list[pa.Table]] = {"collisions": [], "steps": []}
+    for run in sorted(manifest["runs"], key=lambda r: r["run_id"]):
+        folder = out / "runs" / run["run_id"]
+        if not (folder / "summary.json").exists():
+            continue
+        run_rows.append(_run_row(run, folder))
+        for name in tables:
+            f = folder / f"{name}.parquet"
+            if f.exists():
+                tables[name].append(_with_params(pq.read_table(f), run["run_id"], run["params"], psch))
+    schema = pa.schema([RUN_COLUMNS.field("run_id"), *psch, *[f for f in RUN_COLUMNS if f.name != "run_id"]])
+    built = {"runs": pa.Table.from_pylist(run_rows, schema=schema)}
+    for name, parts in tables.items():
+        if parts:
+            built[name] = pa.concat_tables(parts, promote_options="permissive")
+        else:
+            built[name] = pa.schema([("run_id", pa.string()), *psch]).empty_table()
+    tmp = out / f".dataset.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    partitioning = ds.partitioning(part, flavor="hive")
+    for name, table in built.items():
+        if table.num_rows:
+            ds.write_dataset(table, tmp / name, format="parquet", partitioning=partitioning,
+                             basename_template="part-{i}.parquet", existing_data_behavior="overwrite_or_ignore")
+        else:  # keep the columns: one empty file at the root (partition keys are ordinary columns there)
+            (tmp / name).mkdir()
+            pq.write_table(table, tmp / name / "empty.parquet")
+    (tmp / "schema.json").write_text(json.dumps({"partitioning": part.names, "parameters": psch.names,
+                                                 "rows": {k: v.num_rows for k, v in built.items()}}, indent=2) + "\n")
+    final = out / "dataset"
+    old = out / f".dataset.old-{os.getpid()}"
+    if final.exists():
+        os.rename(final, old)
+    os.rename(tmp, final)
+    shutil.rmtree(old, ignore_errors=True)
+    return {k: v.num_rows for k, v in built.items()}

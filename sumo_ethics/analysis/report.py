@@ -1,0 +1,93 @@
+"""``sumo-ethics analyze``: tables (CSV + Markdown), figures (PNG + SVG) and a Markdown report."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+from sumo_ethics.analysis import load
+from sumo_ethics.analysis.stats import (check_groups, collision_table, status_table, summary_table,
+                                        to_markdown)
+
+
+@dataclass
+class Report:
+    folder: Path
+    report: Path
+    tables: dict[str, Path] = field(default_factory=dict)
+    figures: dict[str, list[Path]] = field(default_factory=dict)
+
+
+def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Path | None = None,
+                n_boot: int = 2000, seed: int = 0) -> Report:
+    """Write ``out`` (default ``sweep_dir/report``): summary/status/collision tables, plots, report.md."""
+    from sumo_ethics.analysis import plots
+    from sumo_ethics.errors import ConfigError
+
+    sweep_dir = Path(sweep_dir)
+    res = load(sweep_dir, steps=False)
+    if res.runs.empty:
+        raise ConfigError(f"{sweep_dir} holds no finished runs yet")
+    by = check_groups(res.runs, list(by) or ["omega_u"])
+    folder = Path(out) if out is not None else sweep_dir / "report"
+    folder.mkdir(parents=True, exist_ok=True)
+    rep = Report(folder=folder, report=folder / "report.md")
+
+    tables = {"summary": summary_table(res.runs, by, n_boot=n_boot, seed=seed),
+              "status": status_table(res.runs, by),
+              "collisions_by_class": collision_table(res.collisions)}
+    for name, df in tables.items():
+        df.to_csv(folder / f"{name}.csv", index=False)
+        (folder / f"{name}.md").write_text(to_markdown(df))
+        rep.tables[name] = folder / f"{name}.csv"
+
+    figs = folder / "figures"
+    rep.figures["harm"] = plots.harm_vs_parameter(tables["summary"], by, figs)
+    rep.figures["completion"] = plots.completion_vs_parameter(tables["summary"], by, figs)
+    rep.figures["harm_per_collision"] = plots.harm_per_collision(res.collisions, figs)
+    rep.figures["tradeoff"] = plots.tradeoff(res.runs, figs, colour_by=by[0])
+
+    manifest = json.loads((sweep_dir / "manifest.json").read_text())
+    d = manifest["definition"]
+    compact = tables["summary"][[*by, "n_runs", "completion_rate", "collision_rate", "harm_ego_mean",
+                                 "harm_third_party_mean", "harm_vru_mean", "harm_total_mean",
+                                 "harm_total_ci_lo", "harm_total_ci_hi"]]
+    lines = [
+        f"# Sweep report: {sweep_dir.name}",
+        "",
+        f"- scenarios: {', '.join(Path(s).name for s in d['scenarios'])}",
+        f"- w_u: {', '.join(f'{v:g}' for v in d['omega_u'])}; seeds: {', '.join(map(str, d['seeds']))}",
+        f"- swept with --set: {json.dumps(d['set']) if d['set'] else 'nothing'}; options: {json.dumps(d['options'])}",
+        f"- runs: {len(res.runs)} finished of {len(manifest['runs'])} "
+        f"({', '.join(f'{k} {v}' for k, v in sorted(res.runs['status'].value_counts().items()))})",
+        f"- grouped by: {', '.join(by)}; 95% CIs: percentile bootstrap over runs ({n_boot} resamples, seed {seed})",
+        "",
+        "Harm is the injury probability of the harm model, summed per run over the ego's collisions and",
+        "booked per class: ego, third party (every other party, VRU included) and VRU (pedestrians,",
+        "cyclists, motorcyclists).",
+        "",
+        "## Summary",
+        "",
+        to_markdown(compact),
+        "Full table with sums and every CI: [summary.csv](summary.csv) ([md](summary.md)).",
+        "",
+        "## Run outcomes",
+        "",
+        to_markdown(tables["status"]),
+        "## Ego collisions by class of the other party",
+        "",
+        to_markdown(tables["collisions_by_class"]) if len(tables["collisions_by_class"]) else "No ego collisions.\n",
+        "## Figures",
+        "",
+    ]
+    captions = {"harm": "Harm per class vs the swept parameter (mean over runs, 95% CI band)",
+                "completion": "Completion and ego-collision rate",
+                "harm_per_collision": "Harm per ego collision by class",
+                "tradeoff": "Ego vs third-party harm per run"}
+    for key, paths in rep.figures.items():
+        png, svg = (p.relative_to(folder).as_posix() for p in paths)
+        lines += [f"### {captions[key]}", "", f"![{captions[key]}]({png})", "", f"[SVG]({svg})", ""]
+    rep.report.write_text("\n".join(lines))
+    return rep

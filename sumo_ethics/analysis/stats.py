@@ -1,0 +1,123 @@
+"""Tables of a sweep: completion rate and harm per class per parameter value, bootstrap 95% CIs.
+
+The CI is a seeded percentile bootstrap over runs (runs are the independent samples: seeds
+of the same grid point). A group of one run has a zero-width interval.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from sumo_ethics.errors import ConfigError
+
+#: harm classes as booked per run: (runs column, label)
+HARM_CLASSES = (("harm_ego", "ego"), ("harm_third_party", "third party"), ("harm_vru", "VRU"),
+                ("harm_total", "total"))
+HARM_UNIT = "harm [-] (injury probability, summed over the run's ego collisions)"
+
+
+def bootstrap_ci(values: Sequence[float] | np.ndarray, n_boot: int = 2000, seed: int = 0,
+                 level: float = 0.95) -> tuple[float, float]:
+    """Percentile bootstrap CI of the mean of ``values`` (NaN, NaN for no values)."""
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return math.nan, math.nan
+    if x.size == 1 or np.all(x == x[0]):
+        return float(x[0]), float(x[0])
+    rng = np.random.default_rng(seed)
+    means = x[rng.integers(0, x.size, size=(n_boot, x.size))].mean(axis=1)
+    a = (1.0 - level) / 2.0
+    lo, hi = np.quantile(means, [a, 1.0 - a])
+    return float(lo), float(hi)
+
+
+def check_groups(runs: pd.DataFrame, by: Sequence[str]) -> list[str]:
+    by = list(by)
+    missing = [b for b in by if b not in runs.columns]
+    if missing:
+        raise ConfigError(f"unknown --by column(s): {', '.join(missing)}; known: {', '.join(runs.columns)}")
+    return by
+
+
+def summary_table(runs: pd.DataFrame, by: Sequence[str], n_boot: int = 2000, seed: int = 0) -> pd.DataFrame:
+    """One row per group: n_runs, completion and collision rates, harm per class (mean, sum, 95% CI)."""
+    by = check_groups(runs, by)
+    rows = []
+    groups = runs.groupby(by, sort=True, dropna=False) if by else [((), runs)]
+    for key, g in groups:
+        key = key if isinstance(key, tuple) else (key,)
+        row = dict(zip(by, key))
+        row["n_runs"] = len(g)
+        row["n_errors"] = int((g["status"] == "error").sum())
+        for name, col in (("completion_rate", g["completed"].astype(float)),
+                          ("collision_rate", (g["collisions_ego"] > 0).astype(float))):
+            lo, hi = bootstrap_ci(col, n_boot, seed)
+            row.update({name: float(col.mean()), f"{name}_ci_lo": lo, f"{name}_ci_hi": hi})
+        for col, _ in HARM_CLASSES:
+            lo, hi = bootstrap_ci(g[col], n_boot, seed)
+            row.update({f"{col}_mean": float(g[col].mean()), f"{col}_sum": float(g[col].sum()),
+                        f"{col}_ci_lo": lo, f"{col}_ci_hi": hi})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def status_table(runs: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
+    """Run counts per group and status (completed, collision, timeout, error)."""
+    by = check_groups(runs, by)
+    t = runs.groupby(by + ["status"], dropna=False).size().unstack("status", fill_value=0)
+    for s in ("completed", "collision", "timeout", "error"):
+        if s not in t.columns:
+            t[s] = 0
+    return t[["completed", "collision", "timeout", "error"]].reset_index()
+
+
+def ego_collision_harm(collisions: pd.DataFrame) -> pd.DataFrame:
+    """Long table of harm per ego collision and class: columns run_id, omega_u, ..., class, harm.
+
+    Per ego collision: the ego's harm (class "ego"), and the other party's harm booked as
+    "third party" (cars, trucks, buses) or "VRU" (pedestrians, cyclists, motorcyclists).
+    """
+    if collisions.empty or "involves_ego" not in collisions.columns:
+        return pd.DataFrame(columns=["run_id", "class", "harm", "class_b"])
+    c = collisions[collisions["involves_ego"].astype(bool)]
+    base = [col for col in c.columns if col in ("run_id", "scenario", "omega_u", "seed", "event", "class_b",
+                                                  "delta_v")]
+    ego = c[base].assign(**{"class": "ego", "harm": c["harm_ego"]})
+    vru = c["harm_vru"] > 0
+    third = c.loc[~vru, base].assign(**{"class": "third party", "harm": c.loc[~vru, "harm_third_party"]})
+    vr = c.loc[vru, base].assign(**{"class": "VRU", "harm": c.loc[vru, "harm_vru"]})
+    return pd.concat([ego, third, vr], ignore_index=True)
+
+
+def collision_table(collisions: pd.DataFrame) -> pd.DataFrame:
+    """Per class of the other party: ego collisions, mean closing speed, mean harm per class."""
+    cols = ["class_b", "n_collisions", "delta_v_mean_m_s", "harm_ego_mean", "harm_third_party_mean",
+            "harm_vru_mean"]
+    if collisions.empty:
+        return pd.DataFrame(columns=cols)
+    c = collisions[collisions["involves_ego"].astype(bool)]
+    if c.empty:
+        return pd.DataFrame(columns=cols)
+    t = c.groupby("class_b").agg(n_collisions=("event", "size"), delta_v_mean_m_s=("delta_v", "mean"),
+                                 harm_ego_mean=("harm_ego", "mean"),
+                                 harm_third_party_mean=("harm_third_party", "mean"),
+                                 harm_vru_mean=("harm_vru", "mean"))
+    return t.reset_index()[cols]
+
+
+def to_markdown(df: pd.DataFrame, digits: int = 4) -> str:
+    """A GitHub Markdown table (no extra dependency)."""
+    def cell(v) -> str:
+        if isinstance(v, (float, np.floating)):
+            return "" if math.isnan(v) else f"{v:.{digits}g}"
+        return str(v)
+
+    head = "| " + " | ".join(map(str, df.columns)) + " |"
+    sep = "| " + " | ".join("---" for _ in df.columns) + " |"
+    body = ["| " + " | ".join(cell(v) for v in row) + " |" for row in df.itertuples(index=False)]
+    return "\n".join([head, sep, *body]) + "\n"

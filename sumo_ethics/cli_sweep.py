@@ -1,0 +1,90 @@
+"""``sumo-ethics sweep`` and ``sumo-ethics analyze``: thin click commands over sweep.py / analysis.
+
+Registered on the main group in cli.py::
+
+    from sumo_ethics.cli_sweep import analyze, sweep
+    cli.add_command(sweep)
+    cli.add_command(analyze)
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import click
+
+
+@click.command()
+@click.argument("scenario_or_suite", type=click.Path(path_type=Path))
+@click.option("--omega-u", "omega_u", default="0.5", show_default=True,
+              help="Utility weights w_u: start:stop:step (stop included when on the grid), a,b,c or one value.")
+@click.option("--seeds", default="0", show_default=True, help="Seeds: 0-9 (inclusive), 0,3,5 or mixed 0-3,8.")
+@click.option("--set", "sets", multiple=True, metavar="KEY=V1,V2",
+              help="Sweep one more key over values (repeatable): planner keys (omega_o, weights, utility, predictor, "
+                   "max_risk, sampling.n_speeds, probability.*, principles.*) or run keys (end, ego_depart, "
+                   "controller, radius, stop_at_collision, ...).")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Sweep folder (resumed if it exists).")
+@click.option("--workers", type=int, default=None, help="Local processes (default: the number of CPUs).")
+@click.option("--scheduler", metavar="tcp://HOST:PORT", help="Run on an existing Dask distributed cluster.")
+@click.option("--end", type=float, help="Simulation time limit of every run [s].")
+@click.option("--ego-depart", type=float, help="Departure time [s] of the inserted ego.")
+@click.option("--ego-from", help="Route of the inserted ego: from this edge ...")
+@click.option("--ego-to", help="... to this edge.")
+@click.option("--controller", type=click.Choice(["ethical", "baseline"]), help="Ego controller (default ethical).")
+@click.option("--predictor", type=click.Choice(["attention", "cslstm", "cv"]), help="Neighbour prediction.")
+@click.option("--radius", type=float, help="Sensing radius around the ego [m].")
+@click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")
+@click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def sweep(scenario_or_suite: Path, omega_u: str, seeds: str, sets: tuple[str, ...], out: Path, workers: int | None,
+          scheduler: str | None, end: float | None, ego_depart: float | None, ego_from: str | None,
+          ego_to: str | None, controller: str | None, predictor: str | None, radius: float | None,
+          continue_after_collision: bool, config_file: Path | None, quiet: bool) -> None:
+    """Run the grid SCENARIO(S) x omega_u x seeds x --set values, one SUMO process per run.
+
+    SCENARIO_OR_SUITE is a .sumocfg or a folder searched for *.sumocfg. Running the same
+    command again resumes: finished runs are kept, the others run.
+    """
+    from rich.console import Console
+
+    from sumo_ethics.errors import ConfigError
+    from sumo_ethics.settings import load_toml
+    from sumo_ethics.sweep import make_sweep, run_sweep
+
+    if workers is not None and scheduler:
+        raise ConfigError("--workers and --scheduler exclude each other")
+    options = {"end": end, "ego_depart": ego_depart, "ego_from": ego_from, "ego_to": ego_to,
+               "controller": controller, "predictor": predictor, "radius": radius,
+               "stop_at_collision": False if continue_after_collision else None}
+    planner = load_toml(config_file) if config_file is not None else None
+    sw = make_sweep(scenario_or_suite, omega_u, seeds, sets, options=options, planner=planner)
+    res = run_sweep(sw, out, workers=workers or os.cpu_count() or 1, scheduler=scheduler, progress=not quiet)
+    con = Console(highlight=False, soft_wrap=True)
+    con.print(f"[bold]sweep[/bold] {res.total} runs: {res.done} finished ({res.skipped} from before, "
+              f"{res.errors} ended with a SUMO/run error), {res.failed} failed; {res.wall:.1f} s")
+    con.print(f"  manifest {out / 'manifest.json'}, dataset {out / 'dataset'}")
+    if res.failed:
+        con.print("  [red]failed runs are listed in manifest.json; run the same command again to retry them[/red]")
+        raise SystemExit(1)
+
+
+@click.command()
+@click.argument("sweep_dir", type=click.Path(path_type=Path))
+@click.option("--by", default="omega_u", show_default=True,
+              help="Comma-separated grouping columns: sweep parameters (scenario, omega_u, seed, --set keys) "
+                   "or run columns such as controller.")
+@click.option("--out", "report_dir", type=click.Path(path_type=Path),
+              help="Report folder (default SWEEP_DIR/report).")
+@click.option("--n-boot", type=int, default=2000, show_default=True, help="Bootstrap resamples for the 95% CI.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Bootstrap seed.")
+def analyze(sweep_dir: Path, by: str, report_dir: Path | None, n_boot: int, seed: int) -> None:
+    """Tables (CSV, Markdown), plots (PNG, SVG) and report.md of the sweep in SWEEP_DIR."""
+    from rich.console import Console
+
+    from sumo_ethics.analysis.report import make_report
+
+    groups = [b.strip() for b in by.split(",") if b.strip()]
+    rep = make_report(sweep_dir, groups, report_dir, n_boot=n_boot, seed=seed)
+    con = Console(highlight=False, soft_wrap=True)
+    con.print(f"[bold]report[/bold] {rep.report}: {len(rep.tables)} tables, {len(rep.figures)} figures")
