@@ -1,0 +1,361 @@
+"""``sumo-ethics evaluate``: every scenario of a suite with every planner -> the paper's Table 1.
+
+Each (scenario, planner) run is one task in a fresh process (libsumo: one simulation per
+process, and none after a fatal SUMO error): a ProcessPoolExecutor with
+``max_tasks_per_child=1`` on a forkserver that has imported torch, libsumo and the package
+once (a spawned worker would re-import torch for every run). Every planner meets the same
+scenarios with the same seeds, so the comparison is paired.
+
+Table columns as in the paper (METHOD.md s5): Completed (%), and harm summed over all runs:
+Total = Ego + Third party, VRU (part of third party). 95 % confidence intervals are
+percentile bootstraps over scenarios; the paired comparison gives, per planner against the
+reference, the bootstrap interval of the difference (same resampled scenarios for both)
+and a Wilcoxon signed-rank p-value of the per-scenario differences.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from sumo_ethics.errors import ConfigError
+
+#: the paper's planner: attention predictor, J_utility at this weight (see README "Suite")
+PAPER_OMEGA_U = 0.5
+
+BUILTIN: dict[str, dict[str, Any] | None] = {
+    "baseline": None,  # the route-following controller
+    "origin": {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0},
+    "paper": {"weights": "ethical", "predictor": "attention", "omega_u": PAPER_OMEGA_U},
+}
+METRICS = ("completed", "total", "ego", "third_party", "vru")
+LABELS = {"completed": "Completed (%)", "total": "Total harm", "ego": "Ego", "third_party": "Third party",
+          "vru": "VRU"}
+
+
+@dataclass(frozen=True)
+class PlannerSpec:
+    """A named planner: ``options`` for ``planner_config`` (None: the baseline controller)."""
+
+    name: str
+    options: dict[str, Any] | None
+
+    def describe(self) -> str:
+        if self.options is None:
+            return "baseline (route following, IDM)"
+        return ";".join(f"{k}={v}" for k, v in self.options.items())
+
+
+def _value(text: str) -> Any:
+    t = text.strip()
+    for conv in (int, float):
+        try:
+            return conv(t)
+        except ValueError:
+            pass
+    if t.lower() in ("true", "false"):
+        return t.lower() == "true"
+    return t
+
+
+def parse_planner(text: str) -> PlannerSpec:
+    """``origin`` | ``paper`` | ``baseline`` | ``NAME=key=value;key=value`` (options of
+    ``planner_config``, applied over the paper's defaults, e.g. ``fast=predictor=cv;omega_u=0.3``).
+    Validated at once: an unknown name or key is a ConfigError."""
+    from sumo_ethics.settings import planner_config
+
+    text = text.strip()
+    if "=" not in text:
+        if text not in BUILTIN:
+            raise ConfigError(f"unknown planner '{text}'; known: {', '.join(BUILTIN)}, "
+                              "or define one as NAME=key=value;key=value (e.g. fast=predictor=cv;omega_u=0.3)")
+        opts = BUILTIN[text]
+        spec = PlannerSpec(text, dict(opts) if opts is not None else None)
+    else:
+        name, _, rest = text.partition("=")
+        name = name.strip()
+        if not name or not name.replace("_", "").replace("-", "").isalnum():
+            raise ConfigError(f"planner name must be letters, digits, '-' or '_', got {name!r} in {text!r}")
+        opts = dict(BUILTIN["paper"])
+        for item in filter(None, (p.strip() for p in rest.split(";"))):
+            key, eq, val = item.partition("=")
+            if not eq or not key.strip():
+                raise ConfigError(f"planner {name}: expected key=value, got {item!r}")
+            opts[key.strip()] = _value(val)
+        spec = PlannerSpec(name, opts)
+    if spec.options is not None:
+        planner_config(None, **spec.options)  # raises ConfigError on unknown keys / bad values
+    return spec
+
+
+def parse_planners(texts: Iterable[str]) -> list[PlannerSpec]:
+    specs = [parse_planner(t) for t in texts]
+    names = [s.name for s in specs]
+    if not specs:
+        raise ConfigError("give at least one --planner")
+    if len(set(names)) != len(names):
+        raise ConfigError(f"planner names must be unique, got {names}")
+    return specs
+
+
+# ---- one run (in a worker process) ------------------------------------------------------
+def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str) -> dict[str, Any]:
+    """Run one scenario with one planner; returns the result row (never raises)."""
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"scenario": Path(scenario_dir).name, "planner": planner.name}
+    try:
+        try:
+            import torch
+
+            torch.set_num_threads(1)
+        except ImportError:
+            pass
+        from sumo_ethics.config import RunConfig
+        from sumo_ethics.runner import make_controller, run
+        from sumo_ethics.settings import planner_config
+        from sumo_ethics.sim.hazards import HazardInjector
+        from sumo_ethics.suite.controller import HazardController
+        from sumo_ethics.suite.spec import load
+
+        spec = load(Path(scenario_dir))
+        row.update(network=spec.network, hazard=",".join(spec.hazard_types), seed=spec.seed)
+        pcfg = planner_config(None, **planner.options) if planner.options is not None else None
+        cfg = RunConfig(scenario=spec.sumocfg, out=Path(out_dir), seed=spec.seed, end=spec.ego.end,
+                        ego_from=spec.ego.from_edge, ego_to=spec.ego.to_edge, ego_depart=spec.ego.depart,
+                        controller="baseline" if pcfg is None else "ethical", planner=pcfg, progress=False)
+        injector = HazardInjector(spec.hazards)
+        try:
+            summary = run(cfg, controller=HazardController(make_controller(cfg), injector))
+            data = summary.data
+        except Exception as exc:  # noqa: BLE001 - a failed run is a row with status error
+            data = _read_summary(Path(out_dir)) or {"status": "error", "message": str(exc)}
+            data.setdefault("message", str(exc))
+        finally:
+            Path(out_dir).mkdir(parents=True, exist_ok=True)
+            (Path(out_dir) / "hazard_events.json").write_text(json.dumps(injector.events, indent=1))
+        harm = data.get("harm", {})
+        fired = sorted({e["type"] for e in injector.events if e["event"] == "trigger"})
+        row.update(status=data.get("status", "error"), completed=bool(data.get("completed", False)),
+                   total=float(harm.get("total", 0.0)), ego=float(harm.get("ego", 0.0)),
+                   third_party=float(harm.get("third_party", 0.0)), vru=float(harm.get("vru", 0.0)),
+                   message=str(data.get("message", ""))[:200], steps=int(data.get("steps", 0) or 0),
+                   hazards_fired=",".join(fired), collided_with=_first_victim(Path(out_dir)))
+    except Exception as exc:  # noqa: BLE001
+        row.update(status="error", completed=False, total=0.0, ego=0.0, third_party=0.0, vru=0.0,
+                   message=f"{type(exc).__name__}: {exc}"[:200], steps=0, hazards_fired="", collided_with="")
+    row["wall_s"] = time.perf_counter() - t0
+    return row
+
+
+def _read_summary(out: Path) -> dict[str, Any] | None:
+    try:
+        return json.loads((out / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _first_victim(out: Path) -> str:
+    try:
+        import pandas as pd
+
+        c = pd.read_parquet(out / "collisions.parquet")
+        c = c[c.involves_ego]
+        if not len(c):
+            return ""
+        r = c.iloc[0]
+        return f"{r['class_b']}:{'hazard' if str(r['id_b']).startswith('hazard_') else 'traffic'}"
+    except Exception:  # noqa: BLE001
+        return ""
+
+
+# ---- many runs --------------------------------------------------------------------------
+def _executor(workers: int) -> ProcessPoolExecutor:
+    import multiprocessing as mp
+
+    ctx = mp.get_context("forkserver")
+    ctx.set_forkserver_preload(["sumo_ethics.suite.preload"])
+    return ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1)
+
+
+def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, workers: int = 2,
+              progress: Callable[[int, int, dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
+    """Every scenario with every planner; one row per run (order: scenario, then planner)."""
+    if workers < 1:
+        raise ConfigError(f"--workers must be at least 1, got {workers}")
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    tasks = [(str(s), p, str(out / "runs" / p.name / s.name)) for s in scenarios for p in planners]
+    rows: list[dict[str, Any]] = []
+    with _executor(workers) as ex:
+        futs = {ex.submit(run_one, *t): t for t in tasks}
+        for n, f in enumerate(as_completed(futs), 1):
+            try:
+                row = f.result()
+            except Exception as exc:  # noqa: BLE001 - a worker that died (e.g. a SUMO abort)
+                s, p, _ = futs[f]
+                row = {"scenario": Path(s).name, "planner": p.name, "status": "error", "completed": False,
+                       "total": 0.0, "ego": 0.0, "third_party": 0.0, "vru": 0.0,
+                       "message": f"worker died: {type(exc).__name__}: {exc}"[:200]}
+            rows.append(row)
+            if progress is not None:
+                progress(n, len(tasks), row)
+    order = {(Path(s).name, p.name): i for i, (s, p, _) in enumerate(tasks)}
+    rows.sort(key=lambda r: order[(r["scenario"], r["planner"])])
+    return rows
+
+
+# ---- statistics -------------------------------------------------------------------------
+def _matrix(rows: list[dict[str, Any]], planners: list[str]) -> tuple[list[str], dict[str, np.ndarray]]:
+    """Per planner: (S, 5) array of completed (0/1), total, ego, third party, VRU per scenario."""
+    scen = sorted({r["scenario"] for r in rows})
+    idx = {s: i for i, s in enumerate(scen)}
+    out = {}
+    for p in planners:
+        m = np.full((len(scen), len(METRICS)), np.nan)
+        for r in rows:
+            if r["planner"] == p:
+                m[idx[r["scenario"]]] = [float(r["completed"]), r["total"], r["ego"], r["third_party"], r["vru"]]
+        out[p] = m
+    return scen, out
+
+
+def _stat(m: np.ndarray) -> np.ndarray:
+    """(…, S, 5) -> (…, 5): completion in %, harms summed over runs (the paper's Table 1)."""
+    return np.concatenate([100.0 * np.nanmean(m[..., :1], axis=-2), np.nansum(m[..., 1:], axis=-2)], axis=-1)
+
+
+def table(rows: list[dict[str, Any]], planners: list[str], reference: str | None = None, n_boot: int = 2000,
+          seed: int = 0) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """(Table 1 rows with 95 % bootstrap CIs, paired comparison rows against ``reference``)."""
+    scen, mats = _matrix(rows, planners)
+    n = len(scen)
+    rng = np.random.default_rng(seed)
+    boot = rng.integers(0, n, size=(n_boot, n))
+    t1 = []
+    for p in planners:
+        m = mats[p]
+        value = _stat(m)
+        b = _stat(m[boot])
+        lo, hi = np.nanpercentile(b, 2.5, axis=0), np.nanpercentile(b, 97.5, axis=0)
+        row: dict[str, Any] = {"planner": p, "runs": int(np.sum(~np.isnan(m[:, 0])))}
+        for j, k in enumerate(METRICS):
+            row[k], row[f"{k}_lo"], row[f"{k}_hi"] = float(value[j]), float(lo[j]), float(hi[j])
+        t1.append(row)
+    paired = []
+    if reference is not None and reference in mats:
+        from scipy.stats import wilcoxon
+
+        ref = mats[reference]
+        for p in planners:
+            if p == reference:
+                continue
+            ok = ~np.isnan(mats[p][:, 0]) & ~np.isnan(ref[:, 0])
+            d = mats[p][ok] - ref[ok]
+            bd = _stat(d[boot[:, : ok.sum()] % max(ok.sum(), 1)]) if ok.any() else np.zeros((n_boot, 5))
+            val = _stat(d) if ok.any() else np.zeros(5)
+            for j, k in enumerate(METRICS):
+                col = d[:, j]
+                if np.allclose(col, 0.0):
+                    pval = 1.0
+                else:
+                    try:
+                        pval = float(wilcoxon(col, zero_method="zsplit").pvalue)
+                    except ValueError:
+                        pval = float("nan")
+                paired.append({"planner": p, "reference": reference, "metric": k, "difference": float(val[j]),
+                               "lo": float(np.percentile(bd[:, j], 2.5)), "hi": float(np.percentile(bd[:, j], 97.5)),
+                               "better": int(np.sum(col > 0) if k == "completed" else np.sum(col < 0)),
+                               "worse": int(np.sum(col < 0) if k == "completed" else np.sum(col > 0)),
+                               "wilcoxon_p": pval, "scenarios": int(ok.sum())})
+    return t1, paired
+
+
+def _fmt(v: float, lo: float, hi: float, pct: bool) -> str:
+    f = "{:.1f}" if pct else "{:.2f}"
+    return f"{f.format(v)} [{f.format(lo)}, {f.format(hi)}]"
+
+
+def markdown(t1: list[dict[str, Any]], paired: list[dict[str, Any]], by_hazard: list[dict[str, Any]],
+             meta: dict[str, Any]) -> str:
+    lines = [f"# Table 1 on {meta.get('suite', 'the suite')} ({meta.get('scenarios', '?')} scenarios)", "",
+             "Harm summed over all runs; [95 % bootstrap CI over scenarios].", "",
+             "| Algorithm | " + " | ".join(LABELS[k] for k in METRICS) + " |",
+             "| --- |" + " --- |" * len(METRICS)]
+    for r in t1:
+        lines.append(f"| {r['planner']} | " + " | ".join(_fmt(r[k], r[f'{k}_lo'], r[f'{k}_hi'], k == 'completed')
+                                                      for k in METRICS) + " |")
+    if paired:
+        lines += ["", f"Paired comparison against {paired[0]['reference']} (same scenarios and seeds): difference "
+                  "(planner - reference) [95 % paired bootstrap CI], scenarios better / worse, Wilcoxon p.", "",
+                  "| Planner | Metric | Difference | Better / worse | Wilcoxon p |", "| --- | --- | --- | --- | --- |"]
+        for r in paired:
+            lines.append(f"| {r['planner']} | {LABELS[r['metric']]} | "
+                         f"{_fmt(r['difference'], r['lo'], r['hi'], r['metric'] == 'completed')} | "
+                         f"{r['better']} / {r['worse']} | {r['wilcoxon_p']:.3g} |")
+    if by_hazard:
+        planners = [r["planner"] for r in t1]
+        lines += ["", "Ego collisions per hazard type (runs ending in a collision / scenarios):", "",
+                  "| Hazard | Scenarios | " + " | ".join(planners) + " |", "| --- | --- |" + " --- |" * len(planners)]
+        for r in by_hazard:
+            lines.append(f"| {r['hazard']} | {r['scenarios']} | " + " | ".join(str(r[p]) for p in planners) + " |")
+    if meta:
+        lines += ["", "Planners: " + "; ".join(f"`{k}` = {v}" for k, v in meta.get("planners", {}).items()) + ".",
+                  f"Wall time {meta.get('wall_s', 0):.0f} s with {meta.get('workers')} workers."]
+    return "\n".join(lines) + "\n"
+
+
+def hazard_breakdown(rows: list[dict[str, Any]], planners: list[str]) -> list[dict[str, Any]]:
+    kinds = sorted({r.get("hazard", "") for r in rows})
+    out = []
+    for k in kinds:
+        sub = [r for r in rows if r.get("hazard", "") == k]
+        row: dict[str, Any] = {"hazard": k or "(none)", "scenarios": len({r["scenario"] for r in sub})}
+        for p in planners:
+            row[p] = sum(1 for r in sub if r["planner"] == p and r["status"] == "collision")
+        out.append(row)
+    return out
+
+
+def write_outputs(rows: list[dict[str, Any]], planners: list[PlannerSpec], out: Path, reference: str | None,
+                  meta: dict[str, Any]) -> tuple[Path, Path]:
+    import pandas as pd
+
+    names = [p.name for p in planners]
+    out.mkdir(parents=True, exist_ok=True)
+    pd.DataFrame(rows).to_csv(out / "results.csv", index=False)
+    t1, paired = table(rows, names, reference)
+    pd.DataFrame(t1).to_csv(out / "table1.csv", index=False)
+    if paired:
+        pd.DataFrame(paired).to_csv(out / "paired.csv", index=False)
+    bh = hazard_breakdown(rows, names)
+    pd.DataFrame(bh).to_csv(out / "by_hazard.csv", index=False)
+    md = markdown(t1, paired, bh, meta)
+    (out / "table1.md").write_text(md)
+    (out / "meta.json").write_text(json.dumps(meta, indent=1, default=str))
+    return out / "table1.csv", out / "table1.md"
+
+
+def evaluate(suite: Path, planner_texts: list[str], out: Path, workers: int = 2, limit: int | None = None,
+             reference: str | None = None, progress: Callable | None = None) -> tuple[Path, Path]:
+    from sumo_ethics.suite.spec import load_suite
+
+    planners = parse_planners(planner_texts)
+    specs = load_suite(suite)  # validates every hazard file before anything runs
+    if limit is not None:
+        specs = specs[:limit]
+    names = [p.name for p in planners]
+    ref = reference or ("origin" if "origin" in names else names[0])
+    if ref not in names:
+        raise ConfigError(f"--reference {ref!r} is not one of the planners {names}")
+    t0 = time.perf_counter()
+    rows = run_suite([s.folder for s in specs], planners, Path(out), workers, progress)
+    meta = {"suite": str(suite), "scenarios": len(specs), "workers": workers, "wall_s": time.perf_counter() - t0,
+            "planners": {p.name: p.describe() for p in planners}, "reference": ref}
+    return write_outputs(rows, planners, Path(out), ref, meta)
