@@ -333,7 +333,7 @@ class Run:
                 w3 = wallclock.perf_counter()
                 ego_hit = self.detect(snap, new)
                 w4 = wallclock.perf_counter()
-                s, d = (float(v) for v in route.path.project(new.ego.xy[0], near=(s - 20.0, s + 60.0)))
+                s, d = (float(v) for v in route.path.project(new.ego.xy[0], near=(s - 5.0, s + 5.0 + 50.0 * dt)))
                 self._record(new, snap, decision, s, d, dt, (w1 - w0, w2 - w1, w3 - w2, w4 - w3))
                 snap = new
                 if progress is not None and self.step % 50 == 0:

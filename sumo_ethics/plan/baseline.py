@@ -48,7 +48,9 @@ class RouteFollower:
         o = scene.others
         gap, v_lead = np.inf, 0.0
         if len(o):
-            vehicles = o.cls != RoadUserClass.PEDESTRIAN
+            e = scene.ego
+            ahead_xy = (o.x - e.x[0]) * np.cos(e.yaw[0]) + (o.y - e.y[0]) * np.sin(e.yaw[0])
+            vehicles = (o.cls != RoadUserClass.PEDESTRIAN) & (ahead_xy > -10.0)  # cheap pre-filter
             if vehicles.any():
                 s, d = scene.route.path.project(np.stack([o.x, o.y], axis=-1),
                                                 near=(scene.s - 10.0, scene.s + self.p.lookahead + 10.0))
