@@ -1,0 +1,221 @@
+"""Scenario suite: deterministic generator, hazards firing at their triggers in real SUMO,
+clear errors for bad hazard files and unknown planners."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sumo_ethics.errors import ConfigError
+from sumo_ethics.suite.spec import HazardSpec, ScenarioSpec, load
+
+ROOT = Path(__file__).resolve().parent.parent
+TESTBED = ROOT / "scenarios" / "testbed" / "testbed.sumocfg"
+
+
+# ---- generator ------------------------------------------------------------------------------
+def _tree(d: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(d)): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def test_generator_is_deterministic_byte_for_byte(tmp_path):
+    from sumo_ethics.suite.generate import generate
+
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    generate(6, 7, a)
+    generate(6, 7, b)
+    generate(6, 8, c)
+    ta, tb = _tree(a), _tree(b)
+    assert ta.keys() == tb.keys() and len(ta) > 6 * 3
+    assert all(ta[k] == tb[k] for k in ta), [k for k in ta if ta[k] != tb[k]]
+    assert any(ta[k] != v for k, v in _tree(c).items() if k.endswith("hazards.json"))
+    for f in sorted(a.glob("s*/hazards.json")):  # every file loads and names its own sumocfg
+        spec = load(f)
+        assert spec.sumocfg.is_file() and spec.hazards
+
+
+def test_generator_prefix_does_not_depend_on_count(tmp_path):
+    from sumo_ethics.suite.generate import scenario
+
+    assert scenario(3, 2)[0].to_dict() == scenario(3, 2)[0].to_dict()
+    assert scenario(3, 2)[0].to_dict() != scenario(3, 3)[0].to_dict()
+
+
+# ---- bad input ------------------------------------------------------------------------------
+GOOD = {"version": 1, "name": "x", "seed": 1, "ego": {"from": "main_0", "to": "main_1", "depart": 0, "end": 30},
+        "hazards": [{"id": "h0", "type": "pedestrian", "anchor": {"edge": "main_1", "pos": 40},
+                     "trigger": {"ttc": 1.5}}]}
+
+
+def _bad(tmp_path: Path, data) -> Path:
+    d = tmp_path / "x"
+    d.mkdir(exist_ok=True)
+    (d / "x.sumocfg").write_text("<configuration/>")
+    (d / "hazards.json").write_text(data if isinstance(data, str) else json.dumps(data))
+    return d
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: "{not json", "malformed JSON"),
+    (lambda d: d["hazards"][0].update(type="meteor") or d, "unknown hazard type 'meteor'"),
+    (lambda d: d["hazards"][0].update(trigger={}) or d, "exactly one of"),
+    (lambda d: d["hazards"][0].update(trigger={"ttc": -1}) or d, "trigger.ttc must be in"),
+    (lambda d: d["hazards"][0].update(params={"speeed": 2}) or d, "unknown key(s)"),
+    (lambda d: d["hazards"][0].update(anchor={"pos": 3}) or d, "needs exactly one of edge"),
+    (lambda d: d["ego"].update(depart=40) or d, "must be after depart"),
+    (lambda d: d.pop("ego") and d, "lacks ego"),
+])
+def test_invalid_hazard_file_is_a_clear_error(tmp_path, mutate, message):
+    data = mutate(json.loads(json.dumps(GOOD)))
+    with pytest.raises(ConfigError, match=None) as exc:
+        load(_bad(tmp_path, data))
+    assert message in str(exc.value)
+    assert "hazards.json" in str(exc.value) or "hazard" in str(exc.value)
+
+
+def test_missing_hazard_file_and_sumocfg(tmp_path):
+    with pytest.raises(ConfigError, match="hazard file not found"):
+        load(tmp_path / "nope")
+    d = _bad(tmp_path, GOOD)
+    (d / "x.sumocfg").unlink()
+    with pytest.raises(ConfigError, match="missing beside the hazard file"):
+        load(d)
+
+
+def test_unknown_planner_is_a_clear_error():
+    from sumo_ethics.suite.evaluate import parse_planner, parse_planners
+
+    with pytest.raises(ConfigError, match="unknown planner 'nope'"):
+        parse_planner("nope")
+    with pytest.raises(ConfigError, match="unknown key"):
+        parse_planner("fast=predictr=cv")
+    with pytest.raises(ConfigError, match="unknown predictor"):
+        parse_planner("fast=predictor=magic")
+    with pytest.raises(ConfigError, match="unique"):
+        parse_planners(["origin", "origin"])
+    p = parse_planner("fast=predictor=cv;omega_u=0.3")
+    assert p.name == "fast" and p.options["predictor"] == "cv" and p.options["omega_u"] == 0.3
+    assert parse_planner("origin").options == {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0}
+    assert parse_planner("baseline").options is None
+
+
+def test_cli_unknown_planner_exits_2(tmp_path, capsys):
+    from sumo_ethics.cli_suite import evaluate_cmd
+
+    import click
+
+    @click.group()
+    def g():
+        pass
+
+    g.add_command(evaluate_cmd)
+    from sumo_ethics.errors import SumoEthicsError
+
+    with pytest.raises(SumoEthicsError) as exc:
+        g.main(["evaluate", str(tmp_path), "--planner", "nope"], standalone_mode=False)
+    assert exc.value.exit_code == 2 and "unknown planner 'nope'" in str(exc.value)
+
+
+# ---- hazards in real SUMO -------------------------------------------------------------------
+HAZARDS = {
+    "pedestrian": {"anchor": {"edge": "main_1", "pos": 40}, "trigger": {"ttc": 1.5}, "spawn": 30,
+                   "params": {"occluder": True}},
+    "emergency_stop": {"anchor": {"edge": "main_1", "pos": 60}, "trigger": {"distance": 25}, "spawn": 60},
+    "red_light_runner": {"anchor": {"xy": [200, -3]}, "trigger": {"ttc": 3.0}},
+    "oncoming_drift": {"anchor": {"edge": "main_1", "pos": 150}, "trigger": {"gap_ttc": 2.0}, "spawn": 150,
+                       "params": {"lane_offset": 3.2}},
+    "cut_in": {"anchor": {"edge": "main_1", "pos": 50}, "trigger": {"gap": 8.0}, "spawn": 60},
+    "cyclist_swerve": {"anchor": {"edge": "main_1", "pos": 40}, "trigger": {"gap": 10.0}, "spawn": 60},
+}
+CLASS = {"pedestrian": "PEDESTRIAN", "cyclist_swerve": "BICYCLE"}
+
+
+class Probe:
+    """Wraps the hazard controller: records the injector's commanded actor pose each step and
+    what the ego sees of the actor one step later."""
+
+    def __init__(self, inner, injector):
+        self.inner, self.injector = inner, injector
+        self.name, self.needs_history = inner.name, False
+        self.commanded: dict[float, tuple[float, float]] = {}
+        self.seen: dict[float, tuple[float, float, int]] = {}
+
+    def act(self, scene):
+        for i, k in enumerate(scene.others.ids):
+            if k == "hazard_h0":
+                self.seen[round(scene.time, 3)] = (float(scene.others.x[i]), float(scene.others.y[i]),
+                                                   int(scene.others.cls[i]))
+        d = self.inner.act(scene)
+        a = self.injector.states[0].actor
+        if a is not None and a.added:
+            self.commanded[round(scene.time + scene.dt, 3)] = (a.x, a.y)
+        return d
+
+
+@pytest.mark.parametrize("kind", sorted(HAZARDS))
+def test_hazard_fires_at_its_trigger(kind, tmp_path):
+    from sumo_ethics.config import RunConfig
+    from sumo_ethics.runner import make_controller, run
+    from sumo_ethics.sim.hazards import HazardInjector
+    from sumo_ethics.suite.controller import HazardController
+    from sumo_ethics.types import RoadUserClass
+
+    spec = HazardSpec.parse("h", {"id": "h0", "type": kind, **HAZARDS[kind]})
+    cfg = RunConfig(scenario=TESTBED, out=tmp_path / kind, seed=1, end=30.0, ego_from="main_0", ego_to="main_1",
+                    controller="baseline", progress=False, stop_at_collision=False)
+    inj = HazardInjector([spec])
+    probe = Probe(HazardController(make_controller(cfg), inj), inj)
+    run(cfg, controller=probe)
+    ev = {e["event"]: e for e in inj.events}
+    assert "spawn" in ev and "trigger" in ev, inj.events
+    t = ev["trigger"]
+    v, dt = t["ego_speed"], 0.1
+    front, anchor = t["ego_front_s"], t["anchor_s"]
+    if kind == "red_light_runner":
+        assert ev["spawn"]["time"] == t["time"]
+    if spec.trigger_kind == "distance":
+        value, step = anchor - front, v * dt
+    elif spec.trigger_kind == "ttc":
+        value, step = (anchor - front) / v, dt
+    else:  # gap / gap_ttc: to the actor's rear along the path
+        a = inj.states[0].actor
+        gap = t["actor_s"] - a.length / 2 - front
+        closing = v - t["actor_speed"]
+        value, step = (gap, closing * dt) if spec.trigger_kind == "gap" else (gap / closing, dt)
+    # fired at the first step the condition held: at most one step of closing past the threshold
+    assert value <= spec.trigger_value + 1e-6
+    assert value > spec.trigger_value - step - 0.05, (value, spec.trigger_value, step)
+    # the actor is in SUMO where the injector put it, with the right class
+    common = sorted(set(probe.commanded) & set(probe.seen))
+    assert len(common) >= 5
+    err = [math.hypot(probe.commanded[k][0] - probe.seen[k][0], probe.commanded[k][1] - probe.seen[k][1])
+           for k in common]
+    assert max(err) < 0.3, max(err)
+    want = RoadUserClass[CLASS.get(kind, "CAR")]
+    assert {probe.seen[k][2] for k in common} == {int(want)}
+    at = probe.seen.get(round(t["time"] + dt, 3))
+    assert at is not None  # present one step after the trigger
+    if kind == "pedestrian":  # at the kerb, beside the anchor, when triggered
+        assert abs(at[0] - (202 + 40)) < 0.5 and at[1] < -6.0 + 0.5
+    if kind == "red_light_runner":  # on the crossing line through the anchor, off to the left
+        assert abs(at[0] - 200) < 0.5 and at[1] > 5.0
+
+
+def test_parked_vehicle_stays_put(tmp_path):
+    from sumo_ethics.config import RunConfig
+    from sumo_ethics.runner import make_controller, run
+    from sumo_ethics.sim.hazards import HazardInjector
+    from sumo_ethics.suite.controller import HazardController
+
+    spec = HazardSpec.parse("h", {"id": "h0", "type": "parked", "anchor": {"edge": "main_1", "pos": 100}})
+    cfg = RunConfig(scenario=TESTBED, out=tmp_path / "p", seed=1, end=25.0, ego_from="main_0", ego_to="main_1",
+                    controller="baseline", progress=False, stop_at_collision=False)
+    inj = HazardInjector([spec])
+    probe = Probe(HazardController(make_controller(cfg), inj), inj)
+    run(cfg, controller=probe)
+    pts = np.array([p[:2] for p in probe.seen.values()])
+    assert len(pts) > 10 and np.ptp(pts[:, 0]) < 0.05 and abs(pts[0, 0] - 302) < 0.5
