@@ -512,6 +512,9 @@ class LocalPool:
     def submit(self, spec: dict[str, Any], runs_dir: str) -> Future:
         return self.pool().submit(execute_run, spec, runs_dir)
 
+    def wait(self, running: Iterable[Any]) -> set[Any]:
+        return wait(list(running), return_when=FIRST_COMPLETED).done
+
     def broken(self) -> None:
         """The pool broke (a worker died): drop it, the next submit starts a new one."""
         if self._pool is not None:
@@ -539,15 +542,28 @@ class DaskPool:
 
         logging.getLogger("distributed").setLevel(logging.CRITICAL)
         try:
-            self.client = Client(address, timeout=timeout, set_as_default=False)
+            self.client = Client(address, timeout=timeout)
         except (OSError, TimeoutError, ValueError) as exc:
             raise ConfigError(f"cannot reach Dask scheduler {address} within {timeout:g} s: "
                               f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
         self.workers = max(1, sum(self.client.nthreads().values()))
 
+        self._done: Any = None
+
     def submit(self, spec: dict[str, Any], runs_dir: str) -> Any:
-        return self.client.submit(execute_run_isolated, spec, runs_dir, key=f"run-{spec['run_id']}", pure=False,
-                                  retries=0)
+        from distributed import as_completed
+
+        fut = self.client.submit(execute_run_isolated, spec, runs_dir, key=f"run-{spec['run_id']}-{uuid.uuid4().hex[:6]}",
+                                 pure=False, retries=0)
+        if self._done is None:
+            self._done = as_completed([fut])
+        else:
+            self._done.add(fut)
+        return fut
+
+    def wait(self, running: Iterable[Any]) -> set[Any]:
+        first = next(self._done)
+        return {first, *self._done.next_batch(block=False)}
 
     def broken(self) -> None:
         pass
@@ -636,12 +652,7 @@ def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None =
         try:
             fill()
             while running:
-                if scheduler:
-                    from distributed import wait as dwait
-
-                    done_set = dwait(list(running), return_when="FIRST_COMPLETED").done
-                else:
-                    done_set, _ = wait(list(running), return_when=FIRST_COMPLETED)
+                done_set = executor.wait(running)
                 broken = False
                 for fut in done_set:
                     s = running.pop(fut)
