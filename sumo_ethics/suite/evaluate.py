@@ -359,3 +359,26 @@ def evaluate(suite: Path, planner_texts: list[str], out: Path, workers: int = 2,
     meta = {"suite": str(suite), "scenarios": len(specs), "workers": workers, "wall_s": time.perf_counter() - t0,
             "planners": {p.name: p.describe() for p in planners}, "reference": ref}
     return write_outputs(rows, planners, Path(out), ref, meta)
+
+
+def rows_from_runs(out: Path, suite: Path) -> list[dict[str, Any]]:
+    """Result rows rebuilt from the run folders under ``out/runs`` (for an interrupted
+    evaluation: only scenarios every planner has finished are kept, so the table stays paired)."""
+    from sumo_ethics.suite.spec import load
+
+    out, rows = Path(out), []
+    planners = sorted(p.name for p in (out / "runs").iterdir() if p.is_dir())
+    for p in planners:
+        for run_dir in sorted((out / "runs" / p).iterdir()):
+            data = _read_summary(run_dir)
+            if data is None:
+                continue
+            spec = load(Path(suite) / run_dir.name)
+            h = data.get("harm", {})
+            rows.append({"scenario": run_dir.name, "planner": p, "network": spec.network,
+                         "hazard": ",".join(spec.hazard_types), "status": data.get("status", "error"),
+                         "completed": bool(data.get("completed")), "total": float(h.get("total", 0.0)),
+                         "ego": float(h.get("ego", 0.0)), "third_party": float(h.get("third_party", 0.0)),
+                         "vru": float(h.get("vru", 0.0)), "wall_s": float(data.get("wall_time", 0.0))})
+    done = {s for s in {r["scenario"] for r in rows} if sum(r["scenario"] == s for r in rows) == len(planners)}
+    return [r for r in rows if r["scenario"] in done]
