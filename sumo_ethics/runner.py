@@ -18,6 +18,7 @@ import numpy as np
 
 from sumo_ethics import __version__
 from sumo_ethics.collision import PairEvents, previous_of, swept_contacts
+from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
 from sumo_ethics.config import RunConfig
 from sumo_ethics.errors import ConfigError, SimulationError, SumoEthicsError
 from sumo_ethics.ethics.harm import CrashOutcome, ImpactArea, Party, crash_outcome
@@ -146,7 +147,6 @@ def collision_row(event: int, t: float, step: int, a: AgentStates, b: AgentState
     """One collisions.parquet row for parties a and b (1 agent each, states before impact)."""
     out: CrashOutcome = crash_outcome(_party(a, 0), _party(b, 0))
     harm_a, harm_b = float(out.harm_a), float(out.harm_b)
-    vru_b = bool(VULNERABLE[int(b.cls[0])])
     return {
         "event": event, "time": t, "step": step, "involves_ego": involves_ego, "detector": detector,
         "sumo_type": sumo_type, "id_a": a.ids[0], "id_b": b.ids[0],
@@ -159,10 +159,25 @@ def collision_row(event: int, t: float, step: int, a: AgentStates, b: AgentState
         "delta_v": float(out.delta_v), "dv_a": float(out.dv_a), "dv_b": float(out.dv_b),
         "area_a": ImpactArea(int(out.area_a)).name.lower(), "area_b": ImpactArea(int(out.area_b)).name.lower(),
         "harm_a": harm_a, "harm_b": harm_b,
-        "harm_ego": harm_a if involves_ego else 0.0,
-        "harm_third_party": harm_b if involves_ego else 0.0,
-        "harm_vru": harm_b if involves_ego and vru_b else 0.0,
-    }
+    } | booking({"harm_a": harm_a, "harm_b": harm_b, "class_b": RoadUserClass(int(b.cls[0])).label},
+                involves_ego and detector != "sumo_unconfirmed")
+
+
+def booking(row: dict[str, Any], book: bool) -> dict[str, float]:
+    """Harm booked per class for a row: to the ego, the third party and (its share) to VRUs."""
+    vru = RoadUserClass[row["class_b"].upper()].is_vulnerable
+    return {"harm_ego": row["harm_a"] if book else 0.0, "harm_third_party": row["harm_b"] if book else 0.0,
+            "harm_vru": row["harm_b"] if book and vru else 0.0}
+
+
+#: SUMO-only ego reports count when the true boxes come at least this close [m]
+CONFIRM_TOLERANCE = 0.25
+
+
+def near_contact(a: AgentStates, b: AgentStates, tol: float = CONFIRM_TOLERANCE) -> np.ndarray:
+    """(n,) bool: the boxes of a and b, each grown by ``tol`` on every side, overlap."""
+    return boxes_overlap(OrientedBoxes(a.x, a.y, a.yaw, a.length + 2 * tol, a.width + 2 * tol),
+                         OrientedBoxes(b.x, b.y, b.yaw, b.length + 2 * tol, b.width + 2 * tol))
 
 
 def _with_speed(s: AgentStates, speed: float) -> AgentStates:
@@ -205,14 +220,22 @@ class Run:
         now_index = {k: i for i, k in enumerate(now.others.ids)}
         sumo_ego = {next(iter(p - {ego_id})) for p in reports if ego_id in p and len(p) == 2}
         for other in sorted(geo | sumo_ego):
-            detector = "both" if other in geo and other in sumo_ego else ("geometry" if other in geo else "sumo")
-            is_new, idx = self.events.observe(t, ego_id, other)
             report = reports.get(frozenset((ego_id, other)))
+            if other in geo:
+                detector = "both" if other in sumo_ego else "geometry"
+            else:  # SUMO alone: its junction check uses lane shapes, wrong for an ego moved off its lane
+                confirmed = other not in now_index or bool(near_contact(now.ego, now.others.take([now_index[other]])))
+                detector = "sumo" if confirmed else "sumo_unconfirmed"
+            is_new, idx = self.events.observe(t, ego_id, other)
             if not is_new:
-                if idx is not None and self.rec.collisions[idx]["detector"] != detector:
-                    self.rec.collisions[idx]["detector"] = "both"
-                    if report and not self.rec.collisions[idx]["sumo_type"]:
-                        self.rec.collisions[idx]["sumo_type"] = report[6]
+                row = self.rec.collisions[idx] if idx is not None else None
+                if row is not None and row["detector"] != detector and detector != "sumo_unconfirmed":
+                    if row["detector"] == "sumo_unconfirmed":  # confirmed later: book it now
+                        row.update(booking(row, True))
+                        ego_new = True
+                    row["detector"] = "both" if row["detector"] != "sumo_unconfirmed" or other in sumo_ego else detector
+                    if report and not row["sumo_type"]:
+                        row["sumo_type"] = report[6]
                 continue
             if other in before_index:  # states just before impact
                 b = before.others.take([before_index[other]])
@@ -225,7 +248,7 @@ class Run:
             row = collision_row(len(self.rec.collisions), t, self.step, before.ego, b, True, detector,
                                 report[6] if report else "")
             self._book(row, ego_id, other)
-            ego_new = True
+            ego_new = ego_new or detector != "sumo_unconfirmed"
         for pair, c in sorted(reports.items(), key=lambda kv: sorted(kv[0])):
             if ego_id in pair or len(pair) != 2:
                 continue
@@ -334,12 +357,13 @@ class Run:
                 ego_hit = self.detect(snap, new)
                 w4 = wallclock.perf_counter()
                 s, d = (float(v) for v in route.path.project(new.ego.xy[0], near=(s - 5.0, s + 5.0 + 50.0 * dt)))
-                self._record(new, snap, decision, s, d, dt, (w1 - w0, w2 - w1, w3 - w2, w4 - w3))
+                self._record(new, snap, decision, s, d, dt, (w1 - w0, w2 - w1, w3 - w2, w4 - w3), scene.stop_s)
                 snap = new
                 if progress is not None and self.step % 50 == 0:
                     progress[0].update(progress[1], completed=min(snap.time, end))
                 if ego_hit and cfg.stop_at_collision:
-                    first = next(r for r in self.rec.collisions if r["involves_ego"])
+                    first = next(r for r in self.rec.collisions
+                                 if r["involves_ego"] and r["detector"] != "sumo_unconfirmed")
                     self.status = RunStatus.COLLISION
                     self.message = f"ego hit {first['class_b']} '{first['id_b']}' at t={first['time']:g} s"
                     return
@@ -351,7 +375,7 @@ class Run:
                 progress[0].stop()
 
     def _record(self, now: Snapshot, before: Snapshot, decision: Any, s: float, d: float, dt: float,
-                w: tuple[float, float, float, float]) -> None:
+                w: tuple[float, float, float, float], stop_s: float | None) -> None:
         e, o = now.ego, now.others
         dist = np.hypot(o.x - e.x[0], o.y - e.y[0]) if len(o) else np.empty(0)
         row = {
@@ -360,6 +384,7 @@ class Run:
             "accel": (float(e.speed[0]) - float(before.ego.speed[0])) / dt, "s": s, "d": d,
             "lane": self.world.sumo_lane(), "n_neighbours": len(o), "n_vru": int(VULNERABLE[o.cls].sum()),
             "min_distance": float(dist.min()) if len(dist) else float("nan"),
+            "stop_s": float("nan") if stop_s is None else stop_s,
         }
         row.update(decision.info)
         self.rec.steps.append(row)
@@ -369,7 +394,7 @@ class Run:
         self.rec.timings.append(timing)
 
     def summary(self, wall: float) -> dict[str, Any]:
-        ego_rows = [r for r in self.rec.collisions if r["involves_ego"]]
+        ego_rows = [r for r in self.rec.collisions if r["involves_ego"] and r["detector"] != "sumo_unconfirmed"]
         harm = {k: float(sum(r[f"harm_{k}"] for r in ego_rows)) for k in ("ego", "third_party", "vru")}
         harm["total"] = harm["ego"] + harm["third_party"]
         steps = self.rec.steps
@@ -378,7 +403,9 @@ class Run:
             "message": self.message,
             "completed": self.status is RunStatus.COMPLETED,
             "harm": harm,
-            "collisions": {"ego": len(ego_rows), "others": len(self.rec.collisions) - len(ego_rows)},
+            "collisions": {"ego": len(ego_rows),
+                           "ego_unconfirmed": sum(r["detector"] == "sumo_unconfirmed" for r in self.rec.collisions),
+                           "others": sum(not r["involves_ego"] for r in self.rec.collisions)},
             "seed": self.cfg.seed,
             "steps": len(steps),
             "distance": float(steps[-1]["s"] - steps[0]["s"]) if steps else 0.0,

@@ -73,28 +73,40 @@ def make_predictor(name: str) -> Predictor:
     return ConstantVelocityPredictor() if name == "cv" else LSTMPredictor.default(name)
 
 
-def mean_path_overlap(cand: Candidates, pred: Prediction, risk: RiskTerms, length: np.ndarray,
-                      width: np.ndarray, ego_length: float, ego_width: float) -> np.ndarray:
-    """(K,) bool: the ego box meets an agent's box at its predicted mean at some step.
+def first_overlap(cand: Candidates, pred: Prediction, risk: RiskTerms, length: np.ndarray,
+                  width: np.ndarray, ego_length: float, ego_width: float) -> np.ndarray:
+    """(K,) int: the first step at which the ego box meets an agent's box at its predicted mean
+    (T if never). length, width: (N,) the agents' boxes [m] (pass them with safety margins).
 
     Only (k, n, t) with a non-zero collision probability can overlap, so only those are tested.
     """
+    K, T = cand.x.shape
     sp = risk.sparse
     k, n, t = sp.k, sp.n, sp.t
-    hit = np.zeros(len(cand), dtype=bool)
+    first = np.full(K, T, dtype=np.int64)
     if len(k):
         ov = boxes_overlap(
             OrientedBoxes(cand.x[k, t], cand.y[k, t], cand.yaw[k, t], ego_length, ego_width),
             OrientedBoxes(pred.mean[n, t, 0], pred.mean[n, t, 1], pred.yaw[n, t], length[n], width[n]),
         )
-        hit[k[ov]] = True
-    return hit
+        np.minimum.at(first, k[ov], t[ov])
+    return first
 
 
-def select(classes: list[np.ndarray], total: np.ndarray) -> tuple[int, int]:
-    """(candidate, class index) of the lowest total within the best non-empty class; (-1, len) if none."""
+def select(classes: list[np.ndarray], total: np.ndarray, first_hit: np.ndarray, steps: int,
+           travel: np.ndarray) -> tuple[int, int]:
+    """(candidate, class index): the lowest total within the best non-empty class.
+
+    In a class whose members all enter a road user's safety envelope (first_hit < steps), the
+    ones that enter it latest come first, and among those the ones that travel least: time to
+    collision, then caution, before cost. (-1, len(classes)) if every class is empty.
+    """
     for c, members in enumerate(classes):
         if members.any():
+            hits = first_hit[members]
+            if (hits < steps).all():
+                members = members & (first_hit == hits.max())
+                members = members & (travel <= travel[members].min() + 0.05)
             return int(np.argmin(np.where(members, total, np.inf))), c
     return -1, len(classes)
 
@@ -140,7 +152,10 @@ class EthicalPlanner:
                            off_road=~feas.on_road)
         cost = score(cand, risk, self.cfg.cost, desired_speed=v_limit, feasible=feas.feasible)
         w3 = time.perf_counter()
-        overlap = mean_path_overlap(cand, pred, risk, agents.length, agents.width, ego_length, ego_width)
+        pc = self.cfg.probability  # Origin's safety margins (+1.0 m length, +0.5 m width)
+        first_hit = first_overlap(cand, pred, risk, agents.length + pc.length_margin,
+                                  agents.width + pc.width_margin, ego_length, ego_width)
+        overlap = first_hit < horizon_steps
         legal = np.ones(len(cand), dtype=bool)
         if scene.stop_s is not None:  # do not cross a red/yellow stop line with the front bumper
             legal = ~np.any(cand.valid & (cand.s + ego_length / 2.0 > scene.stop_s), axis=1)
@@ -150,7 +165,7 @@ class EthicalPlanner:
         # road, then avoiding the predicted mean paths; a red light counts like the road edge
         classes = [base & ~overlap & feas.on_road & (worst < self.cfg.max_risk),
                    base & ~overlap & feas.on_road, feas.feasible & ~overlap, feas.feasible]
-        k, cls = select(classes, cost.total)
+        k, cls = select(classes, cost.total, first_hit, horizon_steps, cand.s[:, -1] - scene.s)
         w4 = time.perf_counter()
         timings = {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1), "risk_cost_ms": 1e3 * (w3 - w2),
                    "select_ms": 1e3 * (w4 - w3)}

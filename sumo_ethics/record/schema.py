@@ -43,6 +43,7 @@ STEPS_BASE = pa.schema([
     ("n_neighbours", pa.int32()),
     ("n_vru", pa.int32()),
     ("min_distance", pa.float64()),  # m, centre distance to the nearest neighbour (NaN if none)
+    ("stop_s", pa.float64()),  # m, arc length of the red/yellow stop line the ego had ahead (NaN if none)
 ])
 
 #: one row per ego step: wall-clock timings [ms] (apart from steps so those stay bit-identical)
