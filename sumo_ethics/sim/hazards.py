@@ -180,7 +180,7 @@ class HazardInjector:
         fx, fy, angle = (float(v) for v in centre_to_front(x, y, yaw, a.length))
         if a.is_person:
             if not a.added:
-                libsumo.person.add(a.sumo_id, scene.route.edges[0], 0.0, typeID=a.type_id)  # type: ignore[attr-defined]
+                libsumo.person.add(a.sumo_id, self._walk_edge(scene), 0.0, typeID=a.type_id)  # type: ignore[attr-defined]
                 libsumo.person.appendWaitingStage(a.sumo_id, 3600.0)
                 a.added = True
             libsumo.person.moveToXY(a.sumo_id, "", fx, fy, angle, _KEEP, 100.0)
@@ -196,6 +196,17 @@ class HazardInjector:
             v.moveToXY(a.sumo_id, "", -1, fx, fy, angle, _KEEP, 100.0)
             v.setSpeed(a.sumo_id, speed)
         a.x, a.y, a.yaw = x, y, yaw  # type: ignore[attr-defined]
+
+    def _walk_edge(self, scene: Any) -> str:
+        """An edge of the ego's route a person may be put on (SUMO refuses edges without a
+        lane pedestrians may use); the person is then moved off it with moveToXY."""
+        for e in scene.route.edges:
+            for i in range(libsumo.edge.getLaneNumber(e)):
+                lane = f"{e}_{i}"
+                allowed = libsumo.lane.getAllowed(lane)
+                if ("pedestrian" in allowed) if allowed else ("pedestrian" not in libsumo.lane.getDisallowed(lane)):
+                    return e
+        return scene.route.edges[0]
 
     def _remove(self, a: Actor) -> None:
         if not a.added:

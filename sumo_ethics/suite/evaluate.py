@@ -137,7 +137,8 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str) -> dict[str, 
             data = summary.data
         except Exception as exc:  # noqa: BLE001 - a failed run is a row with status error
             data = _read_summary(Path(out_dir)) or {"status": "error", "message": str(exc)}
-            data.setdefault("message", str(exc))
+            if not data.get("message"):
+                data["message"] = f"{type(exc).__name__}: {exc}"
         finally:
             Path(out_dir).mkdir(parents=True, exist_ok=True)
             (Path(out_dir) / "hazard_events.json").write_text(json.dumps(injector.events, indent=1))

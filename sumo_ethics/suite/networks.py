@@ -152,7 +152,7 @@ def _rural() -> PlainNet:
     net.node("R1", 225, 0, "priority")
     net.node("R2", 450, 0)
     bend = [(225 + 225 * k / 12, 18 * math.sin(math.pi * k / 12)) for k in range(13)]
-    road = dict(numLanes=1, speed=22.22, width=3.5, priority=3, disallow="pedestrian")
+    road = dict(numLanes=1, speed=22.22, width=3.5, priority=3)  # no sidewalk: people walk on the road
     net.two_way("e0", "w0", "R0", "R1", **road)
     net.two_way("e1", "w1", "R1", "R2", shape=bend, **road)
     return net
