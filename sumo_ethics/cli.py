@@ -45,6 +45,8 @@ def cli() -> None:
               help="Reading of J_mean in J_utility (default candidate_mean).")
 @click.option("--predictor", type=click.Choice(["attention", "cslstm", "cv"]),
               help="Neighbour prediction (default attention).")
+@click.option("--predictor-weights", type=click.Path(path_type=Path),
+              help="Weights file for the LSTM predictor (default: the one shipped in the package).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")
 @click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")
 @click.option("--radius", type=float, default=80.0, show_default=True, help="Sensing radius around the ego [m].")
@@ -52,7 +54,7 @@ def cli() -> None:
 def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float,
         seed: int, end: float | None, out: Path | None, controller: str, omega_u: float | None,
         omega_o: float | None, weights: str | None, utility: str | None, predictor: str | None,
-        config_file: Path | None, continue_after_collision: bool, radius: float, quiet: bool) -> None:
+        predictor_weights: Path | None, config_file: Path | None, continue_after_collision: bool, radius: float, quiet: bool) -> None:
     """Run SCENARIO (a .sumocfg) with one vehicle taken over by the ego controller."""
     from sumo_ethics.config import RunConfig
     from sumo_ethics.runner import make_controller, run as run_scenario
@@ -60,7 +62,7 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
 
     table = load_toml(config_file) if config_file is not None else None
     planner = planner_config(table, omega_u=omega_u, omega_o=omega_o, weights=weights, utility=utility,
-                             predictor=predictor)
+                             predictor=predictor, predictor_weights=predictor_weights)
 
     out = out or Path("runs") / f"{scenario.stem}-seed{seed}"
     cfg = RunConfig(scenario=scenario, out=out, seed=seed, end=end, ego_id=ego_id, ego_from=ego_from, ego_to=ego_to,

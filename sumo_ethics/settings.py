@@ -49,7 +49,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
 
     t = dict(table or {})
     t.update({k: v for k, v in overrides.items() if v is not None})
-    simple = {"omega_u", "omega_o", "weights", "utility", "predictor", "max_risk"}
+    simple = {"omega_u", "omega_o", "weights", "utility", "predictor", "predictor_weights", "max_risk"}
     _known(t, simple | {"sampling", "probability", "principles"}, "[planner]")
     try:
         weights = PrincipleWeights.preset(t.get("weights", "ethical"))
@@ -69,7 +69,9 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
         _known(probability, {f.name for f in fields(ProbabilityConfig)}, "[planner.probability]")
         return PlannerConfig(cost=cost, sampling=SamplingConfig(**sampling),
                              probability=ProbabilityConfig(**probability),
-                             predictor=t.get("predictor", "attention"), max_risk=t.get("max_risk", 0.01))
+                             predictor=t.get("predictor", "attention"), max_risk=t.get("max_risk", 0.01),
+                             predictor_weights=None if t.get("predictor_weights") is None
+                             else str(t["predictor_weights"]))
     except ConfigError:
         raise
     except (TypeError, ValueError) as exc:

@@ -89,3 +89,51 @@ def test_run_bundled_scenario_prints_summary(tmp_path):
     # other drivers see the ego's true speed: SUMO reports what the controller commanded
     assert (steps.speed - steps.speed_cmd).abs().max() < 1e-6
     assert json.loads((out / "config.json").read_text())["resolved"]["end"] == 90.0
+
+
+# ---- planner settings: rejected before SUMO starts -------------------------------------------
+@pytest.mark.parametrize("args, fragment", [
+    (["--weights", "kantian"], "unknown principle-weight preset 'kantian'"),
+    (["--omega-u", "-0.5"], "omega_u"),
+    (["--omega-u", "nan"], "omega_u"),
+    (["--omega-o", "inf"], "omega_o"),
+    (["--controller", "telepathic"], "--controller"),
+])
+def test_bad_planner_settings(tmp_path, args, fragment):
+    out = tmp_path / "o"
+    p = cli("run", str(URBAN), "--out", str(out), *args)
+    assert_one_line_error(p, fragment)
+    assert not (out / "summary.json").exists()  # nothing ran
+
+
+@pytest.mark.parametrize("toml, fragment", [
+    ("[planner]\nomega_u = 0.3\nflavour = 'x'\n", "unknown key(s) in [planner]: flavour"),
+    ("[planner.sampling]\nhorizons = [0.05]\n", "horizon"),
+    ("[planner]\nweights = 'ego'\n[planner.principles]\nmaximin = -1\n", "principles.maximin"),
+    ("[planner\n", "malformed TOML"),
+])
+def test_bad_toml(tmp_path, toml, fragment):
+    f = tmp_path / "p.toml"
+    f.write_text(toml)
+    assert_one_line_error(cli("run", str(URBAN), "--config", str(f), "--out", str(tmp_path / "o")), fragment, 2)
+
+
+def test_corrupt_predictor_weights(tmp_path):
+    bad = tmp_path / "broken.pt"
+    bad.write_bytes(b"this is not a torch file")
+    p = cli("run", str(URBAN), "--predictor-weights", str(bad), "--out", str(tmp_path / "o"))
+    assert_one_line_error(p, str(bad), 2)
+
+
+def test_toml_settings_reach_the_run(tmp_path):
+    f = tmp_path / "p.toml"
+    f.write_text("[planner]\nomega_u = 0.25\nweights = 'standard'\nutility = 'literal'\npredictor = 'cv'\n")
+    out = tmp_path / "o"
+    p = cli("run", str(URBAN), "--config", str(f), "--omega-o", "2", "--end", "25", "--ego-depart", "15",
+            "--out", str(out))
+    assert p.returncode == 0, p.stderr
+    planner = json.loads((out / "config.json").read_text())["planner"]
+    assert planner["cost"]["omega_u"] == 0.25 and planner["cost"]["omega_o"] == 2.0  # CLI overrides TOML
+    assert planner["cost"]["utility"] == "literal" and planner["cost"]["weights"]["bayes"] == 0.0
+    steps = pd.read_parquet(out / "steps.parquet")
+    assert (steps.utility_literal == 1.0).all()

@@ -47,6 +47,7 @@ class PlannerConfig:
                                                                             n_offsets=17))
     probability: ProbabilityConfig = field(default_factory=ProbabilityConfig)
     predictor: str = "attention"
+    predictor_weights: str | None = None  # a weights file for the LSTM predictors (default: shipped)
     max_risk: float = 0.01
 
     def __post_init__(self) -> None:
@@ -67,10 +68,13 @@ def keep_heap_warm(pad: int = 64 << 20) -> None:
         pass
 
 
-def make_predictor(name: str) -> Predictor:
+def make_predictor(name: str, weights: str | None = None) -> Predictor:
+    """"cv", or an LSTM ("attention", "cslstm") from ``weights`` or the shipped file."""
     from sumo_ethics.predict import ConstantVelocityPredictor, LSTMPredictor
 
-    return ConstantVelocityPredictor() if name == "cv" else LSTMPredictor.default(name)
+    if name == "cv":
+        return ConstantVelocityPredictor()
+    return LSTMPredictor.from_file(weights, kind=name) if weights else LSTMPredictor.default(name)
 
 
 def first_overlap(cand: Candidates, pred: Prediction, risk: RiskTerms, length: np.ndarray,
@@ -119,7 +123,7 @@ class EthicalPlanner:
 
     def __init__(self, cfg: PlannerConfig = PlannerConfig(), predictor: Predictor | None = None) -> None:
         self.cfg = cfg
-        self.predictor = predictor or make_predictor(cfg.predictor)
+        self.predictor = predictor or make_predictor(cfg.predictor, cfg.predictor_weights)
         keep_heap_warm()
         self._lateral = (0.0, 0.0)  # d', d'' of the last chosen candidate at the next step
         self._accel = 0.0
