@@ -187,6 +187,12 @@ class Candidates:
     def __len__(self) -> int:
         return int(self.x.shape[0])
 
+    def take(self, index: np.ndarray) -> "Candidates":
+        """The candidates at integer positions ``index`` (K',)."""
+        idx = np.asarray(index, dtype=int)
+        return Candidates(self.dt, self.x[idx], self.y[idx], self.yaw[idx], self.speed[idx], self.accel[idx],
+                          self.curvature[idx], self.s[idx], self.d[idx], self.horizon[idx], self.valid[idx])
+
 
 @dataclass(frozen=True)
 class CostBreakdown:

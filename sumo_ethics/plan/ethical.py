@@ -151,31 +151,35 @@ class EthicalPlanner:
         # an ego above the limit (e.g. at takeover) must be allowed to slow down to it
         feas = check(cand, route, veh, speed_limit_factor=max(1.0, (state.s_dot + 0.01) / max(v_limit, 0.1)))
         w2 = time.perf_counter()
-        risk = assess_risk(cand, pred, agents, ego_mass=float(scene.ego.mass[0]), ego_cls=int(scene.ego.cls[0]),
+        # only physically feasible candidates can be chosen: risk and cost are for those alone
+        keep = np.flatnonzero(feas.feasible)
+        if len(keep) == 0:
+            return self._emergency(scene, {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1)})
+        fc = cand.take(keep)
+        on_road = feas.on_road[keep]
+        risk = assess_risk(fc, pred, agents, ego_mass=float(scene.ego.mass[0]), ego_cls=int(scene.ego.cls[0]),
                            ego_length=ego_length, ego_width=ego_width, prob_cfg=self.cfg.probability,
-                           off_road=~feas.on_road)
-        cost = score(cand, risk, self.cfg.cost, desired_speed=v_limit, feasible=feas.feasible)
+                           off_road=~on_road)
+        cost = score(fc, risk, self.cfg.cost, desired_speed=v_limit)
         w3 = time.perf_counter()
         pc = self.cfg.probability  # Origin's safety margins (+1.0 m length, +0.5 m width)
-        first_hit = first_overlap(cand, pred, risk, agents.length + pc.length_margin,
+        first_hit = first_overlap(fc, pred, risk, agents.length + pc.length_margin,
                                   agents.width + pc.width_margin, ego_length, ego_width)
         overlap = first_hit < horizon_steps
-        legal = np.ones(len(cand), dtype=bool)
+        legal = np.ones(len(fc), dtype=bool)
         if scene.stop_s is not None:  # do not cross a red/yellow stop line with the front bumper
-            legal = ~np.any(cand.valid & (cand.s + ego_length / 2.0 > scene.stop_s), axis=1)
-        worst = np.max(risk.ego_risk + risk.other_risk, axis=1) if len(agents) else np.zeros(len(cand))
-        base = feas.feasible & legal
+            legal = ~np.any(fc.valid & (fc.s + ego_length / 2.0 > scene.stop_s), axis=1)
+        worst = np.max(risk.ego_risk + risk.other_risk, axis=1) if len(agents) else np.zeros(len(fc))
         # METHOD.md's classes: criteria are dropped from the last: max risk, then staying on the
         # road, then avoiding the predicted mean paths; a red light counts like the road edge
-        classes = [base & ~overlap & feas.on_road & (worst < self.cfg.max_risk),
-                   base & ~overlap & feas.on_road, feas.feasible & ~overlap, feas.feasible]
-        k, cls = select(classes, cost.total, first_hit, horizon_steps, cand.s[:, -1] - scene.s)
+        classes = [legal & ~overlap & on_road & (worst < self.cfg.max_risk), legal & ~overlap & on_road,
+                   ~overlap, np.ones(len(fc), dtype=bool)]
+        j, cls = select(classes, cost.total, first_hit, horizon_steps, fc.s[:, -1] - scene.s)
+        k = int(keep[j])
         w4 = time.perf_counter()
         timings = {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1), "risk_cost_ms": 1e3 * (w3 - w2),
                    "select_ms": 1e3 * (w4 - w3)}
-        if k < 0:
-            return self._emergency(scene, timings)
-        info: dict[str, Any] = {f"cost_{name}": v for name, v in cost.row(k).items()}
+        info: dict[str, Any] = {f"cost_{name}": v for name, v in cost.row(j).items()}
         info.update(validity=float(cls), n_candidates=float(len(cand)), n_feasible=float(feas.feasible.sum()),
                     horizon=float(cand.horizon[k]), utility_literal=float(self.cfg.cost.utility is UtilityMode.LITERAL))
         d0 = scene.d
