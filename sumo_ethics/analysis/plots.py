@@ -56,6 +56,21 @@ def _is_numeric(s: pd.Series) -> bool:
     return pd.api.types.is_numeric_dtype(s) and not pd.api.types.is_bool_dtype(s)
 
 
+def _wide(values) -> bool:
+    """Values spanning two or more decades (e.g. w_u = 0, 1, 10, 100): plot on a symlog axis."""
+    v = np.abs(np.asarray(values, dtype=float))
+    pos = v[v > 0]
+    return len(pos) >= 2 and pos.max() / pos.min() >= 100
+
+
+def _scale_x(ax, values) -> None:
+    v = np.asarray(values, dtype=float)
+    if _wide(v):
+        pos = np.abs(v[v != 0])
+        ax.set_xscale("symlog", linthresh=float(pos.min()))
+        ax.set_xticks(sorted(set(v.tolist())), [f"{x:g}" for x in sorted(set(v.tolist()))])
+
+
 def _line_ci(ax, g: pd.DataFrame, x: str, col: str, colour, label: str, marker: str = "o") -> None:
     g = g.sort_values(x)
     xs = g[x].to_numpy() if _is_numeric(g[x]) else np.arange(len(g))
@@ -64,6 +79,8 @@ def _line_ci(ax, g: pd.DataFrame, x: str, col: str, colour, label: str, marker: 
                     color=colour, alpha=0.18, lw=0)
     if not _is_numeric(g[x]):
         ax.set_xticks(xs, [str(v) for v in g[x]])
+    else:
+        _scale_x(ax, xs)
 
 
 def harm_vs_parameter(summary: pd.DataFrame, by: Sequence[str], folder: Path) -> list[Path]:
@@ -81,7 +98,7 @@ def harm_vs_parameter(summary: pd.DataFrame, by: Sequence[str], folder: Path) ->
         ax.set_xlabel(_label(x))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="best")
-    axes[0].set_ylabel("mean harm per run [-]\n(injury probability, summed over collisions)")
+    axes[0].set_ylabel("mean harm per run [-]\n(P(MAIS 3+), summed over collisions)")
     n = int(summary["n_runs"].min()), int(summary["n_runs"].max())
     fig.suptitle(f"Harm per class vs {_label(x)} (bootstrap 95% CI over runs, {n[0]}-{n[1]} runs per point)"
                  if n[0] != n[1] else
@@ -121,14 +138,18 @@ def harm_per_collision(collisions: pd.DataFrame, folder: Path) -> list[Path]:
                        medianprops={"color": CLASS_COLOURS[c], "lw": 2})
             ax.scatter(i + rng.uniform(-0.15, 0.15, len(d)), d, s=14, color=CLASS_COLOURS[c], alpha=0.7,
                        zorder=3)
+        else:
+            ax.text(i, 0.5, "none", transform=ax.get_xaxis_transform(), ha="center", va="center", color="0.5")
     ax.set_xticks(range(len(classes)), [f"{c}\n(n={len(d)})" for c, d in zip(classes, data)])
     ax.set_xlim(-0.6, len(classes) - 0.4)
-    ax.set_ylabel("harm per ego collision [-]\n(injury probability)")
+    ax.set_ylabel("harm per ego collision [-]\n(P(MAIS 3+))")
     ax.set_xlabel("harmed party (third party: cars, trucks, buses; VRU: pedestrians, cyclists, motorcyclists)")
     ax.set_title("Distribution of harm per ego collision, by class")
     if long.empty:
         ax.text(0.5, 0.5, "no ego collisions in this sweep", transform=ax.transAxes, ha="center", va="center")
         ax.set_ylim(0, 1)
+    else:
+        ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
     return _save(fig, folder, "harm_per_collision")
@@ -141,7 +162,12 @@ def tradeoff(runs: pd.DataFrame, folder: Path, colour_by: str = "omega_u") -> li
     jitter = 0.004 * max(float(runs[["harm_ego", "harm_third_party"]].to_numpy().max(initial=0.0)), 1e-3)
     xs = runs["harm_ego"].to_numpy(dtype=float) + rng.normal(0, jitter, len(runs))
     ys = runs["harm_third_party"].to_numpy(dtype=float) + rng.normal(0, jitter, len(runs))
-    sc = ax.scatter(xs, ys, c=c if c is not None else "#1f77b4", cmap="viridis", s=28, alpha=0.8,
+    norm = None
+    if c is not None and _wide(c):
+        from matplotlib.colors import SymLogNorm
+
+        norm = SymLogNorm(linthresh=float(np.abs(c[c != 0]).min()), vmin=float(c.min()), vmax=float(c.max()))
+    sc = ax.scatter(xs, ys, c=c if c is not None else "#1f77b4", cmap="viridis", norm=norm, s=28, alpha=0.8,
                     edgecolors="k", linewidths=0.3, label="one run (slightly jittered)")
     if c is not None and c.nunique() > 1:
         fig.colorbar(sc, ax=ax, label=_label(colour_by))
@@ -149,7 +175,7 @@ def tradeoff(runs: pd.DataFrame, folder: Path, colour_by: str = "omega_u") -> li
         ax.plot(means["harm_ego"], means["harm_third_party"], "-", color="0.4", lw=1, zorder=1)
         ax.scatter(means["harm_ego"], means["harm_third_party"], c=means[colour_by], cmap="viridis", s=120,
                    marker="D", edgecolors="k", linewidths=1.0, label=f"mean per {colour_by}", zorder=4,
-                   vmin=c.min(), vmax=c.max())
+                   norm=norm if norm is not None else plt.Normalize(c.min(), c.max()), alpha=0.85)
     lim = max(float(np.nanmax(np.r_[xs, ys, 0.0])) * 1.1, 0.01)
     ax.plot([0, lim], [0, lim], ":", color="0.5", lw=1, label="equal harm")
     ax.set_xlim(-0.02 * lim, lim)
@@ -158,6 +184,6 @@ def tradeoff(runs: pd.DataFrame, folder: Path, colour_by: str = "omega_u") -> li
     ax.set_ylabel("harm to third parties per run [-] (incl. VRU)")
     ax.set_title("Ego vs third-party harm per run")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right")
+    ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
     return _save(fig, folder, "tradeoff_ego_vs_third_party")

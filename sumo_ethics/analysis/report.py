@@ -64,7 +64,7 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
         f"({', '.join(f'{k} {v}' for k, v in sorted(res.runs['status'].value_counts().items()))})",
         f"- grouped by: {', '.join(by)}; 95% CIs: percentile bootstrap over runs ({n_boot} resamples, seed {seed})",
         "",
-        "Harm is the injury probability of the harm model, summed per run over the ego's collisions and",
+        "Harm is P(MAIS 3+) of the harm model, summed per run over the ego's collisions and",
         "booked per class: ego, third party (every other party, VRU included) and VRU (pedestrians,",
         "cyclists, motorcyclists).",
         "",

@@ -17,7 +17,7 @@ from sumo_ethics.errors import ConfigError
 #: harm classes as booked per run: (runs column, label)
 HARM_CLASSES = (("harm_ego", "ego"), ("harm_third_party", "third party"), ("harm_vru", "VRU"),
                 ("harm_total", "total"))
-HARM_UNIT = "harm [-] (injury probability, summed over the run's ego collisions)"
+HARM_UNIT = "harm [-] (P(MAIS 3+), summed over the run's ego collisions)"
 
 
 def bootstrap_ci(values: Sequence[float] | np.ndarray, n_boot: int = 2000, seed: int = 0,
