@@ -109,12 +109,12 @@ def test_sideswipe_from_lateral_offset(scenario_dir, tmp_path):
     assert r.harm_vru == 0.0
 
 
-@pytest.mark.parametrize("controller", ["baseline", "ethical"])
-def test_same_seed_same_parquet(tmp_path, controller):
+@pytest.mark.parametrize("controller, predictor", [("baseline", "cv"), ("ethical", "cv"), ("ethical", "attention")])
+def test_same_seed_same_parquet(tmp_path, controller, predictor):
     from sumo_ethics.plan.ethical import PlannerConfig
 
     cfgs = [RunConfig(SCENARIOS_URBAN, tmp_path / f"r{i}", seed=7, end=45, ego_depart=15, progress=False,
-                      controller=controller, planner=PlannerConfig(predictor="cv")) for i in range(2)]
+                      controller=controller, planner=PlannerConfig(predictor=predictor)) for i in range(2)]
     for c in cfgs:
         run(c)
     for name in ("steps.parquet", "collisions.parquet"):
