@@ -28,6 +28,8 @@ def main() -> None:
     ap.add_argument("--stages", default="dataset,train,evaluate")
     ap.add_argument("--parallel", action="store_true", help="train both models at once (one thread each)")
     ap.add_argument("--max-minutes", type=float, default=14.0)
+    ap.add_argument("--max-wall-minutes", type=float, default=None)
+    ap.add_argument("--out-dir", default=str(WEIGHTS), help="where weights and the evaluation go")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--model", default=None, help="(internal) train only this model")
     args = ap.parse_args()
@@ -39,7 +41,8 @@ def main() -> None:
     stages = args.stages.split(",")
     if args.model:
         t0 = time.time()
-        info = train_main(work, args.model, WEIGHTS / f"{args.model}.pt", max_minutes=args.max_minutes, progress=False)
+        info = train_main(work, args.model, Path(args.out_dir) / f"{args.model}.pt", max_minutes=args.max_minutes,
+                          max_wall_minutes=args.max_wall_minutes, progress=False)
         logging.info("%s: %.1f min, best epoch %s, val nll %.3f, %s", args.model, (time.time() - t0) / 60,
                      info["best_epoch"], info["best_val_nll"], info["stopped"])
         return
@@ -50,7 +53,8 @@ def main() -> None:
         dataset_main(scen, work, seeds=SEEDS, workers=args.workers)
         logging.info("dataset: %.1f min", (time.time() - t0) / 60)
     if "train" in stages:
-        cmds = [[sys.executable, __file__, "--work", str(work), "--model", m, "--max-minutes", str(args.max_minutes)]
+        cmds = [[sys.executable, __file__, "--work", str(work), "--model", m, "--max-minutes", str(args.max_minutes),
+                 "--out-dir", args.out_dir] + (["--max-wall-minutes", str(args.max_wall_minutes)] if args.max_wall_minutes else [])
                 for m in ("attention", "cslstm")]
         if args.parallel:
             procs = [subprocess.Popen(c) for c in cmds]
@@ -60,7 +64,8 @@ def main() -> None:
             for c in cmds:
                 subprocess.run(c, check=True)
     if "evaluate" in stages:
-        df = evaluate_main(work, WEIGHTS, weights={"cslstm": WEIGHTS / "cslstm.pt", "attention": WEIGHTS / "attention.pt"})
+        out_dir = Path(args.out_dir)
+        df = evaluate_main(work, out_dir, weights={"cslstm": out_dir / "cslstm.pt", "attention": out_dir / "attention.pt"})
         print(df.to_string())
 
 

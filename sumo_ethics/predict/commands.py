@@ -34,16 +34,20 @@ def train_main(
     epochs: int = 40,
     mse_epochs: int = 1,
     max_minutes: float = 14.0,
+    max_wall_minutes: float | None = None,
     max_train: int | None = 200_000,
     seed: int = 0,
     threads: int = 1,
     progress: bool = True,
 ) -> dict:
-    """Train ``model`` ("attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt)."""
+    """Train ``model`` ("attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
+
+    max_minutes is a CPU-time budget (one thread); max_wall_minutes caps wall time (default 3x).
+    """
     from sumo_ethics.predict.train import TrainConfig, train_model
 
     cfg = TrainConfig(epochs=epochs, mse_epochs=mse_epochs, max_minutes=max_minutes, max_train=max_train,
-                      seed=seed, threads=threads)
+                      seed=seed, threads=threads, max_wall_minutes=max_wall_minutes)
     return train_model(Path(dataset), model, Path(out), cfg, progress=progress)
 
 
