@@ -335,6 +335,26 @@ class Sweep:
         return specs
 
 
+def command_line(definition: dict[str, Any], out: str = "OUT") -> str:
+    """A ``sumo-ethics sweep`` command that reproduces ``definition`` (for reports)."""
+    flags = {"end": "--end", "ego_depart": "--ego-depart", "ego_from": "--ego-from", "ego_to": "--ego-to",
+             "controller": "--controller", "predictor": "--predictor", "radius": "--radius"}
+    scen = definition["scenarios"]
+    parts = ["sumo-ethics sweep", scen[0] if len(scen) == 1 else os.path.commonpath(scen),
+             "--omega-u", ",".join(f"{v:g}" for v in definition["omega_u"]),
+             "--seeds", ",".join(map(str, definition["seeds"]))]
+    for k, v in definition["set"].items():
+        parts += ["--set", f"{k}=" + ",".join(f"{x:g}" if isinstance(x, float) else str(x) for x in v)]
+    for k, v in definition["options"].items():
+        if k == "stop_at_collision":
+            parts += ["--continue-after-collision"] if v is False else []
+        elif k in flags:
+            parts += [flags[k], f"{v:g}" if isinstance(v, float) else str(v)]
+    if definition.get("planner"):
+        parts += ["--config", "PLANNER.toml"]
+    return " ".join(parts + ["--out", out])
+
+
 def make_sweep(scenario: Path, omega_u: str, seeds: str, sets: Iterable[str] = (), options: dict | None = None,
                planner: dict | None = None) -> Sweep:
     """Parse the command-line forms into a :class:`Sweep` (ConfigError on bad input)."""

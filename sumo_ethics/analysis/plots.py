@@ -97,7 +97,12 @@ def harm_vs_parameter(summary: pd.DataFrame, by: Sequence[str], folder: Path) ->
         ax.set_title(f"harm to {cls}")
         ax.set_xlabel(_label(x))
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="best")
+        if len(hues) == 1:
+            ax.legend(fontsize=8, loc="best")
+    if len(hues) > 1:  # one legend for the three panels, below them
+        handles, labels = axes[0].get_legend_handles_labels()
+        fig.legend(handles, [f"{lab} (mean, 95% CI band)" for lab in labels], loc="lower center",
+                   ncol=min(len(hues), 4), fontsize=9, frameon=False, bbox_to_anchor=(0.5, -0.06))
     axes[0].set_ylabel("mean harm per run [-]\n(P(MAIS 3+), summed over collisions)")
     n = int(summary["n_runs"].min()), int(summary["n_runs"].max())
     fig.suptitle(f"Harm per class vs {_label(x)} (bootstrap 95% CI over runs, {n[0]}-{n[1]} runs per point)"

@@ -25,6 +25,7 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
     """Write ``out`` (default ``sweep_dir/report``): summary/status/collision tables, plots, report.md."""
     from sumo_ethics.analysis import plots
     from sumo_ethics.errors import ConfigError
+    from sumo_ethics.sweep import command_line
 
     sweep_dir = Path(sweep_dir)
     res = load(sweep_dir, steps=False)
@@ -56,6 +57,11 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
                                  "harm_total_ci_lo", "harm_total_ci_hi"]]
     lines = [
         f"# Sweep report: {sweep_dir.name}",
+        "",
+        "```sh",
+        command_line(d, str(sweep_dir)),
+        f"sumo-ethics analyze {sweep_dir} --by {','.join(by)}",
+        "```",
         "",
         f"- scenarios: {', '.join(Path(s).name for s in d['scenarios'])}",
         f"- w_u: {', '.join(f'{v:g}' for v in d['omega_u'])}; seeds: {', '.join(map(str, d['seeds']))}",
