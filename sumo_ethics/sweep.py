@@ -563,9 +563,10 @@ class DaskPool:
         logging.getLogger("distributed").setLevel(logging.CRITICAL)
         try:
             self.client = Client(address, timeout=timeout)
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise ConfigError(f"cannot reach Dask scheduler {address} within {timeout:g} s: "
-                              f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+        except Exception as exc:  # noqa: BLE001 - refused, timed out, or something that is not a scheduler
+            msg = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+            raise ConfigError(f"cannot reach Dask scheduler {address} within {timeout:g} s "
+                              f"(or it is not a Dask scheduler): {msg}") from None
         self.workers = max(1, sum(self.client.nthreads().values()))
 
         self._done: Any = None

@@ -53,8 +53,13 @@ def main() -> None:
             shutil.rmtree(tmp, ignore_errors=True)
         assert res.done == n and res.failed == 0, res
         results["wall"][w] = wall
+        results.setdefault("run_wall_mean", {})[w] = sum(run_walls) / n
+        # runs in flight on average: near w means the pool kept every worker busy; a run's own
+        # wall time growing with w means the workers share too few free cores
+        busy = sum(run_walls) / wall
         print(f"  {w} worker(s): {wall:7.1f} s wall ({wall / n:.2f} s per run; a run's own wall time "
-              f"mean {sum(run_walls) / n:.2f} s), load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+              f"mean {sum(run_walls) / n:.2f} s; {busy:.2f} runs in flight on average), "
+              f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     ws = sorted(results["wall"])
     for w in ws[1:]:
         print(f"  speed-up {ws[0]} -> {w} workers: {results['wall'][ws[0]] / results['wall'][w]:.2f}x")
