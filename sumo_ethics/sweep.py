@@ -9,9 +9,11 @@ Layout of a sweep folder ``DIR``::
     DIR/dataset/collisions/...   parameters except the seed (``scenario=urban/omega_u=0.5/part-0.parquet``);
     DIR/dataset/steps/...        every row carries ``run_id`` and the sweep parameters
 
-Executors. Locally a ``ProcessPoolExecutor`` with ``max_tasks_per_child=1`` (forkserver, the
-package preloaded): every run gets a fresh process, so a fatal SUMO error never leaks into the
-next run. With a Dask scheduler the same :func:`execute_run` runs in a fresh Python subprocess
+Executors. Locally one fresh process per run (started from a forkserver with the package
+preloaded, so starting one costs milliseconds, not the imports), at most ``--workers`` at a
+time: a fatal SUMO error never leaks into the next run and a crashing run takes down only
+itself (a ``ProcessPoolExecutor`` with ``max_tasks_per_child=1`` breaks every run in flight when
+one worker dies, and hangs at exit after Ctrl-C on Python 3.11). With a Dask scheduler the same :func:`execute_run` runs in a fresh Python subprocess
 started by the Dask task (long-lived Dask workers must not start a second libsumo simulation).
 
 Finished runs. A run is *finished* when ``runs/<run_id>/summary.json`` exists. A run folder
@@ -41,8 +43,6 @@ import sys
 import time
 import traceback
 import uuid
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -485,6 +485,13 @@ class Manifest:
         if result.get("wall") is not None:
             r["wall_time"] = result["wall"]
 
+    def sync(self, runs_dir: Path) -> None:
+        """Record runs whose folder was completed while their result was not received (Ctrl-C)."""
+        for r in self.runs.values():
+            folder = runs_dir / r["run_id"]
+            if r["status"] in (PENDING, FAILED) and (folder / "summary.json").exists():
+                self.update(_result_from_folder(r["run_id"], folder))
+
     def write(self) -> None:
         counts: dict[str, int] = {}
         for r in self.runs.values():
@@ -513,8 +520,69 @@ def check_out(out: Path, sweep: Sweep) -> None:
 
 
 # ---- executors ---------------------------------------------------------------------------------
+def _child(conn: Any, spec: dict[str, Any], runs_dir: str) -> None:
+    """Body of one run process: :func:`execute_run`, its result (or error line) sent back."""
+    try:
+        result = execute_run(spec, runs_dir)
+        conn.send(("ok", result))
+    except BaseException as exc:  # noqa: BLE001 - reported to the parent, which records the run as failed
+        line = "".join(traceback.format_exception_only(type(exc), exc)).strip().splitlines()[-1]
+        try:
+            conn.send(("error", line))
+        except OSError:
+            pass
+    finally:
+        conn.close()
+
+
+class RunProcess:
+    """One run in its own process; ``result()`` like a Future's (raises RuntimeError on a crash)."""
+
+    def __init__(self, ctx: Any, spec: dict[str, Any], runs_dir: str) -> None:
+        self.conn, child = ctx.Pipe(duplex=False)
+        self.proc = ctx.Process(target=_child, args=(child, spec, runs_dir), name=f"run-{spec['run_id']}",
+                                daemon=True)
+        self.proc.start()
+        child.close()
+        self._msg: tuple | None = None
+
+    def ready_handles(self) -> list[Any]:
+        return [self.conn, self.proc.sentinel]
+
+    def done(self) -> bool:
+        if self._msg is None and self.conn.poll():
+            try:
+                self._msg = self.conn.recv()
+            except (EOFError, OSError):
+                self._msg = ("died", None)
+        if self._msg is None and not self.proc.is_alive():
+            self._msg = ("died", None)
+        return self._msg is not None
+
+    def result(self) -> dict[str, Any]:
+        assert self._msg is not None
+        self.proc.join(timeout=30)
+        kind, value = self._msg
+        if kind == "ok":
+            return value
+        if kind == "error":
+            raise RuntimeError(value)
+        code = self.proc.exitcode
+        how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit code {code}"
+        raise RuntimeError(f"run process died ({how})")
+
+    def stop(self) -> None:
+        if self.proc.is_alive():
+            self.proc.terminate()
+        self.proc.join(timeout=10)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join(timeout=5)
+
+
 class LocalPool:
-    """A process pool in which every run gets a fresh process (forkserver, package preloaded)."""
+    """Local processes, one fresh process per run (forkserver with the package preloaded, so a
+    run starts in milliseconds; a SUMO crash takes down only its own run)."""
 
     def __init__(self, workers: int) -> None:
         import multiprocessing as mp
@@ -522,29 +590,32 @@ class LocalPool:
         self.workers = workers
         self.ctx = mp.get_context("forkserver")
         self.ctx.set_forkserver_preload(["sumo_ethics.sweep", "sumo_ethics.runner", "sumo_ethics.plan.ethical"])
-        self._pool: ProcessPoolExecutor | None = None
+        self.jobs: list[RunProcess] = []
 
-    def pool(self) -> ProcessPoolExecutor:
-        if self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=self.ctx, max_tasks_per_child=1)
-        return self._pool
-
-    def submit(self, spec: dict[str, Any], runs_dir: str) -> Future:
-        return self.pool().submit(execute_run, spec, runs_dir)
+    def submit(self, spec: dict[str, Any], runs_dir: str) -> RunProcess:
+        job = RunProcess(self.ctx, spec, runs_dir)
+        self.jobs.append(job)
+        return job
 
     def wait(self, running: Iterable[Any]) -> set[Any]:
-        return wait(list(running), return_when=FIRST_COMPLETED).done
+        from multiprocessing.connection import wait as mp_wait
 
-    def broken(self) -> None:
-        """The pool broke (a worker died): drop it, the next submit starts a new one."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = None
+        jobs = list(running)
+        while True:
+            done = {j for j in jobs if j.done()}
+            if done:
+                for j in done:
+                    self.jobs.remove(j)
+                return done
+            mp_wait([h for j in jobs for h in j.ready_handles()], timeout=1.0)
 
     def close(self, cancel: bool = False) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=not cancel, cancel_futures=cancel)
-            self._pool = None
+        for j in self.jobs:
+            if cancel:
+                j.stop()
+            else:
+                j.proc.join()
+        self.jobs = []
 
 
 class DaskPool:
@@ -586,9 +657,6 @@ class DaskPool:
         first = next(self._done)
         return {first, *self._done.next_batch(block=False)}
 
-    def broken(self) -> None:
-        pass
-
     def close(self, cancel: bool = False) -> None:
         self.client.close()
 
@@ -623,12 +691,12 @@ def _clean_temporaries(runs_dir: Path) -> None:
 
 
 def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None = None, progress: bool = True,
-              max_attempts: int = 2, on_result: Callable[[dict[str, Any]], None] | None = None) -> SweepResult:
+              on_result: Callable[[dict[str, Any]], None] | None = None) -> SweepResult:
     """Run every unfinished run of ``sweep`` into ``out``, then build the dataset.
 
     ConfigError before anything runs for bad input, another sweep in ``out`` or an unreachable
-    scheduler. Finished runs are skipped; a run whose worker crashed is retried up to
-    ``max_attempts`` times in this start, then recorded as failed.
+    scheduler. Finished runs are skipped; a run whose process crashed is recorded as failed
+    (and runs again on the next start); Ctrl-C stops the runs in flight and re-raises.
     """
     out = Path(out)
     if workers < 1:
@@ -656,17 +724,16 @@ def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None =
             todo.append(s)
     manifest.write()
     failed = errors = 0
-    attempts: dict[str, int] = {}
     with _progress(progress, len(specs)) as bar:
         task = bar.add_task("runs", total=len(specs), completed=skipped, failed=0, errors=0)
         running: dict[Any, RunSpec] = {}
         queue = list(todo)
 
         def fill() -> None:
-            limit = max(2 * executor.workers, 2)
+            # local: a process per run, so exactly `workers` at a time; Dask: keep its queue fed
+            limit = executor.workers if isinstance(executor, LocalPool) else 2 * executor.workers
             while queue and len(running) < limit:
                 s = queue.pop(0)
-                attempts[s.run_id] = attempts.get(s.run_id, 0) + 1
                 manifest.runs[s.run_id]["attempts"] += 1
                 running[executor.submit(s.to_dict(), str(runs_dir))] = s
 
@@ -674,18 +741,10 @@ def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None =
             fill()
             while running:
                 done_set = executor.wait(running)
-                broken = False
                 for fut in done_set:
                     s = running.pop(fut)
                     try:
                         result = fut.result()
-                    except BrokenProcessPool:
-                        broken = True
-                        if attempts[s.run_id] < max_attempts:
-                            queue.insert(0, s)
-                            continue
-                        result = {"run_id": s.run_id, "status": FAILED, "error": "worker process died",
-                                  "message": "worker process died"}
                     except Exception as exc:  # noqa: BLE001 - a crash of the tool on this run
                         line = "".join(traceback.format_exception_only(type(exc), exc)).strip().splitlines()[-1]
                         result = {"run_id": s.run_id, "status": FAILED, "error": line, "message": line}
@@ -698,15 +757,10 @@ def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None =
                         on_result(result)
                     manifest.write()
                     bar.update(task, advance=0 if result["status"] == FAILED else 1, failed=failed, errors=errors)
-                if broken:
-                    # the other runs in flight died with the pool: run them again
-                    for fut, s in list(running.items()):
-                        running.pop(fut)
-                        queue.insert(0, s)
-                    executor.broken()
                 fill()
         except BaseException:
             executor.close(cancel=True)
+            manifest.sync(runs_dir)
             manifest.write()
             raise
     executor.close()

@@ -236,3 +236,55 @@ def test_execute_run_propagates_tool_crashes(tmp_path):
     with pytest.raises(ConfigError):
         execute_run(spec, str(tmp_path))
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.sumo
+def test_ctrl_c_stops_cleanly_and_resumes(tmp_path):
+    out = tmp_path / "sw"
+    code = ("import sys\nfrom sumo_ethics.cli import cli, main\nfrom sumo_ethics.cli_sweep import sweep\n"
+            "cli.add_command(sweep) if 'sweep' not in cli.commands else None\nsys.exit(main(sys.argv[1:]))")
+    args = ["sweep", str(TESTBED), "--omega-u", "0:1:0.5", "--seeds", "0-1", "--end", "15", "--ego-depart", "2",
+            "--predictor", "cv", "--workers", "2", "--quiet", "--out", str(out)]
+    proc = subprocess.Popen([sys.executable, "-c", code, *args], start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if (out / "runs").exists() and any(not p.name.startswith(".") for p in (out / "runs").iterdir()):
+            break
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does: the sweep and its runs
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and err.strip().splitlines()[-1].startswith("error:")
+    m = json.loads((out / "manifest.json").read_text())
+    finished = [p for p in (out / "runs").iterdir() if not p.name.startswith(".")]
+    assert {r["run_id"] for r in m["runs"] if r["status"] != "pending"} == {p.name for p in finished}
+    for p in finished:
+        assert json.loads((p / "summary.json").read_text())["status"] in ("completed", "collision", "timeout")
+    sw = make_sweep(TESTBED, "0:1:0.5", "0-1", options={"end": 15.0, "ego_depart": 2.0, "predictor": "cv"})
+    res = run_sweep(sw, out, workers=2, progress=False)
+    assert (res.done, res.failed, res.skipped) == (6, 0, len(finished))
+    assert not list((out / "runs").glob(".*"))
+
+
+@pytest.mark.sumo
+def test_a_crashing_run_process_fails_alone(tmp_path):
+    """One run's process crashes (here: a controller that does not exist, past validation); the
+    other run is unaffected, the crash is reported with its message and leaves no folder."""
+    from sumo_ethics.sweep import LocalPool
+
+    sw = make_sweep(TESTBED, "0.5", "0-1", options={**FAST, "end": 5.0})
+    good, bad = (s.to_dict() for s in sw.specs())
+    bad["options"]["controller"] = "nonexistent"
+    pool = LocalPool(2)
+    jobs = {pool.submit(good, str(tmp_path)): "good", pool.submit(bad, str(tmp_path)): "bad"}
+    results = {}
+    while len(results) < 2:
+        for job in pool.wait([j for j in jobs if jobs[j] not in results]):
+            try:
+                results[jobs[job]] = job.result()
+            except RuntimeError as exc:
+                results[jobs[job]] = str(exc)
+    pool.close()
+    assert results["good"]["status"] == "timeout"
+    assert "unknown controller 'nonexistent'" in results["bad"]
+    assert [p.name for p in tmp_path.iterdir()] == [good["run_id"]]
