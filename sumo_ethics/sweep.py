@@ -13,8 +13,9 @@ Executors. Locally one fresh process per run (started from a forkserver with the
 preloaded, so starting one costs milliseconds, not the imports), at most ``--workers`` at a
 time: a fatal SUMO error never leaks into the next run and a crashing run takes down only
 itself (a ``ProcessPoolExecutor`` with ``max_tasks_per_child=1`` breaks every run in flight when
-one worker dies, and hangs at exit after Ctrl-C on Python 3.11). With a Dask scheduler the same :func:`execute_run` runs in a fresh Python subprocess
-started by the Dask task (long-lived Dask workers must not start a second libsumo simulation).
+one worker dies, and hangs at exit after Ctrl-C on Python 3.11). With a Dask scheduler the
+same :func:`execute_run` runs in a fresh Python subprocess started by the Dask task
+(long-lived Dask workers must not start a second libsumo simulation).
 
 Finished runs. A run is *finished* when ``runs/<run_id>/summary.json`` exists. A run folder
 is built under a temporary name (``runs/.<run_id>.tmp-<pid>-<hex>``) and renamed only when the
@@ -645,8 +646,8 @@ class DaskPool:
     def submit(self, spec: dict[str, Any], runs_dir: str) -> Any:
         from distributed import as_completed
 
-        fut = self.client.submit(execute_run_isolated, spec, runs_dir, key=f"run-{spec['run_id']}-{uuid.uuid4().hex[:6]}",
-                                 pure=False, retries=0)
+        key = f"run-{spec['run_id']}-{uuid.uuid4().hex[:6]}"
+        fut = self.client.submit(execute_run_isolated, spec, runs_dir, key=key, pure=False, retries=0)
         if self._done is None:
             self._done = as_completed([fut])
         else:
