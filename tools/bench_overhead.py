@@ -26,9 +26,10 @@ from sumo_ethics.sim import session
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def plugin_run(cfg: Path, out: Path, seed: int, depart: float, end: float, ego_from: str, ego_to: str) -> dict:
+def plugin_run(cfg: Path, out: Path, seed: int, depart: float, end: float, ego_from: str, ego_to: str,
+               controller: str) -> dict:
     s = run(RunConfig(cfg, out, seed=seed, end=end, ego_depart=depart, ego_from=ego_from, ego_to=ego_to,
-                      stop_at_collision=False, progress=False))
+                      stop_at_collision=False, progress=False, controller=controller))
     d = s.data
     return {"window": d["wall_time"] - d["takeover_wall"], "t0": d["takeover_time"], "t1": d["sim_time"],
             "steps": d["steps"], "vehicles": None}
@@ -62,12 +63,15 @@ def main() -> None:
     ap.add_argument("--end", type=float, default=480.0)
     ap.add_argument("--ego-from", default="W0_in")
     ap.add_argument("--ego-to", default="E1_out")
+    ap.add_argument("--controller", default="baseline",
+                    help="the takeover is measured with the cheap baseline; the planner has tools/bench_planner.py")
     a = ap.parse_args()
     plug, plain = [], []
     info = {}
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(a.repeats):
-            r = plugin_run(a.scenario, Path(tmp) / f"run{i}", a.seed, a.depart, a.end, a.ego_from, a.ego_to)
+            r = plugin_run(a.scenario, Path(tmp) / f"run{i}", a.seed, a.depart, a.end, a.ego_from, a.ego_to,
+                           a.controller)
             plug.append(r["window"])
             import json
 
@@ -82,7 +86,8 @@ def main() -> None:
           f"{info['window_s']:.0f} s simulated after takeover ({info['steps']} ego steps)")
     print(f"median wall: plug-in {mp:.3f} s, plain SUMO {mq:.3f} s; ratio of medians {mp / mq:.3f}; "
           f"median of paired ratios {statistics.median(ratios):.3f} (target <= 1.3)")
-    print(f"per step: plug-in {1e3 * mp / info['steps']:.3f} ms, plain {1e3 * mq / info['steps']:.3f} ms")
+    print(f"per step: plug-in {1e3 * mp / info['steps']:.3f} ms, plain {1e3 * mq / info['steps']:.3f} ms "
+          f"(controller: {a.controller})")
 
 
 if __name__ == "__main__":
