@@ -399,7 +399,7 @@ def execute_run(spec: dict[str, Any], runs_dir: str) -> dict[str, Any]:
     if (final / "summary.json").exists():
         return _result_from_folder(s.run_id, final, skipped=True)
     tmp = runs / f".{s.run_id}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     cfg = s.run_config(tmp)
     from sumo_ethics.runner import make_controller, run
 
@@ -413,7 +413,7 @@ def execute_run(spec: dict[str, Any], runs_dir: str) -> dict[str, Any]:
             write_json(tmp / "summary.json", {"status": "error", "message": str(exc), "completed": False})
     wall = time.perf_counter() - t0
     write_json(tmp / "params.json", {"run_id": s.run_id, "params": s.params, "scenario": s.scenario,
-                                     "wall_time": wall})
+                                     "wall_time": wall, "cpu_time": time.process_time() - c0})
     cfg_file = tmp / "config.json"
     if cfg_file.exists():  # the run was written under the temporary name: record the final one
         data = json.loads(cfg_file.read_text())

@@ -47,20 +47,23 @@ def main() -> None:
             t0 = time.perf_counter()
             res = run_sweep(sw, tmp / "sweep", workers=w, progress=False)
             wall = time.perf_counter() - t0
-            run_walls = [json.loads((p / "params.json").read_text())["wall_time"]
-                         for p in (tmp / "sweep" / "runs").iterdir()]
+            params = [json.loads((p / "params.json").read_text()) for p in (tmp / "sweep" / "runs").iterdir()]
+            run_walls = [p["wall_time"] for p in params]
+            run_cpu = [p["cpu_time"] for p in params]
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         assert res.done == n and res.failed == 0, res
         results["wall"][w] = wall
         results.setdefault("run_wall_mean", {})[w] = sum(run_walls) / n
+        results.setdefault("run_cpu_mean", {})[w] = sum(run_cpu) / n
         # runs in flight on average: near w means the pool kept every worker busy; a run's own
         # wall time growing with w means the workers share too few free cores
         busy = sum(run_walls) / wall
         print(f"  {w} worker(s): {wall:7.1f} s wall ({wall / n:.2f} s per run; a run's own wall time "
-              f"mean {sum(run_walls) / n:.2f} s; {busy:.2f} runs in flight on average), "
+              f"mean {sum(run_walls) / n:.2f} s, CPU {sum(run_cpu) / n:.2f} s; {busy:.2f} runs in flight on average), "
               f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     ws = sorted(results["wall"])
+    print("  (a run's wall time above its CPU time = waiting for a core: the machine is busy)")
     for w in ws[1:]:
         print(f"  speed-up {ws[0]} -> {w} workers: {results['wall'][ws[0]] / results['wall'][w]:.2f}x")
     results["load_after"] = os.getloadavg()
