@@ -681,9 +681,9 @@ def _progress(enabled: bool, total: int):
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, \
         TimeRemainingColumn
 
-    return Progress(TextColumn("[bold]sweep"), BarColumn(), MofNCompleteColumn(),
-                    TextColumn("runs  [red]{task.fields[failed]} failed[/red]  {task.fields[errors]} sumo errors"),
-                    TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn(), disable=not enabled)
+    return Progress(TextColumn("[bold]sweep"), BarColumn(bar_width=20), MofNCompleteColumn(),
+                    TextColumn("done · [red]{task.fields[failed]} failed[/red] · {task.fields[errors]} run errors ·"),
+                    TimeElapsedColumn(), TextColumn("· left"), TimeRemainingColumn(), disable=not enabled)
 
 
 def _clean_temporaries(runs_dir: Path) -> None:
