@@ -81,6 +81,12 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
     con.print(f"  outputs in {summary.out}")
 
 
+from sumo_ethics.cli_sweep import analyze, sweep  # noqa: E402
+
+cli.add_command(sweep)
+cli.add_command(analyze)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: runs the CLI and turns every expected failure into one line."""
     try:
