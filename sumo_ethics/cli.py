@@ -81,6 +81,62 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
     con.print(f"  outputs in {summary.out}")
 
 
+@cli.command()
+@click.argument("scenarios", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Dataset folder.")
+@click.option("--seeds", default="1-7", show_default=True, help="Run seeds, e.g. 1-7 or 1,4,9 (split by seed).")
+@click.option("--sim-seconds", type=float, default=600.0, show_default=True, help="Simulated time per run [s].")
+@click.option("--workers", type=int, default=1, show_default=True, help="Parallel SUMO processes.")
+def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: float, workers: int) -> None:
+    """Record trajectories of vehicles, cyclists and pedestrians from SUMO runs into a prediction dataset."""
+    from sumo_ethics.predict import dataset_main
+    from sumo_ethics.sweep import parse_seeds
+
+    if not sim_seconds > 0 or workers < 1:
+        raise click.BadParameter("--sim-seconds must be positive and --workers at least 1")
+    path = dataset_main(scenarios, out, seeds=parse_seeds(seeds), sim_seconds=sim_seconds, workers=workers)
+    click.echo(f"dataset written to {path}")
+
+
+def _dataset_folder(path: Path) -> Path:
+    """A folder written by ``sumo-ethics dataset`` (ConfigError otherwise)."""
+    from sumo_ethics.errors import ConfigError
+
+    missing = [f for f in ("samples.npz", "split.json") if not (path / f).is_file()]
+    if missing:
+        raise ConfigError(f"{path} is not a prediction dataset (no {', '.join(missing)}); "
+                          "build one with 'sumo-ethics dataset'")
+    return path
+
+
+@cli.command()
+@click.argument("dataset_dir", metavar="DATASET", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--model", type=click.Choice(["attention", "cslstm"]), default="attention", show_default=True)
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Weights file to write (.pt).")
+@click.option("--max-minutes", type=float, default=14.0, show_default=True, help="CPU-time budget [min].")
+@click.option("--seed", type=int, default=0, show_default=True)
+def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int) -> None:
+    """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation)."""
+    from sumo_ethics.predict import train_main
+
+    if not max_minutes > 0:
+        raise click.BadParameter("--max-minutes must be positive")
+    result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed)
+    click.echo(f"weights written to {out}: {result}")
+
+
+@cli.command("evaluate-predictor")
+@click.argument("dataset_dir", metavar="DATASET", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), default=Path("prediction_eval"), show_default=True)
+def evaluate_predictor(dataset_dir: Path, out: Path) -> None:
+    """RMSE at 1-4 s, ADE, FDE and NLL of constant velocity, CS-LSTM and attention per agent class."""
+    from sumo_ethics.predict import evaluate_main
+
+    table = evaluate_main(_dataset_folder(dataset_dir), out)
+    click.echo(table.to_string(index=False))
+    click.echo(f"written to {out}/prediction_eval.csv and .md")
+
+
 from sumo_ethics.cli_sweep import analyze, sweep  # noqa: E402
 
 cli.add_command(sweep)

@@ -1,0 +1,39 @@
+"""The predictor chain through the command line: dataset -> train -> evaluate-predictor."""
+
+from __future__ import annotations
+
+import json
+
+import pandas as pd
+import pytest
+
+from sumo_ethics.cli import main
+from sumo_ethics.predict import LSTMPredictor
+
+from conftest import SCENARIOS
+
+pytestmark = pytest.mark.sumo
+
+
+def test_dataset_train_evaluate_chain(tmp_path, capsys):
+    data = tmp_path / "data"
+    assert main(["dataset", str(SCENARIOS / "urban" / "urban.sumocfg"), "--seeds", "1-4", "--sim-seconds", "90",
+                 "--out", str(data)]) == 0
+    traj = pd.read_parquet(data / "trajectories.parquet")
+    assert {0, 5} <= set(traj["cls"])  # cars and pedestrians
+    split = json.loads((data / "split.json").read_text())["split"]
+    seeds = {k: set(v) for k, v in split.items()}
+    assert set(seeds) == {"train", "val", "test"} and all(seeds.values())
+    assert sum(len(v) for v in seeds.values()) == len(set().union(*seeds.values())) == 4  # split by seed
+    weights = tmp_path / "w.pt"
+    assert main(["train", str(data), "--model", "cslstm", "--out", str(weights), "--max-minutes", "0.05"]) == 0
+    assert LSTMPredictor.from_file(weights, kind="cslstm").kind == "cslstm"
+    assert main(["evaluate-predictor", str(data), "--out", str(tmp_path / "eval")]) == 0
+    table = pd.read_csv(tmp_path / "eval" / "prediction_eval.csv")
+    assert {"constant_velocity", "cslstm", "attention"} <= set(table["model"])
+    assert {"ade", "fde", "nll", "rmse_1s", "rmse_4s"} <= set(table.columns)
+
+
+def test_train_rejects_a_folder_that_is_no_dataset(tmp_path, capsys):
+    assert main(["train", str(tmp_path), "--out", str(tmp_path / "w.pt")]) == 2
+    assert "is not a prediction dataset" in capsys.readouterr().err
