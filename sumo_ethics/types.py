@@ -35,6 +35,23 @@ class RoadUserClass(enum.IntEnum):
     def label(self) -> str:
         return self.name.lower()
 
+    @staticmethod
+    def from_vclass(vclass: str) -> "RoadUserClass":
+        """SUMO vClass -> class; anything not listed (rail, ships, ...) is OTHER."""
+        return _VCLASS.get(vclass, RoadUserClass.OTHER)
+
+
+_VCLASS: dict[str, RoadUserClass] = {
+    **{v: RoadUserClass.CAR for v in (
+        "passenger", "private", "taxi", "evehicle", "delivery", "emergency", "authority", "army",
+        "vip", "hov", "custom1", "custom2", "ignoring")},
+    **{v: RoadUserClass.TRUCK for v in ("truck", "trailer")},
+    **{v: RoadUserClass.BUS for v in ("bus", "coach")},
+    **{v: RoadUserClass.MOTORCYCLE for v in ("motorcycle", "moped")},
+    **{v: RoadUserClass.BICYCLE for v in ("bicycle", "scooter")},
+    **{v: RoadUserClass.PEDESTRIAN for v in ("pedestrian", "wheelchair")},
+}
+
 
 #: (C,) bool lookup: VULNERABLE[cls] for an int array of RoadUserClass values.
 VULNERABLE = np.array([c.is_vulnerable for c in RoadUserClass], dtype=bool)

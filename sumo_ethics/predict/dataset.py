@@ -35,33 +35,6 @@ log = logging.getLogger(__name__)
 SIM_DT = 0.1
 DEFAULT_SCALES = (0.7, 1.0, 1.3)
 
-_VCLASS = {
-    "bicycle": RoadUserClass.BICYCLE,
-    "scooter": RoadUserClass.BICYCLE,
-    "pedestrian": RoadUserClass.PEDESTRIAN,
-    "wheelchair": RoadUserClass.PEDESTRIAN,
-    "motorcycle": RoadUserClass.MOTORCYCLE,
-    "moped": RoadUserClass.MOTORCYCLE,
-    "truck": RoadUserClass.TRUCK,
-    "trailer": RoadUserClass.TRUCK,
-    "bus": RoadUserClass.BUS,
-    "coach": RoadUserClass.BUS,
-    "tram": RoadUserClass.OTHER,
-    "rail_urban": RoadUserClass.OTHER,
-    "rail": RoadUserClass.OTHER,
-    "rail_electric": RoadUserClass.OTHER,
-    "rail_fast": RoadUserClass.OTHER,
-    "emergency": RoadUserClass.OTHER,
-    "authority": RoadUserClass.OTHER,
-    "army": RoadUserClass.OTHER,
-}
-
-
-def vclass_to_class(vclass: str) -> RoadUserClass:
-    """SUMO vClass -> RoadUserClass (passenger, taxi, delivery, ... -> CAR; same groups as sim.world)."""
-    return _VCLASS.get(vclass, RoadUserClass.CAR)
-
-
 @dataclass(frozen=True)
 class RunSpec:
     run_id: int
@@ -90,7 +63,7 @@ def _simulate(spec: RunSpec) -> pd.DataFrame:
             type_info[type_id] = (
                 ls.vehicletype.getLength(type_id),
                 ls.vehicletype.getWidth(type_id),
-                int(vclass_to_class(ls.vehicletype.getVehicleClass(type_id))),
+                int(RoadUserClass.from_vclass(ls.vehicletype.getVehicleClass(type_id))),
             )
         return type_info[type_id]
 

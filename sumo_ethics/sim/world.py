@@ -19,26 +19,11 @@ from sumo_ethics.sim.frames import centre_to_front, front_to_centre
 from sumo_ethics.sim.route import JunctionLink, RoutePath, build_route_path
 from sumo_ethics.types import AgentStates, RoadUserClass
 
-_VCLASS: dict[str, RoadUserClass] = {
-    **{v: RoadUserClass.CAR for v in (
-        "passenger", "private", "taxi", "evehicle", "delivery", "emergency", "authority", "army",
-        "vip", "hov", "custom1", "custom2", "ignoring")},
-    **{v: RoadUserClass.TRUCK for v in ("truck", "trailer")},
-    **{v: RoadUserClass.BUS for v in ("bus", "coach")},
-    **{v: RoadUserClass.MOTORCYCLE for v in ("motorcycle", "moped")},
-    **{v: RoadUserClass.BICYCLE for v in ("bicycle", "scooter")},
-    **{v: RoadUserClass.PEDESTRIAN for v in ("pedestrian", "wheelchair")},
-}
-
 _VEH_VARS = (tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE, tc.VAR_ACCELERATION)
 _PER_VARS = (tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE)
 
 #: red or yellow link states: the baseline stops before these.
 STOP_STATES = frozenset("rRyYu")
-
-
-def road_user_class(vclass: str) -> RoadUserClass:
-    return _VCLASS.get(vclass, RoadUserClass.OTHER)
 
 
 @dataclass(frozen=True)
@@ -84,7 +69,7 @@ class SumoWorld:
         info = self._types.get(type_id)
         if info is None:
             vt = libsumo.vehicletype
-            cls = road_user_class(vt.getVehicleClass(type_id))
+            cls = RoadUserClass.from_vclass(vt.getVehicleClass(type_id))
             length, width = vt.getLength(type_id), vt.getWidth(type_id)
             mass = float(self.masses.mass(np.array([int(cls)]), np.array([length]), np.array([width]),
                                           np.array([vt.getMass(type_id)]))[0])
