@@ -44,9 +44,10 @@ def generate_cmd(count: int, seed: int, out: Path) -> None:
               help="Output folder: table1.csv, table1.md, paired.csv, results.csv, runs/.")
 @click.option("--limit", type=int, help="Only the first N scenarios.")
 @click.option("--reference", help="Planner the others are compared with (default origin, else the first).")
+@click.option("--resume", is_flag=True, help="Keep finished runs found in OUT/runs, run only the rest.")
 @click.option("--quiet", is_flag=True, help="No per-run progress lines.")
 def evaluate_cmd(suite_dir: Path, planners: tuple[str, ...], workers: int, out: Path, limit: int | None,
-                 reference: str | None, quiet: bool) -> None:
+                 reference: str | None, resume: bool, quiet: bool) -> None:
     """Run every scenario of SUITE with each planner and write the paper's Table 1."""
     from sumo_ethics.suite.evaluate import evaluate
 
@@ -56,7 +57,7 @@ def evaluate_cmd(suite_dir: Path, planners: tuple[str, ...], workers: int, out: 
                        f"({row.get('wall_s', 0):.1f} s)")
 
     csv, md = evaluate(suite_dir, list(planners), out, workers=workers, limit=limit, reference=reference,
-                       progress=progress)
+                       progress=progress, resume=resume)
     click.echo(md.read_text())
     click.echo(f"tables: {csv}, {md}")
 

@@ -19,7 +19,6 @@ import json
 import math
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -178,35 +177,97 @@ def _first_victim(out: Path) -> str:
 
 
 # ---- many runs --------------------------------------------------------------------------
-def _executor(workers: int) -> ProcessPoolExecutor:
-    import multiprocessing as mp
+def _child(conn: Any, args: tuple) -> None:
+    try:
+        conn.send(run_one(*args))
+    finally:
+        conn.close()
 
-    ctx = mp.get_context("forkserver")
-    ctx.set_forkserver_preload(["sumo_ethics.suite.preload"])
-    return ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1)
+
+def _dead_row(scenario: str, planner: PlannerSpec, why: str) -> dict[str, Any]:
+    return {"scenario": Path(scenario).name, "planner": planner.name, "status": "error", "completed": False,
+            "total": 0.0, "ego": 0.0, "third_party": 0.0, "vru": 0.0, "message": why[:200], "steps": 0,
+            "hazards_fired": "", "collided_with": "", "wall_s": 0.0}
+
+
+def _row_from_folder(scenario: str, planner: PlannerSpec, out_dir: str) -> dict[str, Any] | None:
+    """The row of a finished run (for --resume), None if the folder holds no finished run."""
+    out = Path(out_dir)
+    data = _read_summary(out)
+    if data is None or not (out / "hazard_events.json").is_file():
+        return None
+    from sumo_ethics.suite.spec import load
+
+    spec = load(Path(scenario))
+    events = json.loads((out / "hazard_events.json").read_text())
+    h = data.get("harm", {})
+    return {"scenario": spec.name, "planner": planner.name, "network": spec.network,
+            "hazard": ",".join(spec.hazard_types), "seed": spec.seed, "status": data.get("status", "error"),
+            "completed": bool(data.get("completed")), "total": float(h.get("total", 0.0)),
+            "ego": float(h.get("ego", 0.0)), "third_party": float(h.get("third_party", 0.0)),
+            "vru": float(h.get("vru", 0.0)), "message": str(data.get("message", ""))[:200],
+            "steps": int(data.get("steps", 0) or 0),
+            "hazards_fired": ",".join(sorted({e["type"] for e in events if e["event"] == "trigger"})),
+            "collided_with": _first_victim(out), "wall_s": float(data.get("wall_time", 0.0) or 0.0)}
 
 
 def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, workers: int = 2,
-              progress: Callable[[int, int, dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
-    """Every scenario with every planner; one row per run (order: scenario, then planner)."""
+              progress: Callable[[int, int, dict[str, Any]], None] | None = None,
+              resume: bool = False) -> list[dict[str, Any]]:
+    """Every scenario with every planner; one row per run (order: scenario, then planner).
+
+    Each run is its own process, forked from a forkserver that has the heavy modules loaded:
+    a run that crashes (a SUMO abort, a segfault, out of memory) is an error row and takes
+    no other run with it. ``resume``: runs whose folder already holds a finished run are read
+    back instead of run again.
+    """
+    import multiprocessing as mp
+    from multiprocessing.connection import wait
+
     if workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     tasks = [(str(s), p, str(out / "runs" / p.name / s.name)) for s in scenarios for p in planners]
     rows: list[dict[str, Any]] = []
-    with _executor(workers) as ex:
-        futs = {ex.submit(run_one, *t): t for t in tasks}
-        for n, f in enumerate(as_completed(futs), 1):
-            try:
-                row = f.result()
-            except Exception as exc:  # noqa: BLE001 - a worker that died (e.g. a SUMO abort)
-                s, p, _ = futs[f]
-                row = {"scenario": Path(s).name, "planner": p.name, "status": "error", "completed": False,
-                       "total": 0.0, "ego": 0.0, "third_party": 0.0, "vru": 0.0,
-                       "message": f"worker died: {type(exc).__name__}: {exc}"[:200]}
-            rows.append(row)
-            if progress is not None:
-                progress(n, len(tasks), row)
+
+    def done(row: dict[str, Any]) -> None:
+        rows.append(row)
+        if progress is not None:
+            progress(len(rows), len(tasks), row)
+
+    todo = []
+    for t in tasks:
+        row = _row_from_folder(*t) if resume else None
+        if row is not None:
+            done(row)
+        else:
+            todo.append(t)
+    ctx = mp.get_context("forkserver")
+    ctx.set_forkserver_preload(["sumo_ethics.suite.preload"])
+    running: dict[Any, tuple[Any, tuple]] = {}
+    try:
+        while todo or running:
+            while todo and len(running) < workers:
+                t = todo.pop(0)
+                recv, send = ctx.Pipe(duplex=False)
+                proc = ctx.Process(target=_child, args=(send, t), daemon=True)
+                proc.start()
+                send.close()
+                running[recv] = (proc, t)
+            for conn in wait(list(running)):
+                proc, t = running.pop(conn)
+                try:
+                    row = conn.recv()
+                except (EOFError, OSError):
+                    proc.join()
+                    row = _dead_row(t[0], t[1], f"run process died (exit code {proc.exitcode})")
+                conn.close()
+                proc.join()
+                done(row)
+    finally:
+        for conn, (proc, _) in running.items():
+            proc.kill()
+            proc.join()
     order = {(Path(s).name, p.name): i for i, (s, p, _) in enumerate(tasks)}
     rows.sort(key=lambda r: order[(r["scenario"], r["planner"])])
     return rows
@@ -344,7 +405,8 @@ def write_outputs(rows: list[dict[str, Any]], planners: list[PlannerSpec], out: 
 
 
 def evaluate(suite: Path, planner_texts: list[str], out: Path, workers: int = 2, limit: int | None = None,
-             reference: str | None = None, progress: Callable | None = None) -> tuple[Path, Path]:
+             reference: str | None = None, progress: Callable | None = None,
+             resume: bool = False) -> tuple[Path, Path]:
     from sumo_ethics.suite.spec import load_suite
 
     planners = parse_planners(planner_texts)
@@ -356,7 +418,7 @@ def evaluate(suite: Path, planner_texts: list[str], out: Path, workers: int = 2,
     if ref not in names:
         raise ConfigError(f"--reference {ref!r} is not one of the planners {names}")
     t0 = time.perf_counter()
-    rows = run_suite([s.folder for s in specs], planners, Path(out), workers, progress)
+    rows = run_suite([s.folder for s in specs], planners, Path(out), workers, progress, resume)
     meta = {"suite": str(suite), "scenarios": len(specs), "workers": workers, "wall_s": time.perf_counter() - t0,
             "planners": {p.name: p.describe() for p in planners}, "reference": ref}
     return write_outputs(rows, planners, Path(out), ref, meta)
