@@ -74,7 +74,7 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
     con = _console()
     h = d["harm"]
     con.print(f"[bold]{d['status']}[/bold]: {d['message']}")
-    con.print(f"  ego {d['ego_id']} on {len(d['route_edges'])} edges ({d['route_length']:.0f} m), "
+    con.print(f"  ego '{d['ego_id']}' on {len(d['route_edges'])} edges ({d['route_length']:.0f} m), "
               f"drove {d['distance']:.0f} m in {d['steps']} steps, wall {d['wall_time']:.1f} s")
     con.print(f"  collisions: ego {d['collisions']['ego']}, others {d['collisions']['others']}; harm total "
               f"{h['total']:.3f} = ego {h['ego']:.3f} + third party {h['third_party']:.3f} (VRU {h['vru']:.3f})")

@@ -65,7 +65,7 @@ class RunConfig:
         if self.end is not None:
             _positive("--end", self.end)
         _positive("--ego-depart", self.ego_depart, allow_zero=True)
-        _positive("sensing_radius", self.sensing_radius)
+        _positive("--radius", self.sensing_radius)
         _positive("collision_gap", self.collision_gap)
         _positive("min_route_length", self.min_route_length)
         if (self.ego_from is None) != (self.ego_to is None):

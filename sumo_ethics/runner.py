@@ -46,8 +46,9 @@ class RunSummary:
     data: dict[str, Any] = field(default_factory=dict)
 
 
-def prepare_out(out: Path) -> None:
-    """Create the run folder and prove it is writable (ConfigError otherwise)."""
+def prepare_out(out: Path) -> bool:
+    """Create the run folder and prove it is writable (ConfigError otherwise); True if created."""
+    created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / ".write-test"
@@ -55,7 +56,18 @@ def prepare_out(out: Path) -> None:
         probe.unlink()
     except OSError as exc:
         raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
+    return created
 
+
+def discard_outputs(out: Path, created: bool) -> None:
+    """Remove what a run refused for bad input wrote, so no half-made run folder is left."""
+    for name in ("config.json", "sumo-errors.log"):
+        (out / name).unlink(missing_ok=True)
+    if created:
+        try:
+            out.rmdir()
+        except OSError:
+            pass
 
 # ---- ego selection ----------------------------------------------------------------------------
 def _step_until(pred: Callable[[], bool], limit: float) -> bool:
@@ -276,7 +288,7 @@ class Run:
     def execute(self) -> None:
         cfg = self.cfg
         files = session.read_scenario(cfg.scenario)
-        prepare_out(cfg.out)
+        self.created_out = prepare_out(cfg.out)
         end = cfg.end if cfg.end is not None else (files.end or DEFAULT_END)
         ego_id = cfg.ego_id or "ego"
         declared = session.route_vehicle_ids(files)
@@ -307,6 +319,8 @@ class Run:
             wait_for_vehicle(ego_id, end)
             edges = tuple(libsumo.vehicle.getRoute(ego_id))
         else:
+            if cfg.ego_depart >= end:
+                raise ConfigError(f"--ego-depart {cfg.ego_depart:g} s is not before the end of the simulation ({end:g} s)")
             edges = insert_ego(cfg, ego_id)
         self.world = world = SumoWorld(ego_id, cfg.sensing_radius)
         route = world.takeover()
@@ -365,7 +379,7 @@ class Run:
                     first = next(r for r in self.rec.collisions
                                  if r["involves_ego"] and r["detector"] != "sumo_unconfirmed")
                     self.status = RunStatus.COLLISION
-                    self.message = f"ego hit {first['class_b']} '{first['id_b']}' at t={first['time']:g} s"
+                    self.message = f"ego collided with {first['class_b']} '{first['id_b']}' at t={first['time']:g} s"
                     return
                 if s + half >= route.length - 0.5:
                     self.status, self.message = RunStatus.COMPLETED, f"goal reached at t={snap.time:g} s"
@@ -402,6 +416,7 @@ class Run:
             "status": self.status.value,
             "message": self.message,
             "completed": self.status is RunStatus.COMPLETED,
+            "collided": bool(ego_rows),
             "harm": harm,
             "collisions": {"ego": len(ego_rows),
                            "ego_unconfirmed": sum(r["detector"] == "sumo_unconfirmed" for r in self.rec.collisions),
@@ -464,6 +479,10 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
     error: BaseException | None = None
     try:
         r.execute()
+    except ConfigError as exc:  # bad input: nothing was computed, leave nothing behind
+        if cfg.out.is_dir():
+            discard_outputs(cfg.out, getattr(r, "created_out", False))
+        raise exc
     except SumoEthicsError as exc:
         r.status, r.message, error = RunStatus.ERROR, str(exc), exc
     except KeyboardInterrupt as exc:

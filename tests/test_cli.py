@@ -67,8 +67,14 @@ def test_unwritable_out(tmp_path):
 def test_unknown_edges_and_no_route(tmp_path):
     assert_one_line_error(cli("run", str(URBAN), "--ego-from", "W_in", "--ego-to", "nowhere", "--out",
                               str(tmp_path / "o")), "unknown edge 'nowhere'", 2)
+    assert not (tmp_path / "o").exists()  # a run refused for bad input leaves no folder behind
     assert_one_line_error(cli("run", str(URBAN), "--ego-from", "W_in", "--out", str(tmp_path / "o")),
                           "--ego-from and --ego-to go together", 2)
+
+
+def test_ego_depart_after_the_end(tmp_path):
+    assert_one_line_error(cli("run", str(URBAN), "--ego-depart", "700", "--out", str(tmp_path / "o")),
+                          "--ego-depart 700 s is not before the end of the simulation (600 s)", 2)
 
 
 def test_ego_that_never_departs(tmp_path):

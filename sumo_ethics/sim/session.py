@@ -62,7 +62,7 @@ def read_scenario(path: Path) -> ScenarioFiles:
     except ET.ParseError as exc:
         raise ConfigError(f"malformed SUMO config {path}: {exc}") from None
     if root.tag not in ("configuration", "sumoConfiguration"):
-        raise ConfigError(f"{path} is not a SUMO config: root element <{root.tag}>, expected <configuration>")
+        raise ConfigError(f"{path} is not a SUMO config: root element <{root.tag}>, expected <configuration> or <sumoConfiguration>")
     options: dict[str, str] = {}
     for section in root:
         for opt in section:
