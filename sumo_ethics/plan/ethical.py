@@ -78,10 +78,13 @@ def make_predictor(name: str, weights: str | None = None) -> Predictor:
 
 
 def first_overlap(cand: Candidates, pred: Prediction, risk: RiskTerms, length: np.ndarray,
-                  width: np.ndarray, ego_length: float, ego_width: float) -> np.ndarray:
+                  width: np.ndarray, ego_length: float, ego_width: float, brake: float | None = None) -> np.ndarray:
     """(K,) int: the first step at which the ego box meets an agent's box at its predicted mean
     (T if never). length, width: (N,) the agents' boxes [m] (pass them with safety margins).
 
+    brake [m/s^2]: if given, the ego box at each step is stretched forward by its stopping
+    distance v^2 / (2 brake), so a candidate also "meets" a road user it could no longer stop
+    for (a candidate that ends its horizon too close behind a slower leader is not safe).
     Only (k, n, t) with a non-zero collision probability can overlap, so only those are tested.
     """
     K, T = cand.x.shape
@@ -89,12 +92,44 @@ def first_overlap(cand: Candidates, pred: Prediction, risk: RiskTerms, length: n
     k, n, t = sp.k, sp.n, sp.t
     first = np.full(K, T, dtype=np.int64)
     if len(k):
+        x, y, yaw, ego_l = cand.x[k, t], cand.y[k, t], cand.yaw[k, t], ego_length
+        if brake is not None:
+            ext = cand.speed[k, t] ** 2 / (2.0 * brake)
+            x, y, ego_l = x + 0.5 * ext * np.cos(yaw), y + 0.5 * ext * np.sin(yaw), ego_length + ext
         ov = boxes_overlap(
-            OrientedBoxes(cand.x[k, t], cand.y[k, t], cand.yaw[k, t], ego_length, ego_width),
+            OrientedBoxes(x, y, yaw, ego_l, ego_width),
             OrientedBoxes(pred.mean[n, t, 0], pred.mean[n, t, 1], pred.yaw[n, t], length[n], width[n]),
         )
         np.minimum.at(first, k[ov], t[ov])
     return first
+
+
+def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: np.ndarray) -> Candidates:
+    """Straight-line braking at constant decelerations ``decels`` (B,) [m/s^2] from the first
+    step, keeping the lateral offset: the quartic profiles take a second to build up braking
+    (they start from the current acceleration), these do not."""
+    from sumo_ethics.plan.sampling import reference_heading
+
+    t = dt * np.arange(1, n_steps + 1)[None, :]  # (1, T)
+    b = np.asarray(decels, dtype=float)[:, None]  # (B, 1)
+    v0 = max(state.s_dot, 0.0)
+    t_stop = v0 / b
+    tc = np.minimum(t, t_stop)
+    s = state.s + v0 * tc - 0.5 * b * tc**2
+    v = np.maximum(v0 - b * t, 0.0)
+    a = np.where(t <= t_stop, -b, 0.0) * np.ones_like(s)
+    d = np.full_like(s, state.d)
+    x, y, _ = path.to_xy(s, d)
+    yaw = reference_heading(path, s)
+    shape = s.shape
+    return Candidates(dt=dt, x=x, y=y, yaw=yaw, speed=v, accel=a, curvature=path.curvature_at(s), s=s, d=d,
+                      horizon=np.full(shape[0], n_steps * dt), valid=np.ones(shape, dtype=bool))
+
+
+def concat(a: Candidates, b: Candidates) -> Candidates:
+    """Candidates a followed by b (same dt and T)."""
+    return Candidates(a.dt, *(np.concatenate([getattr(a, f), getattr(b, f)]) for f in (
+        "x", "y", "yaw", "speed", "accel", "curvature", "s", "d", "horizon", "valid")))
 
 
 def select(classes: list[np.ndarray], total: np.ndarray, first_hit: np.ndarray, steps: int,
@@ -148,6 +183,9 @@ class EthicalPlanner:
                             d_dot=self._lateral[0], d_ddot=self._lateral[1])
         cand = sample(route.path, state, sc, v_max=v_limit, left=route.left, right=route.right,
                       margin=ego_width / 2.0)
+        brakes = brake_candidates(route.path, state, cand.x.shape[1], sc.dt,
+                                  np.array([veh.comfort_decel, 0.5 * (veh.comfort_decel + veh.max_decel), veh.max_decel]))
+        cand = concat(cand, brakes)
         # an ego above the limit (e.g. at takeover) must be allowed to slow down to it
         feas = check(cand, route, veh, speed_limit_factor=max(1.0, (state.s_dot + 0.01) / max(v_limit, 0.1)))
         w2 = time.perf_counter()
@@ -164,7 +202,7 @@ class EthicalPlanner:
         w3 = time.perf_counter()
         pc = self.cfg.probability  # Origin's safety margins (+1.0 m length, +0.5 m width)
         first_hit = first_overlap(fc, pred, risk, agents.length + pc.length_margin,
-                                  agents.width + pc.width_margin, ego_length, ego_width)
+                                  agents.width + pc.width_margin, ego_length, ego_width, brake=veh.max_decel)
         overlap = first_hit < horizon_steps
         legal = np.ones(len(fc), dtype=bool)
         if scene.stop_s is not None:  # do not cross a red/yellow stop line with the front bumper
