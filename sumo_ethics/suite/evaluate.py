@@ -185,7 +185,14 @@ def _child(conn: Any, args: tuple) -> None:
 
 
 def _dead_row(scenario: str, planner: PlannerSpec, why: str) -> dict[str, Any]:
-    return {"scenario": Path(scenario).name, "planner": planner.name, "status": "error", "completed": False,
+    from sumo_ethics.suite.spec import load
+
+    try:
+        spec = load(Path(scenario))
+        where = {"network": spec.network, "hazard": ",".join(spec.hazard_types), "seed": spec.seed}
+    except ConfigError:
+        where = {}
+    return {**where, "scenario": Path(scenario).name, "planner": planner.name, "status": "error", "completed": False,
             "total": 0.0, "ego": 0.0, "third_party": 0.0, "vru": 0.0, "message": why[:200], "steps": 0,
             "hazards_fired": "", "collided_with": "", "wall_s": 0.0}
 
