@@ -142,6 +142,11 @@ from sumo_ethics.cli_sweep import analyze, sweep  # noqa: E402
 cli.add_command(sweep)
 cli.add_command(analyze)
 
+from sumo_ethics.cli_suite import evaluate_cmd, suite  # noqa: E402
+
+cli.add_command(suite)
+cli.add_command(evaluate_cmd)
+
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: runs the CLI and turns every expected failure into one line."""
