@@ -86,6 +86,8 @@ import sys
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
+from sumo_ethics.suite.networks import OPTIONS as NETCONVERT_OPTIONS
+
 ROOT = Path(__file__).resolve().parent.parent
 NETWORKS = ROOT / "networks"
 SCENARIOS = ROOT / "scenarios"
@@ -133,14 +135,7 @@ class Net:
         self.edges: list[dict] = []
         self.connections: list[dict] = []
         self.crossings: list[dict] = []
-        self.options = {
-            "offset.disable-normalization": "true",
-            "no-turnarounds": "true",
-            "walkingareas": "true",
-            "junctions.corner-detail": "5",
-            "default.crossing-width": "4",
-            "tls.default-type": "static",
-        }
+        self.options = dict(NETCONVERT_OPTIONS)  # shared with the suite generator
         self.options.update(options or {})
 
     def node(self, id, x, y, type=None, **kw):
