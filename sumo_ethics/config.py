@@ -10,10 +10,14 @@ from typing import Any
 from sumo_ethics.errors import ConfigError
 
 
-def _positive(name: str, value: float, allow_zero: bool = False) -> None:
-    ok = isinstance(value, (int, float)) and math.isfinite(value) and (value >= 0 if allow_zero else value > 0)
+def require_number(name: str, value: Any, allow_zero: bool = False) -> float:
+    """``value`` as a float if it is a finite positive (or, with allow_zero, non-negative) number."""
+    ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+          and (value >= 0 if allow_zero else value > 0))
     if not ok:
-        raise ConfigError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} number, got {value!r}")
+        raise ConfigError(f"{name} must be a finite {'non-negative' if allow_zero else 'positive'} number, "
+                          f"got {value!r}")
+    return float(value)
 
 
 @dataclass(frozen=True)
@@ -32,7 +36,7 @@ class EgoVehicle:
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
-            _positive(f"ego.{name}", value)
+            require_number(f"ego.{name}", value)
 
 
 @dataclass(frozen=True)
@@ -63,11 +67,11 @@ class RunConfig:
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed < 2**31:
             raise ConfigError(f"seed must be an integer in [0, 2^31), got {self.seed!r}")
         if self.end is not None:
-            _positive("--end", self.end)
-        _positive("--ego-depart", self.ego_depart, allow_zero=True)
-        _positive("--radius", self.sensing_radius)
-        _positive("collision_gap", self.collision_gap)
-        _positive("min_route_length", self.min_route_length)
+            require_number("--end", self.end)
+        require_number("--ego-depart", self.ego_depart, allow_zero=True)
+        require_number("--radius", self.sensing_radius)
+        require_number("collision_gap", self.collision_gap)
+        require_number("min_route_length", self.min_route_length)
         if (self.ego_from is None) != (self.ego_to is None):
             raise ConfigError("--ego-from and --ego-to go together: give both or neither")
         if self.ego_id is not None and self.ego_from is not None:

@@ -172,7 +172,7 @@ def collision_row(event: int, t: float, step: int, a: AgentStates, b: AgentState
         "area_a": ImpactArea(int(out.area_a)).name.lower(), "area_b": ImpactArea(int(out.area_b)).name.lower(),
         "harm_a": harm_a, "harm_b": harm_b,
     } | booking({"harm_a": harm_a, "harm_b": harm_b, "class_b": RoadUserClass(int(b.cls[0])).label},
-                involves_ego and detector != "sumo_unconfirmed")
+                is_booked({"involves_ego": involves_ego, "detector": detector}))
 
 
 def booking(row: dict[str, Any], book: bool) -> dict[str, float]:
@@ -180,6 +180,19 @@ def booking(row: dict[str, Any], book: bool) -> dict[str, float]:
     vru = RoadUserClass[row["class_b"].upper()].is_vulnerable
     return {"harm_ego": row["harm_a"] if book else 0.0, "harm_third_party": row["harm_b"] if book else 0.0,
             "harm_vru": row["harm_b"] if book and vru else 0.0}
+
+
+def is_booked(row: dict[str, Any]) -> bool:
+    """An ego collision that counts: not a SUMO report our boxes did not confirm."""
+    return row["involves_ego"] and row["detector"] != "sumo_unconfirmed"
+
+
+def merged_detector(old: str, new: str) -> str:
+    """Detector label of an event seen first as ``old`` and again as ``new`` (a confirmed label)."""
+    seen: set[str] = set()
+    for d in (old, new):
+        seen |= {"geometry", "sumo"} if d == "both" else {d.removesuffix("_unconfirmed")}
+    return "both" if len(seen) == 2 else seen.pop()
 
 
 #: SUMO-only ego reports count when the true boxes come at least this close [m]
@@ -242,10 +255,10 @@ class Run:
             if not is_new:
                 row = self.rec.collisions[idx] if idx is not None else None
                 if row is not None and row["detector"] != detector and detector != "sumo_unconfirmed":
-                    if row["detector"] == "sumo_unconfirmed":  # confirmed later: book it now
+                    if not is_booked(row):  # confirmed later: book it now
                         row.update(booking(row, True))
                         ego_new = True
-                    row["detector"] = "both" if row["detector"] != "sumo_unconfirmed" or other in sumo_ego else detector
+                    row["detector"] = merged_detector(row["detector"], detector)
                     if report and not row["sumo_type"]:
                         row["sumo_type"] = report[6]
                 continue
@@ -376,8 +389,7 @@ class Run:
                 if progress is not None and self.step % 50 == 0:
                     progress[0].update(progress[1], completed=min(snap.time, end))
                 if ego_hit and cfg.stop_at_collision:
-                    first = next(r for r in self.rec.collisions
-                                 if r["involves_ego"] and r["detector"] != "sumo_unconfirmed")
+                    first = next(r for r in self.rec.collisions if is_booked(r))
                     self.status = RunStatus.COLLISION
                     self.message = f"ego collided with {first['class_b']} '{first['id_b']}' at t={first['time']:g} s"
                     return
@@ -408,7 +420,7 @@ class Run:
         self.rec.timings.append(timing)
 
     def summary(self, wall: float) -> dict[str, Any]:
-        ego_rows = [r for r in self.rec.collisions if r["involves_ego"] and r["detector"] != "sumo_unconfirmed"]
+        ego_rows = [r for r in self.rec.collisions if is_booked(r)]
         harm = {k: float(sum(r[f"harm_{k}"] for r in ego_rows)) for k in ("ego", "third_party", "vru")}
         harm["total"] = harm["ego"] + harm["third_party"]
         steps = self.rec.steps

@@ -7,12 +7,12 @@ max_risk) with optional sub-tables ``[planner.sampling]``, ``[planner.probabilit
 
 from __future__ import annotations
 
-import math
 import tomllib
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
+from sumo_ethics.config import require_number
 from sumo_ethics.errors import ConfigError
 
 
@@ -23,9 +23,7 @@ def _known(table: dict[str, Any], allowed: set[str], where: str) -> None:
 
 
 def _weight(name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-        raise ConfigError(f"{name} must be a finite non-negative number, got {value!r}")
-    return float(value)
+    return require_number(name, value, allow_zero=True)
 
 
 def load_toml(path: Path) -> dict[str, Any]:

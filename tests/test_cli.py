@@ -143,3 +143,12 @@ def test_toml_settings_reach_the_run(tmp_path):
     assert planner["cost"]["utility"] == "literal" and planner["cost"]["weights"]["bayes"] == 0.0
     steps = pd.read_parquet(out / "steps.parquet")
     assert (steps.utility_literal == 1.0).all()
+
+
+def test_detector_labels_merge():
+    from sumo_ethics.runner import merged_detector
+
+    assert merged_detector("geometry", "sumo") == merged_detector("sumo", "geometry") == "both"
+    assert merged_detector("sumo_unconfirmed", "sumo") == "sumo"  # confirmed by SUMO alone later
+    assert merged_detector("sumo_unconfirmed", "geometry") == "both"
+    assert merged_detector("both", "geometry") == "both"

@@ -19,7 +19,7 @@ from sumo_ethics.ethics.risk import RiskTerms, assess_risk
 from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
 from sumo_ethics.plan.controller import Decision, Scene
 from sumo_ethics.plan.feasibility import check
-from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, sample
+from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
 from sumo_ethics.sim.world import EgoCommand
 from sumo_ethics.types import Candidates, Observation, Prediction
 
@@ -108,8 +108,6 @@ def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: 
     """Straight-line braking at constant decelerations ``decels`` (B,) [m/s^2] from the first
     step, keeping the lateral offset: the quartic profiles take a second to build up braking
     (they start from the current acceleration), these do not."""
-    from sumo_ethics.plan.sampling import reference_heading
-
     t = dt * np.arange(1, n_steps + 1)[None, :]  # (1, T)
     b = np.asarray(decels, dtype=float)[:, None]  # (B, 1)
     v0 = max(state.s_dot, 0.0)
