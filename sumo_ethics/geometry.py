@@ -147,10 +147,25 @@ class Polyline:
         """(M-1, 2) unit direction of each segment (computed once)."""
         return np.stack([np.cos(self.heading), np.sin(self.heading)], axis=-1)
 
+    @functools.cached_property
+    def _columns(self) -> tuple[np.ndarray, ...]:
+        """Contiguous (M-1,) start x, start y [m], unit direction x, y and length [m] of each
+        segment, for :meth:`project_point` (computed once)."""
+        return (np.ascontiguousarray(self.xy[:-1, 0]), np.ascontiguousarray(self.xy[:-1, 1]),
+                np.ascontiguousarray(self._unit[:, 0]), np.ascontiguousarray(self._unit[:, 1]), np.diff(self.s))
+
     def _segment_index(self, s: np.ndarray) -> np.ndarray:
         """Index of the segment holding arc length s (clipped to the end segments)."""
         idx = np.searchsorted(self.s, s, side="right") - 1
-        return np.clip(idx, 0, len(self.heading) - 1)
+        return np.minimum(np.maximum(idx, 0), len(self.heading) - 1)  # np.clip costs ~5 us more
+
+    def _window(self, near: tuple[float, float] | None) -> tuple[int, int]:
+        """Segments lo..hi-1 overlapping the arc-length range ``near`` (all segments if None)."""
+        nseg = len(self.heading)
+        if near is None:
+            return 0, nseg
+        lo, hi = (int(i) for i in np.searchsorted(self.s, near, side="right") - 1)
+        return min(max(lo, 0), nseg - 1), min(max(hi, 0), nseg - 1) + 1
 
     def project(self, xy: np.ndarray, near: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Exact nearest-point projection of (..., 2) points [m] -> (s (...), d (...)) [m].
@@ -170,11 +185,10 @@ class Polyline:
             raise ValueError(f"project expects (..., 2) points, got {q.shape}")
         lead = q.shape[:-1]
         flat = q.reshape(-1, 2)
-        nseg = len(self.heading)
-        lo, hi = 0, nseg
-        if near is not None:
-            lo, hi = (int(i) for i in np.searchsorted(self.s, near, side="right") - 1)
-            lo, hi = min(max(lo, 0), nseg - 1), min(max(hi, 0), nseg - 1) + 1
+        if flat.shape[0] == 1:  # the common per-step case: a third of the cost
+            s1, d1 = self.project_point(float(flat[0, 0]), float(flat[0, 1]), near)
+            return np.full(lead, s1), np.full(lead, d1)
+        lo, hi = self._window(near)
         block = max(1, _PROJECT_BLOCK_PAIRS // (hi - lo))
         s_out = np.empty(flat.shape[0])
         d_out = np.empty(flat.shape[0])
@@ -182,6 +196,39 @@ class Polyline:
             sl = slice(start, start + block)
             s_out[sl], d_out[sl] = self._project_flat(flat[sl], lo, hi)
         return s_out.reshape(lead), d_out.reshape(lead)
+
+    def project_point(self, x: float, y: float, near: tuple[float, float] | None = None) -> tuple[float, float]:
+        """:meth:`project` of the single point (x, y) [m] -> (s, d) [m] as floats.
+
+        The same arithmetic as :meth:`_project_flat`, bit for bit: numpy over the (S,)
+        segments, plain floats for the chosen one (no (P, S) temporaries, no fancy indexing).
+        """
+        lo, hi = self._window(near)
+        x0, y0, ux, uy, seg_len = (c[lo:hi] for c in self._columns)
+        nseg = hi - lo
+        rx, ry = x - x0, y - y0  # (S,)
+        along = rx * ux + ry * uy
+        cross = ux * ry - uy * rx  # left positive
+        t = np.minimum(np.maximum(along, 0.0), seg_len)
+        j = int(np.argmin((along - t) ** 2 + cross**2))
+        along_j, cross_j, t_j, len_j = float(along[j]), float(cross[j]), float(t[j]), float(seg_len[j])
+        before = j == 0 and along_j < 0.0 and lo == 0  # extrapolate beyond the ends
+        after = j == nseg - 1 and along_j > len_j and hi == len(self.heading)
+        if before or after:
+            t_j = along_j
+        s = float(self.s[lo + j]) + t_j
+        dist = float(np.hypot(along_j - t_j, cross_j))
+        # side: at an interior vertex use the bisector of the two adjacent segments
+        at_end_vertex = t_j >= len_j and j < nseg - 1 and not after
+        at_start_vertex = t_j <= 0.0 and j > 0 and not before
+        side_of = cross_j
+        if at_end_vertex or at_start_vertex:
+            v = j + at_end_vertex  # vertex index within the window, 1..nseg-1
+            bx, by = float(ux[v - 1] + ux[v]), float(uy[v - 1] + uy[v])
+            cross_v = bx * (y - float(y0[v])) - by * (x - float(x0[v]))
+            if float(np.hypot(bx, by)) > 1e-9:
+                side_of = cross_v
+        return s, float(np.sign(side_of)) * dist
 
     def _project_flat(self, p: np.ndarray, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
         """(P, 2) -> (P,), (P,); all pairs of points and segments lo..hi-1 at once."""
@@ -193,7 +240,7 @@ class Polyline:
         rel = p[:, None, :] - a[None, :, :]  # (P, S, 2)
         along = rel[..., 0] * u[:, 0] + rel[..., 1] * u[:, 1]  # (P, S)
         cross = u[:, 0] * rel[..., 1] - u[:, 1] * rel[..., 0]  # (P, S), left positive
-        t = np.clip(along, 0.0, seg_len)
+        t = np.minimum(np.maximum(along, 0.0), seg_len)  # np.clip, without its overhead
         dist2 = (along - t) ** 2 + cross**2
         j = np.argmin(dist2, axis=1)  # (P,)
         rows = np.arange(p.shape[0])
@@ -209,7 +256,7 @@ class Polyline:
         at_start_vertex = (t_j <= 0.0) & (j > 0) & ~before
         at_vertex = at_end_vertex | at_start_vertex
         v = j + at_end_vertex.astype(int)  # vertex index (valid where at_vertex)
-        vi = np.clip(v, 1, nseg - 1)
+        vi = np.minimum(np.maximum(v, 1), nseg - 1)
         bis = u[vi - 1] + u[vi]  # (P, 2), direction of the corner's bisector tangent
         rel_v = p - a[vi] if nseg > 1 else p - self.xy[lo]
         cross_v = bis[:, 0] * rel_v[:, 1] - bis[:, 1] * rel_v[:, 0]

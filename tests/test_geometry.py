@@ -200,3 +200,19 @@ def test_windowed_projection_matches_full():
     s_win, d_win = path.project(pts, near=(40.0, 180.0))
     np.testing.assert_allclose(s_win, s_full, atol=1e-9)
     np.testing.assert_allclose(d_win, d_full, atol=1e-9)
+
+
+def test_project_point_is_bit_identical_to_batched_projection():
+    # the per-step single-point path must give exactly the batched result, ends, corners
+    # (bisector side) and windows included
+    rng = np.random.default_rng(7)
+    for _ in range(30):
+        path = Polyline.from_points(np.cumsum(rng.normal(size=(int(rng.integers(2, 30)), 2)) * 3.0, axis=0))
+        pts = np.concatenate([rng.normal(size=(40, 2)) * 15 + path.xy.mean(axis=0), path.xy,
+                              path.xy + rng.normal(size=path.xy.shape) * 1e-3])
+        for near in (None, (0.3 * path.length, 0.6 * path.length), (-5.0, 3.0), (path.length - 1, path.length + 5)):
+            s_all, d_all = path._project_flat(pts, *path._window(near))
+            one = np.array([path.project_point(x, y, near) for x, y in pts])
+            assert one[:, 0].tobytes() == s_all.tobytes() and one[:, 1].tobytes() == d_all.tobytes()
+            s1, d1 = path.project(pts[3], near=near)
+            assert s1.shape == () and float(s1) == s_all[3] and float(d1) == d_all[3]
