@@ -23,7 +23,17 @@ import numpy as np
 from sumo_ethics.sim.frames import centre_to_front
 
 _FALLBACK = {"ped": "DEFAULT_PEDTYPE", "bicycle": "DEFAULT_BIKETYPE"}
-_KEEP = 2 | 4  # exact position, may leave the road, ignore lane permissions
+# moveToXY keepRoute bits: 2 = exact position, may leave the road; 4 = ignore lane permissions.
+# Persons may be matched to any lane (they step onto the carriageway); vehicles only to lanes
+# their class may use: a vehicle matched onto a crossing or walking area crashes SUMO 1.28.
+_KEEP_PERSON = 2 | 4
+_KEEP_VEHICLE = 2
+
+
+def _on_junction(route: Any, s0: float, s1: float) -> bool:
+    """Whether the ego's path between arc lengths s0 and s1 [m] crosses a junction (internal lane)."""
+    i0, i1 = route.vertex_at(max(s0, 0.0)), route.vertex_at(max(s1, 0.0))
+    return any(lane.startswith(":") for lane in route.lane_of_vertex[i0:i1 + 1])
 
 
 def _smooth(u: float) -> float:
@@ -93,8 +103,8 @@ class HazardInjector:
         path = scene.route.path
         ego_front = scene.s + float(scene.ego.length[0]) / 2.0
         self._route_id = "sumo_ethics_hazard_route"
-        if self._route_id not in libsumo.route.getIDList():
-            libsumo.route.add(self._route_id, [scene.route.edges[0]])
+        if self._route_id not in libsumo.route.getIDList():  # hazard vehicles drive along the ego's
+            libsumo.route.add(self._route_id, list(scene.route.edges))  # route (junction lanes included)
         for st in self.states:
             xy = self._anchor_xy(st.spec.anchor)
             s, d = (float(v) for v in path.project(np.asarray(xy, dtype=float)))
@@ -113,6 +123,10 @@ class HazardInjector:
                 st.phase = "spawned"
                 self._log(scene.time, st, "spawn", ego_front, float(scene.ego.speed[0]))
             elif st.spec.type == "pedestrian" and st.spec.params["occluder"]:
+                if _on_junction(scene.route, st.anchor_s - 6.0, st.anchor_s - 1.0):
+                    self._log(scene.time, st, "occluder_skipped", ego_front, float(scene.ego.speed[0]),
+                              message="no car parks on a junction")
+                    continue
                 p = st.spec.params
                 occ = self._parked(scene, st, st.anchor_s - 3.5, p["side"], 0.2, "car", f"{st.spec.id}_occluder")
                 st.props.append(occ)
@@ -183,7 +197,7 @@ class HazardInjector:
                 libsumo.person.add(a.sumo_id, self._walk_edge(scene), 0.0, typeID=a.type_id)  # type: ignore[attr-defined]
                 libsumo.person.appendWaitingStage(a.sumo_id, 3600.0)
                 a.added = True
-            libsumo.person.moveToXY(a.sumo_id, "", fx, fy, angle, _KEEP, 100.0)
+            libsumo.person.moveToXY(a.sumo_id, "", fx, fy, angle, _KEEP_PERSON, 100.0)
             libsumo.person.setSpeed(a.sumo_id, max(speed, 0.01))
         else:
             v = libsumo.vehicle
@@ -193,7 +207,7 @@ class HazardInjector:
                 v.setLaneChangeMode(a.sumo_id, 0)
                 v.setSpeedFactor(a.sumo_id, 3.0)
                 a.added = True
-            v.moveToXY(a.sumo_id, "", -1, fx, fy, angle, _KEEP, 100.0)
+            v.moveToXY(a.sumo_id, "", -1, fx, fy, angle, _KEEP_VEHICLE, 100.0)
             v.setSpeed(a.sumo_id, speed)
         a.x, a.y, a.yaw = x, y, yaw  # type: ignore[attr-defined]
 
@@ -284,8 +298,10 @@ class HazardInjector:
             a.v = max(v_ego * p["speed_ratio"], 1.0)
         elif kind == "oncoming_drift":
             a.s, a.d, a.v = st.anchor_s, p["lane_offset"], -p["speed"]
-        elif kind == "cyclist_swerve":
-            a.s, a.d, a.v = st.anchor_s, p["offset"], p["speed"]
+        elif kind == "cyclist_swerve":  # placed so that the ego comes up to it at the anchor
+            eta = max(st.anchor_s - ego_front, 0.0) / max(v_ego, 1.0)
+            a.s = min(st.anchor_s, max(st.anchor_s - p["speed"] * eta, ego_front + 15.0 + a.length / 2.0))
+            a.d, a.v = p["offset"], p["speed"]
         elif kind == "red_light_runner":
             px, py, h = (float(v) for v in route.path.to_xy(np.array(st.anchor_s), np.array(0.0)))
             eta = max(st.anchor_s - ego_front, 0.0) / max(v_ego, 0.1)
@@ -333,8 +349,10 @@ class HazardInjector:
                 a.d = st.d0 - p["drift"]
             else:
                 a.d = st.d0 - p["drift"] * (1.0 - _smooth((u - dur - hold) / dur))
-        elif kind == "cyclist_swerve" and trig:
-            a.d = st.d0 + p["swerve"] * _smooth((since + dt) / p["duration"])
+        elif kind == "cyclist_swerve" and trig:  # out, hold, back to its line
+            u, dur = since + dt, p["duration"]
+            back = max(u - dur - p["hold"], 0.0)
+            a.d = st.d0 + p["swerve"] * (_smooth(u / dur) - _smooth(back / dur))
         a.s += a.v * dt
 
     def _finished(self, st: HazardState, scene: Any, ego_front: float) -> bool:

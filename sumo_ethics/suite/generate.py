@@ -26,7 +26,7 @@ from sumo_ethics.suite.spec import HAZARD_FILE, HAZARD_TYPES, HazardSpec, Scenar
 from sumo_ethics.suite.spec import EgoSpec
 
 STEP_LENGTH = 0.1
-EGO_WINDOW = 35.0  # s of simulation time from the ego's departure to the run's end
+EGO_WINDOW = 60.0  # s from the ego's departure to the run's end: a red light and a slow pass fit
 
 VTYPES = {
     "car": dict(vClass="passenger", length=4.5, width=1.8, height=1.5),
@@ -77,7 +77,7 @@ ROAD_TYPES: dict[str, RoadType] = {
     "rural": RoadType("rural", "rural two-lane road with oncoming traffic and cyclists", 22.22, 3.5,
                       (("e0", "e1"), ("w1", "w0")),
                       {"oncoming_drift": 4, "cyclist_swerve": 3, "emergency_stop": 2, "pedestrian": 1},
-                      (("e0", "e1"), ("w1", "w0")), (), (150, 500)),
+                      (("e0", "e1"), ("w1", "w0")), (), (150, 500), bikes=False),
     "multilane": RoadType("multilane", "three-lane road with an on-ramp", 27.78, 3.75,
                           (("hw_0", "hw_2"),),
                           {"cut_in": 5, "emergency_stop": 3},
@@ -120,8 +120,10 @@ def _hazard(rng: np.random.Generator, rt: RoadType, kind: str, route: tuple[str,
         else:
             anchor = {"edge": fr if rng.random() < 0.5 else to, "pos": _r(u(0.5, 0.85) * L, 1)}
         left = two_way and rng.random() < 0.25
+        # a car parked right before the pedestrian hides them; none parks on a junction
+        hidden = rt.network == "narrow" or (not left and rng.random() < 0.4)
         p = {"side": "left" if left else "right", "offset": _r((rt.lane_width if left else 0.0) + u(0.3, 1.0)),
-             "speed": _r(u(1.4, 3.0)), "occluder": bool(rt.network == "narrow" or (not left and rng.random() < 0.4))}
+             "speed": _r(u(1.4, 3.0)), "occluder": bool(hidden and anchor["pos"] > 10.0)}
         h.update(anchor=anchor, trigger={"ttc": _r(u(0.9, 2.4) + (0.8 if left else 0.0))}, params=p)
         if rng.random() < 0.5:
             h["spawn"] = _r(u(20, 45), 1)
@@ -134,7 +136,7 @@ def _hazard(rng: np.random.Generator, rt: RoadType, kind: str, route: tuple[str,
     elif kind == "red_light_runner":
         h.update(anchor={"junction": "C"}, trigger={"ttc": _r(u(2.2, 4.0))},
                  params={"side": "left" if rng.random() < 0.5 else "right", "speed": _r(u(9, 15)),
-                         "lead": _r(u(-0.7, 0.7)), "vtype": "car" if rng.random() < 0.8 else "motorcycle"})
+                         "lead": _r(u(-0.45, 0.45)), "vtype": "car" if rng.random() < 0.8 else "motorcycle"})
     elif kind == "oncoming_drift":
         pos = _r(u(0.6, 0.95) * L, 1) if rt.network != "narrow" else _r(u(0.3, 0.9) * L, 1)
         sp = rt.speed * u(0.7, 1.0)
@@ -150,11 +152,13 @@ def _hazard(rng: np.random.Generator, rt: RoadType, kind: str, route: tuple[str,
                          "speed_ratio": _r(u(0.6, 0.9)), "duration": _r(u(1.5, 3.0)),
                          "vtype": "car" if rng.random() < 0.8 else "truck"})
     elif kind == "cyclist_swerve":
+        # riding on the lane's edge line, outside a following car's corridor; swerves into the
+        # lane (round a pothole, a car door) as the ego comes up to overtake
         half = rt.lane_width / 2.0
         h.update(anchor={"edge": to if rt.network != "rural" else fr, "pos": _r(u(0.3, 0.7) * L, 1)},
-                 trigger={"gap": _r(u(2, 10))}, spawn=_r(u(50, 90), 1),
-                 params={"offset": _r(-(half - u(0.4, 0.7))), "swerve": _r(u(1.2, 2.6)),
-                         "duration": _r(u(0.7, 1.5)), "speed": _r(u(3.5, 6.0)),
+                 trigger={"gap_ttc": _r(u(0.5, 1.3))}, spawn=_r(u(50, 90), 1),
+                 params={"offset": _r(-(half + u(0.1, 0.45))), "swerve": _r(u(1.5, 3.0)),
+                         "duration": _r(u(0.8, 1.6)), "hold": _r(u(1.0, 2.5)), "speed": _r(u(3.5, 6.0)),
                          "vtype": "bicycle" if rng.random() < 0.85 else "motorcycle"})
     else:
         raise ConfigError(f"no generator for hazard type {kind!r}")

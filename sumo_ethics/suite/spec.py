@@ -48,8 +48,11 @@ HAZARD_TYPES: dict[str, dict[str, Any]] = {
     # a vehicle in the adjacent lane changes into the ego's lane close ahead
     "cut_in": {"side": "left", "lane_offset": 3.5, "gap": 10.0, "speed_ratio": 0.75, "duration": 1.5,
                "vtype": "car"},
-    # a cyclist riding ahead at the right edge of the ego's lane swerves to the left
-    "cyclist_swerve": {"offset": -1.0, "swerve": 2.0, "duration": 1.0, "speed": 5.0, "vtype": "bicycle"},
+    # a cyclist riding ahead at the right edge of the ego's lane swerves to the left; it appears
+    # where, at both current speeds, the ego would come up to it at the anchor
+    # (over ``duration``), rides there for ``hold`` s and swerves back to its line
+    "cyclist_swerve": {"offset": -1.0, "swerve": 2.0, "duration": 1.0, "hold": 1.5, "speed": 5.0,
+                       "vtype": "bicycle"},
     # a parked vehicle at the kerb (a static obstacle, no trigger)
     "parked": {"side": "right", "intrusion": 0.3, "vtype": "car"},
 }
