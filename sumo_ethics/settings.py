@@ -1,7 +1,7 @@
 """Planner settings from the command line and TOML files, validated before SUMO starts.
 
 A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, predictor,
-max_risk) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
+max_risk, braking_prior) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
 ``[planner.principles]`` (custom J_origin weights); unknown keys are errors.
 """
 
@@ -47,7 +47,8 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
 
     t = dict(table or {})
     t.update({k: v for k, v in overrides.items() if v is not None})
-    simple = {"omega_u", "omega_o", "weights", "utility", "predictor", "predictor_weights", "max_risk"}
+    simple = {"omega_u", "omega_o", "weights", "utility", "predictor", "predictor_weights", "max_risk",
+              "braking_prior"}
     _known(t, simple | {"sampling", "probability", "principles"}, "[planner]")
     try:
         weights = PrincipleWeights.preset(t.get("weights", "ethical"))
@@ -68,6 +69,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
         return PlannerConfig(cost=cost, sampling=SamplingConfig(**sampling),
                              probability=ProbabilityConfig(**probability),
                              predictor=t.get("predictor", "attention"), max_risk=t.get("max_risk", 0.01),
+                             braking_prior=t.get("braking_prior", 3.0),
                              predictor_weights=None if t.get("predictor_weights") is None
                              else str(t["predictor_weights"]))
     except ConfigError:

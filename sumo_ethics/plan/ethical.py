@@ -20,6 +20,7 @@ from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
 from sumo_ethics.plan.controller import Decision, Scene
 from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
+from sumo_ethics.predict.braking import apply_braking_prior
 from sumo_ethics.sim.world import EgoCommand
 from sumo_ethics.types import Candidates, Observation, Prediction
 
@@ -38,7 +39,9 @@ class PlannerConfig:
     """Everything the ethical planner decides with.
 
     max_risk: a candidate is "safe" when its largest risk against any party (ego's plus the
-    other's) stays below this [-]; predictor: "attention", "cslstm" or "cv" (constant velocity).
+    other's) stays below this [-]; predictor: "attention", "cslstm" or "cv" (constant velocity);
+    braking_prior: agents decelerating at least this hard [m/s^2] are predicted to keep braking
+    until they stand (``sumo_ethics.predict.braking``); 0 turns the prior off.
     """
 
     cost: CostConfig = field(default_factory=CostConfig)
@@ -49,12 +52,15 @@ class PlannerConfig:
     predictor: str = "attention"
     predictor_weights: str | None = None  # a weights file for the LSTM predictors (default: shipped)
     max_risk: float = 0.01
+    braking_prior: float = 3.0
 
     def __post_init__(self) -> None:
         if self.predictor not in PREDICTORS:
             raise ConfigError(f"unknown predictor '{self.predictor}'; known: {', '.join(PREDICTORS)}")
         if not (isinstance(self.max_risk, (int, float)) and 0.0 < self.max_risk <= 1.0):
             raise ConfigError(f"max_risk must be in (0, 1], got {self.max_risk!r}")
+        if not (isinstance(self.braking_prior, (int, float)) and 0.0 <= self.braking_prior < 1e3):
+            raise ConfigError(f"braking_prior must be a deceleration >= 0 m/s^2 (0 = off), got {self.braking_prior!r}")
 
 
 def keep_heap_warm(pad: int = 64 << 20) -> None:
@@ -173,6 +179,8 @@ class EthicalPlanner:
         obs = scene.history
         agents = scene.others
         pred = self.predictor.predict(obs, horizon_steps, sc.dt)
+        if self.cfg.braking_prior > 0.0:
+            pred = apply_braking_prior(pred, obs.current, self.cfg.braking_prior)
         w1 = time.perf_counter()
         route = scene.route
         i = route.vertex_at(scene.s)
