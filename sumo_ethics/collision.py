@@ -22,12 +22,12 @@ MAX_SUBSTEPS = 64
 
 def previous_of(now: AgentStates, before: AgentStates) -> np.ndarray:
     """(N, 3) x, y, yaw of each agent of ``now`` at the earlier snapshot; its current pose
-    where it was not seen before. Both snapshots list ids in sorted order."""
+    where it was not seen before."""
     pose = np.stack([now.x, now.y, now.yaw], axis=-1)
     if len(before) and len(now):
-        b_ids = np.asarray(before.ids)
-        j = np.clip(np.searchsorted(b_ids, np.asarray(now.ids)), 0, len(b_ids) - 1)
-        seen = b_ids[j] == np.asarray(now.ids)
+        where = before.index
+        j = np.array([where.get(k, -1) for k in now.ids])
+        seen = j >= 0
         pose[seen] = np.stack([before.x[j[seen]], before.y[j[seen]], before.yaw[j[seen]]], axis=-1)
     return pose
 
