@@ -85,6 +85,8 @@ def boxes_overlap(a: OrientedBoxes, b: OrientedBoxes) -> np.ndarray:
 # Points x segments are evaluated in blocks of at most this many pairs (~8 float64 temporaries
 # each, so about 8 * 8 B * 2e6 = 128 MB peak), whatever the number of points.
 _PROJECT_BLOCK_PAIRS = 2_000_000
+# Up to this many points are projected one by one (project_point), more in one (P, S) batch.
+_FEW_POINTS = 4
 
 
 @dataclass(frozen=True)
@@ -185,9 +187,9 @@ class Polyline:
             raise ValueError(f"project expects (..., 2) points, got {q.shape}")
         lead = q.shape[:-1]
         flat = q.reshape(-1, 2)
-        if flat.shape[0] == 1:  # the common per-step case: a third of the cost
-            s1, d1 = self.project_point(float(flat[0, 0]), float(flat[0, 1]), near)
-            return np.full(lead, s1), np.full(lead, d1)
+        if flat.shape[0] <= _FEW_POINTS:  # per point: no (P, S) temporaries, a third of the cost
+            sd = np.array([self.project_point(float(x), float(y), near) for x, y in flat]).reshape(-1, 2)
+            return sd[:, 0].reshape(lead), sd[:, 1].reshape(lead)
         lo, hi = self._window(near)
         block = max(1, _PROJECT_BLOCK_PAIRS // (hi - lo))
         s_out = np.empty(flat.shape[0])
@@ -196,6 +198,23 @@ class Polyline:
             sl = slice(start, start + block)
             s_out[sl], d_out[sl] = self._project_flat(flat[sl], lo, hi)
         return s_out.reshape(lead), d_out.reshape(lead)
+
+    def may_be_within(self, x: np.ndarray, y: np.ndarray, dist: float,
+                      near: tuple[float, float] | None = None) -> np.ndarray:
+        """Cheap conservative pre-filter for :meth:`project` of (N,) points x, y [m] -> (N,) bool.
+
+        False only where :meth:`project` (with the same ``near``) would surely give |d| >= dist:
+        the point is farther than dist + half the longest segment from every vertex of the
+        window. Where the window holds an end segment (where points beyond the end get an
+        extrapolated d) every point is kept.
+        """
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        lo, hi = self._window(near)
+        if lo == 0 or hi == len(self.heading):
+            return np.ones(x.shape, dtype=bool)
+        vx, vy = self.xy[lo:hi + 1, 0], self.xy[lo:hi + 1, 1]  # (S+1,) vertices of the window
+        r = dist + 0.5 * float(np.max(self._columns[4][lo:hi])) + 1e-6
+        return np.min((x[:, None] - vx) ** 2 + (y[:, None] - vy) ** 2, axis=1) < r * r
 
     def project_point(self, x: float, y: float, near: tuple[float, float] | None = None) -> tuple[float, float]:
         """:meth:`project` of the single point (x, y) [m] -> (s, d) [m] as floats.

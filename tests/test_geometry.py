@@ -216,3 +216,16 @@ def test_project_point_is_bit_identical_to_batched_projection():
             assert one[:, 0].tobytes() == s_all.tobytes() and one[:, 1].tobytes() == d_all.tobytes()
             s1, d1 = path.project(pts[3], near=near)
             assert s1.shape == () and float(s1) == s_all[3] and float(d1) == d_all[3]
+
+
+def test_may_be_within_never_drops_a_point_inside_the_corridor():
+    t = np.linspace(0, 300, 301)
+    path = Polyline.from_points(np.stack([t, 20 * np.sin(t / 25)], axis=-1))
+    rng = np.random.default_rng(3)
+    pts = np.stack([rng.uniform(-20, 320, 4000), rng.uniform(-30, 30, 4000)], axis=-1)
+    for near in ((100.0, 220.0), (-10.0, 50.0), (250.0, 400.0)):
+        keep = path.may_be_within(pts[:, 0], pts[:, 1], 1.6, near)
+        _, d = path.project(pts, near=near)
+        assert keep[np.abs(d) < 1.6].all()
+        if near == (100.0, 220.0):
+            assert keep.mean() < 0.5  # and it does filter

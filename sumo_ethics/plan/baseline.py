@@ -50,15 +50,18 @@ class RouteFollower:
         if len(o):
             e = scene.ego
             ahead_xy = (o.x - e.x[0]) * np.cos(e.yaw[0]) + (o.y - e.y[0]) * np.sin(e.yaw[0])
-            vehicles = (o.cls != RoadUserClass.PEDESTRIAN) & (ahead_xy > -10.0)  # cheap pre-filter
-            if vehicles.any():
-                s, d = scene.route.path.project(np.stack([o.x, o.y], axis=-1),
-                                                near=(scene.s - 10.0, scene.s + self.p.lookahead + 10.0))
-                ahead = vehicles & (np.abs(d) < self.p.corridor) & (s > scene.s) & (s - scene.s < self.p.lookahead)
+            near = (scene.s - 10.0, scene.s + self.p.lookahead + 10.0)
+            # cheap pre-filters; only the few vehicles that may be in the corridor are projected
+            cand = np.flatnonzero((o.cls != RoadUserClass.PEDESTRIAN) & (ahead_xy > -10.0))
+            cand = cand[scene.route.path.may_be_within(o.x[cand], o.y[cand], self.p.corridor, near)]
+            if len(cand):
+                s, d = scene.route.path.project(np.stack([o.x[cand], o.y[cand]], axis=-1), near=near)
+                ahead = (np.abs(d) < self.p.corridor) & (s > scene.s) & (s - scene.s < self.p.lookahead)
                 if ahead.any():
-                    gaps = s - scene.s - (o.length + scene.ego.length[0]) / 2.0
-                    i = int(np.argmin(np.where(ahead, gaps, np.inf)))
-                    gap, v_lead = float(gaps[i]), float(o.speed[i] * np.cos(o.yaw[i] - scene.ego.yaw[0]))
+                    gaps = s - scene.s - (o.length[cand] + scene.ego.length[0]) / 2.0
+                    k = int(np.argmin(np.where(ahead, gaps, np.inf)))
+                    i = cand[k]
+                    gap, v_lead = float(gaps[k]), float(o.speed[i] * np.cos(o.yaw[i] - scene.ego.yaw[0]))
         if scene.stop_s is not None:
             stop_gap = scene.stop_s - scene.s - scene.ego.length[0] / 2.0
             if stop_gap < gap:

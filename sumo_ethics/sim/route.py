@@ -46,7 +46,8 @@ class RoutePath:
         return self.path.length
 
     def vertex_at(self, s: float) -> int:
-        return int(np.clip(np.searchsorted(self.path.s, s, side="right") - 1, 0, len(self.path.s) - 1))
+        """Index of the last vertex at or before arc length ``s`` [m] (0 before the start)."""
+        return min(max(int(np.searchsorted(self.path.s, s, side="right")) - 1, 0), len(self.path.s) - 1)
 
 
 def lane_allows(lane: str, vclass: str) -> bool:
