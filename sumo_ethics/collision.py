@@ -44,23 +44,24 @@ def swept_contacts(ego_before: AgentStates, ego_now: AgentStates, others_now: Ag
     hit = np.zeros(n, dtype=bool)
     if n == 0:
         return hit
-    e0 = np.array([ego_before.x[0], ego_before.y[0], ego_before.yaw[0]])
-    e1 = np.array([ego_now.x[0], ego_now.y[0], ego_now.yaw[0]])
-    o1 = np.stack([others_now.x, others_now.y, others_now.yaw], axis=-1)
     o0 = others_before_pose
-    # cheap conservative filter: bounding circles over the whole motion
+    # cheap conservative filter: bounding circles over the whole motion (1-D arrays: this runs
+    # every step, the exact test below only when something is close)
     r_ego = 0.5 * np.hypot(ego_now.length[0], ego_now.width[0])
     r_oth = 0.5 * np.hypot(others_now.length, others_now.width)
-    rel0 = o0[:, :2] - e0[:2]
-    rel1 = o1[:, :2] - e1[:2]
-    d_min = np.minimum(np.hypot(*rel0.T), np.hypot(*rel1.T))
-    reach = r_ego + r_oth + np.hypot(*(rel1 - rel0).T)
+    rx0, ry0 = o0[:, 0] - ego_before.x[0], o0[:, 1] - ego_before.y[0]  # relative to the ego, before
+    rx1, ry1 = others_now.x - ego_now.x[0], others_now.y - ego_now.y[0]  # and now
+    d_min = np.minimum(np.hypot(rx0, ry0), np.hypot(rx1, ry1))
+    reach = r_ego + r_oth + np.hypot(rx1 - rx0, ry1 - ry0)
     near = d_min <= reach
     if not near.any():
         return hit
     idx = np.flatnonzero(near)
-    motion = float(np.max(np.hypot(*(rel1[idx] - rel0[idx]).T)))
-    n_sub = int(np.clip(np.ceil(motion / SUBSTEP_SPACING), 1, MAX_SUBSTEPS))
+    motion = float(np.max(np.hypot(rx1[idx] - rx0[idx], ry1[idx] - ry0[idx])))
+    n_sub = min(max(int(np.ceil(motion / SUBSTEP_SPACING)), 1), MAX_SUBSTEPS)
+    e0 = np.array([ego_before.x[0], ego_before.y[0], ego_before.yaw[0]])
+    e1 = np.array([ego_now.x[0], ego_now.y[0], ego_now.yaw[0]])
+    o1 = np.stack([others_now.x, others_now.y, others_now.yaw], axis=-1)
     f = np.linspace(0.0, 1.0, n_sub + 1)[:, None]  # (S, 1), includes both end points
 
     def lerp(p0: np.ndarray, p1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

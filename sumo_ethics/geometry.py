@@ -187,10 +187,10 @@ class Polyline:
             raise ValueError(f"project expects (..., 2) points, got {q.shape}")
         lead = q.shape[:-1]
         flat = q.reshape(-1, 2)
-        if flat.shape[0] <= _FEW_POINTS:  # per point: no (P, S) temporaries, a third of the cost
-            sd = np.array([self.project_point(float(x), float(y), near) for x, y in flat]).reshape(-1, 2)
-            return sd[:, 0].reshape(lead), sd[:, 1].reshape(lead)
         lo, hi = self._window(near)
+        if flat.shape[0] <= _FEW_POINTS:  # per point: no (P, S) temporaries, a third of the cost
+            sd = np.array([self._project_one(float(x), float(y), lo, hi) for x, y in flat]).reshape(-1, 2)
+            return sd[:, 0].reshape(lead), sd[:, 1].reshape(lead)
         block = max(1, _PROJECT_BLOCK_PAIRS // (hi - lo))
         s_out = np.empty(flat.shape[0])
         d_out = np.empty(flat.shape[0])
@@ -222,7 +222,10 @@ class Polyline:
         The same arithmetic as :meth:`_project_flat`, bit for bit: numpy over the (S,)
         segments, plain floats for the chosen one (no (P, S) temporaries, no fancy indexing).
         """
-        lo, hi = self._window(near)
+        return self._project_one(x, y, *self._window(near))
+
+    def _project_one(self, x: float, y: float, lo: int, hi: int) -> tuple[float, float]:
+        """:meth:`project_point` over segments lo..hi-1."""
         x0, y0, ux, uy, seg_len = (c[lo:hi] for c in self._columns)
         nseg = hi - lo
         rx, ry = x - x0, y - y0  # (S,)

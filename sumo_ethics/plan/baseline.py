@@ -84,7 +84,7 @@ class RouteFollower:
         v0 = min(self.allowed_speed(scene), veh.max_speed)
         gap, v_lead = self.leader_gap(scene)
         acc = idm_accel(v, v0, gap, v - v_lead, veh.max_accel, veh.comfort_decel, self.p)
-        acc = float(np.clip(acc, -veh.max_decel, veh.max_accel))
+        acc = min(max(float(acc), -veh.max_decel), veh.max_accel)  # np.clip costs ~5 us on a scalar
         v_next = max(0.0, v + acc * scene.dt)
         acc = (v_next - v) / scene.dt
         s_next = scene.s + 0.5 * (v + v_next) * scene.dt

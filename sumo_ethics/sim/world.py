@@ -133,14 +133,12 @@ class SumoWorld:
         types = tuple(r[tc.VAR_TYPE] for r in rows)
         known = self._types
         info = [known.get(t) or self.type_info(t) for t in types]
-        pos = np.array([r[tc.VAR_POSITION] for r in rows], dtype=float).reshape(-1, 2)
-        angle = np.array([r[tc.VAR_ANGLE] for r in rows], dtype=float)
-        length = np.array([t.length for t in info])
-        x, y, yaw = front_to_centre(pos[:, 0], pos[:, 1], angle, length)
-        cols = (x, y, yaw, np.array([r[tc.VAR_SPEED] for r in rows], dtype=float),
-                np.array([r.get(tc.VAR_ACCELERATION, 0.0) for r in rows], dtype=float), length,
-                np.array([t.width for t in info]), np.array([t.mass for t in info]),
-                np.array([t.cls for t in info], dtype=np.int8))
+        # one (8, N) conversion for every numeric column, rows contiguous
+        num = np.array([(*r[tc.VAR_POSITION], r[tc.VAR_ANGLE], r[tc.VAR_SPEED], r.get(tc.VAR_ACCELERATION, 0.0),
+                         t.length, t.width, t.mass) for r, t in zip(rows, info)], dtype=float).reshape(-1, 8).T.copy()
+        fx, fy, angle, speed, accel, length, width, mass = num
+        x, y, yaw = front_to_centre(fx, fy, angle, length)
+        cols = (x, y, yaw, speed, accel, length, width, mass, np.array([t.cls for t in info], dtype=np.int8))
         # the arrays are (N,) by construction: skip AgentStates' checks (this runs every step)
         ego = AgentStates.trusted(tuple(ids[:1]), *(c[:1] for c in cols), types[:1])
         others = AgentStates.trusted(tuple(ids[1:]), *(c[1:] for c in cols), types[1:])
