@@ -69,6 +69,8 @@ VARIANTS: dict[str, Variant] = {
     "full+busy256kB": Variant(busy_kb=256),
     "full+busy1MB": Variant(busy_kb=1024),
     "full+numpy200us": Variant(busy_us=200.0),
+    "full-no-type": Variant(subs=((tc.CMD_GET_VEHICLE_VARIABLE, _POS + (tc.VAR_ACCELERATION,)),
+                                  (tc.CMD_GET_PERSON_VARIABLE, _POS))),
     "full-no-type-accel": Variant(subs=((tc.CMD_GET_VEHICLE_VARIABLE, _POS), (tc.CMD_GET_PERSON_VARIABLE, _POS))),
 }
 
