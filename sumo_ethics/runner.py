@@ -195,8 +195,10 @@ def merged_detector(old: str, new: str) -> str:
     return "both" if len(seen) == 2 else seen.pop()
 
 
-#: SUMO-only ego reports count when the true boxes come at least this close [m]
-CONFIRM_TOLERANCE = 0.25
+#: SUMO-only ego reports count when the true boxes come at least this close [m]. SUMO without
+#: the sublane model reports two cars on one lane as colliding even when they pass side by side
+#: (a car parked at the kerb): the swept box check is exact, so the tolerance is small.
+CONFIRM_TOLERANCE = 0.1
 
 
 def near_contact(a: AgentStates, b: AgentStates, tol: float = CONFIRM_TOLERANCE) -> np.ndarray:
