@@ -152,7 +152,7 @@ class Polyline:
     @functools.cached_property
     def _columns(self) -> tuple[np.ndarray, ...]:
         """Contiguous (M-1,) start x, start y [m], unit direction x, y and length [m] of each
-        segment, for :meth:`project_point` (computed once)."""
+        segment, for :meth:`project_point` and :meth:`may_be_within` (computed once)."""
         return (np.ascontiguousarray(self.xy[:-1, 0]), np.ascontiguousarray(self.xy[:-1, 1]),
                 np.ascontiguousarray(self._unit[:, 0]), np.ascontiguousarray(self._unit[:, 1]), np.diff(self.s))
 
@@ -213,7 +213,8 @@ class Polyline:
         if lo == 0 or hi == len(self.heading):
             return np.ones(x.shape, dtype=bool)
         vx, vy = self.xy[lo:hi + 1, 0], self.xy[lo:hi + 1, 1]  # (S+1,) vertices of the window
-        r = dist + 0.5 * float(np.max(self._columns[4][lo:hi])) + 1e-6
+        seg_len = self._columns[4][lo:hi]
+        r = dist + 0.5 * float(np.max(seg_len)) + 1e-6
         return np.min((x[:, None] - vx) ** 2 + (y[:, None] - vy) ** 2, axis=1) < r * r
 
     def project_point(self, x: float, y: float, near: tuple[float, float] | None = None) -> tuple[float, float]:
