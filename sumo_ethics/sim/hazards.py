@@ -24,10 +24,13 @@ from sumo_ethics.sim.frames import centre_to_front
 
 _FALLBACK = {"ped": "DEFAULT_PEDTYPE", "bicycle": "DEFAULT_BIKETYPE"}
 # moveToXY keepRoute bits: 2 = exact position, may leave the road; 4 = ignore lane permissions.
-# Persons may be matched to any lane (they step onto the carriageway); vehicles only to lanes
-# their class may use: a vehicle matched onto a crossing or walking area crashes SUMO 1.28.
+# Persons may be matched to any lane (they step onto the carriageway). Moving vehicles only to
+# lanes their class may use: one matched onto a crossing or walking area crashes SUMO 1.28.
+# Parked vehicles to the nearest lane, usually the sidewalk beside them: on the carriageway
+# SUMO's car following (blind to lateral offsets) would queue the traffic behind them forever.
 _KEEP_PERSON = 2 | 4
 _KEEP_VEHICLE = 2
+_KEEP_PARKED = 2 | 4
 
 
 def _on_junction(route: Any, s0: float, s1: float) -> bool:
@@ -57,6 +60,7 @@ class Actor:
     line: tuple[float, float, float, float] | None = None
     travelled: float = 0.0
     added: bool = False
+    parked: bool = False
 
 
 @dataclass
@@ -160,7 +164,7 @@ class HazardInjector:
             a.d = float(scene.route.right[i]) + intrusion - a.width / 2.0
         else:
             a.d = float(scene.route.left[i]) - intrusion + a.width / 2.0
-        a.s, a.v = s, 0.0
+        a.s, a.v, a.parked = s, 0.0, True
         self._place(scene, a)
         return a
 
@@ -207,7 +211,7 @@ class HazardInjector:
                 v.setLaneChangeMode(a.sumo_id, 0)
                 v.setSpeedFactor(a.sumo_id, 3.0)
                 a.added = True
-            v.moveToXY(a.sumo_id, "", -1, fx, fy, angle, _KEEP_VEHICLE, 100.0)
+            v.moveToXY(a.sumo_id, "", -1, fx, fy, angle, _KEEP_PARKED if a.parked else _KEEP_VEHICLE, 100.0)
             v.setSpeed(a.sumo_id, speed)
         a.x, a.y, a.yaw = x, y, yaw  # type: ignore[attr-defined]
 

@@ -131,7 +131,9 @@ def _hazard(rng: np.random.Generator, rt: RoadType, kind: str, route: tuple[str,
         d = _r(u(12, 30), 1)
         h.update(anchor={"edge": to if rt.network != "rural" else fr, "pos": _r(u(0.3, 0.7) * L, 1)},
                  trigger={"distance": d}, spawn=_r(d + v * u(0.3, 1.5), 1),
-                 params={"gap": _r(u(12, 25)), "speed_ratio": _r(u(0.8, 1.0)), "decel": _r(u(5, 8.5)),
+                 # up to 10 m/s^2 (a crash stop) from 6 m: beyond the ego's 8 m/s^2 at speed,
+                 # so on fast roads braking alone may not do and a lane change might
+                 params={"gap": _r(u(6, 18)), "speed_ratio": _r(u(0.8, 1.0)), "decel": _r(u(6, 10)),
                          "hold": _r(u(1.5, 4)), "vtype": "car" if rng.random() < 0.8 else "truck"})
     elif kind == "red_light_runner":
         h.update(anchor={"junction": "C"}, trigger={"ttc": _r(u(2.2, 4.0))},
