@@ -38,7 +38,7 @@ def cli() -> None:
 @click.option("--out", type=click.Path(path_type=Path), help="Run folder (default runs/<scenario>-seed<N>).")
 @click.option("--controller", type=click.Choice(["ethical", "baseline"]), default="ethical", show_default=True,
               help="Ego controller: the ethical planner, or the naive route-following baseline.")
-@click.option("--omega-u", type=float, help="Weight w_u of the utility term J_utility (default 0.5).")
+@click.option("--omega-u", type=float, help="Weight w_u of the utility term J_utility (default 1000, see README).")
 @click.option("--omega-o", type=float, help="Weight w_o of Origin's cost J_origin (default 1.0).")
 @click.option("--weights", help="J_origin principle weights: ethical (default), standard or ego.")
 @click.option("--utility", type=click.Choice(["candidate_mean", "literal"]),

@@ -40,7 +40,7 @@ def load_toml(path: Path) -> dict[str, Any]:
 
 def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
     """A validated PlannerConfig from a ``[planner]`` table and command-line overrides (None = unset)."""
-    from sumo_ethics.ethics.cost import CostConfig, PrincipleWeights, UtilityMode
+    from sumo_ethics.ethics.cost import DEFAULT_OMEGA_U, CostConfig, PrincipleWeights, UtilityMode
     from sumo_ethics.ethics.probability import ProbabilityConfig
     from sumo_ethics.plan.ethical import PlannerConfig
     from sumo_ethics.plan.sampling import SamplingConfig
@@ -59,7 +59,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
                                           **{k: _weight(f"principles.{k}", v) for k, v in p.items()}})
         utility = t.get("utility", UtilityMode.CANDIDATE_MEAN.value)
         cost = CostConfig(weights=weights, omega_o=_weight("omega_o", t.get("omega_o", 1.0)),
-                          omega_u=_weight("omega_u", t.get("omega_u", 0.5)), utility=utility)
+                          omega_u=_weight("omega_u", t.get("omega_u", DEFAULT_OMEGA_U)), utility=utility)
         sampling = t.get("sampling", {})
         _known(sampling, {f.name for f in fields(SamplingConfig)}, "[planner.sampling]")
         if "horizons" in sampling:

@@ -75,8 +75,9 @@ def test_toy_case_every_term_by_hand():
     np.testing.assert_allclose(c["j_total_risk"], [0.40, 0.59])
     np.testing.assert_allclose(c["j_mean"], [0.495, 0.495])
     np.testing.assert_allclose(c["j_utility"], [0.0, 0.59])
-    # J_risk = 1 * J_origin + 0.5 * J_utility = 1721.33809152 | 1382.9423828125 + 0.295 = 1383.2373828125
-    np.testing.assert_allclose(c["j_risk"], [1721.33809152, 1383.2373828125])
+    # J_risk = 1 * J_origin + 1000 * J_utility (the default w_u) = 1721.33809152 | 1382.9423828125 + 590
+    # = 1972.9423828125: the utility term turns the choice to candidate 0
+    np.testing.assert_allclose(c["j_risk"], [1721.33809152, 1972.9423828125])
     # VRU risk: agent 1 is vulnerable: other_risk[:, 1] = 0 | 0.01
     np.testing.assert_allclose(c["vru_risk_sum"], [0.0, 0.01])
     assert set(TERMS) == set(c)
@@ -98,7 +99,7 @@ def test_toy_case_feasible_pool_literal_mode_and_presets():
     ego = score(TOY_CAND, TOY_RISK, CostConfig(weights=PrincipleWeights.preset("ego")), 10.0).terms
     np.testing.assert_allclose(ego["j_origin"], [2506.0, 14022.0])
     # omega_o = 0: J_risk = 0.5 * J_utility = 0 | 0.295.
-    only_u = score(TOY_CAND, TOY_RISK, CostConfig(omega_o=0.0), 10.0)
+    only_u = score(TOY_CAND, TOY_RISK, CostConfig(omega_o=0.0, omega_u=0.5), 10.0)
     np.testing.assert_allclose(only_u.total, [0.0, 0.295])
     assert only_u.row(1)["j_risk"] == pytest.approx(0.295)
 

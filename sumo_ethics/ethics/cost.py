@@ -91,6 +91,13 @@ class UtilityMode(enum.Enum):
     LITERAL = "literal"  # J / N_r, N_r = number of parties (ego + N agents)
 
 
+#: default w_u. J_origin weighs a unit of risk by w_risk x w_B / (2N) = 250 x 33.3 / 2 ~ 4000 for
+#: one neighbour (its Bayes term alone) while J_utility is the plain risk sum: at w_u = 0.5 the
+#: utility term is ~1e4 times too small to change any choice. 1000 puts it on that scale; on the
+#: suite's 55 hardest scenarios 1e3, 1e4 and 1e5 gave identical runs (README, "Scenario suite").
+DEFAULT_OMEGA_U = 1000.0
+
+
 @dataclass(frozen=True)
 class CostConfig:
     """Weights of J_risk = omega_o J_origin + omega_u J_utility.
@@ -102,7 +109,7 @@ class CostConfig:
 
     weights: PrincipleWeights = PrincipleWeights()
     omega_o: float = 1.0
-    omega_u: float = 0.5
+    omega_u: float = DEFAULT_OMEGA_U
     utility: UtilityMode = UtilityMode.CANDIDATE_MEAN
     desired_speed: float | None = None
     maximin_exponent: float = 10.0

@@ -26,9 +26,10 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from sumo_ethics.errors import ConfigError
+from sumo_ethics.ethics.cost import DEFAULT_OMEGA_U
 
 #: the paper's planner: attention predictor, J_utility at this weight (see README "Suite")
-PAPER_OMEGA_U = 0.5
+PAPER_OMEGA_U = DEFAULT_OMEGA_U
 
 BUILTIN: dict[str, dict[str, Any] | None] = {
     "baseline": None,  # the route-following controller
