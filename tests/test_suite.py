@@ -207,7 +207,9 @@ def test_hazard_fires_at_its_trigger(kind, tmp_path):
         assert abs(at[0] - 200) < 0.5 and at[1] > 5.0
 
 
-def test_parked_vehicle_stays_put(tmp_path):
+def test_parked_vehicle_stays_put_off_the_carriageway(tmp_path):
+    import libsumo
+
     from sumo_ethics.config import RunConfig
     from sumo_ethics.runner import make_controller, run
     from sumo_ethics.sim.hazards import HazardInjector
@@ -217,7 +219,35 @@ def test_parked_vehicle_stays_put(tmp_path):
     cfg = RunConfig(scenario=TESTBED, out=tmp_path / "p", seed=1, end=25.0, ego_from="main_0", ego_to="main_1",
                     controller="baseline", progress=False, stop_at_collision=False)
     inj = HazardInjector([spec])
-    probe = Probe(HazardController(make_controller(cfg), inj), inj)
+    lanes = set()
+
+    class LaneProbe(Probe):
+        def act(self, scene):
+            if "hazard_h0" in scene.others.ids:
+                lanes.add(libsumo.vehicle.getLaneID("hazard_h0"))
+            return super().act(scene)
+
+    probe = LaneProbe(HazardController(make_controller(cfg), inj), inj)
     run(cfg, controller=probe)
     pts = np.array([p[:2] for p in probe.seen.values()])
     assert len(pts) > 10 and np.ptp(pts[:, 0]) < 0.05 and abs(pts[0, 0] - 302) < 0.5
+    # SUMO files it on the sidewalk beside it (main_1_0), not on the lane its traffic drives in:
+    # SUMO's car following ignores lateral offsets and would queue everyone behind it
+    assert lanes == {"main_1_0"}
+
+
+def test_hazard_vehicle_over_a_crosswalk_does_not_crash_sumo(tmp_path):
+    """A narrow-street scenario of an earlier suite: the oncoming car, matched onto the junction's
+    crossing when lane permissions were ignored, crashed SUMO 1.28 (segfault) at t = 48.4 s."""
+    import subprocess
+    import sys
+
+    code = ("import json, sys; from sumo_ethics.suite.evaluate import run_one, parse_planner; "
+            "print(json.dumps(run_one(sys.argv[1], parse_planner('baseline'), sys.argv[2])))")
+    scen = Path(__file__).parent / "data" / "sumo_crashes" / "s0095"
+    r = subprocess.run([sys.executable, "-c", code, str(scen), str(tmp_path / "run")], capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    row = json.loads(r.stdout.strip().splitlines()[-1])
+    # the ego took over at t = 39.2 s: past the crash instant means more than 92 steps
+    assert row["status"] in ("completed", "collision", "timeout") and row["steps"] > 92, row
