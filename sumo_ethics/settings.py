@@ -48,7 +48,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
     t = dict(table or {})
     t.update({k: v for k, v in overrides.items() if v is not None})
     simple = {"omega_u", "omega_o", "weights", "utility", "predictor", "predictor_weights", "max_risk",
-              "braking_prior"}
+              "braking_prior", "lateral_prior"}
     _known(t, simple | {"sampling", "probability", "principles"}, "[planner]")
     try:
         weights = PrincipleWeights.preset(t.get("weights", "ethical"))
@@ -70,6 +70,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
                              probability=ProbabilityConfig(**probability),
                              predictor=t.get("predictor", "attention"), max_risk=t.get("max_risk", 0.01),
                              braking_prior=t.get("braking_prior", 3.0),
+                             lateral_prior=t.get("lateral_prior", 1.5),
                              predictor_weights=None if t.get("predictor_weights") is None
                              else str(t["predictor_weights"]))
     except ConfigError:

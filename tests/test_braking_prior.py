@@ -39,3 +39,41 @@ def test_no_braker_returns_same_prediction():
     pred = ConstantVelocityPredictor().predict_arrays(cur.ids, cur.xy, cur.yaw, cur.speed, cur.cls,
                                                       np.array([0.1, 0.2]), 0.1)
     assert apply_braking_prior(pred, cur) is pred
+
+
+def _one(yaw: float, speed: float, mean: np.ndarray) -> tuple[AgentStates, "Prediction"]:
+    from sumo_ethics.types import Prediction
+
+    cur = AgentStates(ids=("a",), x=np.zeros(1), y=np.zeros(1), yaw=np.array([yaw]), speed=np.array([speed]),
+                      accel=np.zeros(1), length=np.array([4.5]), width=np.array([1.8]), mass=np.array([1500.0]),
+                      cls=np.zeros(1, dtype=np.int8))
+    T = len(mean)
+    return cur, Prediction(ids=("a",), dt=0.1, mean=mean[None], cov=np.tile(np.eye(2), (1, T, 1, 1)),
+                           yaw=np.zeros((1, T)))
+
+
+def test_lateral_prior_continues_a_drift_by_hand():
+    from sumo_ethics.predict.braking import apply_lateral_prior
+
+    t = (np.arange(30) + 1) * 0.1
+    # heading 0.1 rad left of a straight predicted path along +x at 10 m/s: v_lat = 10 sin 0.1 = 0.998 m/s
+    cur, pred = _one(0.1, 10.0, np.stack([10.0 * t, np.zeros(30)], -1))
+    out = apply_lateral_prior(pred, cur, horizon=1.5)
+    v_lat = 10.0 * np.sin(0.1)
+    np.testing.assert_allclose(out.mean[0, :, 1], v_lat * np.minimum(t, 1.5))  # 0.0998 m per 0.1 s, then held
+    np.testing.assert_array_equal(out.mean[0, :, 0], pred.mean[0, :, 0])  # progress along the path kept
+
+
+def test_lateral_prior_leaves_turning_standing_and_aligned_agents():
+    from sumo_ethics.predict.braking import apply_lateral_prior
+
+    t = (np.arange(30) + 1) * 0.1
+    # a left turn (path direction bends by 0.6 rad): the heading lags the chord, but no prior
+    ang = 0.2 * t
+    turn = np.stack([np.sin(ang) / 0.2 * 10.0, (1 - np.cos(ang)) / 0.2 * 10.0], -1)
+    cur, pred = _one(0.0, 10.0, turn)
+    assert apply_lateral_prior(pred, cur) is pred
+    cur, pred = _one(0.3, 0.5, np.stack([0.5 * t, np.zeros(30)], -1))  # too slow to count
+    assert apply_lateral_prior(pred, cur) is pred
+    cur, pred = _one(0.0, 10.0, np.stack([10.0 * t, np.zeros(30)], -1))  # no lateral speed
+    assert apply_lateral_prior(pred, cur) is pred

@@ -20,7 +20,7 @@ from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
 from sumo_ethics.plan.controller import Decision, Scene
 from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
-from sumo_ethics.predict.braking import apply_braking_prior
+from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior
 from sumo_ethics.sim.world import EgoCommand
 from sumo_ethics.types import Candidates, Observation, Prediction
 
@@ -53,12 +53,15 @@ class PlannerConfig:
     predictor_weights: str | None = None  # a weights file for the LSTM predictors (default: shipped)
     max_risk: float = 0.01
     braking_prior: float = 3.0
+    lateral_prior: float = 1.5
 
     def __post_init__(self) -> None:
         if self.predictor not in PREDICTORS:
             raise ConfigError(f"unknown predictor '{self.predictor}'; known: {', '.join(PREDICTORS)}")
         if not (isinstance(self.max_risk, (int, float)) and 0.0 < self.max_risk <= 1.0):
             raise ConfigError(f"max_risk must be in (0, 1], got {self.max_risk!r}")
+        if not (isinstance(self.lateral_prior, (int, float)) and 0.0 <= self.lateral_prior < 1e3):
+            raise ConfigError(f"lateral_prior must be a time >= 0 s (0 = off), got {self.lateral_prior!r}")
         if not (isinstance(self.braking_prior, (int, float)) and 0.0 <= self.braking_prior < 1e3):
             raise ConfigError(f"braking_prior must be a deceleration >= 0 m/s^2 (0 = off), got {self.braking_prior!r}")
 
@@ -181,6 +184,8 @@ class EthicalPlanner:
         pred = self.predictor.predict(obs, horizon_steps, sc.dt)
         if self.cfg.braking_prior > 0.0:
             pred = apply_braking_prior(pred, obs.current, self.cfg.braking_prior)
+        if self.cfg.lateral_prior > 0.0:
+            pred = apply_lateral_prior(pred, obs.current, horizon=self.cfg.lateral_prior)
         w1 = time.perf_counter()
         route = scene.route
         i = route.vertex_at(scene.s)

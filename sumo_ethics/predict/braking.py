@@ -50,3 +50,43 @@ def apply_braking_prior(pred: Prediction, current: AgentStates, threshold: float
         mean[n, :, 0] = np.interp(target[row], arc[row], path[row, :, 0])
         mean[n, :, 1] = np.interp(target[row], arc[row], path[row, :, 1])
     return Prediction(ids=pred.ids, dt=pred.dt, mean=mean, cov=pred.cov, yaw=pred.yaw)
+
+
+#: lateral speed [m/s] across a straight predicted path from which the lateral prior acts
+LATERAL_SPEED = 0.5
+
+
+def apply_lateral_prior(pred: Prediction, current: AgentStates, horizon: float = 1.5,
+                        min_speed: float = LATERAL_SPEED, max_bend: float = 0.1) -> Prediction:
+    """``pred`` with agents that move across their own straight predicted path kept moving so.
+
+    Learned models trained on lane-keeping traffic pull a car that drifts, cuts in or swerves
+    back onto its lane within a second. For an agent whose predicted path is straight (its
+    direction turns by less than ``max_bend`` [rad] over the horizon) while its heading carries a
+    lateral speed v_lat >= ``min_speed`` [m/s] across it, the mean is shifted across the path by
+    v_lat * min(t, horizon) [m] minus the lateral motion the model already predicts, so that the
+    agent keeps its lateral speed for ``horizon`` s and then keeps that offset. Agents turning
+    (curved path) or standing are left as predicted; covariances and headings are kept.
+    """
+    n, T = pred.mean.shape[:2]
+    if n == 0 or T < 2:
+        return pred
+    xy = current.xy
+    t = (np.arange(T) + 1) * pred.dt
+    chord = pred.mean[:, -1] - xy  # (N, 2) the model's overall direction
+    mid = pred.mean[:, T // 2] - xy
+    length = np.linalg.norm(chord, axis=-1)
+    u = chord / np.maximum(length, 1e-9)[:, None]
+    normal = np.stack([-u[:, 1], u[:, 0]], -1)  # left of the path
+    heading = np.stack([np.cos(current.yaw), np.sin(current.yaw)], -1)
+    v_lat = current.speed * np.einsum("ni,ni->n", heading, normal)  # (N,) m/s, + = leftwards
+    bend = np.abs(np.arctan2(u[:, 0] * mid[:, 1] - u[:, 1] * mid[:, 0], np.einsum("ni,ni->n", u, mid)))
+    act = (length > 1.0) & (bend < max_bend) & (np.abs(v_lat) >= min_speed) & (current.speed > 1.0)
+    if not act.any():
+        return pred
+    want = v_lat[act, None] * np.minimum(t, horizon)[None, :]  # (A, T) wanted lateral offset
+    have = np.einsum("ati,ai->at", pred.mean[act] - xy[act, None, :], normal[act])  # already predicted
+    extra = np.where(np.abs(want) > np.abs(have) * (np.sign(have) == np.sign(want)), want - have, 0.0)
+    mean = pred.mean.copy()
+    mean[act] += extra[..., None] * normal[act, None, :]
+    return Prediction(ids=pred.ids, dt=pred.dt, mean=mean, cov=pred.cov, yaw=pred.yaw)
