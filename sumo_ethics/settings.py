@@ -8,7 +8,7 @@ max_risk, braking_prior) with optional sub-tables ``[planner.sampling]``, ``[pla
 from __future__ import annotations
 
 import tomllib
-from dataclasses import fields
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -66,7 +66,9 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
             sampling["horizons"] = tuple(sampling["horizons"])
         probability = t.get("probability", {})
         _known(probability, {f.name for f in fields(ProbabilityConfig)}, "[planner.probability]")
-        return PlannerConfig(cost=cost, sampling=SamplingConfig(**sampling),
+        # unset grid keys keep the planner's own default grid (not SamplingConfig's bare defaults)
+        grid = replace(PlannerConfig().sampling, **sampling)
+        return PlannerConfig(cost=cost, sampling=grid,
                              probability=ProbabilityConfig(**probability),
                              predictor=t.get("predictor", "attention"), max_risk=t.get("max_risk", 0.01),
                              braking_prior=t.get("braking_prior", 3.0),

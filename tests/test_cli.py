@@ -143,6 +143,18 @@ def test_toml_settings_reach_the_run(tmp_path):
     assert planner["cost"]["utility"] == "literal" and planner["cost"]["weights"]["bayes"] == 0.0
     steps = pd.read_parquet(out / "steps.parquet")
     assert (steps.utility_literal == 1.0).all()
+    # grid keys not set keep the planner's default grid: 4 horizons x 15 x 17 + 3 brake profiles
+    assert planner["sampling"]["horizons"] == [1.0, 2.0, 3.0, 4.0] and planner["sampling"]["n_offsets"] == 17
+    assert steps.n_candidates.max() == 4 * 15 * 17 + 3
+
+
+def test_settings_keep_the_planners_default_grid():
+    from sumo_ethics.plan.ethical import PlannerConfig
+    from sumo_ethics.settings import planner_config
+
+    assert planner_config(None).sampling == PlannerConfig().sampling
+    grid = planner_config({"sampling": {"n_offsets": 5}}).sampling
+    assert grid.n_offsets == 5 and grid.horizons == PlannerConfig().sampling.horizons
 
 
 def test_detector_labels_merge():

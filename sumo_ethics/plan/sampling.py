@@ -67,7 +67,8 @@ class SamplingConfig:
     Lateral end offsets: ``n_offsets`` values evenly spaced over the drivable interval at the
     candidate's end station (see :func:`sample`), intersected with [-max_offset, max_offset];
     ``n_offsets == 1`` gives the point of that interval nearest the path (d = 0).
-    Default grid: 3 horizons x 15 x 23 = 1035 candidates (Origin: 1 x 15 x 15 = 225).
+    Bare defaults: 3 horizons x 15 x 23 = 1035 candidates (Origin: 1 x 15 x 15 = 225); the
+    planner's default grid is PlannerConfig's (4 horizons x 15 x 17 = 1020).
     """
 
     horizons: tuple[float, ...] = (2.0, 3.0, 4.0)  # s

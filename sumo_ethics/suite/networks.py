@@ -7,7 +7,7 @@ junction_tls    signalised 4-way junction ``C`` at (0, 0), arms of 100 m, one 3.
                 direction, 13.89 m/s, 2 m sidewalks, crosswalks on all arms
 junction_prio   the same junction unsignalised: W-E is the priority road, zebra crossings
 roundabout      4-arm single-lane roundabout (ring radius 22 m), arms of 100 m, crosswalks
-rural           450 m two-lane rural road (3.5 m lanes, 22.22 m/s, one gentle bend), cyclists
+rural           450 m two-lane rural road (3.5 m lanes, 22.22 m/s, one gentle bend)
 multilane       3-lane carriageway (3.75 m, 27.78 m/s), 500 m, on-ramp with acceleration lane
 narrow          180 m narrow street (3.0 m lanes, 8.33 m/s, 1.5 m sidewalks), parked cars
 ==============  ===========================================================================
