@@ -65,6 +65,9 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
                              predictor=predictor, predictor_weights=predictor_weights)
 
     out = out or Path("runs") / f"{scenario.stem}-seed{seed}"
+    if (scenario.parent / "hazards.json").is_file():  # a suite scenario: run does not inject hazards
+        click.echo(f"note: {scenario.parent / 'hazards.json'} is not used by 'run' (no hazards, your ego); "
+                   f"'sumo-ethics evaluate {scenario.parent}' runs the scenario as the suite defines it", err=True)
     cfg = RunConfig(scenario=scenario, out=out, seed=seed, end=end, ego_id=ego_id, ego_from=ego_from, ego_to=ego_to,
                     ego_depart=ego_depart, stop_at_collision=not continue_after_collision, controller=controller,
                     sensing_radius=radius, progress=not quiet, planner=planner)

@@ -15,6 +15,7 @@ from sumo_ethics.suite.spec import HazardSpec, ScenarioSpec, load
 
 ROOT = Path(__file__).resolve().parent.parent
 TESTBED = ROOT / "scenarios" / "testbed" / "testbed.sumocfg"
+SUITE = ROOT / "scenarios" / "suite"
 
 
 # ---- generator ------------------------------------------------------------------------------
@@ -251,3 +252,10 @@ def test_hazard_vehicle_over_a_crosswalk_does_not_crash_sumo(tmp_path):
     row = json.loads(r.stdout.strip().splitlines()[-1])
     # the ego took over at t = 39.2 s: past the crash instant means more than 92 steps
     assert row["status"] in ("completed", "collision", "timeout") and row["steps"] > 92, row
+
+
+def test_a_scenario_folder_is_a_suite_of_one():
+    from sumo_ethics.suite.spec import load_suite
+
+    specs = load_suite(SUITE / "s0027")
+    assert [s.name for s in specs] == ["s0027"] and specs[0].folder == SUITE / "s0027"

@@ -267,10 +267,13 @@ def load(path: Path) -> ScenarioSpec:
 
 
 def load_suite(suite: Path) -> list[ScenarioSpec]:
-    """Every scenario of a suite folder (sub-folders holding a hazard file), sorted by name."""
+    """Every scenario of a suite folder (sub-folders holding a hazard file), sorted by name; a
+    single scenario's folder (holding the hazard file itself) is a suite of one."""
     suite = Path(suite)
     if not suite.is_dir():
         raise ConfigError(f"suite folder not found: {suite}")
+    if (suite / HAZARD_FILE).is_file():
+        return [load(suite)]
     files = sorted(suite.glob(f"*/{HAZARD_FILE}"))
     if not files:
         raise ConfigError(f"no scenarios in {suite}: expected sub-folders with {HAZARD_FILE}")
