@@ -590,7 +590,8 @@ class LocalPool:
 
         self.workers = workers
         self.ctx = mp.get_context("forkserver")
-        self.ctx.set_forkserver_preload(["sumo_ethics.sweep", "sumo_ethics.runner", "sumo_ethics.plan.ethical"])
+        self.ctx.set_forkserver_preload(["sumo_ethics._worker_signals", "sumo_ethics.sweep", "sumo_ethics.runner",
+                                         "sumo_ethics.plan.ethical"])
         self.jobs: list[RunProcess] = []
 
     def submit(self, spec: dict[str, Any], runs_dir: str) -> RunProcess:
