@@ -1,7 +1,7 @@
-"""Imported only by the sweep's forkserver (never by a main process): every run process forked
-from it ignores Ctrl-C (SIGINT) from its first instruction. A terminal's Ctrl-C reaches the whole
-process group; the parent owns cancellation and terminates its runs, whereas a SIGINT landing in
-a run process still starting up would print multiprocessing's traceback."""
+"""Imported only by the sweep's and the evaluation's forkservers (never by a main process):
+every run process forked from them ignores Ctrl-C (SIGINT) from its first instruction. A
+terminal's Ctrl-C reaches the whole process group; the parent owns cancellation and terminates
+its runs, whereas a SIGINT landing in a run process printed a traceback."""
 
 import signal
 

@@ -259,3 +259,36 @@ def test_a_scenario_folder_is_a_suite_of_one():
 
     specs = load_suite(SUITE / "s0027")
     assert [s.name for s in specs] == ["s0027"] and specs[0].folder == SUITE / "s0027"
+
+
+def test_ctrl_c_stops_an_evaluation_without_tracebacks_and_resumes(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    suite = tmp_path / "suite"
+    suite.mkdir()
+    (suite / "networks").symlink_to(SUITE / "networks")
+    for name in ("s0000", "s0001", "s0002"):
+        (suite / name).symlink_to(SUITE / name)
+    out = tmp_path / "ev"
+    args = [sys.executable, "-m", "sumo_ethics.cli", "evaluate", str(suite), "--planner", "origin",
+            "--planner", "baseline", "--workers", "2", "--quiet", "--out", str(out)]
+    proc = subprocess.Popen(args, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        runs = out / "runs" / "origin"
+        if runs.exists() and any(runs.iterdir()):
+            break
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)  # a terminal's Ctrl-C: the evaluation and its run processes
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "Traceback" not in err and err.strip().splitlines()[-1].startswith("error:")
+    r = subprocess.run(args + ["--resume"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    import pandas as pd
+
+    res = pd.read_csv(out / "results.csv")
+    assert len(res) == 6 and set(res.status) <= {"completed", "collision", "timeout"}

@@ -180,7 +180,11 @@ def _first_victim(out: Path) -> str:
 # ---- many runs --------------------------------------------------------------------------
 def _child(conn: Any, args: tuple) -> None:
     try:
-        conn.send(run_one(*args))
+        row = run_one(*args)
+        try:
+            conn.send(row)
+        except OSError:  # the evaluation was interrupted and is gone; the run folder holds the run
+            pass
     finally:
         conn.close()
 
@@ -251,7 +255,7 @@ def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, wor
         else:
             todo.append(t)
     ctx = mp.get_context("forkserver")
-    ctx.set_forkserver_preload(["sumo_ethics.suite.preload"])
+    ctx.set_forkserver_preload(["sumo_ethics._worker_signals", "sumo_ethics.suite.preload"])
     running: dict[Any, tuple[Any, tuple]] = {}
     try:
         while todo or running:
@@ -259,9 +263,9 @@ def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, wor
                 t = todo.pop(0)
                 recv, send = ctx.Pipe(duplex=False)
                 proc = ctx.Process(target=_child, args=(send, t), daemon=True)
+                running[recv] = (proc, t)  # before start: an interrupt during start still stops it
                 proc.start()
                 send.close()
-                running[recv] = (proc, t)
             for conn in wait(list(running)):
                 proc, t = running.pop(conn)
                 try:
@@ -274,8 +278,9 @@ def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, wor
                 done(row)
     finally:
         for conn, (proc, _) in running.items():
-            proc.kill()
-            proc.join()
+            if proc.pid is not None:  # started
+                proc.kill()
+                proc.join()
     order = {(Path(s).name, p.name): i for i, (s, p, _) in enumerate(tasks)}
     rows.sort(key=lambda r: order[(r["scenario"], r["planner"])])
     return rows
