@@ -178,6 +178,10 @@ def build_route_path(edges: tuple[str, ...], start_lane: str, vclass: str,
     xy = np.vstack(pts)
     keep = np.ones(len(xy), dtype=bool)
     keep[1:] = np.hypot(*np.diff(xy, axis=0).T) > 1e-6
+    # a lane's first point repeats the previous lane's last one and is dropped; the point kept
+    # there starts the new lane's first segment, so it takes the new lane's label and values
+    for j in np.flatnonzero(~keep)[::-1]:
+        lane_ids[j - 1], vmax[j - 1], bounds[j - 1] = lane_ids[j], vmax[j], bounds[j]
     raw = Polyline.from_points(xy[keep])
     path, raw_s = smooth_path(raw)
     vertex = np.clip(np.searchsorted(raw.s, raw_s, side="right") - 1, 0, len(raw.s) - 1)  # raw vertex per new one
