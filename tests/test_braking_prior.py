@@ -77,3 +77,39 @@ def test_lateral_prior_leaves_turning_standing_and_aligned_agents():
     assert apply_lateral_prior(pred, cur) is pred
     cur, pred = _one(0.0, 10.0, np.stack([10.0 * t, np.zeros(30)], -1))  # no lateral speed
     assert apply_lateral_prior(pred, cur) is pred
+
+
+def test_lateral_prior_leaves_gentle_curves_and_predicted_drifts():
+    from sumo_ethics.predict.braking import apply_lateral_prior
+
+    t = (np.arange(40) + 1) * 0.1
+    # 30 m/s on a 400 m radius, heading along the arc's tangent: a curve, not a drift
+    ang = 30.0 * t / 400.0
+    arc = np.stack([400.0 * np.sin(ang), 400.0 * (1 - np.cos(ang))], -1)
+    cur, pred = _one(0.0, 30.0, arc)
+    assert apply_lateral_prior(pred, cur) is pred
+    # a gentler curve (total turn 0.08 rad < 0.1): straight enough, and still no lateral speed
+    ang = 0.02 * t
+    arc = np.stack([np.sin(ang) / 0.02 * 10.0, (1 - np.cos(ang)) / 0.02 * 10.0], -1)
+    cur, pred = _one(0.0, 10.0, arc)
+    assert np.abs(apply_lateral_prior(pred, cur).mean - pred.mean).max() < 1e-9
+    # the model already predicts the drift (1 m/s to the left for 1.5 s, then along): unchanged
+    v_lat = 10.0 * np.sin(0.1)
+    drift = np.stack([10.0 * np.cos(0.1) * t, v_lat * np.minimum(t, 1.5)], -1)
+    cur, pred = _one(0.1, 10.0, drift)
+    assert np.abs(apply_lateral_prior(pred, cur).mean - pred.mean).max() < 0.05
+
+
+def test_braking_after_lateral_stops_the_sideways_motion_too():
+    from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior
+
+    t = (np.arange(30) + 1) * 0.1
+    cur, pred = _one(0.2, 5.0, np.stack([5.0 * t, np.zeros(30)], -1))
+    cur = AgentStates(cur.ids, cur.x, cur.y, cur.yaw, cur.speed, np.array([-9.0]), cur.length, cur.width, cur.mass,
+                      cur.cls)
+    out = apply_braking_prior(apply_lateral_prior(pred, cur), cur)
+    stop = int(np.ceil(5.0 / 9.0 / 0.1))  # stands after 0.56 s
+    assert np.abs(out.mean[0, stop:] - out.mean[0, stop]).max() < 1e-9  # no sliding once stopped
+    assert out.mean[0, -1, 1] > 0.1  # it did move left while braking
+    # it stands v^2 / 2a = 1.389 m along its (slightly bent) path from where it was
+    assert np.hypot(*out.mean[0, -1]) == pytest.approx(25.0 / 18.0, abs=0.01)

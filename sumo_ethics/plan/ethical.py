@@ -182,10 +182,10 @@ class EthicalPlanner:
         obs = scene.history
         agents = scene.others
         pred = self.predictor.predict(obs, horizon_steps, sc.dt)
+        if self.cfg.lateral_prior > 0.0:  # first: a car braking to a stand also stops moving sideways
+            pred = apply_lateral_prior(pred, obs.current, horizon=self.cfg.lateral_prior)
         if self.cfg.braking_prior > 0.0:
             pred = apply_braking_prior(pred, obs.current, self.cfg.braking_prior)
-        if self.cfg.lateral_prior > 0.0:
-            pred = apply_lateral_prior(pred, obs.current, horizon=self.cfg.lateral_prior)
         w1 = time.perf_counter()
         route = scene.route
         i = route.vertex_at(scene.s)

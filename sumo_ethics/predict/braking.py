@@ -61,27 +61,30 @@ def apply_lateral_prior(pred: Prediction, current: AgentStates, horizon: float =
     """``pred`` with agents that move across their own straight predicted path kept moving so.
 
     Learned models trained on lane-keeping traffic pull a car that drifts, cuts in or swerves
-    back onto its lane within a second. For an agent whose predicted path is straight (its
-    direction turns by less than ``max_bend`` [rad] over the horizon) while its heading carries a
-    lateral speed v_lat >= ``min_speed`` [m/s] across it, the mean is shifted across the path by
-    v_lat * min(t, horizon) [m] minus the lateral motion the model already predicts, so that the
-    agent keeps its lateral speed for ``horizon`` s and then keeps that offset. Agents turning
-    (curved path) or standing are left as predicted; covariances and headings are kept.
+    back onto its lane within a second. The predicted path's start direction is that of the
+    circular arc through the agent, its mid-horizon and its last predicted point; the path
+    counts as straight when that arc turns by less than ``max_bend`` [rad]. If the agent's
+    heading then carries a lateral speed v_lat >= ``min_speed`` [m/s] across the start
+    direction, the mean is shifted across it to v_lat * min(t, horizon) [m] where the model
+    predicts less lateral motion that way, so that the agent keeps its lateral speed for
+    ``horizon`` s and then keeps that offset. Apply it before the braking prior, which then
+    also stops the sideways motion of a car braking to a stand. Agents turning, standing or
+    aligned with their path are left as predicted; covariances and headings are kept.
     """
     n, T = pred.mean.shape[:2]
     if n == 0 or T < 2:
         return pred
     xy = current.xy
     t = (np.arange(T) + 1) * pred.dt
-    chord = pred.mean[:, -1] - xy  # (N, 2) the model's overall direction
+    chord = pred.mean[:, -1] - xy  # (N, 2) to the last predicted point
     mid = pred.mean[:, T // 2] - xy
     length = np.linalg.norm(chord, axis=-1)
-    u = chord / np.maximum(length, 1e-9)[:, None]
-    normal = np.stack([-u[:, 1], u[:, 0]], -1)  # left of the path
-    heading = np.stack([np.cos(current.yaw), np.sin(current.yaw)], -1)
-    v_lat = current.speed * np.einsum("ni,ni->n", heading, normal)  # (N,) m/s, + = leftwards
-    bend = np.abs(np.arctan2(u[:, 0] * mid[:, 1] - u[:, 1] * mid[:, 0], np.einsum("ni,ni->n", u, mid)))
-    act = (length > 1.0) & (bend < max_bend) & (np.abs(v_lat) >= min_speed) & (current.speed > 1.0)
+    # signed angle chord -> mid-chord: -1/4 of an arc's total turn; start tangent = chord + 2x it
+    bend = np.arctan2(chord[:, 0] * mid[:, 1] - chord[:, 1] * mid[:, 0], np.einsum("ni,ni->n", chord, mid))
+    start = np.arctan2(chord[:, 1], chord[:, 0]) + 2.0 * bend
+    normal = np.stack([-np.sin(start), np.cos(start)], -1)  # left of the start direction
+    v_lat = current.speed * np.sin(current.yaw - start)  # (N,) m/s, + = leftwards
+    act = (length > 1.0) & (4.0 * np.abs(bend) < max_bend) & (np.abs(v_lat) >= min_speed) & (current.speed > 1.0)
     if not act.any():
         return pred
     want = v_lat[act, None] * np.minimum(t, horizon)[None, :]  # (A, T) wanted lateral offset
