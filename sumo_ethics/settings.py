@@ -1,7 +1,7 @@
 """Planner settings from the command line and TOML files, validated before SUMO starts.
 
 A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, predictor,
-max_risk, braking_prior) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
+predictor_weights, max_risk, braking_prior, lateral_prior) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
 ``[planner.principles]`` (custom J_origin weights); unknown keys are errors.
 """
 
@@ -60,7 +60,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
         utility = t.get("utility", UtilityMode.CANDIDATE_MEAN.value)
         cost = CostConfig(weights=weights, omega_o=_weight("omega_o", t.get("omega_o", 1.0)),
                           omega_u=_weight("omega_u", t.get("omega_u", DEFAULT_OMEGA_U)), utility=utility)
-        sampling = t.get("sampling", {})
+        sampling = dict(t.get("sampling", {}))  # the caller's table stays as it was
         _known(sampling, {f.name for f in fields(SamplingConfig)}, "[planner.sampling]")
         if "horizons" in sampling:
             sampling["horizons"] = tuple(sampling["horizons"])

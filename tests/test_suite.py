@@ -69,6 +69,7 @@ def _bad(tmp_path: Path, data) -> Path:
     (lambda d: d["hazards"][0].update(anchor={"pos": 3}) or d, "needs exactly one of edge"),
     (lambda d: d["ego"].update(depart=40) or d, "must be after depart"),
     (lambda d: d.pop("ego") and d, "lacks ego"),
+    (lambda d: d["hazards"][0].update(params={"speed": 0}) or d, "params.speed must be positive"),
 ])
 def test_invalid_hazard_file_is_a_clear_error(tmp_path, mutate, message):
     data = mutate(json.loads(json.dumps(GOOD)))

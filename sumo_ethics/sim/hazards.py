@@ -4,8 +4,8 @@ A :class:`HazardInjector` is called once per step, before the ego's command is a
 the controller's :class:`~sumo_ethics.plan.controller.Scene`. Each hazard (a
 :class:`~sumo_ethics.suite.spec.HazardSpec`) waits for its spawn/trigger condition, measured
 from the ego's front bumper along the ego's reference path, then drives its actor
-kinematically: a pose is commanded every step with ``moveToXY`` (keepRoute 2|4: exact pose,
-lane permissions ignored), so the actor is exactly where the hazard says, whatever SUMO's
+kinematically: a pose is commanded every step with ``moveToXY`` (exact pose; see the _KEEP_*
+flags for which lanes SUMO may file it on), so the actor is exactly where the hazard says, whatever SUMO's
 own models would do. Positions are Frenet (s, d) on the ego's path, or a straight line
 across it (red-light runner). Every spawn, trigger and removal is logged in ``events``
 with the actor's pose, so tests and analyses can check where each actor was.
@@ -121,6 +121,10 @@ class HazardInjector:
                 st.phase = "missed"
                 self._log(scene.time, st, "missed", ego_front, float(scene.ego.speed[0]),
                           message="anchor behind the ego at takeover")
+            elif st.spec.type == "parked" and _on_junction(scene.route, st.anchor_s - 2.5, st.anchor_s + 2.5):
+                st.phase = "missed"
+                self._log(scene.time, st, "skipped", ego_front, float(scene.ego.speed[0]),
+                          message="no car parks on a junction")
             elif st.spec.type == "parked":
                 st.actor = self._parked(scene, st, st.anchor_s, st.spec.params["side"], st.spec.params["intrusion"],
                                         st.spec.params["vtype"], st.spec.id)
@@ -304,7 +308,7 @@ class HazardInjector:
             a.s, a.d, a.v = st.anchor_s, p["lane_offset"], -p["speed"]
         elif kind == "cyclist_swerve":  # placed so that the ego comes up to it at the anchor
             eta = max(st.anchor_s - ego_front, 0.0) / max(v_ego, 1.0)
-            a.s = min(st.anchor_s, max(st.anchor_s - p["speed"] * eta, ego_front + 15.0 + a.length / 2.0))
+            a.s = max(st.anchor_s - p["speed"] * eta, ego_front + 15.0 + a.length / 2.0)  # never on the ego
             a.d, a.v = p["offset"], p["speed"]
         elif kind == "red_light_runner":
             px, py, h = (float(v) for v in route.path.to_xy(np.array(st.anchor_s), np.array(0.0)))

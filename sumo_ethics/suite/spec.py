@@ -56,6 +56,9 @@ HAZARD_TYPES: dict[str, dict[str, Any]] = {
     # a parked vehicle at the kerb (a static obstacle, no trigger)
     "parked": {"side": "right", "intrusion": 0.3, "vtype": "car"},
 }
+#: numeric parameters that must be > 0 (divided by) and >= 0 (durations, distances, speeds)
+POSITIVE = {"duration", "decel", "speed"}
+NON_NEGATIVE = {"hold", "gap", "swerve", "drift", "lane_offset", "speed_ratio"}
 TRIGGERS = ("distance", "ttc", "gap", "gap_ttc")
 VTYPES = ("car", "truck", "bus", "motorcycle", "bicycle", "ped")
 
@@ -161,6 +164,10 @@ class HazardSpec:
                     raise ConfigError(f"{where}.params.{k} must be one of {', '.join(ok)}, got {v!r}")
             else:
                 v = _num(f"{where}.params.{k}", v, -100.0, 1000.0)
+                if k in POSITIVE and v <= 0:
+                    raise ConfigError(f"{where}.params.{k} must be positive, got {v:g}")
+                if k in NON_NEGATIVE and v < 0:
+                    raise ConfigError(f"{where}.params.{k} must not be negative, got {v:g}")
             params[k] = v
         return cls(hid, kind, anchor, tk, tv, spawn, params)
 
