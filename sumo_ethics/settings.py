@@ -66,15 +66,12 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
             sampling["horizons"] = tuple(sampling["horizons"])
         probability = t.get("probability", {})
         _known(probability, {f.name for f in fields(ProbabilityConfig)}, "[planner.probability]")
-        # unset grid keys keep the planner's own default grid (not SamplingConfig's bare defaults)
+        # keys not set keep PlannerConfig's own defaults (its grid, not SamplingConfig's bare one)
         grid = replace(PlannerConfig().sampling, **sampling)
-        return PlannerConfig(cost=cost, sampling=grid,
-                             probability=ProbabilityConfig(**probability),
-                             predictor=t.get("predictor", "attention"), max_risk=t.get("max_risk", 0.01),
-                             braking_prior=t.get("braking_prior", 3.0),
-                             lateral_prior=t.get("lateral_prior", 1.5),
-                             predictor_weights=None if t.get("predictor_weights") is None
-                             else str(t["predictor_weights"]))
+        given = {k: t[k] for k in ("predictor", "max_risk", "braking_prior", "lateral_prior") if k in t}
+        if t.get("predictor_weights") is not None:
+            given["predictor_weights"] = str(t["predictor_weights"])
+        return PlannerConfig(cost=cost, sampling=grid, probability=ProbabilityConfig(**probability), **given)
     except ConfigError:
         raise
     except (TypeError, ValueError) as exc:

@@ -41,7 +41,8 @@ class PlannerConfig:
     max_risk: a candidate is "safe" when its largest risk against any party (ego's plus the
     other's) stays below this [-]; predictor: "attention", "cslstm" or "cv" (constant velocity);
     braking_prior: agents decelerating at least this hard [m/s^2] are predicted to keep braking
-    until they stand (``sumo_ethics.predict.braking``); 0 turns the prior off.
+    until they stand; lateral_prior: agents moving across their straight predicted path keep
+    their lateral speed for this long [s] (both ``sumo_ethics.predict.braking``; 0 = off).
     """
 
     cost: CostConfig = field(default_factory=CostConfig)
