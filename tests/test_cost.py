@@ -71,15 +71,23 @@ def test_toy_case_every_term_by_hand():
     #   = 8325 * 0.2060466176 + 1 + 5 = 1715.33809152 + 6 = 1721.33809152
     #   | 8325 * 0.1634765625 + 2 + 20 = 1360.9423828125 + 22 = 1382.9423828125
     np.testing.assert_allclose(c["j_origin"], [1721.33809152, 1382.9423828125])
-    # J(s) = 0.40 | 0.59; candidate mean 0.495: candidate 0 below -> J_utility 0, candidate 1 -> 0.59
+    # J(s) = 0.40 | 0.59; candidate mean 0.495: candidate 0 below -> J_utility 0, candidate 1 ->
+    # utility_scale x 0.59 = 1e4 x 0.59 = 5900
     np.testing.assert_allclose(c["j_total_risk"], [0.40, 0.59])
     np.testing.assert_allclose(c["j_mean"], [0.495, 0.495])
-    np.testing.assert_allclose(c["j_utility"], [0.0, 0.59])
-    # J_risk = 1 * J_origin + 1000 * J_utility (the default w_u) = 1721.33809152 | 1382.9423828125 + 590
-    # = 1972.9423828125: the utility term turns the choice to candidate 0
-    np.testing.assert_allclose(c["j_risk"], [1721.33809152, 1972.9423828125])
+    np.testing.assert_allclose(c["j_utility"], [0.0, 5900.0])
+    # J_risk = 1 * J_origin + 0.5 * J_utility (the default w_u) = 1721.33809152 | 1382.9423828125 + 2950
+    # = 4332.9423828125: the utility term turns the choice to candidate 0
+    np.testing.assert_allclose(c["j_risk"], [1721.33809152, 4332.9423828125])
     # VRU risk: agent 1 is vulnerable: other_risk[:, 1] = 0 | 0.01
     np.testing.assert_allclose(c["vru_risk_sum"], [0.0, 0.01])
+    # ex-ante risk maxima over parties: ego max(0.10, 0) | max(0.02, 0.04); third party 0.30 | 0.02;
+    # VRU (agent 1 only) 0 | 0.01
+    np.testing.assert_allclose(c["ego_risk_max"], [0.10, 0.04])
+    np.testing.assert_allclose(c["other_risk_max"], [0.30, 0.02])
+    np.testing.assert_allclose(c["vru_risk_max"], [0.0, 0.01])
+    # nobody flagged as a rule breaker: responsibility = other risk / N = 0.30 / 2 | 0.03 / 2
+    np.testing.assert_allclose(c["responsibility"], [0.15, 0.015])
     assert set(TERMS) == set(c)
 
 
@@ -87,21 +95,40 @@ def test_toy_case_feasible_pool_literal_mode_and_presets():
     # Only candidate 0 feasible: J_mean = 0.40, candidate 0 sits on the mean (not penalised), 1 is above.
     c = score(TOY_CAND, TOY_RISK, CostConfig(), 10.0, feasible=np.array([True, False])).terms
     np.testing.assert_allclose(c["j_mean"], [0.40, 0.40])
-    np.testing.assert_allclose(c["j_utility"], [0.0, 0.59])
+    np.testing.assert_allclose(c["j_utility"], [0.0, 5900.0])
     # Literal: J_mean = J / (N + 1) = 0.40 / 3 | 0.59 / 3, always below J > 0 -> J_utility = J.
     lit = score(TOY_CAND, TOY_RISK, CostConfig(utility=UtilityMode.LITERAL), 10.0).terms
     np.testing.assert_allclose(lit["j_mean"], [0.40 / 3, 0.59 / 3])
-    np.testing.assert_allclose(lit["j_utility"], [0.40, 0.59])
+    np.testing.assert_allclose(lit["j_utility"], [4000.0, 5900.0])
     # "standard": principles 0 -> J_origin = progress + 10 lateral = 1 + 5 = 6 | 2 + 20 = 22.
     std = score(TOY_CAND, TOY_RISK, CostConfig(weights="standard"), 10.0).terms
     np.testing.assert_allclose(std["j_origin"], [6.0, 22.0])
     # "ego": 250 * 100 * Ego + ... = 25000 * 0.1 + 6 = 2506 | 25000 * 0.56 + 22 = 14022.
     ego = score(TOY_CAND, TOY_RISK, CostConfig(weights=PrincipleWeights.preset("ego")), 10.0).terms
     np.testing.assert_allclose(ego["j_origin"], [2506.0, 14022.0])
-    # omega_o = 0: J_risk = 0.5 * J_utility = 0 | 0.295.
+    # omega_o = 0: J_risk = 0.5 * 1e4 * J_utility = 0 | 2950.
     only_u = score(TOY_CAND, TOY_RISK, CostConfig(omega_o=0.0, omega_u=0.5), 10.0)
-    np.testing.assert_allclose(only_u.total, [0.0, 0.295])
-    assert only_u.row(1)["j_risk"] == pytest.approx(0.295)
+    np.testing.assert_allclose(only_u.total, [0.0, 2950.0])
+    assert only_u.row(1)["j_risk"] == pytest.approx(2950.0)
+    # "bayes": 250 * 100 * B + 6 = 2506 | 25000 * 0.1475 + 22 = 3709.5;
+    # "maximin": 25000 * 0.6^10 + 6 = 157.16544 | 25000 * 0.5^10 + 22 = 46.4140625
+    bay = score(TOY_CAND, TOY_RISK, CostConfig(weights="bayes"), 10.0).terms
+    np.testing.assert_allclose(bay["j_origin"], [2506.0, 3709.5])
+    mm = score(TOY_CAND, TOY_RISK, CostConfig(weights="maximin"), 10.0).terms
+    np.testing.assert_allclose(mm["j_origin"], [157.16544, 46.4140625])
+
+
+def test_responsibility_counts_only_risk_on_rule_abiding_parties():
+    # agent 0 broke a rule: only agent 1's risk counts: 0 / 2 | 0.01 / 2 = 0.005
+    r = risk_terms(TOY_RISK.ego_risk, TOY_RISK.other_risk, TOY_RISK.ego_harm_max, TOY_RISK.other_harm_max,
+                   [0.0, 0.5], [False, True])
+    r = RiskTerms.from_risks(r.ego_risk, r.other_risk, r.ego_harm_max, r.other_harm_max, r.boundary_harm,
+                             r.vulnerable, 3, rule_breaker=[True, False])
+    w = PrincipleWeights(bayes=0.0, equality=0.0, maximin=0.0, responsibility=100.0)
+    c = score(TOY_CAND, r, CostConfig(weights=w), 10.0).terms
+    np.testing.assert_allclose(c["responsibility"], [0.0, 0.005])
+    # J_origin = 250 * 100 * R + progress + 10 lateral = 0 + 6 | 125 + 22
+    np.testing.assert_allclose(c["j_origin"], [6.0, 147.0])
 
 
 def test_no_agents_gives_boundary_terms_only():
@@ -136,7 +163,7 @@ def test_utility_zero_below_mean_and_argmin_never_above_mean():
         J, Jm, Ju = c.terms["j_total_risk"], c.terms["j_mean"], c.terms["j_utility"]
         pool = feasible if feasible.any() else np.ones(K, bool)
         assert np.allclose(Jm, J[pool].mean())
-        np.testing.assert_array_equal(Ju, np.where(J > Jm * (1 + 1e-9), J, 0.0))
+        np.testing.assert_array_equal(Ju, np.where(J > Jm * (1 + 1e-9), 1e4 * J, 0.0))
         best = np.flatnonzero(pool)[np.argmin(c.total[pool])]
         assert J[best] <= J[pool].mean() * (1 + 1e-9)
 
@@ -150,7 +177,7 @@ def test_tied_candidates_are_not_penalised_by_rounding():
 
 # ------------------------------------------------------------------ configs
 def test_unknown_preset_lists_the_known_ones():
-    with pytest.raises(ValueError, match="known presets: ego, ethical, standard"):
+    with pytest.raises(ValueError, match="known presets: bayes, ego, ethical, maximin, responsible, standard"):
         PrincipleWeights.preset("utilitarian")
     with pytest.raises(ValueError, match="known presets"):
         CostConfig(weights="nope")

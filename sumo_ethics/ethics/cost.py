@@ -11,7 +11,11 @@ boundary harm b (K,) from :class:`~sumo_ethics.ethics.risk.RiskTerms`:
   5 m gate or below ``p_min``) contributes nothing. (Origin keeps harms only where the risk is
   below 1e-9, the opposite of its comment; not copied.)
 - Ego ``Ego = sum_n ego_risk + b``;
-- ``J_origin = w_risk (w_B B + w_E E + w_M M + w_ego Ego) + w_v |v_desired - mean v| + w_d mean |d|``,
+- Responsibility ``R = sum_n (1 - breaks_rules_n) other_risk_n / N``: the risk the candidate puts on
+  road users who keep the rules (``RiskTerms.rule_breaker``; see :mod:`sumo_ethics.sim.rules`), so
+  risk put on a rule-abiding party costs more than the same risk put on one who broke a rule
+  (Origin's fifth principle, with the simulation's rule knowledge instead of reachable sets);
+- ``J_origin = w_risk (w_B B + w_E E + w_M M + w_ego Ego + w_R R) + w_v |v_desired - mean v| + w_d mean |d|``,
   means over the candidate's valid steps;
 - ``J(s) = sum_n ego_risk + sum_n other_risk + b``: leaving the road is an ego risk with
   probability 1, as in Bayes and Ego;
@@ -20,9 +24,17 @@ boundary harm b (K,) from :class:`~sumo_ethics.ethics.risk.RiskTerms`:
   ``J / N_r`` with N_r = N + 1 parties (the ego and the N agents);
 - ``J_utility = 0 if J <= J_mean else J`` (J counts as <= J_mean within a relative 1e-9, so
   candidates tied at the mean are not penalised by rounding);
+- ``J_utility`` is charged in cost units: ``utility_scale`` (default 1e4) per unit of J, so that
+  omega_u in [0, 1] spans "off" to "dominant" (w_u = 1 prices an above-average risk at 10,000
+  per unit, 2.4x what J_origin's Bayes term charges for the same risk against one neighbour,
+  250 x 33.3 / 2 = 4,163, and more with more neighbours since Bayes divides by 2N);
 - ``J_risk = omega_o J_origin + omega_u J_utility``, the total that selection minimises.
 
-With N = 0: B = b, E = 0, M = b ** exponent, Ego = J = b.
+Ex-ante risk of each candidate per class (recorded for the chosen one): ``ego_risk_sum/max``,
+``other_risk_sum/max`` (third parties) and ``vru_risk_sum/max`` (the VRUs among them), sums and
+maxima over the parties.
+
+With N = 0: B = b, E = 0, R = 0, M = b ** exponent, Ego = J = b.
 """
 
 from __future__ import annotations
@@ -46,7 +58,7 @@ _TIE_RTOL = 1e-9
 class PrincipleWeights:
     """Weights of J_origin; defaults are Origin's "ethical" set.
 
-    bayes, equality, maximin, ego: weights of the four principles [-]; risk: factor on their
+    bayes, equality, maximin, ego, responsibility: weights of the five principles [-]; risk: factor on their
     weighted sum [-]; velocity: per m/s of |v_desired - mean v| [1/(m/s)]; lateral: per m of
     mean |d| [1/m].
     """
@@ -55,6 +67,7 @@ class PrincipleWeights:
     equality: float = 33.3
     maximin: float = 33.3
     ego: float = 0.0
+    responsibility: float = 0.0
     risk: float = 250.0
     velocity: float = 1.0
     lateral: float = 10.0
@@ -74,13 +87,18 @@ class PrincipleWeights:
             ) from None
 
 
-#: Named weight sets. "ethical": Origin's. "standard": Origin's with every principle 0, so risk is
-#: ignored (``risk`` keeps 250 but multiplies zero). "ego": only the ego principle, at 100 = about
-#: the sum of the ethical principle weights (99.9), so the risk scale matches "ethical".
+#: Named weight sets. "ethical": Origin's (responsibility 0, as in Origin's "ethical" file).
+#: "standard": Origin's with every principle 0, so risk is ignored (``risk`` keeps 250 but
+#: multiplies zero). "ego", "bayes", "maximin": one principle alone at 100 = about the sum of the
+#: ethical principle weights (99.9), so the risk scale matches "ethical". "responsible": the
+#: ethical weights plus responsibility 33.3.
 PRESETS: dict[str, PrincipleWeights] = {
     "ethical": PrincipleWeights(),
     "standard": PrincipleWeights(bayes=0.0, equality=0.0, maximin=0.0, ego=0.0),
     "ego": PrincipleWeights(bayes=0.0, equality=0.0, maximin=0.0, ego=100.0),
+    "bayes": PrincipleWeights(bayes=100.0, equality=0.0, maximin=0.0, ego=0.0),
+    "maximin": PrincipleWeights(bayes=0.0, equality=0.0, maximin=100.0, ego=0.0),
+    "responsible": PrincipleWeights(responsibility=33.3),
 }
 
 
@@ -91,11 +109,11 @@ class UtilityMode(enum.Enum):
     LITERAL = "literal"  # J / N_r, N_r = number of parties (ego + N agents)
 
 
-#: default w_u. J_origin weighs a unit of risk by w_risk x w_B / (2N) = 250 x 33.3 / 2 ~ 4000 for
-#: one neighbour (its Bayes term alone) while J_utility is the plain risk sum: at w_u = 0.5 the
-#: utility term is ~1e4 times too small to change any choice. 1000 puts it on that scale; on the
-#: suite's 55 hardest scenarios 1e3, 1e4 and 1e5 gave identical runs (README, "Scenario suite").
-DEFAULT_OMEGA_U = 1000.0
+#: default w_u (the paper's sense: a weight in [0, 1]); J_utility is charged UTILITY_SCALE per
+#: unit of risk, so w_u = 0.5 charges an above-average risk 5,000 per unit (see the module doc).
+DEFAULT_OMEGA_U = 0.5
+#: cost units per unit of J(s) in J_utility (CostConfig.utility_scale)
+UTILITY_SCALE = 1e4
 
 
 @dataclass(frozen=True)
@@ -104,7 +122,8 @@ class CostConfig:
 
     weights: J_origin's weights (a PrincipleWeights or a preset name); omega_o, omega_u [-];
     utility: UtilityMode (or its value string); desired_speed: default v_desired [m/s] for
-    :func:`score`; maximin_exponent: M = h_max ** exponent [-].
+    :func:`score`; maximin_exponent: M = h_max ** exponent [-]; utility_scale: cost units per
+    unit of risk in J_utility [-].
     """
 
     weights: PrincipleWeights = PrincipleWeights()
@@ -113,6 +132,7 @@ class CostConfig:
     utility: UtilityMode = UtilityMode.CANDIDATE_MEAN
     desired_speed: float | None = None
     maximin_exponent: float = 10.0
+    utility_scale: float = UTILITY_SCALE
 
     def __post_init__(self) -> None:
         if isinstance(self.weights, str):
@@ -128,15 +148,17 @@ class CostConfig:
         _check_number("CostConfig", "omega_o", self.omega_o)
         _check_number("CostConfig", "omega_u", self.omega_u)
         _check_number("CostConfig", "maximin_exponent", self.maximin_exponent, positive=True)
+        _check_number("CostConfig", "utility_scale", self.utility_scale)
         if self.desired_speed is not None:
             _check_number("CostConfig", "desired_speed", self.desired_speed)
 
 
 #: Names of the (K,) terms in every CostBreakdown from :func:`score`, in order.
 TERMS = (
-    "bayes", "equality", "maximin", "ego", "progress", "lateral", "j_origin",
+    "bayes", "equality", "maximin", "ego", "responsibility", "progress", "lateral", "j_origin",
     "j_total_risk", "j_mean", "j_utility", "j_risk",
-    "ego_risk_sum", "other_risk_sum", "vru_risk_sum", "boundary_harm", "max_harm",
+    "ego_risk_sum", "other_risk_sum", "vru_risk_sum", "ego_risk_max", "other_risk_max", "vru_risk_max",
+    "boundary_harm", "max_harm",
 )
 
 
@@ -163,14 +185,19 @@ def score(
     w = cfg.weights
     bh = risk.boundary_harm
     se, so = er.sum(axis=1), orr.sum(axis=1)
-    vru = (orr * risk.vulnerable).sum(axis=1)
+    vru_risk = orr * risk.vulnerable
+    vru = vru_risk.sum(axis=1)
     j_total = se + so + bh
     if N:
         bayes = j_total / (2 * N)
         equality = np.abs(er - orr).sum(axis=1) / N
+        responsibility = (orr * ~risk.rule_breaker).sum(axis=1) / N
         h_max = np.maximum(np.maximum(risk.ego_harm_max.max(axis=1), risk.other_harm_max.max(axis=1)), bh)
+        maxes = er.max(axis=1), orr.max(axis=1), vru_risk.max(axis=1)
     else:
         bayes, equality, h_max = bh.copy(), np.zeros(K), bh.copy()
+        responsibility = np.zeros(K)
+        maxes = np.zeros(K), np.zeros(K), np.zeros(K)
     maximin = h_max**cfg.maximin_exponent
     ego = se + bh
 
@@ -180,7 +207,8 @@ def score(
     progress = np.abs(v_des - mean_v)
     lateral = np.where(valid, np.abs(cand.d), 0.0).sum(axis=1) / count
     j_origin = (
-        w.risk * (w.bayes * bayes + w.equality * equality + w.maximin * maximin + w.ego * ego)
+        w.risk * (w.bayes * bayes + w.equality * equality + w.maximin * maximin + w.ego * ego
+                  + w.responsibility * responsibility)
         + w.velocity * progress
         + w.lateral * lateral
     )
@@ -195,12 +223,12 @@ def score(
             pool = np.ones(K, bool)
         j_mean = np.full(K, j_total[pool].mean() if K else 0.0)
     above = j_total > j_mean + _TIE_RTOL * np.abs(j_mean)
-    j_utility = np.where(above, j_total, 0.0)
+    j_utility = np.where(above, cfg.utility_scale * j_total, 0.0)
     j_risk = cfg.omega_o * j_origin + cfg.omega_u * j_utility
 
     values = (
-        bayes, equality, maximin, ego, progress, lateral, j_origin,
+        bayes, equality, maximin, ego, responsibility, progress, lateral, j_origin,
         j_total, j_mean, j_utility, j_risk,
-        se, so, vru, bh, h_max,
+        se, so, vru, *maxes, bh, h_max,
     )
     return CostBreakdown(terms=dict(zip(TERMS, values)), total=j_risk)

@@ -34,7 +34,8 @@ class RiskTerms:
     ego_risk, other_risk: (K, N) max_t p * harm for the ego and for agent n; ego_harm_max,
     other_harm_max: (K, N) max harm over the steps with p > 0 (0 if none), the harms Maximin looks
     at; vulnerable: (N,) bool, agent n is a VRU; boundary_harm: (K,) ego harm of leaving the road
-    (0 if the candidate stays on it). sparse: the (k, n, t) entries with p > 0 and
+    (0 if the candidate stays on it); rule_breaker: (N,) bool, agent n broke a traffic rule
+    (responsibility principle; all False when unknown). sparse: the (k, n, t) entries with p > 0 and
     ego_harm_at, other_harm_at: (M,) the harms there. The dense (K, N, T) views ``p``,
     ``ego_harm``, ``other_harm`` (0 where p = 0) are built on first access.
     """
@@ -48,6 +49,14 @@ class RiskTerms:
     sparse: SparseProbability
     ego_harm_at: np.ndarray
     other_harm_at: np.ndarray
+    rule_breaker: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        n = self.ego_risk.shape[1]
+        rb = np.zeros(n, bool) if self.rule_breaker is None else np.asarray(self.rule_breaker, dtype=bool)
+        if rb.shape != (n,):
+            raise ValueError(f"rule_breaker must have shape ({n},), got {rb.shape}")
+        object.__setattr__(self, "rule_breaker", rb)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -78,6 +87,7 @@ class RiskTerms:
         boundary_harm: np.ndarray,
         vulnerable: np.ndarray | None = None,
         T: int = 0,
+        rule_breaker: np.ndarray | None = None,
     ) -> "RiskTerms":
         """Terms given directly as (K, N) / (K,) arrays, without per-step entries (tests, replays)."""
         er = np.asarray(ego_risk, dtype=float)
@@ -89,7 +99,7 @@ class RiskTerms:
             vulnerable=np.zeros(N, bool) if vulnerable is None else np.asarray(vulnerable, dtype=bool),
             boundary_harm=np.asarray(boundary_harm, dtype=float),
             sparse=SparseProbability(empty, empty, empty, np.zeros(0), (K, N, T)),
-            ego_harm_at=np.zeros(0), other_harm_at=np.zeros(0),
+            ego_harm_at=np.zeros(0), other_harm_at=np.zeros(0), rule_breaker=rule_breaker,
         )
 
 
@@ -151,12 +161,13 @@ def assess_risk(
     coeffs: HarmCoefficients = HarmCoefficients(),
     prob_cfg: ProbabilityConfig = ProbabilityConfig(),
     off_road: np.ndarray | None = None,
+    rule_breaker: np.ndarray | None = None,
 ) -> RiskTerms:
     """Probability, harm and risk of K candidates against the N agents of ``pred``.
 
     agents: the same N agents now, in the order of ``pred.ids`` (their true size, mass and class
     are used); ego_mass [kg], ego_cls: RoadUserClass int, ego_length, ego_width: true size [m];
-    off_road: see :func:`boundary_harm`. N = 0 gives (K, 0, T) / (K, 0) arrays.
+    off_road: see :func:`boundary_harm`; rule_breaker: (N,) bool, see :class:`RiskTerms`. N = 0 gives (K, 0, T) / (K, 0) arrays.
     """
     if tuple(agents.ids) != tuple(pred.ids):
         raise ValueError("agents and pred must list the same agents in the same order")
@@ -188,4 +199,5 @@ def assess_risk(
         sparse=sp,
         ego_harm_at=h_e,
         other_harm_at=h_o,
+        rule_breaker=rule_breaker,
     )
