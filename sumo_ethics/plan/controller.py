@@ -18,7 +18,8 @@ class Scene:
     ego: the ego (1 agent); others: neighbours within the sensing radius; route: the
     reference path; s, d: the ego's Frenet position on it [m]; stop_s: arc length of the
     next red/yellow stop line ahead [m] or None; history: the neighbours' recent past for a
-    predictor (None until a controller asks for it).
+    predictor (None until a controller asks for it); rule_breakers: ids of the neighbours that
+    break a traffic rule now (:mod:`sumo_ethics.sim.rules`; the responsibility principle).
     """
 
     time: float
@@ -31,6 +32,7 @@ class Scene:
     stop_s: float | None
     vehicle: EgoVehicle
     history: Observation | None = None
+    rule_breakers: frozenset[str] = frozenset()
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,14 @@ PREDICTORS = ("attention", "cslstm", "cv")
 
 #: validity classes, best first (the selected candidate's class is logged as ``validity``)
 VALIDITY = ("safe", "no_overlap_on_road", "no_overlap", "feasible", "emergency")
+#: selection rules (PlannerConfig.selection):
+#: "cost": red lights and the road edge stay hard constraints; among the candidates left, the lowest
+#:   J_risk + envelope x [enters a road user's predicted envelope] wins, so when every candidate
+#:   enters someone's envelope (unavoidable harm) the ethical cost decides;
+#: "validity": Origin's rule: the lowest J_risk within the best non-empty validity class;
+#: "validity_ttc": this project's earlier rule: as "validity", but in a class whose members all enter
+#:   an envelope, the latest-entering and then least-travelling ones are kept before the cost.
+SELECTIONS = ("cost", "validity", "validity_ttc")
 
 
 class Predictor(Protocol):
@@ -42,7 +50,11 @@ class PlannerConfig:
     other's) stays below this [-]; predictor: "attention", "cslstm" or "cv" (constant velocity);
     braking_prior: agents decelerating at least this hard [m/s^2] are predicted to keep braking
     until they stand; lateral_prior: agents moving across their straight predicted path keep
-    their lateral speed for this long [s] (both ``sumo_ethics.predict.braking``; 0 = off).
+    their lateral speed for this long [s] (both ``sumo_ethics.predict.braking``; 0 = off);
+    selection: one of :data:`SELECTIONS`; envelope: the cost of entering a road user's predicted
+    envelope (its box at the predicted mean with Origin's margins, the ego's box stretched by its
+    braking distance) in "cost" selection [-], about 100x a typical progress term, so the ego keeps
+    out of envelopes whenever it can and only unavoidable entries are weighed by the risk terms.
     """
 
     cost: CostConfig = field(default_factory=CostConfig)
@@ -55,8 +67,14 @@ class PlannerConfig:
     max_risk: float = 0.01
     braking_prior: float = 3.0
     lateral_prior: float = 1.5
+    selection: str = "cost"
+    envelope: float = 1000.0
 
     def __post_init__(self) -> None:
+        if self.selection not in SELECTIONS:
+            raise ConfigError(f"unknown selection '{self.selection}'; known: {', '.join(SELECTIONS)}")
+        if not (isinstance(self.envelope, (int, float)) and 0.0 <= self.envelope < 1e12):
+            raise ConfigError(f"envelope must be a cost >= 0, got {self.envelope!r}")
         if self.predictor not in PREDICTORS:
             raise ConfigError(f"unknown predictor '{self.predictor}'; known: {', '.join(PREDICTORS)}")
         if not (isinstance(self.max_risk, (int, float)) and 0.0 < self.max_risk <= 1.0):
@@ -140,22 +158,29 @@ def concat(a: Candidates, b: Candidates) -> Candidates:
         "x", "y", "yaw", "speed", "accel", "curvature", "s", "d", "horizon", "valid")))
 
 
-def select(classes: list[np.ndarray], total: np.ndarray, first_hit: np.ndarray, steps: int,
-           travel: np.ndarray) -> tuple[int, int]:
+def select(classes: list[np.ndarray], total: np.ndarray, first_hit: np.ndarray | None = None, steps: int = 0,
+           travel: np.ndarray | None = None) -> tuple[int, int]:
     """(candidate, class index): the lowest total within the best non-empty class.
 
-    In a class whose members all enter a road user's safety envelope (first_hit < steps), the
-    ones that enter it latest come first, and among those the ones that travel least: time to
-    collision, then caution, before cost. (-1, len(classes)) if every class is empty.
+    With first_hit and travel given ("validity_ttc"), in a class whose members all enter a road
+    user's safety envelope (first_hit < steps), the ones that enter it latest come first, and
+    among those the ones that travel least: time to collision, then caution, before cost.
+    (-1, len(classes)) if every class is empty.
     """
     for c, members in enumerate(classes):
         if members.any():
-            hits = first_hit[members]
-            if (hits < steps).all():
-                members = members & (first_hit == hits.max())
-                members = members & (travel <= travel[members].min() + 0.05)
+            if first_hit is not None and travel is not None:
+                hits = first_hit[members]
+                if (hits < steps).all():
+                    members = members & (first_hit == hits.max())
+                    members = members & (travel <= travel[members].min() + 0.05)
             return int(np.argmin(np.where(members, total, np.inf))), c
     return -1, len(classes)
+
+
+def class_of(classes: list[np.ndarray], k: int) -> int:
+    """Index of the first class candidate k belongs to (len(classes) if none)."""
+    return next((c for c, members in enumerate(classes) if members[k]), len(classes))
 
 
 class EthicalPlanner:
@@ -171,6 +196,11 @@ class EthicalPlanner:
         self._lateral = (0.0, 0.0)  # d', d'' of the last chosen candidate at the next step
         self._accel = 0.0
         self._sampling: SamplingConfig | None = None
+
+    @property
+    def needs_rules(self) -> bool:
+        """Whether the runner must name the rule breakers (only the responsibility term uses them)."""
+        return self.cfg.cost.weights.responsibility > 0.0
 
     def act(self, scene: Scene) -> Decision:
         veh = scene.vehicle
@@ -207,9 +237,10 @@ class EthicalPlanner:
             return self._emergency(scene, {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1)})
         fc = cand.take(keep)
         on_road = feas.on_road[keep]
+        breakers = np.array([i in scene.rule_breakers for i in agents.ids], dtype=bool)
         risk = assess_risk(fc, pred, agents, ego_mass=float(scene.ego.mass[0]), ego_cls=int(scene.ego.cls[0]),
                            ego_length=ego_length, ego_width=ego_width, prob_cfg=self.cfg.probability,
-                           off_road=~on_road)
+                           off_road=~on_road, rule_breaker=breakers)
         cost = score(fc, risk, self.cfg.cost, desired_speed=v_limit)
         w3 = time.perf_counter()
         pc = self.cfg.probability  # Origin's safety margins (+1.0 m length, +0.5 m width)
@@ -224,13 +255,16 @@ class EthicalPlanner:
         # road, then avoiding the predicted mean paths; a red light counts like the road edge
         classes = [legal & ~overlap & on_road & (worst < self.cfg.max_risk), legal & ~overlap & on_road,
                    ~overlap, np.ones(len(fc), dtype=bool)]
-        j, cls = select(classes, cost.total, first_hit, horizon_steps, fc.s[:, -1] - scene.s)
+        envelope = self.cfg.envelope * overlap
+        total, j, cls = self.choose(cost, classes, envelope, legal, on_road, first_hit, horizon_steps,
+                                    fc.s[:, -1] - scene.s)
         k = int(keep[j])
         w4 = time.perf_counter()
         timings = {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1), "risk_cost_ms": 1e3 * (w3 - w2),
                    "select_ms": 1e3 * (w4 - w3)}
         info: dict[str, Any] = {f"cost_{name}": v for name, v in cost.row(j).items()}
-        info.update(validity=float(cls), n_candidates=float(len(cand)), n_feasible=float(feas.feasible.sum()),
+        info.update(cost_envelope=float(envelope[j]), cost_selection=float(total[j]),
+                    n_rule_breakers=float(breakers.sum()), validity=float(cls), n_candidates=float(len(cand)), n_feasible=float(feas.feasible.sum()),
                     horizon=float(cand.horizon[k]), utility_literal=float(self.cfg.cost.utility is UtilityMode.LITERAL))
         d0 = scene.d
         dt = sc.dt
@@ -239,6 +273,23 @@ class EthicalPlanner:
         self._accel = float(cand.accel[k, 0])
         cmd = EgoCommand(float(cand.x[k, 0]), float(cand.y[k, 0]), float(cand.yaw[k, 0]), float(cand.speed[k, 0]))
         return Decision(cmd, info=info, timings_ms=timings)
+
+    def choose(self, cost: Any, classes: list[np.ndarray], envelope: np.ndarray, legal: np.ndarray,
+               on_road: np.ndarray, first_hit: np.ndarray, steps: int,
+               travel: np.ndarray) -> tuple[np.ndarray, int, int]:
+        """(selection total (K,), chosen candidate, its validity class) under ``cfg.selection``.
+
+        "cost": the lowest J_risk + envelope term among the legal on-road candidates (else the
+        on-road ones, else all); "validity"/"validity_ttc": the class rule (see :data:`SELECTIONS`).
+        """
+        mode = self.cfg.selection
+        if mode == "cost":
+            total = cost.total + envelope
+            j, _ = select([legal & on_road, on_road, np.ones_like(on_road)], total)
+            return total, j, class_of(classes, j)
+        ttc = mode == "validity_ttc"
+        j, cls = select(classes, cost.total, first_hit if ttc else None, steps, travel if ttc else None)
+        return cost.total, j, cls
 
     def _emergency(self, scene: Scene, timings: dict[str, float]) -> Decision:
         """Nothing is feasible: brake as hard as allowed along the reference path, keeping d."""

@@ -1,0 +1,105 @@
+"""Who breaks a traffic rule right now, as far as SUMO knows (the responsibility principle).
+
+The rule, applied to every neighbouring vehicle (cars, trucks, buses, motorcycles, bicycles)
+each step; a vehicle that meets any clause is a *rule breaker*:
+
+1. **Red light**: it entered a signalised junction on a link showing red ('r' or 'R') at the
+   step it moved from its approach lane onto the junction; it stays a rule breaker until it
+   has left the junction. (Yellow is not a violation; right of way at unsignalised junctions
+   is not assessed.)
+2. **Wrong way**: on a normal lane, its heading differs from the lane's direction at its
+   position by more than ``WRONG_WAY`` (120 degrees).
+3. **Outside its lane**: on a normal lane, its centre is more than
+   ``(lane width - its width) / 2 + OUTSIDE_TOLERANCE`` (0.5 m) from the lane's centre line,
+   i.e. its body reaches at least 0.5 m over a lane edge (a drift into the oncoming lane, a
+   car straddling two lanes).
+
+Pedestrians are never rule breakers under this rule: persons in SUMO scenarios cross where
+their route takes them, and a person stepping onto the road is exactly whom the ethics
+must not discount. The planner's responsibility term (:mod:`sumo_ethics.ethics.cost`)
+charges the risk put on road users who are *not* rule breakers.
+"""
+
+from __future__ import annotations
+
+import math
+
+import libsumo
+import numpy as np
+
+from sumo_ethics.types import AgentStates, RoadUserClass
+
+WRONG_WAY = math.radians(120.0)
+OUTSIDE_TOLERANCE = 0.5  # m
+RED = frozenset("rR")
+
+
+def heading_error(yaw: float, lane_yaw: float) -> float:
+    """|yaw - lane_yaw| wrapped to [0, pi] [rad]."""
+    return abs((yaw - lane_yaw + math.pi) % (2.0 * math.pi) - math.pi)
+
+
+def outside_lane(lateral: float, lane_width: float, width: float, tol: float = OUTSIDE_TOLERANCE) -> bool:
+    """Whether a body ``width`` wide at ``lateral`` m from the lane centre reaches more than
+    ``tol`` over a lane edge of a lane ``lane_width`` wide [m]."""
+    return abs(lateral) > (lane_width - width) / 2.0 + tol
+
+
+class RuleMonitor:
+    """Tracks the neighbours' lanes from step to step and names the rule breakers (module doc)."""
+
+    def __init__(self) -> None:
+        self._lane: dict[str, str] = {}  # vehicle -> lane at the last step
+        self._red: set[str] = set()  # vehicles that entered their junction at red
+        self._shapes: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}  # lane -> (cum length, yaw, width)
+        self._links: dict[str, dict[str, str]] = {}  # lane -> {internal via lane: link state}
+
+    def _shape(self, lane: str) -> tuple[np.ndarray, np.ndarray, float]:
+        got = self._shapes.get(lane)
+        if got is None:
+            xy = np.asarray(libsumo.lane.getShape(lane), dtype=float)
+            seg = np.diff(xy, axis=0)
+            cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
+            got = self._shapes[lane] = (cum, np.arctan2(seg[:, 1], seg[:, 0]), libsumo.lane.getWidth(lane))
+        return got
+
+    def _entry_state(self, approach: str, via: str) -> str:
+        """Signal state now of the link from lane ``approach`` into junction lane ``via`` ('' if none)."""
+        for link in libsumo.lane.getLinks(approach):
+            if link[4] == via:
+                return link[5]
+        return ""
+
+    def breakers(self, others: AgentStates) -> frozenset[str]:
+        """Ids of the rule-breaking vehicles among ``others`` (their states now)."""
+        out: set[str] = set()
+        seen: dict[str, str] = {}
+        v = libsumo.vehicle
+        for i, vid in enumerate(others.ids):
+            if int(others.cls[i]) == RoadUserClass.PEDESTRIAN:
+                continue
+            try:
+                lane = v.getLaneID(vid)
+            except libsumo.TraCIException:
+                continue
+            seen[vid] = lane
+            if not lane:  # off every lane
+                continue
+            before = self._lane.get(vid, "")
+            if lane.startswith(":"):
+                if before and not before.startswith(":") and self._entry_state(before, lane) in RED:
+                    self._red.add(vid)
+                if vid in self._red:
+                    out.add(vid)
+                continue
+            self._red.discard(vid)
+            cum, yaw, width = self._shape(lane)
+            pos = v.getLanePosition(vid)
+            seg = min(int(np.searchsorted(cum, pos, side="right")) - 1, len(yaw) - 1)
+            if heading_error(float(others.yaw[i]), float(yaw[max(seg, 0)])) > WRONG_WAY:
+                out.add(vid)
+            elif outside_lane(v.getLateralLanePosition(vid), width, float(others.width[i])):
+                out.add(vid)
+        self._lane = seen
+        self._red &= set(seen)
+        return frozenset(out)
