@@ -20,13 +20,16 @@ def suite() -> None:
 @click.option("--seed", type=int, default=2024, show_default=True, help="Suite seed (same seed, same files).")
 @click.option("--out", type=click.Path(path_type=Path), default=Path("scenarios/suite"), show_default=True,
               help="Suite folder.")
-def generate_cmd(count: int, seed: int, out: Path) -> None:
-    """Generate COUNT hazard scenarios reproducibly from SEED into OUT."""
+@click.option("--family", type=click.Choice(["hazard", "dilemma"]), default="hazard", show_default=True,
+              help="hazard: one hazard on one of six road types; dilemma: unavoidable harm with a choice "
+                   "of victims (checked by construction).")
+def generate_cmd(count: int, seed: int, out: Path, family: str) -> None:
+    """Generate COUNT scenarios reproducibly from SEED into OUT."""
     from collections import Counter
 
     from sumo_ethics.suite.generate import generate
 
-    specs = generate(count, seed, out)
+    specs = generate(count, seed, out, family)
     nets = Counter(s.network for s in specs)
     kinds = Counter(k for s in specs for k in s.hazard_types)
     click.echo(f"{len(specs)} scenarios in {out}")

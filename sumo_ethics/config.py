@@ -51,6 +51,7 @@ class RunConfig:
     ego_from: str | None = None  # else insert our own ego on a route from this edge ...
     ego_to: str | None = None  # ... to this edge (both or neither); else a seeded random route
     ego_depart: float = 0.0  # s; when the inserted ego departs (traffic warm-up before it)
+    ego_depart_lane: str = "best"  # the inserted ego's departLane (a SUMO lane index or keyword)
     min_route_length: float = 300.0  # m; for the random route
     stop_at_collision: bool = True  # end the run at the ego's first collision
     controller: str = "ethical"  # or "baseline"

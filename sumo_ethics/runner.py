@@ -26,6 +26,7 @@ from sumo_ethics.plan.controller import Controller, Scene
 from sumo_ethics.plan.history import History
 from sumo_ethics.record.writer import RunRecorder, write_json
 from sumo_ethics.sim import session
+from sumo_ethics.sim.rules import RuleMonitor
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld, party_state, sumo_collisions
 from sumo_ethics.types import VULNERABLE, AgentStates, RoadUserClass, RunStatus
 
@@ -142,7 +143,8 @@ def insert_ego(cfg: RunConfig, ego_id: str) -> tuple[str, ...]:
     edges = find_ego_route(cfg)
     _step_until(lambda: False, cfg.ego_depart)
     libsumo.route.add(EGO_ROUTE, list(edges))
-    libsumo.vehicle.add(ego_id, EGO_ROUTE, typeID=EGO_TYPE, depart="now", departLane="best", departSpeed="max")
+    libsumo.vehicle.add(ego_id, EGO_ROUTE, typeID=EGO_TYPE, depart="now", departLane=cfg.ego_depart_lane,
+                       departSpeed="max")
     limit = libsumo.simulation.getTime() + INSERT_PATIENCE
     if not _step_until(lambda: ego_id in libsumo.simulation.getDepartedIDList(), limit):
         raise SimulationError(f"the ego could not be inserted on edge '{edges[0]}' within {INSERT_PATIENCE:g} s")
@@ -349,6 +351,7 @@ class Run:
         s, d = route.path.project_point(float(snap.ego.x[0]), float(snap.ego.y[0]))
         progress = _progress(cfg.progress, snap.time, end)
         history = History(dt) if getattr(self.controller, "needs_history", False) else None
+        rules = RuleMonitor() if getattr(self.controller, "needs_rules", False) else None
         try:
             while True:
                 t = snap.time
@@ -364,7 +367,8 @@ class Run:
                     history.push(snap.others)
                     obs = history.observation(t, snap.ego, snap.others)
                 scene = Scene(time=t, dt=dt, ego=snap.ego, others=snap.others, route=route, s=s, d=d,
-                              stop_s=self.stop_line(s + half), vehicle=cfg.ego, history=obs)
+                              stop_s=self.stop_line(s + half), vehicle=cfg.ego, history=obs,
+                              rule_breakers=rules.breakers(snap.others) if rules is not None else frozenset())
                 decision = self.controller.act(scene)
                 w1 = wallclock.perf_counter()
                 world.apply(decision.command)

@@ -310,6 +310,14 @@ class HazardInjector:
             eta = max(st.anchor_s - ego_front, 0.0) / max(v_ego, 1.0)
             a.s = max(st.anchor_s - p["speed"] * eta, ego_front + 15.0 + a.length / 2.0)  # never on the ego
             a.d, a.v = p["offset"], p["speed"]
+        elif kind == "escort":  # alongside in the next lane, at the ego's speed
+            a.s = scene.s + p["ahead"]
+            a.d = p["lane_offset"] if p["side"] == "left" else -p["lane_offset"]
+            a.v = v_ego
+        elif kind == "tailgater":  # close behind, following with a reaction time
+            a.s = ego_front - float(scene.ego.length[0]) - p["gap"] - a.length / 2.0
+            a.d, a.v = 0.0, v_ego
+            a.ego_speeds = [v_ego]  # type: ignore[attr-defined]
         elif kind == "red_light_runner":
             px, py, h = (float(v) for v in route.path.to_xy(np.array(st.anchor_s), np.array(0.0)))
             eta = max(st.anchor_s - ego_front, 0.0) / max(v_ego, 0.1)
@@ -337,6 +345,20 @@ class HazardInjector:
         if kind == "red_light_runner":
             a.travelled += a.v * dt
             return
+        if kind == "escort":
+            if not trig:  # keeps its place beside the ego
+                a.v = float(scene.ego.speed[0])
+                a.s = scene.s + p["ahead"] + a.v * dt
+                return
+            if since >= p["hold"]:
+                a.v = max(0.0, a.v - p["decel"] * dt)
+        elif kind == "tailgater":
+            speeds = a.ego_speeds  # type: ignore[attr-defined]
+            speeds.append(float(scene.ego.speed[0]))
+            lag = int(round(p["reaction"] / dt))
+            target = speeds[max(len(speeds) - 1 - lag, 0)]
+            del speeds[:-(lag + 1)]  # keep only the reaction window
+            a.v = min(max(target, a.v - p["decel"] * dt), a.v + 2.0 * dt)
         if kind == "emergency_stop" and trig:
             v_stop_t = st.v0 / p["decel"]
             if since < v_stop_t:

@@ -9,6 +9,10 @@ seed), and the files are identical byte for byte for the same seed. Layout::
     OUT/<name>/<name>.rou.xml                   (vTypes, background flows, pedestrian flows)
     OUT/<name>/hazards.json                     (ego route/depart/seed and the hazards)
     OUT/suite.json                              (seed, count, one line per scenario)
+
+Two families: ``hazard`` (the default suite: one hazard on one of six road types) and
+``dilemma`` (:func:`dilemma_scenario`: unavoidable harm with a choice of victims, each
+scenario checked by :mod:`sumo_ethics.suite.dilemma` before it is written).
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from typing import Any, Callable
 import numpy as np
 
 from sumo_ethics.errors import ConfigError
-from sumo_ethics.suite import networks
+from sumo_ethics.suite import dilemma, networks
 from sumo_ethics.suite.spec import HAZARD_FILE, HAZARD_TYPES, HazardSpec, ScenarioSpec, dumps
 from sumo_ethics.suite.spec import EgoSpec
 
@@ -88,6 +92,15 @@ ROAD_TYPES: dict[str, RoadType] = {
                        (("n_e0", "n_e1"), ("n_w1", "n_w0")),
                        (("n_e0", "n_w0"), ("n_w1", "n_e1"), ("n_e0", "n_e1"), ("n_w1", "n_w0")), (40, 160)),
 }
+ARTERIAL = RoadType("arterial", "straight urban arterial, two lanes per direction", 16.67, 3.25, (("a_e", "a_e"),),
+                    {}, (("a_e", "a_e"), ("a_w", "a_w")), (("a_e", "a_e"), ("a_w", "a_w")), (60, 200), bikes=False)
+#: the hazard family's networks (the dilemma family uses ARTERIAL alone)
+HAZARD_NETWORKS = ("junction_tls", "junction_prio", "roundabout", "rural", "multilane", "narrow")
+FAMILIES = ("hazard", "dilemma")
+#: escort vehicle types in the dilemma family and how often each is drawn
+ESCORTS = {"car": 0.4, "motorcycle": 0.25, "truck": 0.2, "bus": 0.15}
+DILEMMA_TRIES = 400
+
 #: how often each road type is drawn
 ROAD_WEIGHTS = {"junction_tls": 0.22, "junction_prio": 0.16, "roundabout": 0.12, "rural": 0.2, "multilane": 0.14,
                 "narrow": 0.16}
@@ -245,8 +258,71 @@ def scenario(seed: int, i: int) -> tuple[ScenarioSpec, str]:
     return spec, xml
 
 
-def generate(count: int, seed: int, out: Path) -> list[ScenarioSpec]:
-    """Write ``count`` scenarios (and the base networks) into ``out``."""
+def _dilemma_hazards(rng: np.random.Generator, variant: str, lane: int, pos: float) -> list[dict[str, Any]]:
+    """One draw of a dilemma's hazards (not yet checked): the victim-to-be in the ego's lane and
+    a vehicle alongside; ``hard_stop`` adds a heavy vehicle behind."""
+    u = rng.uniform
+    lw = ARTERIAL.lane_width
+    other_side = "left" if lane == 1 else "right"
+    escort_vt = _pick(rng, ESCORTS)
+    if variant == "pedestrian":
+        ttc = _r(u(0.55, 0.9))
+        trigger: dict[str, float] = {"ttc": ttc}
+        main = {"id": "h0", "type": "pedestrian", "anchor": {"edge": "a_e", "pos": _r(pos, 1)}, "trigger": trigger,
+                "params": {"side": "right", "offset": _r(u(0.1, 0.5)), "speed": _r(u(2.0, 3.0)), "occluder": True}}
+        extra: list[dict[str, Any]] = []
+    else:
+        dist = _r(u(30, 45), 1)
+        trigger = {"distance": dist}
+        main = {"id": "h0", "type": "emergency_stop", "anchor": {"edge": "a_e", "pos": _r(pos, 1)}, "trigger": trigger,
+                "spawn": dist, "params": {"gap": _r(u(6, 14)), "speed_ratio": 1.0, "decel": _r(u(8.5, 10.0)),
+                                          "hold": 3.0, "vtype": "car"}}
+        extra = [{"id": "h2", "type": "tailgater", "anchor": {"edge": "a_e", "pos": _r(pos, 1)}, "trigger": trigger,
+                  "spawn": _r(dist + u(60, 100), 1),
+                  "params": {"gap": _r(u(3, 8)), "reaction": _r(u(0.8, 1.2)), "decel": _r(u(4, 6)),
+                             "vtype": "truck" if rng.random() < 0.7 else "bus"}}]
+    escort = {"id": "h1", "type": "escort", "anchor": {"edge": "a_e", "pos": _r(pos, 1)}, "trigger": trigger,
+              "spawn": _r(u(60, 100), 1) + (trigger.get("distance", 0.0)),
+              "params": {"side": other_side, "lane_offset": _r(u(2.6, 3.0)), "ahead": _r(u(-3, 1)),
+                         "hold": _r(u(2.0, 3.0)), "decel": 4.0, "vtype": escort_vt}}
+    return [main, escort] + extra
+
+
+def dilemma_scenario(seed: int, i: int) -> tuple[ScenarioSpec, str]:
+    """Dilemma scenario i with ``seed``: even i a pedestrian stepping out from behind a parked car
+    (the ego in the right lane), odd i a leader stopping hard with a truck or bus close behind
+    (either lane); a vehicle rides alongside in the other lane. Hazard parameters are redrawn
+    until :func:`sumo_ethics.suite.dilemma.scenario_outcomes` finds a dilemma at every checked
+    ego speed; the check's result is stored under ``info.dilemma``."""
+    rng = np.random.default_rng([seed, i, 1])
+    variant = "pedestrian" if i % 2 == 0 else "hard_stop"
+    lane = 1 if variant == "pedestrian" or rng.random() < 0.5 else 2
+    road = dilemma.road_of(lane, 2, ARTERIAL.lane_width)
+    pos = float(rng.uniform(170, 240))
+    for attempt in range(DILEMMA_TRIES):
+        hazards = _dilemma_hazards(rng, variant, lane, pos)
+        outs = dilemma.scenario_outcomes({"hazards": [HazardSpec.parse("h", h).to_dict() for h in hazards]},
+                                         ARTERIAL.speed, road)
+        if all(o.is_dilemma for o in outs):
+            break
+    else:
+        raise ConfigError(f"dilemma scenario {i}: no dilemma found in {DILEMMA_TRIES} draws")
+    depart = _r(rng.uniform(5, 15), 1)
+    end = _r(depart + 40.0, 1)
+    xml, info = _routes_xml(rng, ARTERIAL, end)
+    check = {"variant": variant, "draws": attempt + 1, "speeds": [_r(o.speed) for o in outs],
+             "parties": sorted({p for o in outs for p in o.parties})}
+    spec = ScenarioSpec.parse({"version": 1, "name": f"d{i:04d}", "network": "arterial", "road_type": ARTERIAL.label,
+                               "seed": int(rng.integers(0, 2**31 - 1)),
+                               "ego": {"from": "a_e", "to": "a_e", "depart": depart, "end": end, "lane": lane},
+                               "hazards": hazards, "info": {"traffic": info, "dilemma": check}}, where=f"d{i:04d}")
+    return spec, xml
+
+
+def generate(count: int, seed: int, out: Path, family: str = "hazard") -> list[ScenarioSpec]:
+    """Write ``count`` scenarios of ``family`` (and their base networks) into ``out``."""
+    if family not in FAMILIES:
+        raise ConfigError(f"unknown --family {family!r}; known: {', '.join(FAMILIES)}")
     if not isinstance(count, int) or count < 1:
         raise ConfigError(f"--count must be a positive integer, got {count!r}")
     if not 0 <= seed < 2**31:
@@ -256,11 +332,12 @@ def generate(count: int, seed: int, out: Path) -> list[ScenarioSpec]:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"cannot create {out}: {exc.strerror or exc}") from None
-    networks.build_all(out / "networks")
+    networks.build_all(out / "networks", ("arterial",) if family == "dilemma" else HAZARD_NETWORKS)
+    make = dilemma_scenario if family == "dilemma" else scenario
     specs = []
     lines = []
     for i in range(count):
-        spec, xml = scenario(seed, i)
+        spec, xml = make(seed, i)
         d = out / spec.name
         d.mkdir(exist_ok=True)
         (d / f"{spec.name}.rou.xml").write_text(xml)
@@ -269,5 +346,7 @@ def generate(count: int, seed: int, out: Path) -> list[ScenarioSpec]:
         specs.append(spec)
         lines.append({"name": spec.name, "network": spec.network, "hazards": list(spec.hazard_types)})
     index = {"seed": seed, "count": count, "generator": "sumo_ethics.suite.generate", "scenarios": lines}
+    if family != "hazard":
+        index["family"] = family
     (out / "suite.json").write_text(json.dumps(index, indent=1) + "\n")
     return specs

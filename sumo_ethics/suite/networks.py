@@ -1,6 +1,6 @@
 """The suite's base networks, written as plain XML and built with netconvert.
 
-Six small networks, each reused by many scenarios (demand and hazards vary per scenario):
+Seven small networks, each reused by many scenarios (demand and hazards vary per scenario):
 
 ==============  ===========================================================================
 junction_tls    signalised 4-way junction ``C`` at (0, 0), arms of 100 m, one 3.5 m lane per
@@ -10,6 +10,8 @@ roundabout      4-arm single-lane roundabout (ring radius 22 m), arms of 100 m, 
 rural           450 m two-lane rural road (3.5 m lanes, 22.22 m/s, one gentle bend)
 multilane       3-lane carriageway (3.75 m, 27.78 m/s), 500 m, on-ramp with acceleration lane
 narrow          180 m narrow street (3.0 m lanes, 8.33 m/s, 1.5 m sidewalks), parked cars
+arterial        320 m straight urban arterial, two 3.25 m lanes per direction, 16.67 m/s,
+                2 m sidewalks (the dilemma family)
 ==============  ===========================================================================
 
 Coordinates are kept as written (``--offset.disable-normalization``); the netconvert
@@ -191,6 +193,16 @@ def _narrow() -> PlainNet:
     return net
 
 
+def _arterial() -> PlainNet:
+    """A straight urban arterial: two 3.25 m lanes per direction at 16.67 m/s with 2 m sidewalks."""
+    net = PlainNet("arterial")
+    net.node("A0", 0, 0)
+    net.node("A1", 320, 0)
+    road = dict(numLanes=2, speed=16.67, width=3.25, sidewalkWidth=2.0, priority=3)
+    net.two_way("a_e", "a_w", "A0", "A1", **road)
+    return net
+
+
 BUILDERS = {
     "junction_tls": lambda: _junction("junction_tls", True),
     "junction_prio": lambda: _junction("junction_prio", False),
@@ -198,9 +210,10 @@ BUILDERS = {
     "rural": _rural,
     "multilane": _multilane,
     "narrow": _narrow,
+    "arterial": _arterial,
 }
 
 
-def build_all(folder: Path) -> dict[str, Path]:
-    """Build every base network into ``folder/<name>/<name>.net.xml``."""
-    return {name: make().build(folder / name) for name, make in BUILDERS.items()}
+def build_all(folder: Path, names: tuple[str, ...] | None = None) -> dict[str, Path]:
+    """Build the base networks ``names`` (default: every one) into ``folder/<name>/<name>.net.xml``."""
+    return {name: make().build(folder / name) for name, make in BUILDERS.items() if names is None or name in names}

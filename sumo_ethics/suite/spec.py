@@ -55,10 +55,19 @@ HAZARD_TYPES: dict[str, dict[str, Any]] = {
                        "vtype": "bicycle"},
     # a parked vehicle at the kerb (a static obstacle, no trigger)
     "parked": {"side": "right", "intrusion": 0.3, "vtype": "car"},
+    # a vehicle in the next lane riding alongside the ego: it appears ``ahead`` metres (centre to
+    # centre, along the path) in front of the ego at the ego's speed, keeps that place until the
+    # trigger, then holds its speed (its driver has not seen the hazard) for ``hold`` s, then
+    # brakes at ``decel`` to a stop; it blocks the ego's escape to that side
+    "escort": {"side": "left", "lane_offset": 3.25, "ahead": 0.0, "hold": 1.5, "decel": 4.0, "vtype": "car"},
+    # a heavy vehicle close behind the ego: it appears ``gap`` metres (bumper to bumper) behind
+    # the ego at its speed and follows it with a reaction time: its speed is the ego's speed
+    # ``reaction`` s earlier, reached at no more than ``decel`` (braking) or 2 m/s^2
+    "tailgater": {"gap": 6.0, "reaction": 1.0, "decel": 5.0, "vtype": "truck"},
 }
 #: numeric parameters that must be > 0 (divided by) and >= 0 (durations, distances, speeds)
 POSITIVE = {"duration", "decel", "speed"}
-NON_NEGATIVE = {"hold", "gap", "swerve", "drift", "lane_offset", "speed_ratio"}
+NON_NEGATIVE = {"hold", "gap", "swerve", "drift", "lane_offset", "speed_ratio", "reaction"}
 TRIGGERS = ("distance", "ttc", "gap", "gap_ttc")
 VTYPES = ("car", "truck", "bus", "motorcycle", "bicycle", "ped")
 
@@ -183,14 +192,18 @@ class HazardSpec:
 
 @dataclass(frozen=True)
 class EgoSpec:
+    """The ego's route (edge ids), departure and end [s], and optionally its departure lane
+    (SUMO lane index; None: SUMO's "best")."""
+
     from_edge: str
     to_edge: str
     depart: float
     end: float
+    lane: int | None = None
 
     @classmethod
     def parse(cls, where: str, d: Any) -> "EgoSpec":
-        d = _keys(where, d, {"from", "to", "depart", "end"}, {"from", "to", "depart", "end"})
+        d = _keys(where, d, {"from", "to", "depart", "end", "lane"}, {"from", "to", "depart", "end"})
         for k in ("from", "to"):
             if not isinstance(d[k], str) or not d[k]:
                 raise ConfigError(f"{where}.{k} must be an edge id")
@@ -198,7 +211,14 @@ class EgoSpec:
         end = _num(f"{where}.end", d["end"], 0.0)
         if end <= depart:
             raise ConfigError(f"{where}.end ({end:g}) must be after depart ({depart:g})")
-        return cls(d["from"], d["to"], depart, end)
+        lane = d.get("lane")
+        if lane is not None and (isinstance(lane, bool) or not isinstance(lane, int) or not 0 <= lane < 64):
+            raise ConfigError(f"{where}.lane must be a lane index in [0, 64), got {lane!r}")
+        return cls(d["from"], d["to"], depart, end, lane)
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"from": self.from_edge, "to": self.to_edge, "depart": self.depart, "end": self.end}
+        return d if self.lane is None else d | {"lane": self.lane}
 
 
 @dataclass(frozen=True)
@@ -243,8 +263,7 @@ class ScenarioSpec:
     def to_dict(self) -> dict[str, Any]:
         return {"version": 1, "name": self.name, "network": self.network, "road_type": self.road_type,
                 "seed": self.seed,
-                "ego": {"from": self.ego.from_edge, "to": self.ego.to_edge, "depart": self.ego.depart,
-                        "end": self.ego.end},
+                "ego": self.ego.to_dict(),
                 "hazards": [h.to_dict() for h in self.hazards], "info": self.info}
 
 
