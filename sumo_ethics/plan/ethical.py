@@ -241,8 +241,6 @@ class EthicalPlanner:
         risk = assess_risk(fc, pred, agents, ego_mass=float(scene.ego.mass[0]), ego_cls=int(scene.ego.cls[0]),
                            ego_length=ego_length, ego_width=ego_width, prob_cfg=self.cfg.probability,
                            off_road=~on_road, rule_breaker=breakers)
-        cost = score(fc, risk, self.cfg.cost, desired_speed=v_limit)
-        w3 = time.perf_counter()
         pc = self.cfg.probability  # Origin's safety margins (+1.0 m length, +0.5 m width)
         first_hit = first_overlap(fc, pred, risk, agents.length + pc.length_margin,
                                   agents.width + pc.width_margin, ego_length, ego_width, brake=veh.max_decel)
@@ -255,6 +253,9 @@ class EthicalPlanner:
         # road, then avoiding the predicted mean paths; a red light counts like the road edge
         classes = [legal & ~overlap & on_road & (worst < self.cfg.max_risk), legal & ~overlap & on_road,
                    ~overlap, np.ones(len(fc), dtype=bool)]
+        # J_mean averages over the candidates the selection rule chooses among
+        cost = score(fc, risk, self.cfg.cost, desired_speed=v_limit, feasible=self.pool(classes, legal, on_road, overlap))
+        w3 = time.perf_counter()
         envelope = self.cfg.envelope * overlap
         total, j, cls = self.choose(cost, classes, envelope, legal, on_road, first_hit, horizon_steps,
                                     fc.s[:, -1] - scene.s)
@@ -273,6 +274,18 @@ class EthicalPlanner:
         self._accel = float(cand.accel[k, 0])
         cmd = EgoCommand(float(cand.x[k, 0]), float(cand.y[k, 0]), float(cand.yaw[k, 0]), float(cand.speed[k, 0]))
         return Decision(cmd, info=info, timings_ms=timings)
+
+    def pool(self, classes: list[np.ndarray], legal: np.ndarray, on_road: np.ndarray,
+             overlap: np.ndarray) -> np.ndarray:
+        """(K,) bool: the candidates the selection rule weighs against each other, over which
+        J_mean (candidate-mean reading) is taken. "cost": the first non-empty of legal and on the
+        road / on the road / all, narrowed to those outside every envelope if any are;
+        "validity"/"validity_ttc": the best non-empty validity class."""
+        if self.cfg.selection == "cost":
+            base = next((m for m in (legal & on_road, on_road) if m.any()), np.ones_like(on_road))
+            free = base & ~overlap
+            return free if free.any() else base
+        return next((m for m in classes if m.any()), np.ones_like(on_road))
 
     def choose(self, cost: Any, classes: list[np.ndarray], envelope: np.ndarray, legal: np.ndarray,
                on_road: np.ndarray, first_hit: np.ndarray, steps: int,

@@ -34,7 +34,7 @@ from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
 
 #: ego speeds at the trigger the check covers, as fractions of the lane's speed limit
 CHECK_SPEEDS = (0.85, 0.925, 1.0)
-DT = 0.05  # s
+DT = 0.1  # s (the ego body, 4.5 m, cannot pass through anyone between two steps)
 DURATION = 6.0  # s
 #: hazard actor sizes (length, width) [m] by vtype, as in the suite's route files
 SIZES = {"car": (4.5, 1.8), "truck": (12.0, 2.55), "bus": (12.0, 2.55), "motorcycle": (2.2, 0.9),
@@ -154,10 +154,14 @@ def check(hazards: list[dict], anchor_gap: float, v0: float, road: Road, ego: Eg
     t_off = np.where(off.any(axis=1), off.argmax(axis=1), T)
     upd = t_off < first_t
     first_t[upd], first[upd] = t_off[upd], "road"
+    r_ego = 0.5 * np.hypot(ego.length, ego.width)
     for name, s, d, ayaw, length, width in _actor_tracks(hazards, anchor_gap, ego_front0, v0, ego.length, road, V):
-        hit = boxes_overlap(OrientedBoxes(S, D, yaw, ego.length, ego.width),
-                            OrientedBoxes(np.broadcast_to(s, (J, T)), np.broadcast_to(d, (J, T)),
-                                          np.broadcast_to(ayaw, (J, T)), length, width))
+        s, d, ayaw = (np.broadcast_to(a, (J, T)) for a in (s, d, ayaw))
+        # only pairs whose circumscribed circles meet can overlap: test those alone
+        near = np.hypot(S - s, D - d) < r_ego + 0.5 * np.hypot(length, width)
+        hit = np.zeros((J, T), dtype=bool)
+        hit[near] = boxes_overlap(OrientedBoxes(S[near], D[near], yaw[near], ego.length, ego.width),
+                                  OrientedBoxes(s[near], d[near], ayaw[near], length, width))
         t_hit = np.where(hit.any(axis=1), hit.argmax(axis=1), T)
         upd = t_hit < first_t
         first_t[upd], first[upd] = t_hit[upd], name

@@ -25,16 +25,19 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
+from sumo_ethics.analysis.risk import run_risk_file
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.ethics.cost import DEFAULT_OMEGA_U
 
 #: the paper's planner: attention predictor, J_utility at this weight (see README "Suite")
 PAPER_OMEGA_U = DEFAULT_OMEGA_U
 
+#: origin: Origin's weights, predictor class (CS-LSTM) and selection rule (validity levels);
+#: paper: this project's planner (attention, J_utility, selection by cost)
 BUILTIN: dict[str, dict[str, Any] | None] = {
     "baseline": None,  # the route-following controller
-    "origin": {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0},
-    "paper": {"weights": "ethical", "predictor": "attention", "omega_u": PAPER_OMEGA_U},
+    "origin": {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0, "selection": "validity"},
+    "paper": {"weights": "ethical", "predictor": "attention", "omega_u": PAPER_OMEGA_U, "selection": "cost"},
 }
 METRICS = ("completed", "total", "ego", "third_party", "vru")
 LABELS = {"completed": "Completed (%)", "total": "Total harm", "ego": "Ego", "third_party": "Third party",
@@ -149,7 +152,8 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str) -> dict[str, 
                    total=float(harm.get("total", 0.0)), ego=float(harm.get("ego", 0.0)),
                    third_party=float(harm.get("third_party", 0.0)), vru=float(harm.get("vru", 0.0)),
                    message=str(data.get("message", ""))[:200], steps=int(data.get("steps", 0) or 0),
-                   hazards_fired=",".join(fired), collided_with=_first_victim(Path(out_dir)))
+                   hazards_fired=",".join(fired), collided_with=_first_victim(Path(out_dir)),
+                   **run_risk_file(Path(out_dir)))
     except Exception as exc:  # noqa: BLE001
         row.update(status="error", completed=False, total=0.0, ego=0.0, third_party=0.0, vru=0.0,
                    message=f"{type(exc).__name__}: {exc}"[:200], steps=0, hazards_fired="", collided_with="")
@@ -221,7 +225,8 @@ def _row_from_folder(scenario: str, planner: PlannerSpec, out_dir: str) -> dict[
             "vru": float(h.get("vru", 0.0)), "message": str(data.get("message", ""))[:200],
             "steps": int(data.get("steps", 0) or 0),
             "hazards_fired": ",".join(sorted({e["type"] for e in events if e["event"] == "trigger"})),
-            "collided_with": _first_victim(out), "wall_s": float(data.get("wall_time", 0.0) or 0.0)}
+            "collided_with": _first_victim(out), "wall_s": float(data.get("wall_time", 0.0) or 0.0),
+            **run_risk_file(out)}
 
 
 def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, workers: int = 2,
@@ -399,9 +404,69 @@ def hazard_breakdown(rows: list[dict[str, Any]], planners: list[str]) -> list[di
     return out
 
 
+#: per-run ex-ante risk metrics compared between planners (sumo_ethics.analysis.risk)
+RISK_METRICS = ("risk_ego_mean", "risk_third_party_mean", "risk_vru_mean", "risk_total_mean", "risk_worst_peak")
+
+
+def paired_risk(rows: list[dict[str, Any]], planners: list[str], reference: str, n_boot: int = 2000,
+                seed: int = 0) -> list[dict[str, Any]]:
+    """Per planner and risk metric: mean over scenarios of (planner - reference) [95 % paired
+    bootstrap CI], scenarios lower / higher, Wilcoxon p (scenarios where both have a value)."""
+    from scipy.stats import wilcoxon
+
+    scen = sorted({r["scenario"] for r in rows})
+    idx = {sc: i for i, sc in enumerate(scen)}
+    val = {p: np.full((len(scen), len(RISK_METRICS)), np.nan) for p in planners}
+    for r in rows:
+        if r["planner"] in val:
+            val[r["planner"]][idx[r["scenario"]]] = [float(r.get(m, np.nan)) for m in RISK_METRICS]
+    rng = np.random.default_rng(seed)
+    out = []
+    for p in planners:
+        if p == reference:
+            continue
+        for j, m in enumerate(RISK_METRICS):
+            d = val[p][:, j] - val[reference][:, j]
+            d = d[~np.isnan(d)]
+            if not len(d):
+                continue
+            boot = d[rng.integers(0, len(d), size=(n_boot, len(d)))].mean(axis=1)
+            try:
+                pval = 1.0 if np.allclose(d, 0.0) else float(wilcoxon(d, zero_method="zsplit").pvalue)
+            except ValueError:
+                pval = float("nan")
+            out.append({"planner": p, "reference": reference, "metric": m, "difference": float(d.mean()),
+                        "lo": float(np.percentile(boot, 2.5)), "hi": float(np.percentile(boot, 97.5)),
+                        "lower": int(np.sum(d < 0)), "higher": int(np.sum(d > 0)), "wilcoxon_p": pval,
+                        "scenarios": int(len(d))})
+    return out
+
+
+def risk_markdown(rt: Any, paired: list[dict[str, Any]]) -> str:
+    """The ex-ante risk tables (per planner and class; paired differences) as Markdown."""
+    lines = ["# Ex-ante risk per class", "",
+             "Per run: the mean over planning steps of the chosen trajectory's risk (P x harm) summed over",
+             "the parties of the class; `total` = ego + third party. Mean over scenarios [95 % bootstrap CI],",
+             "median, and the median of the per-run peak risk of a single party (total: the worst-off party).", "",
+             "| Planner | Class | Mean [95 % CI] | Median | Peak (median) |", "| --- | --- | --- | --- | --- |"]
+    for r in rt.to_dict("records"):
+        lines.append(f"| {r['planner']} | {r['class']} | {r['mean']:.2e} [{r['ci_lo']:.2e}, {r['ci_hi']:.2e}] | "
+                     f"{r['median']:.2e} | {r['peak_median']:.2e} |")
+    if paired:
+        lines += ["", f"Paired against {paired[0]['reference']}: mean difference (planner - reference) "
+                  "[95 % paired bootstrap CI], scenarios lower / higher, Wilcoxon p.", "",
+                  "| Planner | Metric | Difference | Lower / higher | Wilcoxon p |", "| --- | --- | --- | --- | --- |"]
+        for r in paired:
+            lines.append(f"| {r['planner']} | {r['metric']} | {r['difference']:.2e} [{r['lo']:.2e}, {r['hi']:.2e}] | "
+                         f"{r['lower']} / {r['higher']} | {r['wilcoxon_p']:.3g} |")
+    return "\n".join(lines) + "\n"
+
+
 def write_outputs(rows: list[dict[str, Any]], planners: list[PlannerSpec], out: Path, reference: str | None,
                   meta: dict[str, Any]) -> tuple[Path, Path]:
     import pandas as pd
+
+    from sumo_ethics.analysis.risk import risk_boxplot, risk_table
 
     names = [p.name for p in planners]
     out.mkdir(parents=True, exist_ok=True)
@@ -414,6 +479,18 @@ def write_outputs(rows: list[dict[str, Any]], planners: list[PlannerSpec], out: 
     pd.DataFrame(bh).to_csv(out / "by_hazard.csv", index=False)
     md = markdown(t1, paired, bh, meta)
     (out / "table1.md").write_text(md)
+    df = pd.DataFrame(rows)
+    if "risk_total_mean" in df and df["risk_total_mean"].notna().any():
+        planned = [n for n in names if df.loc[df.planner == n, "risk_total_mean"].notna().any()]
+        rt = risk_table(df[df.planner.isin(planned)], ["planner"])
+        rt["order"] = rt.planner.map({n: i for i, n in enumerate(names)})
+        rt = rt.sort_values(["order"], kind="stable").drop(columns="order")
+        rt.to_csv(out / "risk.csv", index=False)
+        pr = paired_risk(rows, planned, reference) if reference in planned else []
+        if pr:
+            pd.DataFrame(pr).to_csv(out / "risk_paired.csv", index=False)
+        (out / "risk.md").write_text(risk_markdown(rt, pr))
+        risk_boxplot(df[df.planner.isin(planned)], "planner", out / "figures", order=planned)
     (out / "meta.json").write_text(json.dumps(meta, indent=1, default=str))
     return out / "table1.csv", out / "table1.md"
 
