@@ -233,3 +233,56 @@ def test_recorded_exante_risk_equals_the_chosen_candidates_risk_terms(tmp_path, 
         risky += want[1] > 0
     assert risky > 0  # the pedestrian dilemma shows up in the ex-ante risk
     assert summary.data["status"] == "collision"  # unavoidable by construction
+
+
+def test_red_light_clause_in_sumo(tmp_path):
+    """Vehicles that ignore the signal cross the suite's signalised junction every 7 s: each one
+    is a rule breaker on the junction exactly when its link showed red as it entered, and only
+    there (not on its approach, where it keeps its lane)."""
+    import libsumo
+
+    from sumo_ethics.sim import session
+    from sumo_ethics.sim.rules import RuleMonitor
+    from sumo_ethics.types import AgentStates
+
+    net = ROOT / "scenarios" / "suite" / "networks" / "junction_tls" / "junction_tls.net.xml"
+    (tmp_path / "r.rou.xml").write_text(
+        '<routes><vType id="car" vClass="passenger" length="4.5" width="1.8"/>'
+        + "".join(f'<vehicle id="v{i}" type="car" depart="{7 * i}" departSpeed="10"><route edges="N_in S_out"/></vehicle>'
+                  for i in range(12)) + "</routes>")
+    cfg = tmp_path / "t.sumocfg"
+    cfg.write_text(f'<configuration><input><net-file value="{net}"/><route-files value="r.rou.xml"/></input>'
+                   '<time><end value="100"/><step-length value="0.1"/></time></configuration>')
+    session.start(session.read_scenario(cfg), 1, tmp_path / "err.log")
+    try:
+        mon, entered, flagged_at_entry, flagged_outside = RuleMonitor(), {}, {}, 0
+        last_lane: dict[str, str] = {}
+        while libsumo.simulation.getTime() < 95:
+            libsumo.simulationStep()
+            ids = tuple(libsumo.vehicle.getIDList())
+            for v in libsumo.simulation.getDepartedIDList():
+                libsumo.vehicle.setSpeedMode(v, 0)  # ignores lights and everything else
+            if not ids:
+                continue
+            xy = np.array([libsumo.vehicle.getPosition(v) for v in ids])
+            yaw = np.radians(90.0 - np.array([libsumo.vehicle.getAngle(v) for v in ids]))
+            n = len(ids)
+            agents = AgentStates(ids, xy[:, 0], xy[:, 1], yaw, np.full(n, 10.0), np.zeros(n), np.full(n, 4.5),
+                                 np.full(n, 1.8), np.full(n, 1500.0), np.zeros(n, dtype=np.int8))
+            breakers = mon.breakers(agents)
+            for v in ids:
+                lane = libsumo.vehicle.getLaneID(v)
+                before = last_lane.get(v, "")
+                if lane.startswith(":") and before and not before.startswith(":"):
+                    state = next(l[5] for l in libsumo.lane.getLinks(before) if l[4] == lane)
+                    entered[v] = state
+                    flagged_at_entry[v] = v in breakers
+                elif not lane.startswith(":"):
+                    flagged_outside += v in breakers
+                last_lane[v] = lane
+    finally:
+        session.close()
+    assert flagged_outside == 0
+    assert {s for s in entered.values()} >= {"r", "G"} or {s for s in entered.values()} >= {"r", "g"}
+    for v, state in entered.items():
+        assert flagged_at_entry[v] == (state in "rR"), (v, state)

@@ -20,6 +20,7 @@ class HazardController:
         self.injector = injector
         self.name = inner.name
         self.needs_history = getattr(inner, "needs_history", False)
+        self.needs_rules = getattr(inner, "needs_rules", False)
 
     def act(self, scene: Scene) -> Decision:
         self.injector.on_step(scene)
