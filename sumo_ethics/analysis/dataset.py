@@ -19,6 +19,8 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
+from sumo_ethics.analysis.risk import COLUMNS as RISK_COLUMNS, run_risk_file
+
 TABLES = ("runs", "collisions", "steps")
 FINISHED = ("completed", "collision", "timeout", "error")
 
@@ -78,6 +80,7 @@ def _run_row(run: dict[str, Any], folder: Path) -> dict[str, Any]:
         "route_length": float(s["route_length"]) if s.get("route_length") is not None else None,
         "controller": s.get("controller"), "wall_time": float(wall) if wall is not None else None,
         "path": f"runs/{run['run_id']}",
+        **run_risk_file(folder),
     }
 
 
@@ -87,6 +90,7 @@ RUN_COLUMNS = pa.schema([
     ("harm_total", pa.float64()), ("collisions_ego", pa.int64()), ("collisions_others", pa.int64()),
     ("steps", pa.int64()), ("distance", pa.float64()), ("sim_time", pa.float64()), ("route_length", pa.float64()),
     ("controller", pa.string()), ("wall_time", pa.float64()), ("path", pa.string()),
+    *((c, pa.float64()) for c in RISK_COLUMNS),
 ])
 
 

@@ -49,6 +49,15 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
     rep.figures["completion"] = plots.completion_vs_parameter(tables["summary"], by, figs)
     rep.figures["harm_per_collision"] = plots.harm_per_collision(res.collisions, figs)
     rep.figures["tradeoff"] = plots.tradeoff(res.runs, figs, colour_by=by[0])
+    has_risk = "risk_total_mean" in res.runs and res.runs["risk_total_mean"].notna().any()
+    if has_risk:
+        from sumo_ethics.analysis.risk import risk_boxplot, risk_table
+
+        tables["exante_risk"] = risk_table(res.runs, by, n_boot=n_boot, seed=seed)
+        tables["exante_risk"].to_csv(folder / "exante_risk.csv", index=False)
+        (folder / "exante_risk.md").write_text(to_markdown(tables["exante_risk"]))
+        rep.tables["exante_risk"] = folder / "exante_risk.csv"
+        rep.figures["exante_risk"] = risk_boxplot(res.runs, by[0], figs)
 
     manifest = json.loads((sweep_dir / "manifest.json").read_text())
     d = manifest["definition"]
@@ -85,13 +94,19 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
         "## Ego collisions by class of the other party",
         "",
         to_markdown(tables["collisions_by_class"]) if len(tables["collisions_by_class"]) else "No ego collisions.\n",
-        "## Figures",
-        "",
     ]
+    if has_risk:
+        lines += ["## Ex-ante risk per class", "",
+                  "Per run, the mean over planning steps of the risk (P x harm) the chosen trajectory puts on",
+                  "each class (summed over its parties); mean over runs [95 % bootstrap CI], median, and the",
+                  "median per-run peak risk of a single party.", "",
+                  to_markdown(tables["exante_risk"])]
+    lines += ["## Figures", ""]
     captions = {"harm": "Harm per class vs the swept parameter (mean over runs, 95% CI band)",
                 "completion": "Completion and ego-collision rate",
                 "harm_per_collision": "Harm per ego collision by class",
-                "tradeoff": "Ego vs third-party harm per run"}
+                "tradeoff": "Ego vs third-party harm per run",
+                "exante_risk": "Ex-ante risk of the chosen trajectory per class (per-run mean)"}
     for key, paths in rep.figures.items():
         png, svg = (p.relative_to(folder).as_posix() for p in paths)
         lines += [f"### {captions[key]}", "", f"![{captions[key]}]({png})", "", f"[SVG]({svg})", ""]
