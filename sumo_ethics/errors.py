@@ -17,3 +17,7 @@ class SimulationError(SumoEthicsError):
     """SUMO failed or the simulation could not continue."""
 
     exit_code = 3
+
+
+class Terminated(KeyboardInterrupt):
+    """The process got SIGTERM: handled like Ctrl-C (outputs and summary written), exit 143."""

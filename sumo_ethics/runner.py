@@ -8,10 +8,14 @@ far and a summary saying why the run ended are written to the run folder.
 from __future__ import annotations
 
 import platform
+import shutil
+import signal
+import threading
 import time as wallclock
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 import libsumo
 import numpy as np
@@ -20,11 +24,11 @@ from sumo_ethics import __version__
 from sumo_ethics.collision import PairEvents, previous_of, swept_contacts
 from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
 from sumo_ethics.config import RunConfig
-from sumo_ethics.errors import ConfigError, SimulationError, SumoEthicsError
+from sumo_ethics.errors import ConfigError, SimulationError, SumoEthicsError, Terminated
 from sumo_ethics.ethics.harm import CrashOutcome, ImpactArea, Party, crash_outcome
 from sumo_ethics.plan.controller import Controller, Scene
 from sumo_ethics.plan.history import History
-from sumo_ethics.record.writer import RunRecorder, write_json
+from sumo_ethics.record.writer import PARTIAL, RunRecorder, chunk_steps, write_json
 from sumo_ethics.sim import session
 from sumo_ethics.sim.rules import RuleMonitor
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld, party_state, sumo_collisions
@@ -47,23 +51,46 @@ class RunSummary:
     data: dict[str, Any] = field(default_factory=dict)
 
 
-def prepare_out(out: Path) -> bool:
-    """Create the run folder and prove it is writable (ConfigError otherwise); True if created."""
+#: every file or folder a run writes into its --out folder
+OUTPUT_NAMES = ("summary.json", "config.json", "steps.parquet", "timings.parquet", "collisions.parquet",
+                "sumo-errors.log", PARTIAL)
+
+
+def prepare_out(out: Path, overwrite: bool = False) -> bool:
+    """Create the run folder and prove it is writable (ConfigError otherwise); True if created.
+
+    A folder holding a run's outputs is refused unless ``overwrite``; then those outputs (and
+    nothing else) are removed. Other files in the folder are never touched.
+    """
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out} exists and is not a folder")
+    old = [n for n in OUTPUT_NAMES if (out / n).exists()] if out.is_dir() else []
+    if old and not overwrite:
+        raise ConfigError(f"--out {out} already holds a run ({', '.join(old)}); give --overwrite to replace it "
+                          "or choose another folder")
     created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / ".write-test"
         probe.write_text("ok")
         probe.unlink()
+        for name in old:  # --overwrite: the previous run's outputs, nothing else
+            p = out / name
+            shutil.rmtree(p) if p.is_dir() else p.unlink()
     except OSError as exc:
         raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
     return created
 
 
-def discard_outputs(out: Path, created: bool) -> None:
-    """Remove what a run refused for bad input wrote, so no half-made run folder is left."""
-    for name in ("config.json", "sumo-errors.log"):
-        (out / name).unlink(missing_ok=True)
+def discard_outputs(out: Path, created: bool, written: Iterable[str] = ("config.json", "sumo-errors.log")) -> None:
+    """Remove what a run refused for bad input wrote (only the files it wrote itself), so no
+    half-made run folder is left."""
+    for name in written:
+        p = out / name
+        if p.is_dir():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
     if created:
         try:
             out.rmdir()
@@ -226,14 +253,14 @@ class Run:
         self.events = PairEvents(cfg.collision_gap)
         self.status = RunStatus.ERROR
         self.message = ""
+        self.written: list[str] = []  # files of the run folder this run wrote (removed on bad input)
         self.meta: dict[str, Any] = {}
         self.step = 0
         self.t_start = wallclock.perf_counter()
 
     # -- collisions --
     def _book(self, row: dict[str, Any], a: str, b: str) -> None:
-        self.rec.collisions.append(row)
-        self.events.bind(a, b, len(self.rec.collisions) - 1)
+        self.events.bind(a, b, self.rec.add_collision(row))
 
     def detect(self, before: Snapshot, now: Snapshot) -> bool:
         """Log this step's collisions; True if the ego had a new one."""
@@ -259,11 +286,11 @@ class Run:
                 row = self.rec.collisions[idx] if idx is not None else None
                 if row is not None and row["detector"] != detector and detector != "sumo_unconfirmed":
                     if not is_booked(row):  # confirmed later: book it now
-                        row.update(booking(row, True))
+                        self.rec.update_collision(idx, **booking(row, True))
                         ego_new = True
-                    row["detector"] = merged_detector(row["detector"], detector)
+                    self.rec.update_collision(idx, detector=merged_detector(row["detector"], detector))
                     if report and not row["sumo_type"]:
-                        row["sumo_type"] = report[6]
+                        self.rec.update_collision(idx, sumo_type=report[6])
                 continue
             if other in before_index:  # states just before impact
                 b = before.others.take([before_index[other]])
@@ -304,7 +331,7 @@ class Run:
     def execute(self) -> None:
         cfg = self.cfg
         files = session.read_scenario(cfg.scenario)
-        self.created_out = prepare_out(cfg.out)
+        self.created_out = prepare_out(cfg.out, cfg.overwrite)
         end = cfg.end if cfg.end is not None else (files.end or DEFAULT_END)
         ego_id = cfg.ego_id or "ego"
         declared = session.route_vehicle_ids(files)
@@ -318,6 +345,9 @@ class Run:
         self.meta.update(scenario=str(files.config), end=end, ego_id=ego_id,
                          forced_sumo_options=session.forced_option_report(files))
         write_json(cfg.out / "config.json", cfg.to_dict() | {"resolved": {"end": end, "ego_id": ego_id}})
+        self.written.append("config.json")
+        if not (cfg.out / "sumo-errors.log").exists():
+            self.written.append("sumo-errors.log")
         session.start(files, cfg.seed, cfg.out / "sumo-errors.log", cfg.sumo_args)
         self.meta["sumo_version"] = session.version()
         try:
@@ -331,6 +361,7 @@ class Run:
     def _loop(self, ego_id: str, end: float) -> None:
         cfg = self.cfg
         dt = libsumo.simulation.getDeltaT()
+        self.rec.chunk = chunk_steps(dt)
         if cfg.ego_id is not None:
             wait_for_vehicle(ego_id, end)
             edges = tuple(libsumo.vehicle.getRoute(ego_id))
@@ -390,8 +421,10 @@ class Run:
                 w4 = wallclock.perf_counter()
                 s, d = route.path.project_point(float(new.ego.x[0]), float(new.ego.y[0]),
                                                 near=(s - 5.0, s + 5.0 + 50.0 * dt))
-                self._record(new, snap, decision, s, d, dt, (w1 - w0, w2 - w1, w3 - w2, w4 - w3), scene.stop_s)
-                self.rec.timings[-1]["record_ms"] = 1e3 * (wallclock.perf_counter() - w4)
+                row, timing = self._rows(new, snap, decision, s, d, dt, (w1 - w0, w2 - w1, w3 - w2, w4 - w3),
+                                         scene.stop_s)
+                timing["record_ms"] = 1e3 * (wallclock.perf_counter() - w4)
+                self.rec.step(row, timing)  # flushes a chunk every CHUNK_SECONDS of simulated time
                 snap = new
                 if progress is not None and self.step % 50 == 0:
                     progress[0].update(progress[1], completed=min(snap.time, end))
@@ -408,8 +441,9 @@ class Run:
             if progress is not None:
                 progress[0].stop()
 
-    def _record(self, now: Snapshot, before: Snapshot, decision: Any, s: float, d: float, dt: float,
-                w: tuple[float, float, float, float], stop_s: float | None) -> None:
+    def _rows(self, now: Snapshot, before: Snapshot, decision: Any, s: float, d: float, dt: float,
+              w: tuple[float, float, float, float], stop_s: float | None) -> tuple[dict, dict]:
+        """This step's steps.parquet and timings.parquet rows."""
         e, o = now.ego, now.others
         dist = np.hypot(o.x - e.x[0], o.y - e.y[0]) if len(o) else np.empty(0)
         row = {
@@ -421,17 +455,16 @@ class Run:
             "stop_s": float("nan") if stop_s is None else stop_s,
         }
         row.update(decision.info)
-        self.rec.steps.append(row)
         timing = {"step": self.step, "controller_ms": 1e3 * w[0], "sumo_ms": 1e3 * w[1], "read_ms": 1e3 * w[2],
                   "collision_ms": 1e3 * w[3]}
         timing.update(decision.timings_ms)
-        self.rec.timings.append(timing)
+        return row, timing
 
     def summary(self, wall: float) -> dict[str, Any]:
         ego_rows = [r for r in self.rec.collisions if is_booked(r)]
         harm = {k: float(sum(r[f"harm_{k}"] for r in ego_rows)) for k in ("ego", "third_party", "vru")}
         harm["total"] = harm["ego"] + harm["third_party"]
-        steps = self.rec.steps
+        first, last = self.rec.first_step, self.rec.last_step
         return {
             "status": self.status.value,
             "message": self.message,
@@ -442,9 +475,9 @@ class Run:
                            "ego_unconfirmed": sum(r["detector"] == "sumo_unconfirmed" for r in self.rec.collisions),
                            "others": sum(not r["involves_ego"] for r in self.rec.collisions)},
             "seed": self.cfg.seed,
-            "steps": len(steps),
-            "distance": float(steps[-1]["s"] - steps[0]["s"]) if steps else 0.0,
-            "sim_time": float(steps[-1]["time"]) if steps else None,
+            "steps": self.rec.n_steps,
+            "distance": float(last["s"] - first["s"]) if last is not None else 0.0,
+            "sim_time": float(last["time"]) if last is not None else None,
             "wall_time": wall,
             **{k: v for k, v in self.meta.items() if k != "last_time"},
             "versions": {"sumo_ethics": __version__, "sumo": self.meta.get("sumo_version", "unknown"),
@@ -497,23 +530,52 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
     r = Run(cfg, controller, tuple(hooks))
     t0 = wallclock.perf_counter()
     error: BaseException | None = None
-    try:
-        r.execute()
-    except ConfigError as exc:  # bad input: nothing was computed, leave nothing behind
-        if cfg.out.is_dir():
-            discard_outputs(cfg.out, getattr(r, "created_out", False))
-        raise exc
-    except SumoEthicsError as exc:
-        r.status, r.message, error = RunStatus.ERROR, str(exc), exc
-    except KeyboardInterrupt as exc:
-        r.status, r.message, error = RunStatus.ERROR, "interrupted", exc
-    finally:
-        if cfg.out.is_dir() and (cfg.out / "config.json").exists():
-            r.rec.flush()
-            data = r.summary(wallclock.perf_counter() - t0)
-            write_json(cfg.out / "summary.json", data)
-        else:
-            data = {"status": r.status.value, "message": r.message}
+    with _sigterm_as_interrupt():
+        try:
+            r.execute()
+        except ConfigError as exc:  # bad input: nothing was computed, leave nothing behind
+            if cfg.out.is_dir():
+                discard_outputs(cfg.out, getattr(r, "created_out", False), r.written + [PARTIAL])
+            raise exc
+        except SumoEthicsError as exc:
+            r.status, r.message, error = RunStatus.ERROR, str(exc), exc
+        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated)
+            r.status, error = RunStatus.INTERRUPTED, exc
+            r.message = f"interrupted by {'SIGTERM' if isinstance(exc, Terminated) else 'Ctrl-C'} " \
+                        f"at t={r.meta.get('last_time', 0):g} s"
+        finally:
+            if cfg.out.is_dir() and (cfg.out / "config.json").exists():
+                try:
+                    r.rec.close()
+                except OSError as exc:  # e.g. a full disk: the chunks written so far stay in partial/
+                    r.status, r.message = RunStatus.ERROR, f"cannot write the outputs to {cfg.out}: " \
+                                                           f"{exc.strerror or exc}"
+                    error = SimulationError(r.message)
+                data = r.summary(wallclock.perf_counter() - t0)
+                write_json(cfg.out / "summary.json", data)
+            else:
+                data = {"status": r.status.value, "message": r.message}
     if error is not None:
         raise error
     return RunSummary(r.status, r.message, cfg.out, data)
+
+
+@contextmanager
+def _sigterm_as_interrupt():
+    """Within: SIGTERM raises :class:`Terminated` (a KeyboardInterrupt), so a terminated run ends
+    like Ctrl-C, with its outputs and a summary. Only in the main thread and only when nobody
+    else has set a SIGTERM handler."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a second SIGTERM kills at once
+        raise Terminated()
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
