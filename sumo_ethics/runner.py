@@ -9,10 +9,7 @@ from __future__ import annotations
 
 import platform
 import shutil
-import signal
-import threading
 import time as wallclock
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -22,6 +19,7 @@ import numpy as np
 
 from sumo_ethics import __version__
 from sumo_ethics.collision import PairEvents, previous_of, swept_contacts
+from sumo_ethics.interrupt import sigterm_as_interrupt
 from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
 from sumo_ethics.config import RunConfig
 from sumo_ethics.errors import ConfigError, SimulationError, SumoEthicsError, Terminated
@@ -29,7 +27,7 @@ from sumo_ethics.ethics.harm import CrashOutcome, ImpactArea, Party, crash_outco
 from sumo_ethics.plan.controller import Controller, Scene
 from sumo_ethics.plan.history import History
 from sumo_ethics.record.writer import PARTIAL, RunRecorder, chunk_steps, write_json
-from sumo_ethics.sim import session
+from sumo_ethics.sim import preflight, session
 from sumo_ethics.sim.rules import RuleMonitor
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld, party_state, sumo_collisions
 from sumo_ethics.types import VULNERABLE, AgentStates, RoadUserClass, RunStatus
@@ -331,6 +329,7 @@ class Run:
     def execute(self) -> None:
         cfg = self.cfg
         files = session.read_scenario(cfg.scenario)
+        preflight.check_scenario(files, cfg.ego_from, cfg.ego_to)  # what SUMO reports badly or crashes on
         self.created_out = prepare_out(cfg.out, cfg.overwrite)
         end = cfg.end if cfg.end is not None else (files.end or DEFAULT_END)
         ego_id = cfg.ego_id or "ego"
@@ -530,7 +529,7 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
     r = Run(cfg, controller, tuple(hooks))
     t0 = wallclock.perf_counter()
     error: BaseException | None = None
-    with _sigterm_as_interrupt():
+    with sigterm_as_interrupt():
         try:
             r.execute()
         except ConfigError as exc:  # bad input: nothing was computed, leave nothing behind
@@ -559,23 +558,3 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
         raise error
     return RunSummary(r.status, r.message, cfg.out, data)
 
-
-@contextmanager
-def _sigterm_as_interrupt():
-    """Within: SIGTERM raises :class:`Terminated` (a KeyboardInterrupt), so a terminated run ends
-    like Ctrl-C, with its outputs and a summary. Only in the main thread and only when nobody
-    else has set a SIGTERM handler."""
-    if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
-        yield
-        return
-
-    def handler(signum: int, frame: Any) -> None:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a second SIGTERM kills at once
-        raise Terminated()
-
-    signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)

@@ -54,6 +54,10 @@ MANIFEST_VERSION = 1
 FINISHED = ("completed", "collision", "timeout", "error")  # run statuses kept as results
 FAILED = "failed"  # the tool itself crashed on this run: no run folder, retried on resume
 PENDING = "pending"
+#: bounds checked before a grid is built: values per swept axis (--omega-u, --seeds, each --set)
+#: and runs in the whole grid
+MAX_VALUES = 10_000
+MAX_RUNS = 100_000
 
 # ---- --set keys --------------------------------------------------------------------------------
 #: run keys: --set name -> (RunConfig field, type)
@@ -116,8 +120,12 @@ def parse_range(text: str, what: str = "range") -> list[float]:
         if stop < start:
             raise ConfigError(f"malformed {what} '{text}': stop is below start")
         n = int(math.floor((stop - start) / step + 1e-9))
+        if n + 1 > MAX_VALUES:
+            raise ConfigError(f"{what} '{text}' has {n + 1:.3g} values; the limit is {MAX_VALUES}")
         values = [round(start + i * step, 10) for i in range(n + 1)]
     else:
+        if text.count(",") + 1 > MAX_VALUES:
+            raise ConfigError(f"{what} has {text.count(',') + 1} values; the limit is {MAX_VALUES}")
         values = [round(_number(p.strip(), f"{what} '{text}'"), 10) for p in text.split(",")]
     if len(set(values)) != len(values):
         raise ConfigError(f"malformed {what} '{text}': repeated values")
@@ -136,6 +144,10 @@ def parse_seeds(text: str) -> list[int]:
         b = int(m.group(2)) if m.group(2) is not None else a
         if b < a:
             raise ConfigError(f"malformed --seeds '{text}': {part} runs backwards")
+        if b >= 2**31:
+            raise ConfigError(f"malformed --seeds '{text}': seeds must be below 2^31")
+        if len(seeds) + b - a + 1 > MAX_VALUES:
+            raise ConfigError(f"--seeds '{text}' has more than {MAX_VALUES} seeds; the limit is {MAX_VALUES}")
         seeds += range(a, b + 1)
     if len(set(seeds)) != len(seeds):
         raise ConfigError(f"malformed --seeds '{text}': repeated seeds")
@@ -177,6 +189,8 @@ def parse_set(items: Iterable[str]) -> dict[str, list[Any]]:
             raise ConfigError(f"unknown --set key '{key}'; known: {', '.join(known)}")
         if key in out:
             raise ConfigError(f"--set {key} given twice")
+        if vals.count(",") + 1 > MAX_VALUES:
+            raise ConfigError(f"--set {key} has {vals.count(',') + 1} values; the limit is {MAX_VALUES}")
         values = [_scalar(v) for v in vals.split(",")] if vals.strip() else []
         if not values:
             raise ConfigError(f"malformed --set '{item}': no values")
@@ -370,8 +384,13 @@ def make_sweep(scenario: Path, omega_u: str, seeds: str, sets: Iterable[str] = (
     if both:
         raise ConfigError(f"{', '.join(sorted(both))} given both as an option and with --set")
     paths = find_scenarios(scenario)
-    return Sweep(scenarios=tuple(str(p) for p in paths), omega_u=tuple(parse_range(omega_u, "--omega-u")),
-                 seeds=tuple(parse_seeds(seeds)), sets=parsed, options=options, planner=dict(planner or {}))
+    wu, sd = parse_range(omega_u, "--omega-u"), parse_seeds(seeds)
+    n = len(paths) * len(wu) * len(sd) * math.prod(len(v) for v in parsed.values())
+    if n > MAX_RUNS:
+        raise ConfigError(f"the sweep has {n} runs ({len(paths)} scenarios x {len(wu)} omega_u x {len(sd)} seeds"
+                          f"{''.join(f' x {len(v)} {k}' for k, v in parsed.items())}); the limit is {MAX_RUNS}")
+    return Sweep(scenarios=tuple(str(p) for p in paths), omega_u=tuple(wu),
+                 seeds=tuple(sd), sets=parsed, options=options, planner=dict(planner or {}))
 
 
 # ---- one run -----------------------------------------------------------------------------------
