@@ -159,7 +159,10 @@ def main(argv: list[str] | None = None) -> int:
         cli.main(args=argv, prog_name="sumo-ethics", standalone_mode=False)
     except click.exceptions.Exit as exc:
         return exc.exit_code
-    except click.exceptions.Abort:
+    except click.exceptions.Abort as exc:  # click turns KeyboardInterrupt (and Terminated) into Abort
+        if isinstance(exc.__context__, Terminated):
+            click.echo("error: terminated (SIGTERM); the outputs written so far are kept", err=True)
+            return 143
         click.echo("error: aborted", err=True)
         return 130
     except click.ClickException as exc:
@@ -171,6 +174,10 @@ def main(argv: list[str] | None = None) -> int:
     except PredictorError as exc:
         click.echo(f"error: {exc}", err=True)
         return 2
+    except OSError as exc:  # a full disk, a file size limit, a folder that vanished
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        click.echo(f"error: cannot write or read a file{where}: {exc.strerror or exc}", err=True)
+        return 1
     except Terminated:
         click.echo("error: terminated (SIGTERM); the outputs written so far are kept", err=True)
         return 143

@@ -52,6 +52,8 @@ def sweep(scenario_or_suite: Path, omega_u: str, seeds: str, sets: tuple[str, ..
     from sumo_ethics.settings import load_toml
     from sumo_ethics.sweep import make_sweep, run_sweep
 
+    if workers is not None and workers < 1:
+        raise ConfigError(f"--workers must be at least 1, got {workers}")
     if workers is not None and scheduler:
         raise ConfigError("--workers and --scheduler exclude each other")
     options = {"end": end, "ego_depart": ego_depart, "ego_from": ego_from, "ego_to": ego_to,
@@ -65,8 +67,11 @@ def sweep(scenario_or_suite: Path, omega_u: str, seeds: str, sets: tuple[str, ..
               f"{res.errors} ended with a SUMO/run error), {res.failed} failed; {res.wall:.1f} s")
     con.print(f"  manifest {out / 'manifest.json'}, dataset {out / 'dataset'}")
     if res.failed:
-        con.print("  [red]failed runs are listed in manifest.json; run the same command again to retry them[/red]")
-        raise SystemExit(1)
+        from sumo_ethics.errors import SumoEthicsError
+
+        first = res.failures[0] if res.failures else ""
+        raise SumoEthicsError(f"{res.failed} run(s) failed ({first}); they are listed in manifest.json and run "
+                              "again when the same command is started again")
 
 
 @click.command()
@@ -84,6 +89,11 @@ def analyze(sweep_dir: Path, by: str, report_dir: Path | None, n_boot: int, seed
 
     from sumo_ethics.analysis.report import make_report
 
+    from sumo_ethics.analysis.stats import MAX_BOOT
+    from sumo_ethics.errors import ConfigError
+
+    if not 1 <= n_boot <= MAX_BOOT:
+        raise ConfigError(f"--n-boot must be between 1 and {MAX_BOOT}, got {n_boot}")
     groups = [b.strip() for b in by.split(",") if b.strip()]
     rep = make_report(sweep_dir, groups, report_dir, n_boot=n_boot, seed=seed)
     con = Console(highlight=False, soft_wrap=True)

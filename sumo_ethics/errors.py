@@ -21,3 +21,9 @@ class SimulationError(SumoEthicsError):
 
 class Terminated(KeyboardInterrupt):
     """The process got SIGTERM: handled like Ctrl-C (outputs and summary written), exit 143."""
+
+
+class OutputError(SumoEthicsError):
+    """The outputs could not be written (a full disk, a file size limit): not the input's fault."""
+
+    exit_code = 1

@@ -22,7 +22,7 @@ from sumo_ethics.collision import PairEvents, previous_of, swept_contacts
 from sumo_ethics.interrupt import sigterm_as_interrupt
 from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
 from sumo_ethics.config import RunConfig
-from sumo_ethics.errors import ConfigError, SimulationError, SumoEthicsError, Terminated
+from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEthicsError, Terminated
 from sumo_ethics.ethics.harm import CrashOutcome, ImpactArea, Party, crash_outcome
 from sumo_ethics.plan.controller import Controller, Scene
 from sumo_ethics.plan.history import History
@@ -534,10 +534,14 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
             r.execute()
         except ConfigError as exc:  # bad input: nothing was computed, leave nothing behind
             if cfg.out.is_dir():
-                discard_outputs(cfg.out, getattr(r, "created_out", False), r.written + [PARTIAL])
+                discard_outputs(cfg.out, getattr(r, "created_out", False),
+                                r.written + ([PARTIAL] if r.written else []))  # partial/ is ours once we wrote
             raise exc
         except SumoEthicsError as exc:
             r.status, r.message, error = RunStatus.ERROR, str(exc), exc
+        except OSError as exc:  # the outputs could not be written (a full disk)
+            r.status, r.message = RunStatus.ERROR, f"cannot write the outputs to {cfg.out}: {exc.strerror or exc}"
+            error = OutputError(r.message)
         except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated)
             r.status, error = RunStatus.INTERRUPTED, exc
             r.message = f"interrupted by {'SIGTERM' if isinstance(exc, Terminated) else 'Ctrl-C'} " \
@@ -549,9 +553,15 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
                 except OSError as exc:  # e.g. a full disk: the chunks written so far stay in partial/
                     r.status, r.message = RunStatus.ERROR, f"cannot write the outputs to {cfg.out}: " \
                                                            f"{exc.strerror or exc}"
-                    error = SimulationError(r.message)
+                    error = OutputError(r.message)
                 data = r.summary(wallclock.perf_counter() - t0)
-                write_json(cfg.out / "summary.json", data)
+                try:
+                    write_json(cfg.out / "summary.json", data)
+                except OSError as exc:
+                    msg = f"cannot write the outputs to {cfg.out}: {exc.strerror or exc}"
+                    data["message"] = msg
+                    if error is None or not isinstance(error, OutputError):
+                        error = OutputError(msg) if not isinstance(error, KeyboardInterrupt) else error
             else:
                 data = {"status": r.status.value, "message": r.message}
     if error is not None:

@@ -338,15 +338,27 @@ class Sweep:
         return out
 
     def validate(self) -> list[RunSpec]:
-        """Every run's RunConfig is built once here, so bad values fail before anything runs."""
+        """Every distinct parameter set's RunConfig is built once here, and every distinct scenario
+        (with each ego route) goes through the pre-flight checks, so bad input fails before anything
+        runs. Cheap: XML parsing, no SUMO."""
+        from sumo_ethics.sim import preflight, session
+
         specs = self.specs()
         seen: set[str] = set()
+        nets: dict[str, Any] = {}
         for spec in specs:
             key = json.dumps({k: v for k, v in spec.params.items() if k != "seed"}, sort_keys=True)
             if key in seen:
                 continue
             seen.add(key)
-            spec.run_config(Path("/nonexistent/validation-only"))
+            cfg = spec.run_config(Path("/nonexistent/validation-only"))
+            if spec.scenario not in nets:
+                files = session.read_scenario(cfg.scenario)
+                nets[spec.scenario] = preflight.check_scenario(files)
+            try:
+                preflight.check_ego_edges(nets[spec.scenario], cfg.ego_from, cfg.ego_to)
+            except ConfigError as exc:
+                raise ConfigError(f"{spec.params['scenario']}: {exc}") from None
         return specs
 
 
@@ -409,7 +421,7 @@ def execute_run(spec: dict[str, Any], runs_dir: str) -> dict[str, Any]:
     already exists is not run again (status from its summary). Exceptions that are not
     sumo-ethics errors propagate (the caller records the run as failed).
     """
-    from sumo_ethics.errors import SumoEthicsError
+    from sumo_ethics.errors import OutputError, SumoEthicsError
     from sumo_ethics.record.writer import write_json
 
     s = RunSpec.from_dict(spec)
@@ -426,7 +438,10 @@ def execute_run(spec: dict[str, Any], runs_dir: str) -> dict[str, Any]:
     _limit_threads()
     try:
         run(cfg, controller=controller)
-    except SumoEthicsError as exc:  # a result of this configuration: kept, status "error"
+    except (ConfigError, OutputError):  # bad input or a full disk: not a result, retried on the next start
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    except SumoEthicsError as exc:  # SUMO failed on valid input: a result of this configuration, kept
         if not (tmp / "summary.json").exists():
             tmp.mkdir(parents=True, exist_ok=True)
             write_json(tmp / "summary.json", {"status": "error", "message": str(exc), "completed": False})
@@ -542,11 +557,17 @@ def check_out(out: Path, sweep: Sweep) -> None:
 # ---- executors ---------------------------------------------------------------------------------
 def _child(conn: Any, spec: dict[str, Any], runs_dir: str) -> None:
     """Body of one run process: :func:`execute_run`, its result (or error line) sent back."""
+    from sumo_ethics._worker_signals import watch_parent
+
+    watch_parent()  # killed when the sweep is gone, even by kill -9
     try:
         result = execute_run(spec, runs_dir)
         conn.send(("ok", result))
     except BaseException as exc:  # noqa: BLE001 - reported to the parent, which records the run as failed
-        line = "".join(traceback.format_exception_only(type(exc), exc)).strip().splitlines()[-1]
+        from sumo_ethics.errors import SumoEthicsError
+
+        line = str(exc) if isinstance(exc, SumoEthicsError) and str(exc) else \
+            "".join(traceback.format_exception_only(type(exc), exc)).strip().splitlines()[-1]
         try:
             conn.send(("error", line))
         except OSError:
@@ -691,6 +712,7 @@ class SweepResult:
     skipped: int  # already finished before this start
     errors: int  # finished with status "error"
     wall: float
+    failures: list[str] = field(default_factory=list)  # the messages of the failed runs
 
     @property
     def ok(self) -> bool:
@@ -706,9 +728,30 @@ def _progress(enabled: bool, total: int):
                     TimeElapsedColumn(), TextColumn("· left"), TimeRemainingColumn(), disable=not enabled)
 
 
-def _clean_temporaries(runs_dir: Path) -> None:
-    for p in runs_dir.glob(".*.tmp-*"):
-        shutil.rmtree(p, ignore_errors=True)
+def _clean_temporaries(out: Path) -> None:
+    """Leftovers of an earlier start that was killed: temporary run folders (their runs were
+    not finished and run again), the manifest's and the dataset's temporary files."""
+    for p in [*(out / "runs").glob(".*.tmp-*"), *out.glob(".manifest.json.tmp-*"), *out.glob(".dataset.tmp-*"),
+              *out.glob(".dataset.old-*")]:
+        shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+
+
+def check_finished(folder: Path) -> None:
+    """ConfigError when a finished run folder is corrupt (unreadable summary or Parquet footer)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    what = "summary.json"
+    try:
+        if not isinstance(json.loads((folder / "summary.json").read_text()), dict):
+            raise ValueError("not a JSON object")
+        for name in ("steps", "timings", "collisions"):
+            what = f"{name}.parquet"
+            if (folder / what).exists():
+                pq.read_metadata(folder / what)
+    except (OSError, ValueError, pa.ArrowException) as exc:
+        raise ConfigError(f"run folder {folder} is corrupt ({what}: {str(exc).splitlines()[0] if str(exc) else exc}); "
+                          f"remove that folder and start the same sweep again to redo the run") from None
 
 
 def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None = None, progress: bool = True,
@@ -717,9 +760,21 @@ def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None =
 
     ConfigError before anything runs for bad input, another sweep in ``out`` or an unreachable
     scheduler. Finished runs are skipped; a run whose process crashed is recorded as failed
-    (and runs again on the next start); Ctrl-C stops the runs in flight and re-raises.
+    (and runs again on the next start); Ctrl-C or SIGTERM stops the runs in flight and re-raises;
+    OutputError when the sweep's own files cannot be written (a full disk).
     """
-    out = Path(out)
+    from sumo_ethics.errors import OutputError
+    from sumo_ethics.interrupt import sigterm_as_interrupt
+
+    with sigterm_as_interrupt():
+        try:
+            return _run_sweep(sweep, Path(out), workers, scheduler, progress, on_result)
+        except OSError as exc:
+            raise OutputError(f"cannot write the sweep to {out}: {exc.strerror or exc}") from None
+
+
+def _run_sweep(sweep: Sweep, out: Path, workers: int, scheduler: str | None, progress: bool,
+               on_result: Callable[[dict[str, Any]], None] | None) -> SweepResult:
     if workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
     specs = sweep.validate()
@@ -731,7 +786,7 @@ def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None =
         runs_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
-    _clean_temporaries(runs_dir)
+    _clean_temporaries(out)
     manifest = Manifest(out, sweep, specs)
     manifest.load_previous()
     todo: list[RunSpec] = []
@@ -739,12 +794,14 @@ def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None =
     for s in specs:
         folder = runs_dir / s.run_id
         if (folder / "summary.json").exists():
+            check_finished(folder)
             manifest.update(_result_from_folder(s.run_id, folder, skipped=True))
             skipped += 1
         else:
             todo.append(s)
     manifest.write()
     failed = errors = 0
+    failures: list[str] = []
     with _progress(progress, len(specs)) as bar:
         task = bar.add_task("runs", total=len(specs), completed=skipped, failed=0, errors=0)
         running: dict[Any, RunSpec] = {}
@@ -767,11 +824,13 @@ def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None =
                     try:
                         result = fut.result()
                     except Exception as exc:  # noqa: BLE001 - a crash of the tool on this run
-                        line = "".join(traceback.format_exception_only(type(exc), exc)).strip().splitlines()[-1]
+                        line = str(exc) if isinstance(exc, RuntimeError) and str(exc) else \
+                            "".join(traceback.format_exception_only(type(exc), exc)).strip().splitlines()[-1]
                         result = {"run_id": s.run_id, "status": FAILED, "error": line, "message": line}
                     manifest.update(result)
                     if result["status"] == FAILED:
                         failed += 1
+                        failures.append(str(result.get("message") or result.get("error") or ""))
                     elif result["status"] == "error":
                         errors += 1
                     if on_result is not None:
@@ -791,7 +850,7 @@ def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None =
     build_dataset(out)
     done = sum(1 for r in manifest.runs.values() if r["status"] in FINISHED)
     return SweepResult(out=out, total=len(specs), done=done, failed=failed, skipped=skipped, errors=errors,
-                       wall=time.perf_counter() - t0)
+                       wall=time.perf_counter() - t0, failures=failures)
 
 
 def _main_one() -> int:

@@ -33,7 +33,12 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
         raise ConfigError(f"{sweep_dir} holds no finished runs yet")
     by = check_groups(res.runs, list(by) or ["omega_u"])
     folder = Path(out) if out is not None else sweep_dir / "report"
-    folder.mkdir(parents=True, exist_ok=True)
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(f"--out {folder} exists and is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"cannot write to --out {folder}: {exc.strerror or exc}") from None
     rep = Report(folder=folder, report=folder / "report.md")
 
     tables = {"summary": summary_table(res.runs, by, n_boot=n_boot, seed=seed),

@@ -185,6 +185,9 @@ def _first_victim(out: Path) -> str:
 
 # ---- many runs --------------------------------------------------------------------------
 def _child(conn: Any, args: tuple) -> None:
+    from sumo_ethics._worker_signals import watch_parent
+
+    watch_parent()  # killed when the evaluation is gone, even by kill -9
     try:
         row = run_one(*args)
         try:
