@@ -7,6 +7,7 @@ far and a summary saying why the run ended are written to the run folder.
 
 from __future__ import annotations
 
+import os
 import platform
 import shutil
 import time as wallclock
@@ -54,11 +55,13 @@ OUTPUT_NAMES = ("summary.json", "config.json", "steps.parquet", "timings.parquet
                 "sumo-errors.log", PARTIAL)
 
 
-def prepare_out(out: Path, overwrite: bool = False) -> bool:
-    """Create the run folder and prove it is writable (ConfigError otherwise); True if created.
+def prepare_out(out: Path, overwrite: bool = False) -> tuple[bool, Path | None]:
+    """Create the run folder and prove it is writable (ConfigError otherwise).
 
     A folder holding a run's outputs is refused unless ``overwrite``; then those outputs (and
-    nothing else) are removed. Other files in the folder are never touched.
+    nothing else) are moved into ``out/.replaced-<pid>/``, put back if this run is refused for
+    bad input and deleted when it ends. Other files in the folder are never touched.
+    Returns (whether the folder was created, the folder holding the replaced outputs or None).
     """
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} exists and is not a folder")
@@ -72,23 +75,31 @@ def prepare_out(out: Path, overwrite: bool = False) -> bool:
         probe = out / ".write-test"
         probe.write_text("ok")
         probe.unlink()
-        for name in old:  # --overwrite: the previous run's outputs, nothing else
-            p = out / name
-            shutil.rmtree(p) if p.is_dir() else p.unlink()
+        backup = None
+        if old:  # --overwrite: the previous run's outputs, nothing else
+            backup = out / f".replaced-{os.getpid()}"
+            backup.mkdir()
+            for name in old:
+                os.rename(out / name, backup / name)
     except OSError as exc:
         raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
-    return created
+    return created, backup
 
 
-def discard_outputs(out: Path, created: bool, written: Iterable[str] = ("config.json", "sumo-errors.log")) -> None:
-    """Remove what a run refused for bad input wrote (only the files it wrote itself), so no
-    half-made run folder is left."""
+def discard_outputs(out: Path, created: bool, written: Iterable[str] = ("config.json", "sumo-errors.log"),
+                    replaced: Path | None = None) -> None:
+    """Remove what a run refused for bad input wrote (only the files it wrote itself) and put back
+    the earlier run's outputs it was to replace, so the folder is as it was."""
     for name in written:
         p = out / name
         if p.is_dir():
             shutil.rmtree(p, ignore_errors=True)
         else:
             p.unlink(missing_ok=True)
+    if replaced is not None and replaced.is_dir():
+        for p in replaced.iterdir():
+            os.replace(p, out / p.name)  # this run's own files with those names are gone by now
+        shutil.rmtree(replaced, ignore_errors=True)
     if created:
         try:
             out.rmdir()
@@ -252,6 +263,8 @@ class Run:
         self.status = RunStatus.ERROR
         self.message = ""
         self.written: list[str] = []  # files of the run folder this run wrote (removed on bad input)
+        self.created_out = False
+        self.replaced: Path | None = None  # an earlier run's outputs moved aside by --overwrite
         self.meta: dict[str, Any] = {}
         self.step = 0
         self.t_start = wallclock.perf_counter()
@@ -330,7 +343,7 @@ class Run:
         cfg = self.cfg
         files = session.read_scenario(cfg.scenario)
         preflight.check_scenario(files, cfg.ego_from, cfg.ego_to)  # what SUMO reports badly or crashes on
-        self.created_out = prepare_out(cfg.out, cfg.overwrite)
+        self.created_out, self.replaced = prepare_out(cfg.out, cfg.overwrite)
         end = cfg.end if cfg.end is not None else (files.end or DEFAULT_END)
         ego_id = cfg.ego_id or "ego"
         declared = session.route_vehicle_ids(files)
@@ -529,13 +542,15 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
     r = Run(cfg, controller, tuple(hooks))
     t0 = wallclock.perf_counter()
     error: BaseException | None = None
+    refused = False
     with sigterm_as_interrupt():
         try:
             r.execute()
         except ConfigError as exc:  # bad input: nothing was computed, leave nothing behind
+            refused = True
             if cfg.out.is_dir():
-                discard_outputs(cfg.out, getattr(r, "created_out", False),
-                                r.written + ([PARTIAL] if r.written else []))  # partial/ is ours once we wrote
+                discard_outputs(cfg.out, r.created_out, r.written + ([PARTIAL] if r.written else []),
+                                r.replaced)  # partial/ is ours once we wrote
             raise exc
         except SumoEthicsError as exc:
             r.status, r.message, error = RunStatus.ERROR, str(exc), exc
@@ -547,7 +562,7 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
             r.message = f"interrupted by {'SIGTERM' if isinstance(exc, Terminated) else 'Ctrl-C'} " \
                         f"at t={r.meta.get('last_time', 0):g} s"
         finally:
-            if cfg.out.is_dir() and (cfg.out / "config.json").exists():
+            if not refused and "config.json" in r.written:  # this run wrote its folder: finish it
                 try:
                     r.rec.close()
                 except OSError as exc:  # e.g. a full disk: the chunks written so far stay in partial/
@@ -564,6 +579,8 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
                         error = OutputError(msg) if not isinstance(error, KeyboardInterrupt) else error
             else:
                 data = {"status": r.status.value, "message": r.message}
+            if r.replaced is not None and r.replaced.exists():  # the earlier run's outputs, now replaced
+                shutil.rmtree(r.replaced, ignore_errors=True)
     if error is not None:
         raise error
     return RunSummary(r.status, r.message, cfg.out, data)
