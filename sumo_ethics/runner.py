@@ -106,6 +106,15 @@ def discard_outputs(out: Path, created: bool, written: Iterable[str] = ("config.
         except OSError:
             pass
 
+def resolved_end(cfg: RunConfig, files: session.ScenarioFiles) -> float:
+    """The run's time limit [s]: --end, else the scenario's end, else DEFAULT_END; ConfigError
+    when the inserted ego would depart at or after it."""
+    end = cfg.end if cfg.end is not None else (files.end or DEFAULT_END)
+    if cfg.ego_id is None and cfg.ego_depart >= end:
+        raise ConfigError(f"--ego-depart {cfg.ego_depart:g} s is not before the end of the simulation ({end:g} s)")
+    return end
+
+
 # ---- ego selection ----------------------------------------------------------------------------
 def _step_until(pred: Callable[[], bool], limit: float) -> bool:
     while libsumo.simulation.getTime() < limit:
@@ -344,7 +353,7 @@ class Run:
         files = session.read_scenario(cfg.scenario)
         preflight.check_scenario(files, cfg.ego_from, cfg.ego_to)  # what SUMO reports badly or crashes on
         self.created_out, self.replaced = prepare_out(cfg.out, cfg.overwrite)
-        end = cfg.end if cfg.end is not None else (files.end or DEFAULT_END)
+        end = resolved_end(cfg, files)
         ego_id = cfg.ego_id or "ego"
         declared = session.route_vehicle_ids(files)
         if cfg.ego_id is not None and declared is not None:
@@ -378,8 +387,6 @@ class Run:
             wait_for_vehicle(ego_id, end)
             edges = tuple(libsumo.vehicle.getRoute(ego_id))
         else:
-            if cfg.ego_depart >= end:
-                raise ConfigError(f"--ego-depart {cfg.ego_depart:g} s is not before the end of the simulation ({end:g} s)")
             edges = insert_ego(cfg, ego_id)
         self.world = world = SumoWorld(ego_id, cfg.sensing_radius)
         route = world.takeover()

@@ -341,6 +341,7 @@ class Sweep:
         """Every distinct parameter set's RunConfig is built once here, and every distinct scenario
         (with each ego route) goes through the pre-flight checks, so bad input fails before anything
         runs. Cheap: XML parsing, no SUMO."""
+        from sumo_ethics.runner import resolved_end
         from sumo_ethics.sim import preflight, session
 
         specs = self.specs()
@@ -354,9 +355,11 @@ class Sweep:
             cfg = spec.run_config(Path("/nonexistent/validation-only"))
             if spec.scenario not in nets:
                 files = session.read_scenario(cfg.scenario)
-                nets[spec.scenario] = preflight.check_scenario(files)
+                nets[spec.scenario] = (files, preflight.check_scenario(files))
             try:
-                preflight.check_ego_edges(nets[spec.scenario], cfg.ego_from, cfg.ego_to)
+                files, net = nets[spec.scenario]
+                preflight.check_ego_edges(net, cfg.ego_from, cfg.ego_to)
+                resolved_end(cfg, files)
             except ConfigError as exc:
                 raise ConfigError(f"{spec.params['scenario']}: {exc}") from None
         return specs

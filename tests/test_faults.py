@@ -105,6 +105,10 @@ def test_sigkill_leaves_readable_chunks_up_to_the_last_flush(tmp_path, point):
     res = load(out)  # what analysis sees: the rows, and the run marked incomplete
     assert res.runs.status.tolist() == ["incomplete"] and res.runs.incomplete.iloc[0]
     assert len(res.steps) == len(steps)
+    p = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "analyze", str(out)], capture_output=True, text=True,
+                       timeout=60)
+    assert p.returncode == 0 and "incomplete (killed before it finished)" in p.stdout
+    assert f"{len(steps)} steps recorded" in p.stdout
     # a new run into the same folder is refused: the killed run's rows are kept
     p = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "run", str(TESTBED), "--out", str(out), "--quiet"],
                        capture_output=True, text=True, timeout=60)

@@ -242,14 +242,18 @@ def test_input_errors_are_refused_before_any_run(tmp_path):
     assert not (tmp_path / "sw").exists()
 
 
+@pytest.mark.sumo
 def test_a_run_refused_for_input_is_retried_not_stored(tmp_path):
-    """A ConfigError found inside a run (here: an --ego that never departs) is not a result: the
-    run leaves no folder and is run again on the next start."""
-    sw = make_sweep(TESTBED, "0.5", "0", options={"end": 3.0, "controller": "baseline", "ego_depart": 5.0})
-    spec = sw.specs()[0].to_dict()
-    with pytest.raises(ConfigError, match="--ego-depart"):
-        execute_run(spec, str(tmp_path))
-    assert not list(tmp_path.iterdir())
+    """A ConfigError found only inside a run (here: SUMO finds no route between two edges that
+    exist) is not a result: the run leaves no folder, is listed as failed and runs again on the
+    next start."""
+    sw = make_sweep(TESTBED, "0.5", "0", options={"controller": "baseline", "end": 5.0, "ego_from": "main_1",
+                                                   "ego_to": "main_0"})
+    res = run_sweep(sw, tmp_path / "sw", workers=1, progress=False)
+    assert (res.done, res.failed) == (0, 1) and "no route from edge 'main_1'" in res.failures[0]
+    assert not list((tmp_path / "sw" / "runs").iterdir())
+    m = json.loads((tmp_path / "sw" / "manifest.json").read_text())
+    assert m["runs"][0]["status"] == "failed"
 
 
 def test_execute_run_propagates_tool_crashes(tmp_path):

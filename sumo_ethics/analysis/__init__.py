@@ -19,7 +19,7 @@ import pandas as pd
 
 from sumo_ethics.analysis.dataset import TABLES, build_dataset, parameter_schema, partition_schema, read_manifest
 
-__all__ = ["Results", "load", "build_dataset"]
+__all__ = ["Results", "load", "load_run", "build_dataset"]
 
 
 @dataclass(frozen=True)
