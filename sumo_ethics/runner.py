@@ -20,14 +20,15 @@ import numpy as np
 
 from sumo_ethics import __version__
 from sumo_ethics.collision import PairEvents, previous_of, swept_contacts
-from sumo_ethics.interrupt import sigterm_as_interrupt
+from sumo_ethics.interrupt import sigterm_as_interrupt, sigterm_deferred
 from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
 from sumo_ethics.config import RunConfig
 from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEthicsError, Terminated
 from sumo_ethics.ethics.harm import CrashOutcome, ImpactArea, Party, crash_outcome
 from sumo_ethics.plan.controller import Controller, Scene
 from sumo_ethics.plan.history import History
-from sumo_ethics.record.writer import PARTIAL, RunRecorder, chunk_steps, write_json
+from sumo_ethics.record.recorder import RunRecorder
+from sumo_ethics.record.writer import PARTIAL, chunk_steps, write_json
 from sumo_ethics.sim import preflight, session
 from sumo_ethics.sim.rules import RuleMonitor
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld, party_state, sumo_collisions
@@ -479,6 +480,28 @@ class Run:
         timing.update(decision.timings_ms)
         return row, timing
 
+    def finish(self, wall: float, error: BaseException | None) -> tuple[dict[str, Any], BaseException | None]:
+        """Write the finished output files and ``summary.json``; the summary and the error to raise
+        (an OutputError when the files could not be written)."""
+        out = self.cfg.out
+        if "config.json" in self.written:  # this run got as far as writing its folder
+            try:
+                self.rec.close()
+            except OSError as exc:  # e.g. a full disk: the chunks written so far stay in partial/
+                self.status, self.message = RunStatus.ERROR, f"cannot write the outputs to {out}: {exc.strerror or exc}"
+                error = error if isinstance(error, KeyboardInterrupt) else OutputError(self.message)
+            data = self.summary(wall)
+            try:
+                write_json(out / "summary.json", data)
+            except OSError as exc:
+                data["message"] = f"cannot write the outputs to {out}: {exc.strerror or exc}"
+                error = error if isinstance(error, KeyboardInterrupt) else OutputError(data["message"])
+        else:
+            data = {"status": self.status.value, "message": self.message}
+        if self.replaced is not None and self.replaced.exists():  # the earlier run's outputs, now replaced
+            shutil.rmtree(self.replaced, ignore_errors=True)
+        return data, error
+
     def summary(self, wall: float) -> dict[str, Any]:
         ego_rows = [r for r in self.rec.collisions if is_booked(r)]
         harm = {k: float(sum(r[f"harm_{k}"] for r in ego_rows)) for k in ("ego", "third_party", "vru")}
@@ -541,24 +564,24 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
     and before the controller acts (they may act on SUMO, e.g. inject hazards; only code
     under ``sumo_ethics/sim`` should).
 
-    Raises ConfigError for bad input found before the simulation starts; SUMO failures and
-    errors during the run are reported as status ``error`` in the summary (and raised as
-    SimulationError after the outputs are written).
+    Raises ConfigError for bad input (the run folder is left as it was). Everything else ends
+    with the outputs written so far and a summary saying how the run ended, then raises:
+    SimulationError (SUMO failed, status ``error``), OutputError (the outputs could not be
+    written, e.g. a full disk), KeyboardInterrupt on Ctrl-C and :class:`Terminated` on SIGTERM
+    (status ``interrupted``).
     """
     controller = controller or make_controller(cfg)
     r = Run(cfg, controller, tuple(hooks))
     t0 = wallclock.perf_counter()
     error: BaseException | None = None
-    refused = False
     with sigterm_as_interrupt():
         try:
             r.execute()
-        except ConfigError as exc:  # bad input: nothing was computed, leave nothing behind
-            refused = True
+        except ConfigError:  # bad input: nothing was computed, leave the folder as it was
             if cfg.out.is_dir():
                 discard_outputs(cfg.out, r.created_out, r.written + ([PARTIAL] if r.written else []),
                                 r.replaced)  # partial/ is ours once we wrote
-            raise exc
+            raise
         except SumoEthicsError as exc:
             r.status, r.message, error = RunStatus.ERROR, str(exc), exc
         except OSError as exc:  # the outputs could not be written (a full disk)
@@ -568,27 +591,10 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
             r.status, error = RunStatus.INTERRUPTED, exc
             r.message = f"interrupted by {'SIGTERM' if isinstance(exc, Terminated) else 'Ctrl-C'} " \
                         f"at t={r.meta.get('last_time', 0):g} s"
-        finally:
-            if not refused and "config.json" in r.written:  # this run wrote its folder: finish it
-                try:
-                    r.rec.close()
-                except OSError as exc:  # e.g. a full disk: the chunks written so far stay in partial/
-                    r.status, r.message = RunStatus.ERROR, f"cannot write the outputs to {cfg.out}: " \
-                                                           f"{exc.strerror or exc}"
-                    error = OutputError(r.message)
-                data = r.summary(wallclock.perf_counter() - t0)
-                try:
-                    write_json(cfg.out / "summary.json", data)
-                except OSError as exc:
-                    msg = f"cannot write the outputs to {cfg.out}: {exc.strerror or exc}"
-                    data["message"] = msg
-                    if error is None or not isinstance(error, OutputError):
-                        error = OutputError(msg) if not isinstance(error, KeyboardInterrupt) else error
-            else:
-                data = {"status": r.status.value, "message": r.message}
-            if r.replaced is not None and r.replaced.exists():  # the earlier run's outputs, now replaced
-                shutil.rmtree(r.replaced, ignore_errors=True)
+        except Exception as exc:  # a bug: the outputs and a summary are still written, then it is raised
+            r.status, r.message, error = RunStatus.ERROR, f"internal error: {type(exc).__name__}: {exc}", exc
+        with sigterm_deferred():  # a SIGTERM now waits until the outputs are whole
+            data, error = r.finish(wallclock.perf_counter() - t0, error)
     if error is not None:
         raise error
     return RunSummary(r.status, r.message, cfg.out, data)
-

@@ -16,7 +16,8 @@ import psutil
 import pytest
 
 from sumo_ethics.analysis import load
-from sumo_ethics.record.writer import chunk_steps, read_table, recover_summary
+from sumo_ethics.record.reader import read_table, recover_summary
+from sumo_ethics.record.writer import chunk_steps
 
 ROOT = Path(__file__).resolve().parents[1]
 TESTBED = ROOT / "scenarios" / "testbed" / "testbed.sumocfg"

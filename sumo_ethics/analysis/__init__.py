@@ -82,7 +82,7 @@ def load(out: str | Path, steps: bool = True) -> Results:
 
 def load_run(folder: str | Path, steps: bool = True) -> Results:
     """Tidy DataFrames of one run folder, finished or killed (see the module docstring)."""
-    from sumo_ethics.record.writer import is_incomplete, read_table, recover_summary
+    from sumo_ethics.record.reader import is_incomplete, read_table, recover_summary
 
     folder = Path(folder)
     s = recover_summary(folder)

@@ -69,7 +69,7 @@ def _corrupt(folder: Path, what: str, exc: BaseException):
 
 def _run_table(folder: Path, name: str) -> pa.Table:
     from sumo_ethics.errors import ConfigError
-    from sumo_ethics.record.writer import read_table
+    from sumo_ethics.record.reader import read_table
 
     try:
         return read_table(folder, name)
