@@ -4,7 +4,6 @@ whose parent is killed leaves no run process behind; a full disk gives one line.
 from __future__ import annotations
 
 import json
-import os
 import resource
 import signal
 import subprocess
@@ -137,9 +136,9 @@ def test_killed_sweep_parent_leaves_no_run_alive(tmp_path):
     assert not alive, f"still running 5 s after the sweep was killed: {alive}"
     assert list(runs.glob(".*.tmp-*")), list(runs.iterdir())  # the killed runs' temporary folders ...
     (out / ".manifest.json.tmp-99999").write_text("{")  # ... and a manifest temp file of a killed write
-    from sumo_ethics.sweep import _clean_temporaries
+    from sumo_ethics.sweep import clean_temporaries
 
-    _clean_temporaries(out)  # what the next start does first
+    clean_temporaries(out)  # what the next start does first
     assert not list(runs.glob(".*")) and not list(out.glob(".manifest.json.tmp-*"))
 
 
