@@ -21,7 +21,19 @@ def _console():
     return Console(stderr=False, highlight=False, soft_wrap=True)
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _Interrupted(Exception):
+    """Ctrl-C or SIGTERM inside a command, passed through click (which would print a blank line)."""
+
+
+class _Group(click.Group):
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt as exc:
+            raise _Interrupted(exc) from None
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="sumo-ethics")
 def cli() -> None:
     """Ethical decision-making of automated vehicles in SUMO."""
@@ -159,10 +171,13 @@ def main(argv: list[str] | None = None) -> int:
         cli.main(args=argv, prog_name="sumo-ethics", standalone_mode=False)
     except click.exceptions.Exit as exc:
         return exc.exit_code
-    except click.exceptions.Abort as exc:  # click turns KeyboardInterrupt (and Terminated) into Abort
-        if isinstance(exc.__context__, Terminated):
+    except _Interrupted as exc:
+        if isinstance(exc.args[0], Terminated):
             click.echo("error: terminated (SIGTERM); the outputs written so far are kept", err=True)
             return 143
+        click.echo("error: interrupted", err=True)
+        return 130
+    except click.exceptions.Abort:
         click.echo("error: aborted", err=True)
         return 130
     except click.ClickException as exc:

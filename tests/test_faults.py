@@ -117,19 +117,23 @@ def test_sigkill_leaves_readable_chunks_up_to_the_last_flush(tmp_path, point):
 
 
 @pytest.mark.sumo
-def test_killed_sweep_parent_leaves_no_run_alive(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_killed_sweep_parent_leaves_no_run_alive(tmp_path, sig):
     out = tmp_path / "sw"
     code = "import sys; from sumo_ethics.cli import main; sys.exit(main(sys.argv[1:]))"
     proc = subprocess.Popen([sys.executable, "-c", code, "sweep", str(TESTBED), "--omega-u", "1000", "--seeds", "0-1",
                              "--end", "120", "--ego-depart", "2", "--predictor", "cv", "--workers", "2", "--quiet",
-                             "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                             "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     runs = out / "runs"
     wait_for(lambda: runs.exists() and len(list(runs.glob(".*.tmp-*"))) == 2, proc, timeout=120)
     family = psutil.Process(proc.pid).children(recursive=True)  # the forkserver and the run processes
     run_pids = {int(p.name.split(".tmp-")[1].split("-")[0]) for p in runs.glob(".*.tmp-*")}
     assert run_pids <= {p.pid for p in family}
-    proc.kill()
-    proc.wait()
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=30)
+    if sig == signal.SIGTERM:  # handled like Ctrl-C: runs stopped, manifest written, one line
+        assert proc.returncode == 143 and err.strip().startswith("error: terminated") and len(err.splitlines()) == 1
+        assert json.loads((out / "manifest.json").read_text())["counts"] == {"pending": 2}
     deadline = time.monotonic() + 5
     while (alive := [p for p in family if _running(p)]) and time.monotonic() < deadline:
         time.sleep(0.05)
