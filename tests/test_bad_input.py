@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -174,12 +173,10 @@ def test_bad_input_gives_one_line_and_keeps_what_was_there(tmp_path, capfd, buil
         assert not (out / "runs").exists()  # refused before any run started
 
 
-def test_existing_run_folder_is_refused_without_overwrite(tmp_path):
-    """Also through a real process: the console entry point, one line, exit 2."""
+def test_existing_run_folder_is_refused_without_overwrite(tmp_path, capfd):
     out = tmp_path / "out"
     out.mkdir()
     (out / "summary.json").write_text('{"status": "old"}')
-    p = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "run", str(TESTBED), "--end", "3", "--quiet",
-                        "--out", str(out)], capture_output=True, text=True, timeout=120)
+    p = _cli(["run", str(TESTBED), "--end", "3", "--quiet", "--out", str(out)], capfd)
     assert p.returncode == 2 and "already holds a run" in p.stderr and "--overwrite" in p.stderr
     assert json.loads((out / "summary.json").read_text()) == {"status": "old"}
