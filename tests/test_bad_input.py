@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -180,3 +181,22 @@ def test_existing_run_folder_is_refused_without_overwrite(tmp_path, capfd):
     p = _cli(["run", str(TESTBED), "--end", "3", "--quiet", "--out", str(out)], capfd)
     assert p.returncode == 2 and "already holds a run" in p.stderr and "--overwrite" in p.stderr
     assert json.loads((out / "summary.json").read_text()) == {"status": "old"}
+
+
+def test_sumo_start_failure_gives_exit_3_with_the_cause(tmp_path):
+    """Input that passes the pre-flight checks but SUMO refuses (a bus stop on a lane the net does
+    not have): exit 3, SUMO's own reason in the one error line and in summary.json (libsumo says
+    only 'Process Error'). In its own process: libsumo cannot start again after such a failure."""
+    (tmp_path / "a.add.xml").write_text('<additional><busStop id="b" lane="nowhere_0" startPos="0" endPos="10"/>'
+                                        '</additional>')
+    cfg = tmp_path / "a.sumocfg"
+    cfg.write_text(f'<configuration><input><net-file value="{TESTBED_NET}"/><additional-files value="a.add.xml"/>'
+                   '</input><time><end value="20"/></time></configuration>')
+    out = tmp_path / "out"
+    p = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "run", str(cfg), "--controller", "baseline", "--quiet",
+                        "--out", str(out)], capture_output=True, text=True, timeout=120)
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert p.returncode == 3 and len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
+    assert "lane nowhere_0" in lines[0] and "Process Error" not in lines[0]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "error" and "lane nowhere_0" in summary["message"]
