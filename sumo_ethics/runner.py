@@ -552,8 +552,11 @@ def make_controller(cfg: RunConfig) -> Controller:
         return RouteFollower()
     if cfg.controller == "ethical":
         from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
+        from sumo_ethics.settings import check_grid_bounds
 
-        return EthicalPlanner(cfg.planner or PlannerConfig())
+        planner = cfg.planner or PlannerConfig()
+        check_grid_bounds(planner.sampling)  # also for a PlannerConfig built in Python, not from settings
+        return EthicalPlanner(planner)
     raise ConfigError(f"unknown controller '{cfg.controller}'; known: {', '.join(CONTROLLERS)}")
 
 

@@ -102,6 +102,10 @@ CASES = [
     ("too-many-candidates", lambda t: ["run", str(TESTBED), "--config",
                                        str(_toml(t / "c", "[planner.sampling]\nn_speeds = 100000"))], 2,
      "the limit is 5000"),
+    ("candidate-steps-too-many", lambda t: ["run", str(TESTBED), "--config",
+                                            str(_toml(t / "c", "[planner.sampling]\nhorizons = [10.0]\n"
+                                                                "n_speeds = 50\nn_offsets = 50"))], 2,
+     "the limit is 200000"),
     ("horizon-too-long", lambda t: ["run", str(TESTBED), "--config",
                                     str(_toml(t / "c", "[planner.sampling]\nhorizons = [1e5]"))], 2,
      "beyond the limit of 10 s"),
