@@ -1,2 +1,2 @@
 """Run outputs: column schemas defined once (schema), the runner's per-step recording callback
-(recorder), chunked Parquet writers (writer) and reading a run folder, finished or killed (reader)."""
+(recorder), the writers: chunked Arrow streams finished into Parquet (writer) and reading a run folder, finished or killed (reader)."""

@@ -11,7 +11,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from sumo_ethics.record import schema
-from sumo_ethics.record.writer import PARTIAL, conform, union_schema
+from sumo_ethics.record.writer import PARTIAL, conform, read_segment, segments, union_schema
 
 BASES = {"steps": schema.STEPS_BASE, "timings": schema.TIMINGS_BASE, "collisions": schema.COLLISIONS}
 
@@ -31,9 +31,9 @@ def _readable(path: Path) -> pa.Table | None:
 
 def read_table(folder: Path, name: str) -> pa.Table:
     """Table ``name`` (steps, timings, collisions) of a run folder: the finished file, else the
-    chunks a killed run left in ``partial/`` (unreadable chunks are skipped), else empty."""
+    rows a killed run left in ``partial/`` (up to its last flush), else empty."""
     folder = Path(folder)
-    base = BASES[name]
+    base = BASES.get(name, pa.schema([]))
     final = folder / f"{name}.parquet"
     if final.is_file() and not (folder / PARTIAL).is_dir():
         t = _readable(final)
@@ -45,12 +45,12 @@ def read_table(folder: Path, name: str) -> pa.Table:
     if name == "collisions":
         t = _readable(folder / PARTIAL / "collisions.parquet")
         return t if t is not None else base.empty_table()
-    parts = [t for p in sorted((folder / PARTIAL / name).glob("[0-9]*.parquet"))
-             if (t := _readable(p)) is not None] if (folder / PARTIAL / name).is_dir() else []
+    parts = [(sch, batches) for p in segments(folder / PARTIAL, name) for sch, batches in [read_segment(p)]
+             if sch is not None]
     if not parts:
         return base.empty_table()
-    sch = union_schema(base, [t.schema for t in parts])
-    return pa.concat_tables([conform(t, sch) for t in parts])
+    sch = union_schema(base, [s for s, _ in parts])
+    return pa.concat_tables([conform(pa.Table.from_batches(b, schema=s), sch) for s, b in parts])
 
 
 def recover_summary(folder: Path) -> dict[str, Any]:

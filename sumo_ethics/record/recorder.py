@@ -30,7 +30,7 @@ class RunRecorder:
         self.out = out
         self.chunk = chunk
         self.partial = out / PARTIAL
-        self.tables = {name: ChunkedTable(self.partial / name, base) for name, base in STREAMED.items()}
+        self.tables = {name: ChunkedTable(self.partial, name, base) for name, base in STREAMED.items()}
         self.collisions: list[dict[str, Any]] = []
         self._collisions_dirty = False
         self.n_steps = 0
@@ -40,7 +40,7 @@ class RunRecorder:
     def table(self, name: str, base: pa.Schema) -> ChunkedTable:
         """A further per-step table ``name`` (file ``name.parquet``), flushed with the others."""
         if name not in self.tables:
-            self.tables[name] = ChunkedTable(self.partial / name, base)
+            self.tables[name] = ChunkedTable(self.partial, name, base)
         return self.tables[name]
 
     # -- the callback --
@@ -65,7 +65,8 @@ class RunRecorder:
 
     # -- files --
     def flush(self) -> None:
-        """Write what is buffered as chunk files (and the collisions, if they changed)."""
+        """Append what is buffered to the streams in ``partial/`` (and write the collisions, if
+        they changed)."""
         for t in self.tables.values():
             t.flush()
         if self._collisions_dirty:
