@@ -592,8 +592,9 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
             error = OutputError(r.message)
         except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated)
             r.status, error = RunStatus.INTERRUPTED, exc
-            r.message = f"interrupted by {'SIGTERM' if isinstance(exc, Terminated) else 'Ctrl-C'} " \
-                        f"at t={r.meta.get('last_time', 0):g} s"
+            how = "SIGTERM" if isinstance(exc, Terminated) else "Ctrl-C"
+            r.message = f"interrupted by {how} at t={r.meta['last_time']:g} s" if "last_time" in r.meta else \
+                f"interrupted by {how} before the ego's first step"
         except Exception as exc:  # a bug: the outputs and a summary are still written, then it is raised
             r.status, r.message, error = RunStatus.ERROR, f"internal error: {type(exc).__name__}: {exc}", exc
         with sigterm_deferred():  # a SIGTERM now waits until the outputs are whole
