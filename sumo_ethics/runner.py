@@ -107,6 +107,7 @@ def discard_outputs(out: Path, created: bool, written: Iterable[str] = ("config.
         except OSError:
             pass
 
+
 def resolved_end(cfg: RunConfig, files: session.ScenarioFiles) -> float:
     """The run's time limit [s]: --end, else the scenario's end, else DEFAULT_END; ConfigError
     when the inserted ego would depart at or after it."""
@@ -353,7 +354,6 @@ class Run:
         cfg = self.cfg
         files = session.read_scenario(cfg.scenario)
         preflight.check_scenario(files, cfg.ego_from, cfg.ego_to)  # what SUMO reports badly or crashes on
-        self.created_out, self.replaced = prepare_out(cfg.out, cfg.overwrite)
         end = resolved_end(cfg, files)
         ego_id = cfg.ego_id or "ego"
         declared = session.route_vehicle_ids(files)
@@ -364,6 +364,8 @@ class Run:
                 raise ConfigError(f"unknown --ego '{cfg.ego_id}': no vehicle, trip or flow of that id in the route files")
         elif declared is not None and ego_id in declared[0]:
             ego_id = "sumo_ethics_ego"
+        # every check that needs no SUMO has passed: only now is the run folder touched
+        self.created_out, self.replaced = prepare_out(cfg.out, cfg.overwrite)
         self.meta.update(scenario=str(files.config), end=end, ego_id=ego_id,
                          forced_sumo_options=session.forced_option_report(files))
         write_json(cfg.out / "config.json", cfg.to_dict() | {"resolved": {"end": end, "ego_id": ego_id}})
