@@ -20,17 +20,19 @@ same :func:`execute_run` runs in a fresh Python subprocess started by the Dask t
 Finished runs. A run is *finished* when ``runs/<run_id>/summary.json`` exists. A run folder
 is built under a temporary name (``runs/.<run_id>.tmp-<pid>-<hex>``) and renamed only when the
 run ended on its own: ``completed``, ``collision``, ``timeout`` or ``error`` (SUMO failed, the ego
-could not be inserted or left the network...: a result of that configuration, kept). A crash of
-the tool itself (a Python exception that is not a sumo-ethics error, a killed worker, Ctrl-C)
-leaves no run folder; the run is listed as ``failed`` in the manifest and runs again when the
-same sweep is started again. Leftover temporary folders are removed at the start of a sweep.
+could not be inserted or left the network...: a result of that configuration, kept). Bad input
+is refused before any run starts (:meth:`Sweep.validate`); input refused only inside a run, an
+output that could not be written, a crash of the tool itself (a Python exception that is not a
+sumo-ethics error, a killed worker, Ctrl-C, SIGTERM) leave no run folder; the run is listed as
+``failed`` in the manifest and runs again when the same sweep is started again. Run processes
+die with the sweep (see :mod:`sumo_ethics._worker_signals`); the temporary folders and manifest
+files of a killed start are removed at the next start.
 
 Modules: :mod:`~sumo_ethics.sweep.grid` (parsing, the grid, bounds), :mod:`~sumo_ethics.sweep.manifest`
 (manifest.json, folder checks, leftovers), :mod:`~sumo_ethics.sweep.executors` (one run, local
 processes, Dask); this module runs a sweep. The sweep's Parquet dataset is built by
 :func:`sumo_ethics.analysis.dataset.build_dataset`.
 """
-
 
 from __future__ import annotations
 
