@@ -353,16 +353,14 @@ class Run:
     def execute(self) -> None:
         cfg = self.cfg
         files = session.read_scenario(cfg.scenario)
-        preflight.check_scenario(files, cfg.ego_from, cfg.ego_to)  # what SUMO reports badly or crashes on
+        checked = preflight.check_scenario(files, cfg.ego_from, cfg.ego_to)  # what SUMO reports badly or crashes on
         end = resolved_end(cfg, files)
         ego_id = cfg.ego_id or "ego"
-        declared = session.route_vehicle_ids(files)
-        if cfg.ego_id is not None and declared is not None:
-            vehicles, flows = declared
+        if cfg.ego_id is not None:
             flow_of = cfg.ego_id.rsplit(".", 1)[0]
-            if cfg.ego_id not in vehicles and flow_of not in flows:
+            if cfg.ego_id not in checked.vehicles and flow_of not in checked.flows:
                 raise ConfigError(f"unknown --ego '{cfg.ego_id}': no vehicle, trip or flow of that id in the route files")
-        elif declared is not None and ego_id in declared[0]:
+        elif ego_id in checked.vehicles:
             ego_id = "sumo_ethics_ego"
         # every check that needs no SUMO has passed: only now is the run folder touched
         self.created_out, self.replaced = prepare_out(cfg.out, cfg.overwrite)

@@ -79,13 +79,26 @@ def check_net(path: Path) -> NetInfo:
     return NetInfo(path, edges)
 
 
-def check_xml(path: Path, kind: str) -> None:
-    """A route or additional file: well-formed XML (ConfigError otherwise)."""
+@dataclass(frozen=True)
+class ScenarioCheck:
+    """What the checks found: the net's edges, and the vehicle (and trip) and flow ids declared in
+    the route and additional files (read in the same pass, so each file is parsed once)."""
+
+    net: NetInfo
+    vehicles: frozenset[str]
+    flows: frozenset[str]
+
+
+def check_xml(path: Path, kind: str, vehicles: set[str] | None = None, flows: set[str] | None = None) -> None:
+    """A route or additional file: well-formed XML (ConfigError otherwise); the ids of its
+    vehicles and trips, and of its flows, are added to ``vehicles`` and ``flows``."""
     try:
         with _open(Path(path)) as f:
-            n = 0
             for _, el in ET.iterparse(f):
-                n += 1
+                if vehicles is not None and el.tag in ("vehicle", "trip"):
+                    vehicles.add(el.attrib.get("id", ""))
+                elif flows is not None and el.tag == "flow":
+                    flows.add(el.attrib.get("id", ""))
                 el.clear()
     except ET.ParseError as exc:
         raise ConfigError(f"malformed {kind} {path}: {exc}") from None
@@ -104,12 +117,14 @@ def check_ego_edges(net: NetInfo, ego_from: str | None, ego_to: str | None) -> N
             raise ConfigError(f"{flag} edge '{edge}' has no lane a passenger car may use (the ego is a passenger car)")
 
 
-def check_scenario(files, ego_from: str | None = None, ego_to: str | None = None) -> NetInfo:
+def check_scenario(files, ego_from: str | None = None, ego_to: str | None = None) -> ScenarioCheck:
     """Every check above for a :class:`~sumo_ethics.sim.session.ScenarioFiles`."""
     net = check_net(files.net)
+    vehicles: set[str] = set()
+    flows: set[str] = set()
     for p in files.routes:
-        check_xml(p, "route file")
+        check_xml(p, "route file", vehicles, flows)
     for p in files.additionals:
-        check_xml(p, "additional file")
+        check_xml(p, "additional file", vehicles, flows)
     check_ego_edges(net, ego_from, ego_to)
-    return net
+    return ScenarioCheck(net, frozenset(vehicles), frozenset(flows))

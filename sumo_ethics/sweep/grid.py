@@ -324,8 +324,8 @@ class Sweep:
                 files = session.read_scenario(cfg.scenario)
                 nets[spec.scenario] = (files, preflight.check_scenario(files))
             try:
-                files, net = nets[spec.scenario]
-                preflight.check_ego_edges(net, cfg.ego_from, cfg.ego_to)
+                files, checked = nets[spec.scenario]
+                preflight.check_ego_edges(checked.net, cfg.ego_from, cfg.ego_to)
                 resolved_end(cfg, files)
             except ConfigError as exc:
                 raise ConfigError(f"{spec.params['scenario']}: {exc}") from None
