@@ -77,6 +77,9 @@ def prepare_out(out: Path, overwrite: bool = False) -> tuple[bool, Path | None]:
         probe.write_text("ok")
         probe.unlink()
         backup = None
+        if overwrite:  # outputs an earlier overwriting run moved aside and was killed before deleting
+            for stale in out.glob(".replaced-*"):
+                shutil.rmtree(stale, ignore_errors=True)
         if old:  # --overwrite: the previous run's outputs, nothing else
             backup = out / f".replaced-{os.getpid()}"
             backup.mkdir()
