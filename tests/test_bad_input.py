@@ -204,3 +204,21 @@ def test_sumo_start_failure_gives_exit_3_with_the_cause(tmp_path):
     assert "lane nowhere_0" in lines[0] and "Process Error" not in lines[0]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "error" and "lane nowhere_0" in summary["message"]
+
+
+@pytest.mark.sumo
+def test_overwrite_replaces_only_the_run_outputs(tmp_path):
+    from sumo_ethics.config import RunConfig
+    from sumo_ethics.runner import run
+
+    out = tmp_path / "out"
+    out.mkdir()
+    for name, text in PREVIOUS.items():
+        (out / name).write_text(text)
+    (out / ".replaced-1").mkdir()  # left by an overwriting run that was killed
+    run(RunConfig(TESTBED, out, end=3.0, controller="baseline", progress=False, overwrite=True))
+    assert json.loads((out / "summary.json").read_text())["status"] == "timeout"
+    assert (out / "notes.txt").read_text() == PREVIOUS["notes.txt"]  # the user's file is kept
+    assert sorted(p.name for p in out.iterdir()) == sorted(["collisions.parquet", "config.json", "notes.txt",
+                                                            "steps.parquet", "sumo-errors.log", "summary.json",
+                                                            "timings.parquet"])
