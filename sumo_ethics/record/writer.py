@@ -25,7 +25,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Iterator
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -131,23 +131,25 @@ def segments(folder: Path, name: str) -> list[Path]:
     return sorted(folder.glob(f"{name}.[0-9][0-9][0-9].arrows")) if folder.is_dir() else []
 
 
-def read_segment(path: Path) -> tuple[pa.Schema | None, list[pa.RecordBatch]]:
-    """Schema and complete record batches of a stream segment; a batch cut off by a kill (and
-    everything after it) is dropped."""
-    batches: list[pa.RecordBatch] = []
-    sch = None
+def iter_segment(path: Path) -> Iterator[pa.RecordBatch]:
+    """The complete record batches of a stream segment; a batch cut off by a kill (and anything
+    after it) is dropped."""
     try:
         with open(path, "rb") as f:
             reader = pa.ipc.open_stream(f)
-            sch = reader.schema
             while True:
                 try:
-                    batches.append(reader.read_next_batch())
+                    batch = reader.read_next_batch()
                 except StopIteration:
-                    break
+                    return
+                yield batch
     except (OSError, pa.ArrowInvalid):
-        pass
-    return sch, batches
+        return
+
+
+def read_segment(path: Path) -> tuple[pa.Schema | None, list[pa.RecordBatch]]:
+    """Schema and complete record batches of a stream segment (see :func:`iter_segment`)."""
+    return read_segment_schema(path), list(iter_segment(path))
 
 
 def union_schema(base: pa.Schema, schemas: list[pa.Schema]) -> pa.Schema:
@@ -185,9 +187,15 @@ def write_batches(path: Path, base: pa.Schema, paths: list[Path]) -> None:
             carry = t
 
         for p in paths:
-            seg_schema, batches = read_segment(p)
-            for k in range(0, len(batches), 256):  # a few thousand rows at a time
-                emit(batches[k:k + 256], seg_schema)
+            seg_schema = read_segment_schema(p)
+            group: list[pa.RecordBatch] = []
+            for b in iter_segment(p):  # streamed: a few thousand rows in memory at a time
+                group.append(b)
+                if len(group) == 256:
+                    emit(group, seg_schema)
+                    group = []
+            if group:
+                emit(group, seg_schema)
         if carry is not None and carry.num_rows or not paths:
             w.write_table(carry if carry is not None else sch.empty_table(), row_group_size=ROW_GROUP_ROWS)
     os.replace(tmp, path)
