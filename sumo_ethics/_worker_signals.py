@@ -1,8 +1,60 @@
-"""Imported only by the sweep's and the evaluation's forkservers (never by a main process):
-every run process forked from them ignores Ctrl-C (SIGINT) from its first instruction. A
-terminal's Ctrl-C reaches the whole process group; the parent owns cancellation and terminates
-its runs, whereas a SIGINT landing in a run process printed a traceback."""
+"""Imported only by the sweep's and the evaluation's forkservers (never by a main process).
 
+Every run process forked from them
+
+- ignores Ctrl-C (SIGINT) from its first instruction: a terminal's Ctrl-C reaches the whole
+  process group; the parent owns cancellation and terminates its runs, whereas a SIGINT landing
+  in a run process printed a traceback;
+- dies with the sweep (or evaluation) that started it, even when that is killed with ``kill -9``:
+  :func:`watch_parent`, called first in the run process, kills the process as soon as the
+  starting process's sentinel pipe closes (the forkserver itself stays alive while its children
+  hold its pipe, so a parent-death signal alone is not enough); and on Linux
+  ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` right after the fork kills it when the forkserver dies.
+  The run's temporary folder is removed when the sweep starts again.
+"""
+
+import os
 import signal
+import sys
 
 signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+FORKSERVER_PID = os.getpid()
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent() -> None:
+    """In a freshly forked run process: be killed when the forkserver goes away."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+    except (OSError, AttributeError):  # pragma: no cover - no prctl: workers are still stopped on Ctrl-C
+        return
+    if os.getppid() != FORKSERVER_PID:  # the parent died before prctl took effect
+        os._exit(1)
+
+
+os.register_at_fork(after_in_child=die_with_parent)
+
+
+def watch_parent() -> None:
+    """In a run process: a daemon thread that kills this process when the process that started
+    it (the sweep) is gone, whichever way it died."""
+    import multiprocessing
+    import threading
+    from multiprocessing.connection import wait
+
+    parent = multiprocessing.parent_process()
+    sentinel = getattr(parent, "sentinel", None)
+    if sentinel is None:
+        return
+
+    def watch() -> None:
+        wait([sentinel])
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=watch, name="die-with-parent", daemon=True).start()

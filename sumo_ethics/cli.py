@@ -11,7 +11,7 @@ from pathlib import Path
 
 import click
 
-from sumo_ethics.errors import SumoEthicsError
+from sumo_ethics.errors import SumoEthicsError, Terminated
 from sumo_ethics.predict import PredictorError
 
 
@@ -21,7 +21,19 @@ def _console():
     return Console(stderr=False, highlight=False, soft_wrap=True)
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _Interrupted(Exception):
+    """Ctrl-C or SIGTERM inside a command, passed through click (which would print a blank line)."""
+
+
+class _Group(click.Group):
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt as exc:
+            raise _Interrupted(exc) from None
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="sumo-ethics")
 def cli() -> None:
     """Ethical decision-making of automated vehicles in SUMO."""
@@ -53,12 +65,13 @@ def cli() -> None:
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")
 @click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")
 @click.option("--radius", type=float, default=80.0, show_default=True, help="Sensing radius around the ego [m].")
+@click.option("--overwrite", is_flag=True, help="Replace the outputs of an earlier run in --out (refused otherwise).")
 @click.option("--quiet", is_flag=True, help="No progress display.")
 def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float,
         seed: int, end: float | None, out: Path | None, controller: str, omega_u: float | None,
         omega_o: float | None, weights: str | None, selection: str | None, utility: str | None,
         predictor: str | None, predictor_weights: Path | None, config_file: Path | None, continue_after_collision: bool,
-        radius: float, quiet: bool) -> None:
+        radius: float, overwrite: bool, quiet: bool) -> None:
     """Run SCENARIO (a .sumocfg) with one vehicle taken over by the ego controller."""
     from sumo_ethics.config import RunConfig
     from sumo_ethics.runner import make_controller, run as run_scenario
@@ -74,7 +87,7 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
                    f"'sumo-ethics evaluate {scenario.parent}' runs the scenario as the suite defines it", err=True)
     cfg = RunConfig(scenario=scenario, out=out, seed=seed, end=end, ego_id=ego_id, ego_from=ego_from, ego_to=ego_to,
                     ego_depart=ego_depart, stop_at_collision=not continue_after_collision, controller=controller,
-                    sensing_radius=radius, progress=not quiet, planner=planner)
+                    sensing_radius=radius, progress=not quiet, planner=planner, overwrite=overwrite)
     # built before SUMO starts, so a bad weights file or setting fails at once
     summary = run_scenario(cfg, controller=make_controller(cfg))
     d = summary.data
@@ -161,6 +174,12 @@ def main(argv: list[str] | None = None) -> int:
         cli.main(args=argv, prog_name="sumo-ethics", standalone_mode=False)
     except click.exceptions.Exit as exc:
         return exc.exit_code
+    except _Interrupted as exc:
+        if isinstance(exc.args[0], Terminated):
+            click.echo("error: terminated (SIGTERM); the outputs written so far are kept", err=True)
+            return 143
+        click.echo("error: interrupted", err=True)
+        return 130
     except click.exceptions.Abort:
         click.echo("error: aborted", err=True)
         return 130
@@ -173,6 +192,13 @@ def main(argv: list[str] | None = None) -> int:
     except PredictorError as exc:
         click.echo(f"error: {exc}", err=True)
         return 2
+    except OSError as exc:  # a full disk, a file size limit, a folder that vanished
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        click.echo(f"error: cannot write or read a file{where}: {exc.strerror or exc}", err=True)
+        return 1
+    except Terminated:
+        click.echo("error: terminated (SIGTERM); the outputs written so far are kept", err=True)
+        return 143
     except KeyboardInterrupt:
         click.echo("error: interrupted", err=True)
         return 130

@@ -52,6 +52,8 @@ def sweep(scenario_or_suite: Path, omega_u: str, seeds: str, sets: tuple[str, ..
     from sumo_ethics.settings import load_toml
     from sumo_ethics.sweep import make_sweep, run_sweep
 
+    if workers is not None and workers < 1:
+        raise ConfigError(f"--workers must be at least 1, got {workers}")
     if workers is not None and scheduler:
         raise ConfigError("--workers and --scheduler exclude each other")
     options = {"end": end, "ego_depart": ego_depart, "ego_from": ego_from, "ego_to": ego_to,
@@ -65,8 +67,11 @@ def sweep(scenario_or_suite: Path, omega_u: str, seeds: str, sets: tuple[str, ..
               f"{res.errors} ended with a SUMO/run error), {res.failed} failed; {res.wall:.1f} s")
     con.print(f"  manifest {out / 'manifest.json'}, dataset {out / 'dataset'}")
     if res.failed:
-        con.print("  [red]failed runs are listed in manifest.json; run the same command again to retry them[/red]")
-        raise SystemExit(1)
+        from sumo_ethics.errors import SumoEthicsError
+
+        first = res.failures[0] if res.failures else ""
+        raise SumoEthicsError(f"{res.failed} run(s) failed ({first}); they are listed in manifest.json and run "
+                              "again when the same command is started again")
 
 
 @click.command()
@@ -84,7 +89,30 @@ def analyze(sweep_dir: Path, by: str, report_dir: Path | None, n_boot: int, seed
 
     from sumo_ethics.analysis.report import make_report
 
+    from sumo_ethics.analysis.stats import MAX_BOOT
+    from sumo_ethics.errors import ConfigError
+
+    if not 1 <= n_boot <= MAX_BOOT:
+        raise ConfigError(f"--n-boot must be between 1 and {MAX_BOOT}, got {n_boot}")
+    con = Console(highlight=False, soft_wrap=True)
+    if not (sweep_dir / "manifest.json").exists() and (sweep_dir / "config.json").exists():
+        _print_run(sweep_dir, con)  # a single run folder, finished or killed
+        return
     groups = [b.strip() for b in by.split(",") if b.strip()]
     rep = make_report(sweep_dir, groups, report_dir, n_boot=n_boot, seed=seed)
-    con = Console(highlight=False, soft_wrap=True)
     con.print(f"[bold]report[/bold] {rep.report}: {len(rep.tables)} tables, {len(rep.figures)} figures")
+    if rep.unfinished:
+        con.print(f"  {rep.unfinished} runs have not finished (not run yet, failed or killed) and are not in the "
+                  "report; start the same sweep again to finish them")
+
+
+def _print_run(folder: Path, con) -> None:
+    """``analyze RUN_FOLDER``: what the run wrote, marked incomplete when it was killed."""
+    from sumo_ethics.analysis import load_run
+
+    res = load_run(folder)
+    r = res.runs.iloc[0]
+    con.print(f"[bold]run[/bold] {folder}: {r.status}{' (killed before it finished)' if r.incomplete else ''}: "
+              f"{r.message}")
+    con.print(f"  {len(res.steps)} steps recorded, {len(res.collisions)} collisions; harm total {r.harm_total:.3f} = "
+              f"ego {r.harm_ego:.3f} + third party {r.harm_third_party:.3f} (VRU {r.harm_vru:.3f})")

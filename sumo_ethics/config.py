@@ -60,6 +60,7 @@ class RunConfig:
     ego: EgoVehicle = field(default_factory=EgoVehicle)
     sumo_args: tuple[str, ...] = ()  # extra SUMO command-line options
     progress: bool = True
+    overwrite: bool = False  # replace the outputs of an earlier run in ``out`` (refused otherwise)
     planner: Any = None  # sumo_ethics.plan.ethical.PlannerConfig for the "ethical" controller (None: defaults)
 
     def __post_init__(self) -> None:

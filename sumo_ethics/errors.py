@@ -17,3 +17,13 @@ class SimulationError(SumoEthicsError):
     """SUMO failed or the simulation could not continue."""
 
     exit_code = 3
+
+
+class Terminated(KeyboardInterrupt):
+    """The process got SIGTERM: handled like Ctrl-C (outputs and summary written), exit 143."""
+
+
+class OutputError(SumoEthicsError):
+    """The outputs could not be written (a full disk, a file size limit): not the input's fault."""
+
+    exit_code = 1

@@ -7,25 +7,29 @@ far and a summary saying why the run ended are written to the run folder.
 
 from __future__ import annotations
 
+import os
 import platform
+import shutil
 import time as wallclock
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 import libsumo
 import numpy as np
 
 from sumo_ethics import __version__
 from sumo_ethics.collision import PairEvents, previous_of, swept_contacts
+from sumo_ethics.interrupt import sigterm_as_interrupt, sigterm_deferred
 from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
 from sumo_ethics.config import RunConfig
-from sumo_ethics.errors import ConfigError, SimulationError, SumoEthicsError
+from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEthicsError, Terminated
 from sumo_ethics.ethics.harm import CrashOutcome, ImpactArea, Party, crash_outcome
 from sumo_ethics.plan.controller import Controller, Scene
 from sumo_ethics.plan.history import History
-from sumo_ethics.record.writer import RunRecorder, write_json
-from sumo_ethics.sim import session
+from sumo_ethics.record.recorder import RunRecorder
+from sumo_ethics.record.writer import PARTIAL, chunk_steps, write_json
+from sumo_ethics.sim import preflight, session
 from sumo_ethics.sim.rules import RuleMonitor
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld, party_state, sumo_collisions
 from sumo_ethics.types import VULNERABLE, AgentStates, RoadUserClass, RunStatus
@@ -47,28 +51,74 @@ class RunSummary:
     data: dict[str, Any] = field(default_factory=dict)
 
 
-def prepare_out(out: Path) -> bool:
-    """Create the run folder and prove it is writable (ConfigError otherwise); True if created."""
+#: every file or folder a run writes into its --out folder
+OUTPUT_NAMES = ("summary.json", "config.json", "steps.parquet", "timings.parquet", "collisions.parquet",
+                "sumo-errors.log", PARTIAL)
+
+
+def prepare_out(out: Path, overwrite: bool = False) -> tuple[bool, Path | None]:
+    """Create the run folder and prove it is writable (ConfigError otherwise).
+
+    A folder holding a run's outputs is refused unless ``overwrite``; then those outputs (and
+    nothing else) are moved into ``out/.replaced-<pid>/``, put back if this run is refused for
+    bad input and deleted when it ends. Other files in the folder are never touched.
+    Returns (whether the folder was created, the folder holding the replaced outputs or None).
+    """
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out} exists and is not a folder")
+    old = [n for n in OUTPUT_NAMES if (out / n).exists()] if out.is_dir() else []
+    if old and not overwrite:
+        raise ConfigError(f"--out {out} already holds a run ({', '.join(old)}); give --overwrite to replace it "
+                          "or choose another folder")
     created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / ".write-test"
         probe.write_text("ok")
         probe.unlink()
+        backup = None
+        if overwrite:  # outputs an earlier overwriting run moved aside and was killed before deleting
+            for stale in out.glob(".replaced-*"):
+                shutil.rmtree(stale, ignore_errors=True)
+        if old:  # --overwrite: the previous run's outputs, nothing else
+            backup = out / f".replaced-{os.getpid()}"
+            backup.mkdir()
+            for name in old:
+                os.rename(out / name, backup / name)
     except OSError as exc:
         raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
-    return created
+    return created, backup
 
 
-def discard_outputs(out: Path, created: bool) -> None:
-    """Remove what a run refused for bad input wrote, so no half-made run folder is left."""
-    for name in ("config.json", "sumo-errors.log"):
-        (out / name).unlink(missing_ok=True)
+def discard_outputs(out: Path, created: bool, written: Iterable[str] = ("config.json", "sumo-errors.log"),
+                    replaced: Path | None = None) -> None:
+    """Remove what a run refused for bad input wrote (only the files it wrote itself) and put back
+    the earlier run's outputs it was to replace, so the folder is as it was."""
+    for name in written:
+        p = out / name
+        if p.is_dir():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
+    if replaced is not None and replaced.is_dir():
+        for p in replaced.iterdir():
+            os.replace(p, out / p.name)  # this run's own files with those names are gone by now
+        shutil.rmtree(replaced, ignore_errors=True)
     if created:
         try:
             out.rmdir()
         except OSError:
             pass
+
+
+def resolved_end(cfg: RunConfig, files: session.ScenarioFiles) -> float:
+    """The run's time limit [s]: --end, else the scenario's end, else DEFAULT_END; ConfigError
+    when the inserted ego would depart at or after it."""
+    end = cfg.end if cfg.end is not None else (files.end or DEFAULT_END)
+    if cfg.ego_id is None and cfg.ego_depart >= end:
+        raise ConfigError(f"--ego-depart {cfg.ego_depart:g} s is not before the end of the simulation ({end:g} s)")
+    return end
+
 
 # ---- ego selection ----------------------------------------------------------------------------
 def _step_until(pred: Callable[[], bool], limit: float) -> bool:
@@ -226,14 +276,16 @@ class Run:
         self.events = PairEvents(cfg.collision_gap)
         self.status = RunStatus.ERROR
         self.message = ""
+        self.written: list[str] = []  # files of the run folder this run wrote (removed on bad input)
+        self.created_out = False
+        self.replaced: Path | None = None  # an earlier run's outputs moved aside by --overwrite
         self.meta: dict[str, Any] = {}
         self.step = 0
         self.t_start = wallclock.perf_counter()
 
     # -- collisions --
     def _book(self, row: dict[str, Any], a: str, b: str) -> None:
-        self.rec.collisions.append(row)
-        self.events.bind(a, b, len(self.rec.collisions) - 1)
+        self.events.bind(a, b, self.rec.add_collision(row))
 
     def detect(self, before: Snapshot, now: Snapshot) -> bool:
         """Log this step's collisions; True if the ego had a new one."""
@@ -259,11 +311,11 @@ class Run:
                 row = self.rec.collisions[idx] if idx is not None else None
                 if row is not None and row["detector"] != detector and detector != "sumo_unconfirmed":
                     if not is_booked(row):  # confirmed later: book it now
-                        row.update(booking(row, True))
+                        self.rec.update_collision(idx, **booking(row, True))
                         ego_new = True
-                    row["detector"] = merged_detector(row["detector"], detector)
+                    self.rec.update_collision(idx, detector=merged_detector(row["detector"], detector))
                     if report and not row["sumo_type"]:
-                        row["sumo_type"] = report[6]
+                        self.rec.update_collision(idx, sumo_type=report[6])
                 continue
             if other in before_index:  # states just before impact
                 b = before.others.take([before_index[other]])
@@ -304,20 +356,23 @@ class Run:
     def execute(self) -> None:
         cfg = self.cfg
         files = session.read_scenario(cfg.scenario)
-        self.created_out = prepare_out(cfg.out)
-        end = cfg.end if cfg.end is not None else (files.end or DEFAULT_END)
+        checked = preflight.check_scenario(files, cfg.ego_from, cfg.ego_to)  # what SUMO reports badly or crashes on
+        end = resolved_end(cfg, files)
         ego_id = cfg.ego_id or "ego"
-        declared = session.route_vehicle_ids(files)
-        if cfg.ego_id is not None and declared is not None:
-            vehicles, flows = declared
+        if cfg.ego_id is not None:
             flow_of = cfg.ego_id.rsplit(".", 1)[0]
-            if cfg.ego_id not in vehicles and flow_of not in flows:
+            if cfg.ego_id not in checked.vehicles and flow_of not in checked.flows:
                 raise ConfigError(f"unknown --ego '{cfg.ego_id}': no vehicle, trip or flow of that id in the route files")
-        elif declared is not None and ego_id in declared[0]:
+        elif ego_id in checked.vehicles:
             ego_id = "sumo_ethics_ego"
+        # every check that needs no SUMO has passed: only now is the run folder touched
+        self.created_out, self.replaced = prepare_out(cfg.out, cfg.overwrite)
         self.meta.update(scenario=str(files.config), end=end, ego_id=ego_id,
                          forced_sumo_options=session.forced_option_report(files))
         write_json(cfg.out / "config.json", cfg.to_dict() | {"resolved": {"end": end, "ego_id": ego_id}})
+        self.written.append("config.json")
+        if not (cfg.out / "sumo-errors.log").exists():
+            self.written.append("sumo-errors.log")
         session.start(files, cfg.seed, cfg.out / "sumo-errors.log", cfg.sumo_args)
         self.meta["sumo_version"] = session.version()
         try:
@@ -331,12 +386,11 @@ class Run:
     def _loop(self, ego_id: str, end: float) -> None:
         cfg = self.cfg
         dt = libsumo.simulation.getDeltaT()
+        self.rec.chunk = chunk_steps(dt)
         if cfg.ego_id is not None:
             wait_for_vehicle(ego_id, end)
             edges = tuple(libsumo.vehicle.getRoute(ego_id))
         else:
-            if cfg.ego_depart >= end:
-                raise ConfigError(f"--ego-depart {cfg.ego_depart:g} s is not before the end of the simulation ({end:g} s)")
             edges = insert_ego(cfg, ego_id)
         self.world = world = SumoWorld(ego_id, cfg.sensing_radius)
         route = world.takeover()
@@ -390,8 +444,10 @@ class Run:
                 w4 = wallclock.perf_counter()
                 s, d = route.path.project_point(float(new.ego.x[0]), float(new.ego.y[0]),
                                                 near=(s - 5.0, s + 5.0 + 50.0 * dt))
-                self._record(new, snap, decision, s, d, dt, (w1 - w0, w2 - w1, w3 - w2, w4 - w3), scene.stop_s)
-                self.rec.timings[-1]["record_ms"] = 1e3 * (wallclock.perf_counter() - w4)
+                row, timing = self._rows(new, snap, decision, s, d, dt, (w1 - w0, w2 - w1, w3 - w2, w4 - w3),
+                                         scene.stop_s)
+                timing["record_ms"] = 1e3 * (wallclock.perf_counter() - w4)
+                self.rec.step(row, timing)  # flushes a chunk every CHUNK_SECONDS of simulated time
                 snap = new
                 if progress is not None and self.step % 50 == 0:
                     progress[0].update(progress[1], completed=min(snap.time, end))
@@ -408,8 +464,9 @@ class Run:
             if progress is not None:
                 progress[0].stop()
 
-    def _record(self, now: Snapshot, before: Snapshot, decision: Any, s: float, d: float, dt: float,
-                w: tuple[float, float, float, float], stop_s: float | None) -> None:
+    def _rows(self, now: Snapshot, before: Snapshot, decision: Any, s: float, d: float, dt: float,
+              w: tuple[float, float, float, float], stop_s: float | None) -> tuple[dict, dict]:
+        """This step's steps.parquet and timings.parquet rows."""
         e, o = now.ego, now.others
         dist = np.hypot(o.x - e.x[0], o.y - e.y[0]) if len(o) else np.empty(0)
         row = {
@@ -421,17 +478,38 @@ class Run:
             "stop_s": float("nan") if stop_s is None else stop_s,
         }
         row.update(decision.info)
-        self.rec.steps.append(row)
         timing = {"step": self.step, "controller_ms": 1e3 * w[0], "sumo_ms": 1e3 * w[1], "read_ms": 1e3 * w[2],
                   "collision_ms": 1e3 * w[3]}
         timing.update(decision.timings_ms)
-        self.rec.timings.append(timing)
+        return row, timing
+
+    def finish(self, wall: float, error: BaseException | None) -> tuple[dict[str, Any], BaseException | None]:
+        """Write the finished output files and ``summary.json``; the summary and the error to raise
+        (an OutputError when the files could not be written)."""
+        out = self.cfg.out
+        if "config.json" in self.written:  # this run got as far as writing its folder
+            try:
+                self.rec.close()
+            except OSError as exc:  # e.g. a full disk: the chunks written so far stay in partial/
+                self.status, self.message = RunStatus.ERROR, f"cannot write the outputs to {out}: {exc.strerror or exc}"
+                error = error if isinstance(error, KeyboardInterrupt) else OutputError(self.message)
+            data = self.summary(wall)
+            try:
+                write_json(out / "summary.json", data)
+            except OSError as exc:
+                data["message"] = f"cannot write the outputs to {out}: {exc.strerror or exc}"
+                error = error if isinstance(error, KeyboardInterrupt) else OutputError(data["message"])
+        else:
+            data = {"status": self.status.value, "message": self.message}
+        if self.replaced is not None and self.replaced.exists():  # the earlier run's outputs, now replaced
+            shutil.rmtree(self.replaced, ignore_errors=True)
+        return data, error
 
     def summary(self, wall: float) -> dict[str, Any]:
         ego_rows = [r for r in self.rec.collisions if is_booked(r)]
         harm = {k: float(sum(r[f"harm_{k}"] for r in ego_rows)) for k in ("ego", "third_party", "vru")}
         harm["total"] = harm["ego"] + harm["third_party"]
-        steps = self.rec.steps
+        first, last = self.rec.first_step, self.rec.last_step
         return {
             "status": self.status.value,
             "message": self.message,
@@ -442,9 +520,9 @@ class Run:
                            "ego_unconfirmed": sum(r["detector"] == "sumo_unconfirmed" for r in self.rec.collisions),
                            "others": sum(not r["involves_ego"] for r in self.rec.collisions)},
             "seed": self.cfg.seed,
-            "steps": len(steps),
-            "distance": float(steps[-1]["s"] - steps[0]["s"]) if steps else 0.0,
-            "sim_time": float(steps[-1]["time"]) if steps else None,
+            "steps": self.rec.n_steps,
+            "distance": float(last["s"] - first["s"]) if last is not None else 0.0,
+            "sim_time": float(last["time"]) if last is not None else None,
             "wall_time": wall,
             **{k: v for k, v in self.meta.items() if k != "last_time"},
             "versions": {"sumo_ethics": __version__, "sumo": self.meta.get("sumo_version", "unknown"),
@@ -477,8 +555,11 @@ def make_controller(cfg: RunConfig) -> Controller:
         return RouteFollower()
     if cfg.controller == "ethical":
         from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
+        from sumo_ethics.settings import check_grid_bounds
 
-        return EthicalPlanner(cfg.planner or PlannerConfig())
+        planner = cfg.planner or PlannerConfig()
+        check_grid_bounds(planner.sampling)  # also for a PlannerConfig built in Python, not from settings
+        return EthicalPlanner(planner)
     raise ConfigError(f"unknown controller '{cfg.controller}'; known: {', '.join(CONTROLLERS)}")
 
 
@@ -489,31 +570,38 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
     and before the controller acts (they may act on SUMO, e.g. inject hazards; only code
     under ``sumo_ethics/sim`` should).
 
-    Raises ConfigError for bad input found before the simulation starts; SUMO failures and
-    errors during the run are reported as status ``error`` in the summary (and raised as
-    SimulationError after the outputs are written).
+    Raises ConfigError for bad input (the run folder is left as it was). Everything else ends
+    with the outputs written so far and a summary saying how the run ended, then raises:
+    SimulationError (SUMO failed, status ``error``), OutputError (the outputs could not be
+    written, e.g. a full disk), KeyboardInterrupt on Ctrl-C and :class:`Terminated` on SIGTERM
+    (status ``interrupted``).
     """
     controller = controller or make_controller(cfg)
     r = Run(cfg, controller, tuple(hooks))
     t0 = wallclock.perf_counter()
     error: BaseException | None = None
-    try:
-        r.execute()
-    except ConfigError as exc:  # bad input: nothing was computed, leave nothing behind
-        if cfg.out.is_dir():
-            discard_outputs(cfg.out, getattr(r, "created_out", False))
-        raise exc
-    except SumoEthicsError as exc:
-        r.status, r.message, error = RunStatus.ERROR, str(exc), exc
-    except KeyboardInterrupt as exc:
-        r.status, r.message, error = RunStatus.ERROR, "interrupted", exc
-    finally:
-        if cfg.out.is_dir() and (cfg.out / "config.json").exists():
-            r.rec.flush()
-            data = r.summary(wallclock.perf_counter() - t0)
-            write_json(cfg.out / "summary.json", data)
-        else:
-            data = {"status": r.status.value, "message": r.message}
+    with sigterm_as_interrupt():
+        try:
+            r.execute()
+        except ConfigError:  # bad input: nothing was computed, leave the folder as it was
+            if cfg.out.is_dir():
+                discard_outputs(cfg.out, r.created_out, r.written + ([PARTIAL] if r.written else []),
+                                r.replaced)  # partial/ is ours once we wrote
+            raise
+        except SumoEthicsError as exc:
+            r.status, r.message, error = RunStatus.ERROR, str(exc), exc
+        except OSError as exc:  # the outputs could not be written (a full disk)
+            r.status, r.message = RunStatus.ERROR, f"cannot write the outputs to {cfg.out}: {exc.strerror or exc}"
+            error = OutputError(r.message)
+        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated)
+            r.status, error = RunStatus.INTERRUPTED, exc
+            how = "SIGTERM" if isinstance(exc, Terminated) else "Ctrl-C"
+            r.message = f"interrupted by {how} at t={r.meta['last_time']:g} s" if "last_time" in r.meta else \
+                f"interrupted by {how} before the ego's first step"
+        except Exception as exc:  # a bug: the outputs and a summary are still written, then it is raised
+            r.status, r.message, error = RunStatus.ERROR, f"internal error: {type(exc).__name__}: {exc}", exc
+        with sigterm_deferred():  # a SIGTERM now waits until the outputs are whole
+            data, error = r.finish(wallclock.perf_counter() - t0, error)
     if error is not None:
         raise error
     return RunSummary(r.status, r.message, cfg.out, data)

@@ -16,6 +16,31 @@ from sumo_ethics.config import require_number
 from sumo_ethics.errors import ConfigError
 
 
+#: bounds on the candidate grid, checked before anything is allocated: the planner holds
+#: (candidates x neighbours x steps) arrays, so these keep one planning step within memory
+#: (measured: 5000 candidates x 40 steps against 100 neighbours peaks at about 600 MB)
+MAX_CANDIDATES = 5000  # len(horizons) x n_speeds x n_offsets (default 4 x 15 x 17 = 1020)
+MAX_HORIZON = 10.0  # s, the longest horizon (default 4 s)
+MAX_HORIZON_STEPS = 100  # longest horizon / sampling.dt (default 40)
+MAX_CANDIDATE_STEPS = 200_000  # candidates x horizon steps (default 1020 x 40 = 40,800)
+
+
+def check_grid_bounds(sampling: Any) -> None:
+    """ConfigError when a SamplingConfig's grid is beyond the stated limits."""
+    k = sampling.n_candidates
+    if k > MAX_CANDIDATES:
+        raise ConfigError(f"the candidate grid is too large: {len(sampling.horizons)} horizons x {sampling.n_speeds} "
+                          f"speeds x {sampling.n_offsets} offsets = {k} candidates; the limit is {MAX_CANDIDATES}")
+    if max(sampling.horizons) > MAX_HORIZON:
+        raise ConfigError(f"sampling.horizons: {max(sampling.horizons):g} s is beyond the limit of {MAX_HORIZON:g} s")
+    if sampling.n_steps > MAX_HORIZON_STEPS:
+        raise ConfigError(f"sampling: the longest horizon is {sampling.n_steps} steps of {sampling.dt:g} s; the limit "
+                          f"is {MAX_HORIZON_STEPS} steps (raise sampling.dt or shorten the horizons)")
+    if k * sampling.n_steps > MAX_CANDIDATE_STEPS:
+        raise ConfigError(f"the candidate grid is too large: {k} candidates x {sampling.n_steps} steps = "
+                          f"{k * sampling.n_steps} candidate steps; the limit is {MAX_CANDIDATE_STEPS}")
+
+
 def _known(table: dict[str, Any], allowed: set[str], where: str) -> None:
     unknown = set(table) - allowed
     if unknown:
@@ -27,15 +52,23 @@ def _weight(name: str, value: Any) -> float:
 
 
 def load_toml(path: Path) -> dict[str, Any]:
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"config file {path} is a folder, not a TOML file")
     try:
         with open(path, "rb") as f:
             data = tomllib.load(f)
     except FileNotFoundError:
         raise ConfigError(f"config file not found: {path}") from None
-    except tomllib.TOMLDecodeError as exc:
+    except OSError as exc:
+        raise ConfigError(f"cannot read config file {path}: {exc.strerror or exc}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"malformed TOML in {path}: {exc}") from None
     _known(data, {"planner"}, str(path))
-    return data.get("planner", {})
+    planner = data.get("planner", {})
+    if not isinstance(planner, dict):
+        raise ConfigError(f"{path}: 'planner' must be a table ([planner]), got {planner!r}")
+    return planner
 
 
 def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
@@ -45,11 +78,16 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
     from sumo_ethics.plan.ethical import PlannerConfig
     from sumo_ethics.plan.sampling import SamplingConfig
 
+    if table is not None and not isinstance(table, dict):
+        raise ConfigError(f"[planner] must be a table, got {table!r}")
     t = dict(table or {})
     t.update({k: v for k, v in overrides.items() if v is not None})
     simple = {"omega_u", "omega_o", "weights", "utility", "predictor", "predictor_weights", "max_risk",
               "braking_prior", "lateral_prior", "selection", "envelope", "entry"}
     _known(t, simple | {"sampling", "probability", "principles"}, "[planner]")
+    for sub in ("sampling", "probability", "principles"):
+        if not isinstance(t.get(sub, {}), dict):
+            raise ConfigError(f"[planner.{sub}] must be a table, got {t[sub]!r}")
     try:
         weights = PrincipleWeights.preset(t.get("weights", "ethical"))
         if "principles" in t:
@@ -68,7 +106,9 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
         _known(probability, {f.name for f in fields(ProbabilityConfig)}, "[planner.probability]")
         # keys not set keep PlannerConfig's own defaults (its grid, not SamplingConfig's bare one)
         grid = replace(PlannerConfig().sampling, **sampling)
-        given = {k: t[k] for k in ("predictor", "max_risk", "braking_prior", "lateral_prior", "selection", "envelope", "entry") if k in t}
+        check_grid_bounds(grid)
+        given = {k: t[k] for k in ("predictor", "max_risk", "braking_prior", "lateral_prior", "selection", "envelope",
+                                   "entry") if k in t}
         if t.get("predictor_weights") is not None:
             given["predictor_weights"] = str(t["predictor_weights"])
         return PlannerConfig(cost=cost, sampling=grid, probability=ProbabilityConfig(**probability), **given)

@@ -71,6 +71,7 @@ class RunStatus(enum.Enum):
     COLLISION = "collision"
     TIMEOUT = "timeout"
     ERROR = "error"
+    INTERRUPTED = "interrupted"  # Ctrl-C or SIGTERM
 
 
 def _frozen_array(a: np.ndarray) -> np.ndarray:

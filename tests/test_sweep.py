@@ -219,13 +219,41 @@ def test_killed_sweep_resumes_to_the_same_dataset(tmp_path):
 
 @pytest.mark.sumo
 def test_a_run_error_is_a_finished_result(tmp_path):
-    """An ego route that does not exist: the run ends with status error, recorded, not retried."""
-    sw = make_sweep(TESTBED, "0.5", "0", ["ego_from=nowhere"], options={"ego_to": "main_1", "end": 5.0})
+    """SUMO fails on a scenario that passes the pre-flight checks (a route over an edge the net
+    does not have): the run ends with status error, recorded with SUMO's message, not retried."""
+    from conftest import write_scenario
+
+    cfg = write_scenario(tmp_path / "s", '<vehicle id="late" type="car" depart="3"><route edges="main_0 nowhere"/>'
+                                         '</vehicle>', end=10)
+    sw = make_sweep(cfg, "0.5", "0", options={"end": 5.0, "controller": "baseline"})
     res = run_sweep(sw, tmp_path / "sw", workers=1, progress=False)
     assert (res.done, res.errors, res.failed) == (1, 1, 0)
     m = json.loads((tmp_path / "sw" / "manifest.json").read_text())
     assert m["runs"][0]["status"] == "error" and "nowhere" in m["runs"][0]["error"]
     assert load(tmp_path / "sw").runs.status.tolist() == ["error"]
+
+
+def test_input_errors_are_refused_before_any_run(tmp_path):
+    """An edge the net does not have: refused at once, nothing written (it used to be stored as
+    a permanent 'error' result and never retried)."""
+    sw = make_sweep(TESTBED, "0.5", "0", ["ego_from=main_0,nowhere"], options={"ego_to": "main_1", "end": 5.0})
+    with pytest.raises(ConfigError, match="unknown edge 'nowhere'"):
+        run_sweep(sw, tmp_path / "sw", workers=1, progress=False)
+    assert not (tmp_path / "sw").exists()
+
+
+@pytest.mark.sumo
+def test_a_run_refused_for_input_is_retried_not_stored(tmp_path):
+    """A ConfigError found only inside a run (here: SUMO finds no route between two edges that
+    exist) is not a result: the run leaves no folder, is listed as failed and runs again on the
+    next start."""
+    sw = make_sweep(TESTBED, "0.5", "0", options={"controller": "baseline", "end": 5.0, "ego_from": "main_1",
+                                                   "ego_to": "main_0"})
+    res = run_sweep(sw, tmp_path / "sw", workers=1, progress=False)
+    assert (res.done, res.failed) == (0, 1) and "no route from edge 'main_1'" in res.failures[0]
+    assert not list((tmp_path / "sw" / "runs").iterdir())
+    m = json.loads((tmp_path / "sw" / "manifest.json").read_text())
+    assert m["runs"][0]["status"] == "failed"
 
 
 def test_execute_run_propagates_tool_crashes(tmp_path):

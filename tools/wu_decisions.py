@@ -56,7 +56,7 @@ def _run(args: tuple[str, dict, tuple[float, ...], str]) -> dict:
     cfg = RunConfig(scenario=spec.sumocfg, out=Path(out_dir), seed=spec.seed, end=spec.ego.end,
                     ego_from=spec.ego.from_edge, ego_to=spec.ego.to_edge, ego_depart=spec.ego.depart,
                     ego_depart_lane="best" if spec.ego.lane is None else str(spec.ego.lane),
-                    controller="ethical", planner=pcfg, progress=False)
+                    controller="ethical", planner=pcfg, progress=False, overwrite=True)
     try:
         run(cfg, controller=HazardController(Probe(pcfg), HazardInjector(spec.hazards)))
     except Exception as exc:  # noqa: BLE001 - a failed run still reports its steps

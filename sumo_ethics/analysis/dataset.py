@@ -61,8 +61,31 @@ def partition_schema(manifest: dict[str, Any]) -> pa.Schema:
     return pa.schema([f for f in sch if f.name != "seed"])
 
 
+def _corrupt(folder: Path, what: str, exc: BaseException):
+    from sumo_ethics.errors import ConfigError
+
+    detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return ConfigError(f"run folder {folder} is corrupt ({what}: {detail}); remove that folder and start the "
+                       "same sweep again to redo the run")
+
+
+def _run_table(folder: Path, name: str) -> pa.Table:
+    from sumo_ethics.errors import ConfigError
+    from sumo_ethics.record.reader import read_table
+
+    try:
+        return read_table(folder, name)
+    except (ConfigError, OSError, pa.ArrowException) as exc:
+        raise _corrupt(folder, f"{name}.parquet", exc) from None
+
+
 def _run_row(run: dict[str, Any], folder: Path) -> dict[str, Any]:
-    s = json.loads((folder / "summary.json").read_text())
+    try:
+        s = json.loads((folder / "summary.json").read_text())
+        if not isinstance(s, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError) as exc:
+        raise _corrupt(folder, "summary.json", exc) from None
     harm = s.get("harm", {})
     coll = s.get("collisions", {})
     wall = s.get("wall_time")
@@ -119,9 +142,8 @@ def build_dataset(out: Path) -> dict[str, int]:
             continue
         run_rows.append(_run_row(run, folder))
         for name in tables:
-            f = folder / f"{name}.parquet"
-            if f.exists():
-                tables[name].append(_with_params(pq.read_table(f), run["run_id"], run["params"], psch))
+            if (folder / f"{name}.parquet").exists():
+                tables[name].append(_with_params(_run_table(folder, name), run["run_id"], run["params"], psch))
     schema = pa.schema([RUN_COLUMNS.field("run_id"), *psch, *[f for f in RUN_COLUMNS if f.name != "run_id"]])
     built = {"runs": pa.Table.from_pylist(run_rows, schema=schema)}
     for name, parts in tables.items():

@@ -18,6 +18,7 @@ class Report:
     report: Path
     tables: dict[str, Path] = field(default_factory=dict)
     figures: dict[str, list[Path]] = field(default_factory=dict)
+    unfinished: int = 0  # runs of the sweep not finished (pending, failed, or killed with the sweep)
 
 
 def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Path | None = None,
@@ -33,7 +34,12 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
         raise ConfigError(f"{sweep_dir} holds no finished runs yet")
     by = check_groups(res.runs, list(by) or ["omega_u"])
     folder = Path(out) if out is not None else sweep_dir / "report"
-    folder.mkdir(parents=True, exist_ok=True)
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(f"--out {folder} exists and is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"cannot write to --out {folder}: {exc.strerror or exc}") from None
     rep = Report(folder=folder, report=folder / "report.md")
 
     tables = {"summary": summary_table(res.runs, by, n_boot=n_boot, seed=seed),
@@ -60,6 +66,7 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
         rep.figures["exante_risk"] = risk_boxplot(res.runs, by[0], figs)
 
     manifest = json.loads((sweep_dir / "manifest.json").read_text())
+    rep.unfinished = len(manifest["runs"]) - len(res.runs)
     d = manifest["definition"]
     compact = tables["summary"][[*by, "n_runs", "completion_rate", "collision_rate", "harm_ego_mean",
                                  "harm_third_party_mean", "harm_vru_mean", "harm_total_mean",
@@ -77,6 +84,9 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
         f"- swept with --set: {json.dumps(d['set']) if d['set'] else 'nothing'}; options: {json.dumps(d['options'])}",
         f"- runs: {len(res.runs)} finished of {len(manifest['runs'])} "
         f"({', '.join(f'{k} {v}' for k, v in sorted(res.runs['status'].value_counts().items()))})",
+        *([f"- **incomplete sweep**: {len(manifest['runs']) - len(res.runs)} runs have not finished (not run yet, "
+           "failed, or killed with the sweep) and are not in these tables; start the same sweep again to finish them"]
+          if len(manifest["runs"]) > len(res.runs) else []),
         f"- grouped by: {', '.join(by)}; 95% CIs: percentile bootstrap over runs ({n_boot} resamples, seed {seed})",
         "",
         "Harm is P(MAIS 3+) of the harm model, summed per run over the ego's collisions and",

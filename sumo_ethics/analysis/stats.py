@@ -17,6 +17,8 @@ from sumo_ethics.errors import ConfigError
 #: harm classes as booked per run: (runs column, label)
 HARM_CLASSES = (("harm_ego", "ego"), ("harm_third_party", "third party"), ("harm_vru", "VRU"),
                 ("harm_total", "total"))
+#: most bootstrap resamples (each is an index array the size of the group)
+MAX_BOOT = 100_000
 HARM_UNIT = "harm [-] (P(MAIS 3+), summed over the run's ego collisions)"
 
 

@@ -7,9 +7,14 @@ mingap factor counts any gap under minGap as a collision.
 
 from __future__ import annotations
 
+import os
+import sys
+import tempfile
 import xml.etree.ElementTree as ET
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 import libsumo
 import sumo
@@ -121,10 +126,39 @@ def start(files: ScenarioFiles, seed: int, error_log: Path, extra: tuple[str, ..
     for key, value in FORCED_OPTIONS.items():
         cmd += [f"--{key}", value]
     cmd += list(extra)
+    with tempfile.TemporaryFile() as captured:
+        try:
+            with _stderr_to(captured):  # SUMO prints the cause of a failed start there, not in the exception
+                libsumo.start(cmd)
+        except TraCIException as exc:
+            captured.seek(0)
+            cause = _first_error(captured.read().decode(errors="replace")) or first_line(exc, error_log)
+            raise SimulationError(f"SUMO could not start {files.config.name}: {cause}") from None
+        captured.seek(0)
+        rest = captured.read()
+        if rest:  # a start that went through: pass on whatever SUMO printed
+            sys.stderr.buffer.write(rest)
+            sys.stderr.flush()
+
+
+@contextmanager
+def _stderr_to(f) -> Iterator[None]:
+    """File descriptor 2 (SUMO's C++ output) into the open file ``f`` while inside."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    os.dup2(f.fileno(), 2)
     try:
-        libsumo.start(cmd)
-    except TraCIException as exc:
-        raise SimulationError(f"SUMO could not start {files.config.name}: {first_line(exc, error_log)}") from None
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _first_error(text: str) -> str:
+    for line in text.splitlines():
+        if line.startswith("Error"):
+            return line.removeprefix("Error: ").strip()
+    return ""
 
 
 def close() -> None:
@@ -144,9 +178,10 @@ def version() -> str:
 def first_line(exc: BaseException, error_log: Path | None = None) -> str:
     """SUMO's own message for an exception: the exception text, else the first error in the log."""
     msg = str(exc).strip()
-    if not msg and error_log is not None and error_log.is_file():
+    generic = not msg or msg.lower().startswith("process error")  # libsumo's text when SUMO's own start failed
+    if generic and error_log is not None and error_log.is_file():
         for line in error_log.read_text(errors="replace").splitlines():
             if line.startswith("Error"):
-                msg = line
+                msg = line.removeprefix("Error: ")
                 break
     return (msg.splitlines() or ["unknown SUMO error"])[0]

@@ -134,7 +134,8 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str) -> dict[str, 
         cfg = RunConfig(scenario=spec.sumocfg, out=Path(out_dir), seed=spec.seed, end=spec.ego.end,
                         ego_from=spec.ego.from_edge, ego_to=spec.ego.to_edge, ego_depart=spec.ego.depart,
                         ego_depart_lane="best" if spec.ego.lane is None else str(spec.ego.lane),
-                        controller="baseline" if pcfg is None else "ethical", planner=pcfg, progress=False)
+                        controller="baseline" if pcfg is None else "ethical", planner=pcfg, progress=False,
+                        overwrite=True)
         injector = HazardInjector(spec.hazards)
         try:
             summary = run(cfg, controller=HazardController(make_controller(cfg), injector))
@@ -184,6 +185,9 @@ def _first_victim(out: Path) -> str:
 
 # ---- many runs --------------------------------------------------------------------------
 def _child(conn: Any, args: tuple) -> None:
+    from sumo_ethics._worker_signals import watch_parent
+
+    watch_parent()  # killed when the evaluation is gone, even by kill -9
     try:
         row = run_one(*args)
         try:

@@ -1,0 +1,89 @@
+"""Reading a run folder, finished or killed: the finished Parquet files, else the chunks in
+``partial/``; a summary rebuilt when a killed run left none."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from sumo_ethics.record import schema
+from sumo_ethics.record.writer import PARTIAL, conform, read_segment, segments, union_schema
+
+BASES = {"steps": schema.STEPS_BASE, "timings": schema.TIMINGS_BASE, "collisions": schema.COLLISIONS}
+
+
+def is_incomplete(folder: Path) -> bool:
+    """True when the run in ``folder`` did not finish writing (killed): no summary, or chunks left."""
+    folder = Path(folder)
+    return not (folder / "summary.json").is_file() or (folder / PARTIAL).is_dir()
+
+
+def _readable(path: Path) -> pa.Table | None:
+    try:
+        return pq.read_table(path)
+    except (OSError, pa.ArrowException):
+        return None
+
+
+def read_table(folder: Path, name: str) -> pa.Table:
+    """Table ``name`` (steps, timings, collisions) of a run folder: the finished file, else the
+    rows a killed run left in ``partial/`` (up to its last flush), else empty."""
+    folder = Path(folder)
+    base = BASES.get(name, pa.schema([]))
+    final = folder / f"{name}.parquet"
+    if final.is_file() and not (folder / PARTIAL).is_dir():
+        t = _readable(final)
+        if t is None:
+            from sumo_ethics.errors import ConfigError
+
+            raise ConfigError(f"{final} is not a readable Parquet file (truncated or corrupt)")
+        return t
+    if name == "collisions":
+        t = _readable(folder / PARTIAL / "collisions.parquet")
+        return t if t is not None else base.empty_table()
+    parts = [(sch, batches) for p in segments(folder / PARTIAL, name) for sch, batches in [read_segment(p)]
+             if sch is not None]
+    if not parts:
+        return base.empty_table()
+    sch = union_schema(base, [s for s, _ in parts])
+    return pa.concat_tables([conform(pa.Table.from_batches(b, schema=s), sch) for s, b in parts])
+
+
+def recover_summary(folder: Path) -> dict[str, Any]:
+    """``summary.json`` of a run folder, or one rebuilt from its rows (status ``incomplete``) when
+    the run was killed before writing it."""
+    folder = Path(folder)
+    path = folder / "summary.json"
+    if path.is_file():
+        try:
+            data = json.loads(path.read_text())
+            if isinstance(data, dict):
+                return data
+        except (OSError, ValueError):
+            pass
+    steps = read_table(folder, "steps").select(["step", "time", "s"]).to_pylist()
+    coll = read_table(folder, "collisions").to_pylist()
+    booked = [r for r in coll if r.get("involves_ego") and r.get("detector") != "sumo_unconfirmed"]
+    harm = {k: float(sum(r.get(f"harm_{k}") or 0.0 for r in booked)) for k in ("ego", "third_party", "vru")}
+    harm["total"] = harm["ego"] + harm["third_party"]
+    cfg: dict[str, Any] = {}
+    try:
+        cfg = json.loads((folder / "config.json").read_text())
+    except (OSError, ValueError):
+        pass
+    return {
+        "status": "incomplete",
+        "message": "the run was killed before it finished; rebuilt from the rows written so far "
+                   f"(up to t={steps[-1]['time']:g} s)" if steps else "the run was killed before it wrote any step",
+        "completed": False, "collided": bool(booked), "harm": harm,
+        "collisions": {"ego": len(booked), "ego_unconfirmed": sum(r.get("detector") == "sumo_unconfirmed" for r in coll),
+                       "others": sum(not r.get("involves_ego") for r in coll)},
+        "seed": cfg.get("seed"), "steps": len(steps),
+        "distance": float(steps[-1]["s"] - steps[0]["s"]) if steps else 0.0,
+        "sim_time": float(steps[-1]["time"]) if steps else None,
+        "controller": cfg.get("controller"), "reconstructed": True,
+    }

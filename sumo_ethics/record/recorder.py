@@ -1,0 +1,82 @@
+"""The runner's recording callback: one object per run, called once per ego step.
+
+``RunRecorder.step(row, timing)`` appends this step's steps.parquet and timings.parquet rows;
+every ``chunk`` steps (CHUNK_SECONDS of simulated time: a fixed count, so the files never
+depend on wall-clock time) all tables are flushed to ``partial/``. More per-step tables can be
+added with :meth:`RunRecorder.table` (they are flushed and merged with the others).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+
+from sumo_ethics.record import schema
+from sumo_ethics.record.writer import PARTIAL, STREAMED, ChunkedTable, write_table
+
+
+class RunRecorder:
+    """:meth:`step` once per ego step, :meth:`add_collision` per collision event; :meth:`close` at
+    the end writes the finished files.
+
+    Collision rows stay in memory (events are few, and one is updated while it lasts) and are
+    rewritten to ``partial/collisions.parquet`` at a flush when they changed.
+    """
+
+    def __init__(self, out: Path, chunk: int = 20) -> None:
+        self.out = out
+        self.chunk = chunk
+        self.partial = out / PARTIAL
+        self.tables = {name: ChunkedTable(self.partial, name, base) for name, base in STREAMED.items()}
+        self.collisions: list[dict[str, Any]] = []
+        self._collisions_dirty = False
+        self.n_steps = 0
+        self.first_step: dict[str, Any] | None = None
+        self.last_step: dict[str, Any] | None = None
+
+    def table(self, name: str, base: pa.Schema) -> ChunkedTable:
+        """A further per-step table ``name`` (file ``name.parquet``), flushed with the others."""
+        if name not in self.tables:
+            self.tables[name] = ChunkedTable(self.partial, name, base)
+        return self.tables[name]
+
+    # -- the callback --
+    def step(self, row: dict[str, Any], timing: dict[str, Any]) -> None:
+        self.tables["steps"].append(row)
+        self.tables["timings"].append(timing)
+        self.n_steps += 1
+        if self.first_step is None:
+            self.first_step = row
+        self.last_step = row
+        if self.n_steps % self.chunk == 0:
+            self.flush()
+
+    def add_collision(self, row: dict[str, Any]) -> int:
+        self.collisions.append(row)
+        self._collisions_dirty = True
+        return len(self.collisions) - 1
+
+    def update_collision(self, index: int, **changes: Any) -> None:
+        self.collisions[index].update(changes)
+        self._collisions_dirty = True
+
+    # -- files --
+    def flush(self) -> None:
+        """Append what is buffered to the streams in ``partial/`` (and write the collisions, if
+        they changed)."""
+        for t in self.tables.values():
+            t.flush()
+        if self._collisions_dirty:
+            self.partial.mkdir(parents=True, exist_ok=True)
+            write_table(self.partial / "collisions.parquet", self.collisions, schema.COLLISIONS)
+            self._collisions_dirty = False
+
+    def close(self) -> None:
+        """Write the finished files and remove ``partial/``."""
+        for name, t in self.tables.items():
+            t.finish(self.out / f"{name}.parquet")
+        write_table(self.out / "collisions.parquet", self.collisions, schema.COLLISIONS)
+        shutil.rmtree(self.partial, ignore_errors=True)
