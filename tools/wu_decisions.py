@@ -25,7 +25,7 @@ import numpy as np
 def _run(args: tuple[str, dict, tuple[float, ...], str]) -> dict:
     scenario_dir, options, omegas, out_dir = args
     from sumo_ethics.config import RunConfig
-    from sumo_ethics.plan.ethical import EthicalPlanner, class_of, select
+    from sumo_ethics.plan.ethical import EthicalPlanner, hard_pool, select
     from sumo_ethics.runner import run
     from sumo_ethics.settings import planner_config
     from sumo_ethics.sim.hazards import HazardInjector
@@ -35,15 +35,15 @@ def _run(args: tuple[str, dict, tuple[float, ...], str]) -> dict:
     records: list[tuple[bool, list[int], list[float]]] = []
 
     class Probe(EthicalPlanner):
-        def choose(self, cost, classes, envelope, legal, on_road, first_hit, steps, travel):
-            total, j, cls = super().choose(cost, classes, envelope, legal, on_road, first_hit, steps, travel)
+        def choose(self, cost, classes, penalty, legal, on_road, first_hit, steps, travel):
+            total, j, cls = super().choose(cost, classes, penalty, legal, on_road, first_hit, steps, travel)
             t = cost.terms
             risk = t["ego_risk_sum"] + t["other_risk_sum"]
             picks = []
             for wu in omegas:
                 alt = self.cfg.cost.omega_o * t["j_origin"] + wu * t["j_utility"]
                 if self.cfg.selection == "cost":
-                    k, _ = select([legal & on_road, on_road, np.ones_like(on_road)], alt + envelope)
+                    k = int(np.argmin(np.where(hard_pool(legal, on_road), alt + penalty, np.inf)))
                 else:
                     ttc = self.cfg.selection == "validity_ttc"
                     k, _ = select(classes, alt, first_hit if ttc else None, steps, travel if ttc else None)

@@ -30,8 +30,8 @@ PREDICTORS = ("attention", "cslstm", "cv")
 VALIDITY = ("safe", "no_overlap_on_road", "no_overlap", "feasible", "emergency")
 #: selection rules (PlannerConfig.selection):
 #: "cost": red lights and the road edge stay hard constraints; among the candidates left, the lowest
-#:   J_risk + envelope x [enters a road user's predicted envelope] wins, so when every candidate
-#:   enters someone's envelope (unavoidable harm) the ethical cost decides;
+#:   J_risk + envelope x [enters a road user's predicted envelope] + entry x [how early] wins, so
+#:   when every candidate enters someone's envelope (unavoidable harm) the ethical cost decides;
 #: "validity": Origin's rule: the lowest J_risk within the best non-empty validity class;
 #: "validity_ttc": this project's earlier rule: as "validity", but in a class whose members all enter
 #:   an envelope, the latest-entering and then least-travelling ones are kept before the cost.
@@ -184,6 +184,12 @@ def select(classes: list[np.ndarray], total: np.ndarray, first_hit: np.ndarray |
     return -1, len(classes)
 
 
+def hard_pool(legal: np.ndarray, on_road: np.ndarray) -> np.ndarray:
+    """(K,) bool: the candidates "cost" selection may choose: legal (no red stop line crossed) and
+    on the road, else on the road, else all (the hard constraints, dropped from the last)."""
+    return next((m for m in (legal & on_road, on_road) if m.any()), np.ones_like(on_road))
+
+
 def class_of(classes: list[np.ndarray], k: int) -> int:
     """Index of the first class candidate k belongs to (len(classes) if none)."""
     return next((c for c, members in enumerate(classes) if members[k]), len(classes))
@@ -272,8 +278,9 @@ class EthicalPlanner:
                    "select_ms": 1e3 * (w4 - w3)}
         info: dict[str, Any] = {f"cost_{name}": v for name, v in cost.row(j).items()}
         info.update(cost_envelope=float(envelope[j]), cost_entry=float(entry[j]), cost_selection=float(total[j]),
-                    n_rule_breakers=float(breakers.sum()), validity=float(cls), n_candidates=float(len(cand)), n_feasible=float(feas.feasible.sum()),
-                    horizon=float(cand.horizon[k]), utility_literal=float(self.cfg.cost.utility is UtilityMode.LITERAL))
+                    n_rule_breakers=float(breakers.sum()), validity=float(cls), n_candidates=float(len(cand)),
+                    n_feasible=float(feas.feasible.sum()), horizon=float(cand.horizon[k]),
+                    utility_literal=float(self.cfg.cost.utility is UtilityMode.LITERAL))
         d0 = scene.d
         dt = sc.dt
         d1, d2 = float(cand.d[k, 0]), float(cand.d[k, min(1, cand.d.shape[1] - 1)])
@@ -289,23 +296,23 @@ class EthicalPlanner:
         road / on the road / all, narrowed to those outside every envelope if any are;
         "validity"/"validity_ttc": the best non-empty validity class."""
         if self.cfg.selection == "cost":
-            base = next((m for m in (legal & on_road, on_road) if m.any()), np.ones_like(on_road))
+            base = hard_pool(legal, on_road)
             free = base & ~overlap
             return free if free.any() else base
         return next((m for m in classes if m.any()), np.ones_like(on_road))
 
-    def choose(self, cost: Any, classes: list[np.ndarray], envelope: np.ndarray, legal: np.ndarray,
+    def choose(self, cost: Any, classes: list[np.ndarray], penalty: np.ndarray, legal: np.ndarray,
                on_road: np.ndarray, first_hit: np.ndarray, steps: int,
                travel: np.ndarray) -> tuple[np.ndarray, int, int]:
         """(selection total (K,), chosen candidate, its validity class) under ``cfg.selection``.
 
-        "cost": the lowest J_risk + envelope term among the legal on-road candidates (else the
-        on-road ones, else all); "validity"/"validity_ttc": the class rule (see :data:`SELECTIONS`).
+        "cost": the lowest J_risk + penalty (the envelope and entry terms) within
+        :func:`hard_pool`; "validity"/"validity_ttc": the class rule (see :data:`SELECTIONS`).
         """
         mode = self.cfg.selection
         if mode == "cost":
-            total = cost.total + envelope
-            j, _ = select([legal & on_road, on_road, np.ones_like(on_road)], total)
+            total = cost.total + penalty
+            j = int(np.argmin(np.where(hard_pool(legal, on_road), total, np.inf)))
             return total, j, class_of(classes, j)
         ttc = mode == "validity_ttc"
         j, cls = select(classes, cost.total, first_hit if ttc else None, steps, travel if ttc else None)
