@@ -153,7 +153,7 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str) -> dict[str, 
                    total=float(harm.get("total", 0.0)), ego=float(harm.get("ego", 0.0)),
                    third_party=float(harm.get("third_party", 0.0)), vru=float(harm.get("vru", 0.0)),
                    message=str(data.get("message", ""))[:200], steps=int(data.get("steps", 0) or 0),
-                   hazards_fired=",".join(fired), collided_with=_first_victim(Path(out_dir)),
+                   hazards_fired=",".join(fired), **_victims(Path(out_dir)),
                    **run_risk_file(Path(out_dir)))
     except Exception as exc:  # noqa: BLE001
         row.update(status="error", completed=False, total=0.0, ego=0.0, third_party=0.0, vru=0.0,
@@ -169,18 +169,21 @@ def _read_summary(out: Path) -> dict[str, Any] | None:
         return None
 
 
-def _first_victim(out: Path) -> str:
+def _victims(out: Path) -> dict[str, Any]:
+    """``collided_with`` (class and origin of the ego's first victim, '' if none) and
+    ``harm_worst`` (the largest harm booked to a single party, the ego included, 0 if none)."""
     try:
         import pandas as pd
 
         c = pd.read_parquet(out / "collisions.parquet")
-        c = c[c.involves_ego]
+        c = c[c.involves_ego & (c.detector != "sumo_unconfirmed")]
         if not len(c):
-            return ""
+            return {"collided_with": "", "harm_worst": 0.0}
         r = c.iloc[0]
-        return f"{r['class_b']}:{'hazard' if str(r['id_b']).startswith('hazard_') else 'traffic'}"
+        return {"collided_with": f"{r['class_b']}:{'hazard' if str(r['id_b']).startswith('hazard_') else 'traffic'}",
+                "harm_worst": float(max(c.harm_ego.max(), c.harm_third_party.max()))}
     except Exception:  # noqa: BLE001
-        return ""
+        return {"collided_with": "", "harm_worst": float("nan")}
 
 
 # ---- many runs --------------------------------------------------------------------------
@@ -229,7 +232,7 @@ def _row_from_folder(scenario: str, planner: PlannerSpec, out_dir: str) -> dict[
             "vru": float(h.get("vru", 0.0)), "message": str(data.get("message", ""))[:200],
             "steps": int(data.get("steps", 0) or 0),
             "hazards_fired": ",".join(sorted({e["type"] for e in events if e["event"] == "trigger"})),
-            "collided_with": _first_victim(out), "wall_s": float(data.get("wall_time", 0.0) or 0.0),
+            **_victims(out), "wall_s": float(data.get("wall_time", 0.0) or 0.0),
             **run_risk_file(out)}
 
 
@@ -408,8 +411,10 @@ def hazard_breakdown(rows: list[dict[str, Any]], planners: list[str]) -> list[di
     return out
 
 
-#: per-run ex-ante risk metrics compared between planners (sumo_ethics.analysis.risk)
-RISK_METRICS = ("risk_ego_mean", "risk_third_party_mean", "risk_vru_mean", "risk_total_mean", "risk_worst_peak")
+#: per-run metrics compared as paired means: the ex-ante risk (sumo_ethics.analysis.risk) and the
+#: harm of the worst-off party of the ego's collisions (what Maximin is about)
+RISK_METRICS = ("risk_ego_mean", "risk_third_party_mean", "risk_vru_mean", "risk_total_mean", "risk_worst_peak",
+                "harm_worst")
 
 
 def paired_risk(rows: list[dict[str, Any]], planners: list[str], reference: str, n_boot: int = 2000,
@@ -458,7 +463,9 @@ def risk_markdown(rt: Any, paired: list[dict[str, Any]]) -> str:
                      f"{r['median']:.2e} | {r['peak_median']:.2e} |")
     if paired:
         lines += ["", f"Paired against {paired[0]['reference']}: mean difference (planner - reference) "
-                  "[95 % paired bootstrap CI], scenarios lower / higher, Wilcoxon p.", "",
+                  "[95 % paired bootstrap CI], scenarios lower / higher, Wilcoxon p. `risk_worst_peak`: the "
+                  "largest risk on a single party; `harm_worst`: the largest harm booked to a single party "
+                  "in the run (0 without a collision).", "",
                   "| Planner | Metric | Difference | Lower / higher | Wilcoxon p |", "| --- | --- | --- | --- | --- |"]
         for r in paired:
             lines.append(f"| {r['planner']} | {r['metric']} | {r['difference']:.2e} [{r['lo']:.2e}, {r['hi']:.2e}] | "
