@@ -44,9 +44,15 @@ def cli() -> None:
 @click.option("--ego", "ego_id", help="Take over this vehicle of the scenario's route files when it departs.")
 @click.option("--ego-from", help="Insert our own ego on a route from this edge ...")
 @click.option("--ego-to", help="... to this edge.")
-@click.option("--ego-depart", type=float, default=0.0, show_default=True, help="Departure time [s] of the inserted ego.")
+@click.option("--ego-depart", type=float,
+              help="Departure time [s] of the inserted ego, a simulation time (default: the scenario's begin).")
 @click.option("--seed", type=int, default=42, show_default=True, help="SUMO and route seed.")
-@click.option("--end", type=float, help="Simulation time limit [s] (default: the scenario's end, else 3600).")
+@click.option("--end", type=float, help="Simulation time limit [s], a simulation time like SUMO's --end "
+                                        "(default: the scenario's end, else its begin + 3600).")
+@click.option("--step-length", type=float, help="SUMO step [s] (default: the scenario's if it sets one of at most "
+                                                "0.2 s, else 0.1).")
+@click.option("--sumo-arg", "sumo_arg", multiple=True, metavar="'--OPTION VALUE'",
+              help="Extra SUMO options, passed through (repeatable), e.g. --sumo-arg '--time-to-teleport -1'.")
 @click.option("--out", type=click.Path(path_type=Path), help="Run folder (default runs/<scenario>-seed<N>).")
 @click.option("--controller", type=click.Choice(["ethical", "baseline"]), default="ethical", show_default=True,
               help="Ego controller: the ethical planner, or the naive route-following baseline.")
@@ -67,33 +73,45 @@ def cli() -> None:
 @click.option("--radius", type=float, default=80.0, show_default=True, help="Sensing radius around the ego [m].")
 @click.option("--overwrite", is_flag=True, help="Replace the outputs of an earlier run in --out (refused otherwise).")
 @click.option("--quiet", is_flag=True, help="No progress display.")
-def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float,
-        seed: int, end: float | None, out: Path | None, controller: str, omega_u: float | None,
-        omega_o: float | None, weights: str | None, selection: str | None, utility: str | None,
-        predictor: str | None, predictor_weights: Path | None, config_file: Path | None, continue_after_collision: bool,
-        radius: float, overwrite: bool, quiet: bool) -> None:
+def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float | None,
+        seed: int, end: float | None, step_length: float | None, sumo_arg: tuple[str, ...], out: Path | None,
+        controller: str, omega_u: float | None, omega_o: float | None, weights: str | None, selection: str | None,
+        utility: str | None, predictor: str | None, predictor_weights: Path | None, config_file: Path | None,
+        continue_after_collision: bool, radius: float, overwrite: bool, quiet: bool) -> None:
     """Run SCENARIO (a .sumocfg) with one vehicle taken over by the ego controller."""
+    from dataclasses import replace
+
     from sumo_ethics.config import RunConfig
+    from sumo_ethics.sim import scenario as scenario_files
+
+    # input checks that need no simulation, before the heavy imports (numpy, libsumo, torch)
+    out = out or Path("runs") / f"{scenario.stem}-seed{seed}"
+    cfg = RunConfig(scenario=scenario, out=out, seed=seed, end=end, ego_id=ego_id, ego_from=ego_from, ego_to=ego_to,
+                    ego_depart=ego_depart, stop_at_collision=not continue_after_collision, controller=controller,
+                    sensing_radius=radius, progress=not quiet, overwrite=overwrite, step_length=step_length,
+                    sumo_args=scenario_files.parse_sumo_args(sumo_arg))
+    scenario_files.plan(cfg.scenario, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id,
+                        tuple(e for e in (ego_from, ego_to) if e is not None))
+    scenario_files.check_out(out)
+
     from sumo_ethics.runner import make_controller, run as run_scenario
     from sumo_ethics.settings import load_toml, planner_config
 
     table = load_toml(config_file) if config_file is not None else None
     planner = planner_config(table, omega_u=omega_u, omega_o=omega_o, weights=weights, utility=utility,
                              predictor=predictor, predictor_weights=predictor_weights, selection=selection)
-
-    out = out or Path("runs") / f"{scenario.stem}-seed{seed}"
     if (scenario.parent / "hazards.json").is_file():  # a suite scenario: run does not inject hazards
         click.echo(f"note: {scenario.parent / 'hazards.json'} is not used by 'run' (no hazards, your ego); "
                    f"'sumo-ethics evaluate {scenario.parent}' runs the scenario as the suite defines it", err=True)
-    cfg = RunConfig(scenario=scenario, out=out, seed=seed, end=end, ego_id=ego_id, ego_from=ego_from, ego_to=ego_to,
-                    ego_depart=ego_depart, stop_at_collision=not continue_after_collision, controller=controller,
-                    sensing_radius=radius, progress=not quiet, planner=planner, overwrite=overwrite)
+    cfg = replace(cfg, planner=planner)
     # built before SUMO starts, so a bad weights file or setting fails at once
     summary = run_scenario(cfg, controller=make_controller(cfg))
     d = summary.data
     con = _console()
     h = d["harm"]
     con.print(f"[bold]{d['status']}[/bold]: {d['message']}")
+    if "step_length" in d:
+        con.print(f"  step {d['step_length']:g} s ({d['step_length_source']})")
     con.print(f"  ego '{d['ego_id']}' on {len(d['route_edges'])} edges ({d['route_length']:.0f} m), "
               f"drove {d['distance']:.0f} m in {d['steps']} steps, wall {d['wall_time']:.1f} s")
     con.print(f"  collisions: ego {d['collisions']['ego']}, others {d['collisions']['others']}; harm total "

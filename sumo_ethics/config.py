@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from sumo_ethics.errors import ConfigError
+from sumo_ethics.sim.scenario import check_sumo_args
 
 
 def require_number(name: str, value: Any, allow_zero: bool = False) -> float:
@@ -41,7 +42,8 @@ class EgoVehicle:
 
 @dataclass(frozen=True)
 class RunConfig:
-    """Everything one run needs. ``end`` and ``ego_depart`` are simulation times [s]."""
+    """Everything one run needs. ``end`` and ``ego_depart`` are simulation times [s] (absolute,
+    like SUMO's own ``--end``; times before the scenario's begin are refused)."""
 
     scenario: Path
     out: Path
@@ -50,7 +52,7 @@ class RunConfig:
     ego_id: str | None = None  # take over this vehicle of the user's route files
     ego_from: str | None = None  # else insert our own ego on a route from this edge ...
     ego_to: str | None = None  # ... to this edge (both or neither); else a seeded random route
-    ego_depart: float = 0.0  # s; when the inserted ego departs (traffic warm-up before it)
+    ego_depart: float | None = None  # s; when the inserted ego departs (default: the scenario's begin)
     ego_depart_lane: str = "best"  # the inserted ego's departLane (a SUMO lane index or keyword)
     min_route_length: float = 300.0  # m; for the random route
     stop_at_collision: bool = True  # end the run at the ego's first collision
@@ -58,7 +60,8 @@ class RunConfig:
     sensing_radius: float = 80.0  # m; neighbours read around the ego each step
     collision_gap: float = 1.0  # s; a pair apart for longer than this collides anew
     ego: EgoVehicle = field(default_factory=EgoVehicle)
-    sumo_args: tuple[str, ...] = ()  # extra SUMO command-line options
+    sumo_args: tuple[str, ...] = ()  # extra SUMO command-line options, one token each
+    step_length: float | None = None  # s; default: the scenario's if it sets one <= 0.2 s, else 0.1
     progress: bool = True
     overwrite: bool = False  # replace the outputs of an earlier run in ``out`` (refused otherwise)
     planner: Any = None  # sumo_ethics.plan.ethical.PlannerConfig for the "ethical" controller (None: defaults)
@@ -70,7 +73,11 @@ class RunConfig:
             raise ConfigError(f"seed must be an integer in [0, 2^31), got {self.seed!r}")
         if self.end is not None:
             require_number("--end", self.end)
-        require_number("--ego-depart", self.ego_depart, allow_zero=True)
+        if self.ego_depart is not None:
+            require_number("--ego-depart", self.ego_depart, allow_zero=True)
+        if self.step_length is not None:
+            require_number("--step-length", self.step_length)
+        object.__setattr__(self, "sumo_args", check_sumo_args(tuple(self.sumo_args)))
         require_number("--radius", self.sensing_radius)
         require_number("collision_gap", self.collision_gap)
         require_number("min_route_length", self.min_route_length)

@@ -29,7 +29,7 @@ from sumo_ethics.plan.controller import Controller, Scene
 from sumo_ethics.plan.history import History
 from sumo_ethics.record.recorder import RunRecorder
 from sumo_ethics.record.writer import PARTIAL, chunk_steps, write_json
-from sumo_ethics.sim import preflight, session
+from sumo_ethics.sim import preflight, scenario as scenario_files, session
 from sumo_ethics.sim.rules import RuleMonitor
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld, party_state, sumo_collisions
 from sumo_ethics.types import VULNERABLE, AgentStates, RoadUserClass, RunStatus
@@ -39,7 +39,6 @@ StepHook = Callable[[Snapshot, SumoWorld], None]
 
 EGO_TYPE = "sumo_ethics_ego"
 EGO_ROUTE = "sumo_ethics_ego_route"
-DEFAULT_END = 3600.0  # s, when neither --end nor the scenario sets one
 INSERT_PATIENCE = 120.0  # s of simulation time to wait for the ego's insertion
 
 
@@ -112,12 +111,10 @@ def discard_outputs(out: Path, created: bool, written: Iterable[str] = ("config.
 
 
 def resolved_end(cfg: RunConfig, files: session.ScenarioFiles) -> float:
-    """The run's time limit [s]: --end, else the scenario's end, else DEFAULT_END; ConfigError
-    when the inserted ego would depart at or after it."""
-    end = cfg.end if cfg.end is not None else (files.end or DEFAULT_END)
-    if cfg.ego_id is None and cfg.ego_depart >= end:
-        raise ConfigError(f"--ego-depart {cfg.ego_depart:g} s is not before the end of the simulation ({end:g} s)")
-    return end
+    """The run's time limit [s]: --end, else the scenario's end, else its begin + 3600 s;
+    ConfigError for times before the scenario's begin or an inserted ego departing at or after
+    the end (``sim.scenario.plan``)."""
+    return scenario_files.plan(files.config, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id).end
 
 
 # ---- ego selection ----------------------------------------------------------------------------
@@ -140,6 +137,20 @@ def wait_for_vehicle(ego_id: str, end: float) -> None:
         if libsumo.simulation.getMinExpectedNumber() == 0:
             break
     raise ConfigError(f"vehicle '{ego_id}' never departed (simulated until t={libsumo.simulation.getTime():g} s)")
+
+
+def check_ego_vehicle(ego_id: str) -> None:
+    """ConfigError for a taken-over vehicle the planner does not model: not a motor road
+    vehicle (a bicycle, tram, train), or one with stops or a taxi device (it would have to serve them)."""
+    v = libsumo.vehicle
+    scenario_files.check_ego_class(ego_id, v.getVehicleClass(ego_id))
+    if v.getStops(ego_id):
+        scenario_files.refuse_stops(ego_id)
+    try:
+        v.getParameter(ego_id, "device.taxi.state")
+    except libsumo.TraCIException:
+        return
+    scenario_files.refuse_stops(ego_id, "is a taxi")
 
 
 def _usable_edges() -> list[str]:
@@ -178,8 +189,8 @@ def find_ego_route(cfg: RunConfig) -> tuple[str, ...]:
     return best[1]
 
 
-def insert_ego(cfg: RunConfig, ego_id: str) -> tuple[str, ...]:
-    """Define the ego's vType, wait until ``ego_depart``, insert it, step until it departs."""
+def insert_ego(cfg: RunConfig, ego_id: str, depart: float) -> tuple[str, ...]:
+    """Define the ego's vType, wait until ``depart`` [s], insert it, step until it departs."""
     vt = libsumo.vehicletype
     vt.copy("DEFAULT_VEHTYPE", EGO_TYPE)
     vt.setVehicleClass(EGO_TYPE, "passenger")
@@ -191,7 +202,7 @@ def insert_ego(cfg: RunConfig, ego_id: str) -> tuple[str, ...]:
     vt.setDecel(EGO_TYPE, cfg.ego.comfort_decel)
     vt.setEmergencyDecel(EGO_TYPE, cfg.ego.max_decel)
     edges = find_ego_route(cfg)
-    _step_until(lambda: False, cfg.ego_depart)
+    _step_until(lambda: False, depart)
     libsumo.route.add(EGO_ROUTE, list(edges))
     libsumo.vehicle.add(ego_id, EGO_ROUTE, typeID=EGO_TYPE, depart="now", departLane=cfg.ego_depart_lane,
                        departSpeed="max")
@@ -292,7 +303,8 @@ class Run:
         ego_id = now.ego.ids[0]
         t = now.time
         hits = swept_contacts(before.ego, now.ego, now.others, previous_of(now.others, before.others))
-        geo = {now.others.ids[i] for i in np.flatnonzero(hits)}
+        # a contact between roads that cross on different levels (a bridge) is none
+        geo = {now.others.ids[i] for i in np.flatnonzero(hits) if not self.world.grade_separated(now.others.ids[i])}
         reports = {}
         for c in sumo_collisions():
             reports.setdefault(frozenset((c[0], c[1])), c)
@@ -355,43 +367,47 @@ class Run:
 
     def execute(self) -> None:
         cfg = self.cfg
-        files = session.read_scenario(cfg.scenario)
-        checked = preflight.check_scenario(files, cfg.ego_from, cfg.ego_to)  # what SUMO reports badly or crashes on
-        end = resolved_end(cfg, files)
+        plan = scenario_files.plan(cfg.scenario, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id)
+        files, end = plan.files, plan.end
+        preflight.check_scenario(files, cfg.ego_from, cfg.ego_to)  # what SUMO reports badly or crashes on
         ego_id = cfg.ego_id or "ego"
-        if cfg.ego_id is not None:
-            flow_of = cfg.ego_id.rsplit(".", 1)[0]
-            if cfg.ego_id not in checked.vehicles and flow_of not in checked.flows:
-                raise ConfigError(f"unknown --ego '{cfg.ego_id}': no vehicle, trip or flow of that id in the route files")
-        elif ego_id in checked.vehicles:
+        declared = scenario_files.declared(files)
+        if cfg.ego_id is None and declared is not None and ego_id in declared.vehicles:
             ego_id = "sumo_ethics_ego"
         # every check that needs no SUMO has passed: only now is the run folder touched
         self.created_out, self.replaced = prepare_out(cfg.out, cfg.overwrite)
-        self.meta.update(scenario=str(files.config), end=end, ego_id=ego_id,
-                         forced_sumo_options=session.forced_option_report(files))
-        write_json(cfg.out / "config.json", cfg.to_dict() | {"resolved": {"end": end, "ego_id": ego_id}})
+        # the scenario's own outputs (tripinfo, log, ...) go into the run folder, never next to it
+        outputs = scenario_files.redirected_outputs(files, cfg.out / "sumo-outputs")
+        self.meta.update(scenario=str(files.config), ego_id=ego_id, **plan.record(),
+                         forced_sumo_options=session.forced_option_report(files), redirected_outputs=outputs,
+                         sumo_args=list(cfg.sumo_args))
+        write_json(cfg.out / "config.json", cfg.to_dict() | {"resolved": {
+            "end": end, "ego_id": ego_id, "begin": plan.begin, "ego_depart": plan.ego_depart,
+            "step_length": plan.step_length}})
         self.written.append("config.json")
         if not (cfg.out / "sumo-errors.log").exists():
             self.written.append("sumo-errors.log")
-        session.start(files, cfg.seed, cfg.out / "sumo-errors.log", cfg.sumo_args)
+        session.start(files, cfg.seed, cfg.out / "sumo-errors.log", cfg.sumo_args, step_length=plan.step_length,
+                      outputs=outputs)
         self.meta["sumo_version"] = session.version()
         try:
-            self._loop(ego_id, end)
+            self._loop(ego_id, end, plan.ego_depart)
         except (libsumo.TraCIException, libsumo.FatalTraCIError) as exc:
             raise SimulationError(f"SUMO failed at t={self.meta.get('last_time', 0):g} s: "
                                   f"{session.first_line(exc, cfg.out / 'sumo-errors.log')}") from None
         finally:
             session.close()
 
-    def _loop(self, ego_id: str, end: float) -> None:
+    def _loop(self, ego_id: str, end: float, depart: float) -> None:
         cfg = self.cfg
         dt = libsumo.simulation.getDeltaT()
         self.rec.chunk = chunk_steps(dt)
         if cfg.ego_id is not None:
             wait_for_vehicle(ego_id, end)
+            check_ego_vehicle(ego_id)
             edges = tuple(libsumo.vehicle.getRoute(ego_id))
         else:
-            edges = insert_ego(cfg, ego_id)
+            edges = insert_ego(cfg, ego_id, depart)
         self.world = world = SumoWorld(ego_id, cfg.sensing_radius)
         route = world.takeover()
         self.meta.update(step_length=dt, route_edges=list(edges), route_length=route.length,

@@ -10,16 +10,15 @@ from __future__ import annotations
 import os
 import sys
 import tempfile
-import xml.etree.ElementTree as ET
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
 import libsumo
 import sumo
 
-from sumo_ethics.errors import ConfigError, SimulationError
+from sumo_ethics.errors import SimulationError
+from sumo_ethics.sim.scenario import ScenarioFiles, read_scenario  # noqa: F401 - re-exported
 
 #: SUMO options the run overrides, with the value it sets.
 FORCED_OPTIONS: dict[str, str] = {
@@ -32,84 +31,6 @@ FORCED_OPTIONS: dict[str, str] = {
 TraCIException = libsumo.TraCIException
 
 
-@dataclass(frozen=True)
-class ScenarioFiles:
-    """What a .sumocfg names, resolved against its folder, and the options it sets."""
-
-    config: Path
-    net: Path
-    routes: tuple[Path, ...]
-    additionals: tuple[Path, ...]
-    options: dict[str, str]
-
-    @property
-    def end(self) -> float | None:
-        value = self.options.get("end")
-        try:
-            return float(value) if value is not None else None
-        except ValueError:
-            return None
-
-
-def _file_list(value: str | None, base: Path) -> tuple[Path, ...]:
-    if not value:
-        return ()
-    return tuple((base / p).resolve() for p in value.replace(",", " ").split())
-
-
-def read_scenario(path: Path) -> ScenarioFiles:
-    """Parse a .sumocfg and check that every file it names exists (ConfigError otherwise)."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"scenario file not found: {path}")
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise ConfigError(f"malformed SUMO config {path}: {exc}") from None
-    if root.tag not in ("configuration", "sumoConfiguration"):
-        raise ConfigError(f"{path} is not a SUMO config: root element <{root.tag}>, expected <configuration> or <sumoConfiguration>")
-    options: dict[str, str] = {}
-    for section in root:
-        for opt in section:
-            if "value" in opt.attrib:
-                options[opt.tag] = opt.attrib["value"]
-    base = path.resolve().parent
-    nets = _file_list(options.get("net-file"), base)
-    if len(nets) != 1:
-        raise ConfigError(f"{path} names no net-file" if not nets else f"{path} names several net-files")
-    files = ScenarioFiles(
-        config=path.resolve(),
-        net=nets[0],
-        routes=_file_list(options.get("route-files"), base),
-        additionals=_file_list(options.get("additional-files"), base),
-        options=options,
-    )
-    for kind, paths in (("net-file", (files.net,)), ("route-file", files.routes), ("additional-file", files.additionals)):
-        for p in paths:
-            if not p.is_file():
-                raise ConfigError(f"{path}: {kind} does not exist: {p}")
-    return files
-
-
-def route_vehicle_ids(files: ScenarioFiles) -> tuple[set[str], set[str]] | None:
-    """Vehicle ids and flow ids declared in the route files (None if a file cannot be read)."""
-    vehicles: set[str] = set()
-    flows: set[str] = set()
-    try:
-        for p in files.routes + files.additionals:
-            if p.suffix == ".gz":
-                return None
-            for _, el in ET.iterparse(p):
-                if el.tag in ("vehicle", "trip"):
-                    vehicles.add(el.attrib.get("id", ""))
-                elif el.tag == "flow":
-                    flows.add(el.attrib.get("id", ""))
-                el.clear()
-    except (ET.ParseError, OSError):
-        return None
-    return vehicles, flows
-
-
 def forced_option_report(files: ScenarioFiles) -> dict[str, dict[str, str | None]]:
     """For each forced option: the scenario's own value (None if unset) and the value forced."""
     return {k: {"scenario": files.options.get(k), "forced": v} for k, v in FORCED_OPTIONS.items()}
@@ -119,11 +40,24 @@ def sumo_binary() -> str:
     return str(Path(sumo.SUMO_HOME) / "bin" / "sumo")
 
 
-def start(files: ScenarioFiles, seed: int, error_log: Path, extra: tuple[str, ...] = ()) -> None:
-    """Start SUMO in this process (libsumo: one simulation per process)."""
+def start(files: ScenarioFiles, seed: int, error_log: Path, extra: tuple[str, ...] = (),
+          step_length: float | None = None, outputs: dict[str, str] | None = None) -> None:
+    """Start SUMO in this process (libsumo: one simulation per process).
+
+    step_length [s]: overrides the scenario's; outputs: option -> file, the scenario's own
+    output options redirected (see ``scenario.redirected_outputs``); extra: more options
+    (``--sumo-arg``), last so they win. A start failure raises SimulationError with SUMO's
+    own reason: SUMO prints config errors to stderr before its error log exists, so stderr
+    is captured while it starts (passed on if SUMO started; else its reason is in the error).
+    """
     cmd = [sumo_binary(), "-c", str(files.config), "--seed", str(seed), "--no-step-log", "true",
            "--duration-log.disable", "true", "--no-warnings", "true", "--error-log", str(error_log)]
     for key, value in FORCED_OPTIONS.items():
+        cmd += [f"--{key}", value]
+    if step_length is not None:
+        cmd += ["--step-length", f"{step_length:g}"]
+    for key, value in (outputs or {}).items():
+        Path(value.split()[0]).parent.mkdir(parents=True, exist_ok=True)
         cmd += [f"--{key}", value]
     cmd += list(extra)
     with tempfile.TemporaryFile() as captured:

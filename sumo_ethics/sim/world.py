@@ -2,7 +2,12 @@
 
 One context subscription per domain (vehicles, persons) returns every neighbour in range in
 one call. Both come back merged in one dict, the ego included; persons are told apart by
-the variable set (only vehicles are subscribed with acceleration).
+the variable set (only vehicles are subscribed with acceleration); a person is always a
+pedestrian, whatever vClass its vType has.
+
+Positions are read in 3D: road users more than ``VERTICAL_CLEARANCE`` above or below the ego
+(a road on a bridge over the ego's road, a tunnel) cannot meet it and are left out of the scene,
+so neither the planner nor the collision check sees them.
 """
 
 from __future__ import annotations
@@ -19,8 +24,12 @@ from sumo_ethics.sim.frames import centre_to_front, front_to_centre
 from sumo_ethics.sim.route import JunctionLink, RoutePath, build_route_path
 from sumo_ethics.types import AgentStates, RoadUserClass
 
-_VEH_VARS = (tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE, tc.VAR_ACCELERATION)
-_PER_VARS = (tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE)
+_VEH_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE, tc.VAR_ACCELERATION)
+_PER_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE)
+
+#: road users whose elevation differs from the ego's by more than this [m] are on another level
+#: (a bridge deck is some 5 m above the road below; a ramp changes height by a few % per metre)
+VERTICAL_CLEARANCE = 3.0
 
 #: red or yellow link states: the baseline stops before these.
 STOP_STATES = frozenset("rRyYu")
@@ -60,20 +69,22 @@ class SumoWorld:
         self.ego_id = ego_id
         self.radius = radius
         self.masses = masses
-        self._types: dict[str, TypeInfo] = {}
+        self._types: dict[tuple[str, bool], TypeInfo] = {}
         self.route: RoutePath | None = None
         self.ego_length = 0.0
+        self._separated: dict[tuple[str, str], bool] = {}
 
     # ---- types -------------------------------------------------------------------------
-    def type_info(self, type_id: str) -> TypeInfo:
-        info = self._types.get(type_id)
+    def type_info(self, type_id: str, person: bool = False) -> TypeInfo:
+        """Class, size and mass of a vType; a person is a pedestrian whatever its vType says."""
+        info = self._types.get((type_id, person))
         if info is None:
             vt = libsumo.vehicletype
-            cls = RoadUserClass.from_vclass(vt.getVehicleClass(type_id))
+            cls = RoadUserClass.PEDESTRIAN if person else RoadUserClass.from_vclass(vt.getVehicleClass(type_id))
             length, width = vt.getLength(type_id), vt.getWidth(type_id)
             mass = float(self.masses.mass(np.array([int(cls)]), np.array([length]), np.array([width]),
                                           np.array([vt.getMass(type_id)]))[0])
-            info = self._types[type_id] = TypeInfo(cls, length, width, mass)
+            info = self._types[(type_id, person)] = TypeInfo(cls, length, width, mass)
         return info
 
     # ---- takeover ----------------------------------------------------------------------
@@ -117,9 +128,9 @@ class SumoWorld:
         res: dict = {}
         for dom, vars_ in ((v, _VEH_VARS), (p, _PER_VARS)):
             for k in dom.getIDList():
-                x, y = dom.getPosition(k)
+                x, y, z = dom.getPosition3D(k)
                 if k == self.ego_id or (x - ex) ** 2 + (y - ey) ** 2 <= self.radius**2:
-                    r = {tc.VAR_POSITION: (x, y), tc.VAR_ANGLE: dom.getAngle(k), tc.VAR_SPEED: dom.getSpeed(k),
+                    r = {tc.VAR_POSITION3D: (x, y, z), tc.VAR_ANGLE: dom.getAngle(k), tc.VAR_SPEED: dom.getSpeed(k),
                          tc.VAR_TYPE: dom.getTypeID(k)}
                     if tc.VAR_ACCELERATION in vars_:
                         r[tc.VAR_ACCELERATION] = dom.getAcceleration(k)
@@ -128,15 +139,23 @@ class SumoWorld:
 
     def _states(self, ids: list[str], res: dict) -> tuple[AgentStates, AgentStates]:
         """States of ``ids`` (the ego first, then the neighbours in sorted order) from
-        subscription results, split into (ego, others); one vectorised pass for all."""
+        subscription results, split into (ego, others); one vectorised pass for all. Neighbours
+        on another level (more than VERTICAL_CLEARANCE above or below the ego) are dropped."""
         rows = [res[k] for k in ids]
         types = tuple(r[tc.VAR_TYPE] for r in rows)
+        persons = [tc.VAR_ACCELERATION not in r for r in rows]  # only vehicles are subscribed with it
         known = self._types
-        info = [known.get(t) or self.type_info(t) for t in types]
-        # one (8, N) conversion for every numeric column, rows contiguous
-        num = np.array([(*r[tc.VAR_POSITION], r[tc.VAR_ANGLE], r[tc.VAR_SPEED], r.get(tc.VAR_ACCELERATION, 0.0),
-                         t.length, t.width, t.mass) for r, t in zip(rows, info)], dtype=float).reshape(-1, 8).T.copy()
-        fx, fy, angle, speed, accel, length, width, mass = num
+        info = [known.get((t, p)) or self.type_info(t, p) for t, p in zip(types, persons)]
+        # one (9, N) conversion for every numeric column, rows contiguous
+        num = np.array([(*r[tc.VAR_POSITION3D], r[tc.VAR_ANGLE], r[tc.VAR_SPEED], r.get(tc.VAR_ACCELERATION, 0.0),
+                         t.length, t.width, t.mass) for r, t in zip(rows, info)], dtype=float).reshape(-1, 9).T.copy()
+        z = num[2]
+        level = np.abs(z - z[0]) <= VERTICAL_CLEARANCE
+        if not level.all():
+            keep = np.flatnonzero(level)
+            num, ids = num[:, keep], [ids[i] for i in keep]
+            types, info = tuple(types[i] for i in keep), [info[i] for i in keep]
+        fx, fy, _, angle, speed, accel, length, width, mass = num
         x, y, yaw = front_to_centre(fx, fy, angle, length)
         cols = (x, y, yaw, speed, accel, length, width, mass, np.array([t.cls for t in info], dtype=np.int8))
         # the arrays are (N,) by construction: skip AgentStates' checks (this runs every step)
@@ -150,6 +169,33 @@ class SumoWorld:
 
     def sumo_lane(self) -> str:
         return libsumo.vehicle.getLaneID(self.ego_id)
+
+    def grade_separated(self, other: str) -> bool:
+        """True if the ego and ``other`` are on roads that cross without meeting, in a network
+        without elevation (OSM imports usually have none): both on normal lanes of edges that
+        share no junction and whose centre lines cross, i.e. one is a bridge or tunnel (netconvert
+        builds a junction wherever roads meet at grade). Checked only for contacts; cached."""
+        a = self.sumo_lane()
+        b = ""
+        for dom in (libsumo.vehicle, libsumo.person):
+            try:
+                b = dom.getLaneID(other)
+                break
+            except libsumo.TraCIException:
+                continue
+        if not a or not b or a.startswith(":") or b.startswith(":"):
+            return False
+        key = (a, b)
+        known = self._separated.get(key)
+        if known is None:
+            from shapely.geometry import LineString
+
+            edge, lane = libsumo.edge, libsumo.lane
+            ea, eb = lane.getEdgeID(a), lane.getEdgeID(b)
+            shared = {edge.getFromJunction(ea), edge.getToJunction(ea)} & {edge.getFromJunction(eb), edge.getToJunction(eb)}
+            known = not shared and LineString(lane.getShape(a)).intersects(LineString(lane.getShape(b)))
+            self._separated[key] = known
+        return known
 
     def sumo_speed(self) -> float:
         return libsumo.vehicle.getSpeed(self.ego_id)
@@ -179,7 +225,7 @@ def party_state(agent_id: str, world: SumoWorld) -> AgentStates | None:
             angle, speed, type_id = dom.getAngle(agent_id), dom.getSpeed(agent_id), dom.getTypeID(agent_id)
         except libsumo.TraCIException:
             continue
-        info = world.type_info(type_id)
+        info = world.type_info(type_id, is_person)
         cx, cy, yaw = front_to_centre(np.array([x]), np.array([y]), np.array([angle]), np.array([info.length]))
         return AgentStates(
             ids=(agent_id,), x=cx, y=cy, yaw=yaw, speed=np.array([speed]), accel=np.zeros(1),
