@@ -144,13 +144,13 @@ def check_ego_vehicle(ego_id: str) -> None:
     vehicle (a bicycle, tram, train), or one with stops or a taxi device (it would have to serve them)."""
     v = libsumo.vehicle
     scenario_files.check_ego_class(ego_id, v.getVehicleClass(ego_id))
-    if v.getStops(ego_id):
-        scenario_files.refuse_stops(ego_id)
     try:
         v.getParameter(ego_id, "device.taxi.state")
+        scenario_files.refuse_stops(ego_id, "is a taxi")
     except libsumo.TraCIException:
-        return
-    scenario_files.refuse_stops(ego_id, "is a taxi")
+        pass
+    if v.getStops(ego_id):
+        scenario_files.refuse_stops(ego_id)
 
 
 def _usable_edges() -> list[str]:
@@ -303,8 +303,7 @@ class Run:
         ego_id = now.ego.ids[0]
         t = now.time
         hits = swept_contacts(before.ego, now.ego, now.others, previous_of(now.others, before.others))
-        # a contact between roads that cross on different levels (a bridge) is none
-        geo = {now.others.ids[i] for i in np.flatnonzero(hits) if not self.world.grade_separated(now.others.ids[i])}
+        geo = {now.others.ids[i] for i in np.flatnonzero(hits)}
         reports = {}
         for c in sumo_collisions():
             reports.setdefault(frozenset((c[0], c[1])), c)

@@ -5,9 +5,10 @@ one call. Both come back merged in one dict, the ego included; persons are told 
 the variable set (only vehicles are subscribed with acceleration); a person is always a
 pedestrian, whatever vClass its vType has.
 
-Positions are read in 3D: road users more than ``VERTICAL_CLEARANCE`` above or below the ego
-(a road on a bridge over the ego's road, a tunnel) cannot meet it and are left out of the scene,
-so neither the planner nor the collision check sees them.
+Road users on another level cannot meet the ego and are left out of the scene, so neither the
+planner nor the collision check sees them: more than ``VERTICAL_CLEARANCE`` above or below it
+(positions are read in 3D), or, in a network without elevation, on a lane that crosses the
+ego's lane without a junction (see :meth:`SumoWorld.grade_separated`).
 """
 
 from __future__ import annotations
@@ -24,8 +25,8 @@ from sumo_ethics.sim.frames import centre_to_front, front_to_centre
 from sumo_ethics.sim.route import JunctionLink, RoutePath, build_route_path
 from sumo_ethics.types import AgentStates, RoadUserClass
 
-_VEH_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE, tc.VAR_ACCELERATION)
-_PER_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE)
+_VEH_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE, tc.VAR_LANE_ID, tc.VAR_ACCELERATION)
+_PER_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE, tc.VAR_LANE_ID)
 
 #: road users whose elevation differs from the ego's by more than this [m] are on another level
 #: (a bridge deck is some 5 m above the road below; a ramp changes height by a few % per metre)
@@ -131,7 +132,7 @@ class SumoWorld:
                 x, y, z = dom.getPosition3D(k)
                 if k == self.ego_id or (x - ex) ** 2 + (y - ey) ** 2 <= self.radius**2:
                     r = {tc.VAR_POSITION3D: (x, y, z), tc.VAR_ANGLE: dom.getAngle(k), tc.VAR_SPEED: dom.getSpeed(k),
-                         tc.VAR_TYPE: dom.getTypeID(k)}
+                         tc.VAR_TYPE: dom.getTypeID(k), tc.VAR_LANE_ID: dom.getLaneID(k)}
                     if tc.VAR_ACCELERATION in vars_:
                         r[tc.VAR_ACCELERATION] = dom.getAcceleration(k)
                     res[k] = r
@@ -151,6 +152,10 @@ class SumoWorld:
                          t.length, t.width, t.mass) for r, t in zip(rows, info)], dtype=float).reshape(-1, 9).T.copy()
         z = num[2]
         level = np.abs(z - z[0]) <= VERTICAL_CLEARANCE
+        ego_lane = rows[0][tc.VAR_LANE_ID]
+        if ego_lane and ego_lane[0] != ":":  # on a normal lane: is anyone on a road crossing it?
+            sep = self.grade_separated
+            level &= np.array([not sep(ego_lane, r[tc.VAR_LANE_ID]) for r in rows])
         if not level.all():
             keep = np.flatnonzero(level)
             num, ids = num[:, keep], [ids[i] for i in keep]
@@ -170,31 +175,22 @@ class SumoWorld:
     def sumo_lane(self) -> str:
         return libsumo.vehicle.getLaneID(self.ego_id)
 
-    def grade_separated(self, other: str) -> bool:
-        """True if the ego and ``other`` are on roads that cross without meeting, in a network
-        without elevation (OSM imports usually have none): both on normal lanes of edges that
-        share no junction and whose centre lines cross, i.e. one is a bridge or tunnel (netconvert
-        builds a junction wherever roads meet at grade). Checked only for contacts; cached."""
-        a = self.sumo_lane()
-        b = ""
-        for dom in (libsumo.vehicle, libsumo.person):
-            try:
-                b = dom.getLaneID(other)
-                break
-            except libsumo.TraCIException:
-                continue
-        if not a or not b or a.startswith(":") or b.startswith(":"):
+    def grade_separated(self, a: str, b: str) -> bool:
+        """True if lanes ``a`` and ``b`` cross without meeting, in a network without elevation
+        (OSM imports usually have none): normal lanes of edges that share no junction and whose
+        centre lines cross, i.e. one is on a bridge or in a tunnel (netconvert builds a junction
+        wherever roads meet at grade). Cached per lane pair."""
+        if not a or not b or a[0] == ":" or b[0] == ":" or a == b:
             return False
-        key = (a, b)
-        known = self._separated.get(key)
+        known = self._separated.get((a, b))
         if known is None:
             from shapely.geometry import LineString
 
             edge, lane = libsumo.edge, libsumo.lane
             ea, eb = lane.getEdgeID(a), lane.getEdgeID(b)
             shared = {edge.getFromJunction(ea), edge.getToJunction(ea)} & {edge.getFromJunction(eb), edge.getToJunction(eb)}
-            known = not shared and LineString(lane.getShape(a)).intersects(LineString(lane.getShape(b)))
-            self._separated[key] = known
+            known = ea != eb and not shared and LineString(lane.getShape(a)).intersects(LineString(lane.getShape(b)))
+            self._separated[(a, b)] = known
         return known
 
     def sumo_speed(self) -> float:
@@ -205,8 +201,10 @@ class SumoWorld:
         """Place the ego at ``cmd`` during the next step, with its true speed."""
         fx, fy, angle = centre_to_front(cmd.x, cmd.y, cmd.yaw, self.ego_length)
         v = libsumo.vehicle
-        # keepRoute 2: exact pose, may leave the road; search lanes only within 10 m (faster)
-        v.moveToXY(self.ego_id, "", -1, float(fx), float(fy), float(angle), 2, 10.0)
+        # keepRoute 3 = 1 | 2: exact pose (may leave the road), matched onto the lanes of the ego's
+        # own route; with 2 alone SUMO maps it onto the nearest lane in plan view, e.g. onto a road
+        # on a bridge above, or a crossing movement's junction lane. Lanes searched within 10 m.
+        v.moveToXY(self.ego_id, "", -1, float(fx), float(fy), float(angle), 3, 10.0)
         v.setSpeed(self.ego_id, max(0.0, float(cmd.speed)))
 
 
