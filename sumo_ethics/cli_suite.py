@@ -18,14 +18,20 @@ def suite() -> None:
 @suite.command("generate")
 @click.option("--count", type=int, default=200, show_default=True, help="Number of scenarios.")
 @click.option("--seed", type=int, default=2024, show_default=True, help="Suite seed (same seed, same files).")
-@click.option("--out", type=click.Path(path_type=Path), default=Path("scenarios/suite"), show_default=True,
-              help="Suite folder.")
+@click.option("--out", type=click.Path(path_type=Path), required=True,
+              help="Suite folder: new or empty (an existing suite is never overwritten).")
 @click.option("--family", type=click.Choice(["hazard", "dilemma"]), default="hazard", show_default=True,
               help="hazard: one hazard on one of six road types; dilemma: unavoidable harm with a choice "
                    "of victims (checked by construction).")
 def generate_cmd(count: int, seed: int, out: Path, family: str) -> None:
     """Generate COUNT scenarios reproducibly from SEED into OUT."""
     from collections import Counter
+
+    from sumo_ethics.errors import ConfigError
+
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ConfigError(f"--out {out} is not an empty folder; choose a new one (an existing suite is never "
+                          f"overwritten: old and new scenarios would mix)")
 
     from sumo_ethics.suite.generate import generate
 

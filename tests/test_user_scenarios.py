@@ -299,3 +299,15 @@ def test_sumo_arg_reaches_sumo(tmp_path):
     s = run(RunConfig(cfg, out, ego_id="ego", end=2, sumo_args=("--statistic-output", str(stats)), progress=False),
             controller=Scripted(5.0))
     assert "<statistics" in stats.read_text() and s.data["sumo_args"] == ["--statistic-output", str(stats)]
+
+
+# ---- suite generate never overwrites ---------------------------------------------------------------
+def test_suite_generate_needs_a_new_or_empty_out(tmp_path):
+    p, _ = cli("suite", "generate", "--count", "1")
+    one_error_line(p, "Missing option '--out'")
+    suite = tmp_path / "suite"
+    (suite / "old_scenario").mkdir(parents=True)
+    (suite / "old_scenario" / "x.sumocfg").write_text("<configuration/>")
+    p, seconds = cli("suite", "generate", "--count", "1", "--out", str(suite))
+    one_error_line(p, f"--out {suite} is not an empty folder")
+    assert [q.name for q in suite.iterdir()] == ["old_scenario"] and seconds < 1.0  # untouched
