@@ -1,9 +1,14 @@
 """Figures of a sweep (matplotlib, Agg backend), each saved as PNG and SVG.
 
-- harm per class vs the first ``--by`` key (w_u by default), means with bootstrap 95% CI bands;
-- completion and ego-collision rate vs that key;
+- harm per class vs the first ``--by`` key (w_u by default), means with bootstrap 95% CI bands
+  (one series) or error bars set side by side (several series: the other ``--by`` keys);
+- completion and ego-collision rate vs that key (error bars side by side);
 - distribution of harm per ego collision by class (ego / third party / VRU);
-- ego-vs-third-party harm per run (trade-off scatter), coloured by w_u.
+- ego-vs-third-party harm per run (trade-off scatter): colour by the first ``--by`` key, marker by
+  the others.
+
+w_u (and w_o) are always on a symlog axis with a linear range up to 1, so the same value sits at
+the same place in every sweep; other numeric keys are linear unless they span two decades.
 """
 
 from __future__ import annotations
@@ -63,24 +68,64 @@ def _wide(values) -> bool:
     return len(pos) >= 2 and pos.max() / pos.min() >= 100
 
 
-def _scale_x(ax, values) -> None:
+#: keys always drawn on a symlog axis with this linear threshold, so that the same value sits at
+#: the same place in every sweep (w_u spans decades: 0, 0.5, 1000 ...)
+SYMLOG_KEYS = {"omega_u": 1.0, "omega_o": 1.0}
+
+
+def _symlog(key: str, values) -> float | None:
+    """The symlog linear threshold for ``key`` (None: a linear axis)."""
+    if key in SYMLOG_KEYS:
+        return SYMLOG_KEYS[key]
     v = np.asarray(values, dtype=float)
-    if _wide(v):
-        pos = np.abs(v[v != 0])
-        ax.set_xscale("symlog", linthresh=float(pos.min()))
-        ax.set_xticks(sorted(set(v.tolist())), [f"{x:g}" for x in sorted(set(v.tolist()))])
+    return float(np.abs(v[v != 0]).min()) if _wide(v) else None
 
 
-def _line_ci(ax, g: pd.DataFrame, x: str, col: str, colour, label: str, marker: str = "o") -> None:
+def _scale_x(ax, values, key: str = "") -> None:
+    v = np.asarray(values, dtype=float)
+    lin = _symlog(key, v)
+    if lin is not None:
+        ax.set_xscale("symlog", linthresh=lin)
+        ticks = sorted(set(v.tolist()))
+        ax.set_xticks(ticks, [f"{x:g}" for x in ticks])
+        ax.minorticks_off()
+        if len(ticks) > 6:
+            ax.tick_params(axis="x", labelrotation=45)
+
+
+def _dodge(ax, i: int, n: int, width: float = 7.0):
+    """A transform shifting series ``i`` of ``n`` sideways by a few points, so that series with
+    equal values (and their CI bars) stay visible side by side, on any axis scale."""
+    from matplotlib.transforms import offset_copy
+
+    return offset_copy(ax.transData, fig=ax.figure, x=(i - (n - 1) / 2) * width, y=0.0, units="points")
+
+
+MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
+LINESTYLES = ("-", "--", "-.", ":")
+
+
+def _line_ci(ax, g: pd.DataFrame, x: str, col: str, colour, label: str, marker: str = "o", slot: int = 0,
+             slots: int = 1, linestyle: str = "-") -> None:
+    """Means with their 95% CI: a shaded band for a single series, dodged error bars when
+    several series share the axis (bands of several series merge into one block)."""
     g = g.sort_values(x)
-    xs = g[x].to_numpy() if _is_numeric(g[x]) else np.arange(len(g))
-    ax.plot(xs, g[f"{col}"].to_numpy(), marker=marker, color=colour, label=label, lw=1.8, ms=5)
-    ax.fill_between(xs, g[f"{col}_ci_lo"].to_numpy(dtype=float), g[f"{col}_ci_hi"].to_numpy(dtype=float),
-                    color=colour, alpha=0.18, lw=0)
-    if not _is_numeric(g[x]):
+    numeric = _is_numeric(g[x])
+    xs = g[x].to_numpy() if numeric else np.arange(len(g))
+    y = g[f"{col}"].to_numpy(dtype=float)
+    lo, hi = g[f"{col}_ci_lo"].to_numpy(dtype=float), g[f"{col}_ci_hi"].to_numpy(dtype=float)
+    if slots == 1:
+        ax.plot(xs, y, marker=marker, color=colour, label=label, lw=1.8, ms=5, ls=linestyle)
+        ax.fill_between(xs, lo, hi, color=colour, alpha=0.18, lw=0)
+    else:
+        ax.errorbar(xs, y, yerr=np.vstack([y - lo, hi - y]).clip(min=0), marker=marker, color=colour, label=label,
+                    lw=1.5, ms=5, ls=linestyle, capsize=3, elinewidth=1.2, transform=_dodge(ax, slot, slots))
+        ax.update_datalim(np.c_[np.r_[xs, xs], np.r_[lo, hi]])  # a shifted artist does not autoscale
+        ax.autoscale_view()
+    if not numeric:
         ax.set_xticks(xs, [str(v) for v in g[x]])
     else:
-        _scale_x(ax, xs)
+        _scale_x(ax, xs, x)
 
 
 def harm_vs_parameter(summary: pd.DataFrame, by: Sequence[str], folder: Path) -> list[Path]:
@@ -93,7 +138,8 @@ def harm_vs_parameter(summary: pd.DataFrame, by: Sequence[str], folder: Path) ->
         for i, (label, g) in enumerate(hues):
             colour = CLASS_COLOURS[cls] if len(hues) == 1 else cmap(i % 10)
             g = g.rename(columns={f"{col}_mean": col})
-            _line_ci(ax, g, x, col, colour, label or f"{cls}: mean, 95% CI")
+            _line_ci(ax, g, x, col, colour, label or f"{cls}: mean, 95% CI", marker=MARKERS[i % len(MARKERS)],
+                     slot=i, slots=len(hues), linestyle=LINESTYLES[i % len(LINESTYLES)])
         ax.set_title(f"harm to {cls}")
         ax.set_xlabel(_label(x))
         ax.grid(alpha=0.3)
@@ -101,7 +147,7 @@ def harm_vs_parameter(summary: pd.DataFrame, by: Sequence[str], folder: Path) ->
             ax.legend(fontsize=8, loc="best")
     if len(hues) > 1:  # one legend for the three panels, below them
         handles, labels = axes[0].get_legend_handles_labels()
-        fig.legend(handles, [f"{lab} (mean, 95% CI band)" for lab in labels], loc="lower center",
+        fig.legend(handles, [f"{lab} (mean, 95% CI bar)" for lab in labels], loc="lower center",
                    ncol=min(len(hues), 4), fontsize=9, frameon=False, bbox_to_anchor=(0.5, -0.06))
     axes[0].set_ylabel("mean harm per run [-]\n(P(MAIS 3+), summed over collisions)")
     n = int(summary["n_runs"].min()), int(summary["n_runs"].max())
@@ -117,16 +163,21 @@ def completion_vs_parameter(summary: pd.DataFrame, by: Sequence[str], folder: Pa
     hues = _hues(summary, by)
     fig, ax = plt.subplots(figsize=(7, 4.2))
     cmap = plt.get_cmap("tab10")
+    n = 2 * len(hues)  # every series side by side (dodged): equal values no longer hide each other
     for i, (label, g) in enumerate(hues):
         suffix = f" ({label})" if label else ""
-        _line_ci(ax, g, x, "completion_rate", cmap((2 * i) % 10), f"completed{suffix}")
-        _line_ci(ax, g, x, "collision_rate", cmap((2 * i + 1) % 10), f"ego collision{suffix}", marker="s")
+        style = LINESTYLES[i % len(LINESTYLES)]
+        _line_ci(ax, g, x, "completion_rate", cmap((2 * i) % 10), f"completed{suffix}",
+                 marker=MARKERS[(2 * i) % len(MARKERS)], slot=2 * i, slots=n, linestyle=style)
+        _line_ci(ax, g, x, "collision_rate", cmap((2 * i + 1) % 10), f"ego collision{suffix}",
+                 marker=MARKERS[(2 * i + 1) % len(MARKERS)], slot=2 * i + 1, slots=n, linestyle=style)
     ax.set_ylim(-0.03, 1.03)
     ax.set_xlabel(_label(x))
     ax.set_ylabel("share of runs [-]")
-    ax.set_title(f"Completion and ego-collision rate vs {_label(x)}\n(bootstrap 95% CI over runs)")
+    ax.set_title(f"Completion and ego-collision rate vs {_label(x)}\n(mean, bootstrap 95% CI over runs; "
+                 f"series side by side)")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     fig.tight_layout()
     return _save(fig, folder, "completion_vs_" + x.replace(".", "_"))
 
@@ -160,35 +211,62 @@ def harm_per_collision(collisions: pd.DataFrame, folder: Path) -> list[Path]:
     return _save(fig, folder, "harm_per_collision")
 
 
-def tradeoff(runs: pd.DataFrame, folder: Path, colour_by: str = "omega_u") -> list[Path]:
-    fig, ax = plt.subplots(figsize=(6.5, 5))
-    c = runs[colour_by] if colour_by in runs.columns and _is_numeric(runs[colour_by]) else None
-    rng = np.random.default_rng(0)
-    jitter = 0.004 * max(float(runs[["harm_ego", "harm_third_party"]].to_numpy().max(initial=0.0)), 1e-3)
-    xs = runs["harm_ego"].to_numpy(dtype=float) + rng.normal(0, jitter, len(runs))
-    ys = runs["harm_third_party"].to_numpy(dtype=float) + rng.normal(0, jitter, len(runs))
-    norm = None
-    if c is not None and _wide(c):
-        from matplotlib.colors import SymLogNorm
+def tradeoff(runs: pd.DataFrame, folder: Path, by: Sequence[str] = ("omega_u",)) -> list[Path]:
+    """Ego vs third-party harm per run: colour by the first ``--by`` key (one colour per value),
+    marker by the combination of the others; the mean of each group as a large marker."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+    from matplotlib.ticker import MaxNLocator
 
-        norm = SymLogNorm(linthresh=float(np.abs(c[c != 0]).min()), vmin=float(c.min()), vmax=float(c.max()))
-    sc = ax.scatter(xs, ys, c=c if c is not None else "#1f77b4", cmap="viridis", norm=norm, s=28, alpha=0.8,
-                    edgecolors="k", linewidths=0.3, label="one run (slightly jittered)")
-    if c is not None and c.nunique() > 1:
-        fig.colorbar(sc, ax=ax, label=_label(colour_by))
-        means = runs.groupby(colour_by)[["harm_ego", "harm_third_party"]].mean().reset_index()
-        ax.plot(means["harm_ego"], means["harm_third_party"], "-", color="0.4", lw=1, zorder=1)
-        ax.scatter(means["harm_ego"], means["harm_third_party"], c=means[colour_by], cmap="viridis", s=120,
-                   marker="D", edgecolors="k", linewidths=1.0, label=f"mean per {colour_by}", zorder=4,
-                   norm=norm if norm is not None else plt.Normalize(c.min(), c.max()), alpha=0.85)
-    lim = max(float(np.nanmax(np.r_[xs, ys, 0.0])) * 1.1, 0.01)
-    ax.plot([0, lim], [0, lim], ":", color="0.5", lw=1, label="equal harm")
+    by = [k for k in by if k in runs.columns] or ["omega_u"]
+    key, rest = by[0], list(by[1:])
+    fig, ax = plt.subplots(figsize=(8.5, 5.5))
+    rng = np.random.default_rng(0)
+    top = float(runs[["harm_ego", "harm_third_party"]].to_numpy().max(initial=0.0))
+    jitter = 0.004 * max(top, 1e-3)
+    values = sorted(runs[key].dropna().unique().tolist()) if key in runs.columns else [None]
+    cmap = plt.get_cmap("viridis" if len(values) > 10 else "tab10")
+    colours = {v: cmap(i / max(len(values) - 1, 1) if len(values) > 10 else i % 10) for i, v in enumerate(values)}
+    groups = [((), runs)] if not rest else [((k if isinstance(k, tuple) else (k,)), g)
+                                            for k, g in runs.groupby(rest, sort=True, dropna=False)]
+    xs_all, ys_all = [], []
+    handles = []
+    for gi, (gkey, g) in enumerate(groups):
+        marker = MARKERS[gi % len(MARKERS)]
+        for v in values:
+            sub = g if v is None else g[g[key] == v]
+            if sub.empty:
+                continue
+            xs = sub["harm_ego"].to_numpy(dtype=float) + rng.normal(0, jitter, len(sub))
+            ys = sub["harm_third_party"].to_numpy(dtype=float) + rng.normal(0, jitter, len(sub))
+            xs_all.append(xs), ys_all.append(ys)
+            ax.scatter(xs, ys, color=colours[v], marker=marker, s=26, alpha=0.6, edgecolors="k", linewidths=0.3)
+            ax.scatter([sub["harm_ego"].mean()], [sub["harm_third_party"].mean()], color=colours[v], marker=marker,
+                       s=150, edgecolors="k", linewidths=1.2, zorder=4)
+    for v in values:
+        handles.append(Patch(color=colours[v], label=f"{_short(key)} = {v:g}" if isinstance(v, float)
+                             else f"{_short(key)} = {v}"))
+    if rest:
+        for gi, (gkey, _) in enumerate(groups):
+            handles.append(Line2D([], [], color="0.4", marker=MARKERS[gi % len(MARKERS)], ls="", ms=8,
+                                  label=", ".join(f"{k}={x}" for k, x in zip(rest, gkey))))
+    handles.append(Line2D([], [], color="0.4", marker="o", ls="", ms=4, label="small: one run (jittered)"))
+    handles.append(Line2D([], [], color="0.4", marker="o", ls="", ms=10, label="large: mean of the group"))
+    allv = np.concatenate(xs_all + ys_all) if xs_all else np.zeros(1)
+    lim = max(float(np.nanmax(np.r_[allv, 0.0])) * 1.1, 0.01)
+    handles.append(ax.plot([0, lim], [0, lim], ":", color="0.5", lw=1, label="equal harm")[0])
     ax.set_xlim(-0.02 * lim, lim)
     ax.set_ylim(-0.02 * lim, lim)
+    ax.xaxis.set_major_locator(MaxNLocator(5))  # few, short tick labels: they must not run together
+    ax.yaxis.set_major_locator(MaxNLocator(5))
     ax.set_xlabel("harm to the ego per run [-]")
     ax.set_ylabel("harm to third parties per run [-] (incl. VRU)")
-    ax.set_title("Ego vs third-party harm per run")
+    ax.set_title("Ego vs third-party harm per run" + (f" by {', '.join(by)}" if by else ""))
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     fig.tight_layout()
     return _save(fig, folder, "tradeoff_ego_vs_third_party")
+
+
+def _short(key: str) -> str:
+    return {"omega_u": "w_u", "omega_o": "w_o"}.get(key, key)

@@ -54,7 +54,7 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
     rep.figures["harm"] = plots.harm_vs_parameter(tables["summary"], by, figs)
     rep.figures["completion"] = plots.completion_vs_parameter(tables["summary"], by, figs)
     rep.figures["harm_per_collision"] = plots.harm_per_collision(res.collisions, figs)
-    rep.figures["tradeoff"] = plots.tradeoff(res.runs, figs, colour_by=by[0])
+    rep.figures["tradeoff"] = plots.tradeoff(res.runs, figs, by)
     has_risk = "risk_total_mean" in res.runs and res.runs["risk_total_mean"].notna().any()
     if has_risk:
         from sumo_ethics.analysis.risk import risk_boxplot, risk_table
