@@ -27,8 +27,9 @@ import click
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Sweep folder (resumed if it exists).")
 @click.option("--workers", type=int, default=None, help="Local processes (default: the number of CPUs).")
 @click.option("--scheduler", metavar="tcp://HOST:PORT", help="Run on an existing Dask distributed cluster.")
-@click.option("--end", type=float, help="Simulation time limit of every run [s].")
-@click.option("--ego-depart", type=float, help="Departure time [s] of the inserted ego.")
+@click.option("--end", type=float, help="Simulation time limit of every run [s], a simulation time.")
+@click.option("--ego-depart", type=float, help="Departure time [s] of the inserted ego (default: the scenario's begin).")
+@click.option("--step-length", type=float, help="SUMO step [s] (default: the scenario's if at most 0.2 s, else 0.1).")
 @click.option("--ego-from", help="Route of the inserted ego: from this edge ...")
 @click.option("--ego-to", help="... to this edge.")
 @click.option("--controller", type=click.Choice(["ethical", "baseline"]), help="Ego controller (default ethical).")
@@ -38,7 +39,8 @@ import click
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def sweep(scenario_or_suite: Path, omega_u: str, seeds: str, sets: tuple[str, ...], out: Path, workers: int | None,
-          scheduler: str | None, end: float | None, ego_depart: float | None, ego_from: str | None,
+          scheduler: str | None, end: float | None, ego_depart: float | None, step_length: float | None,
+          ego_from: str | None,
           ego_to: str | None, controller: str | None, predictor: str | None, radius: float | None,
           continue_after_collision: bool, config_file: Path | None, quiet: bool) -> None:
     """Run the grid SCENARIO(S) x omega_u x seeds x --set values, one SUMO process per run.
@@ -56,7 +58,7 @@ def sweep(scenario_or_suite: Path, omega_u: str, seeds: str, sets: tuple[str, ..
         raise ConfigError(f"--workers must be at least 1, got {workers}")
     if workers is not None and scheduler:
         raise ConfigError("--workers and --scheduler exclude each other")
-    options = {"end": end, "ego_depart": ego_depart, "ego_from": ego_from, "ego_to": ego_to,
+    options = {"end": end, "ego_depart": ego_depart, "step_length": step_length, "ego_from": ego_from, "ego_to": ego_to,
                "controller": controller, "predictor": predictor, "radius": radius,
                "stop_at_collision": False if continue_after_collision else None}
     planner = load_toml(config_file) if config_file is not None else None

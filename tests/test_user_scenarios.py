@@ -311,3 +311,13 @@ def test_suite_generate_needs_a_new_or_empty_out(tmp_path):
     p, seconds = cli("suite", "generate", "--count", "1", "--out", str(suite))
     one_error_line(p, f"--out {suite} is not an empty folder")
     assert [q.name for q in suite.iterdir()] == ["old_scenario"] and seconds < 1.0  # untouched
+
+
+def test_sweep_refuses_an_end_before_the_begin(tmp_path, bridge_net):
+    from sumo_ethics.sweep import make_sweep
+
+    cfg = crossing_scenario(tmp_path, bridge_net)
+    with pytest.raises(ConfigError, match=r"--end 400 s is not after the scenario's begin \(50000 s\)"):
+        make_sweep(cfg, "0,1000", "0-1", options={"end": 400.0}).validate()
+    sw = make_sweep(cfg, "0", "0", options={"end": BEGIN + 5, "step_length": 0.05})
+    assert sw.validate()[0].run_config(tmp_path / "r").step_length == 0.05

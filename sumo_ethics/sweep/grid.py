@@ -38,6 +38,7 @@ RUN_KEYS: dict[str, tuple[str, type]] = {
     "collision_gap": ("collision_gap", float),
     "ego_from": ("ego_from", str),
     "ego_to": ("ego_to", str),
+    "step_length": ("step_length", float),
 }
 PLANNER_SIMPLE = ("omega_o", "weights", "utility", "predictor", "max_risk", "selection", "envelope", "entry")
 
@@ -335,7 +336,8 @@ class Sweep:
 def command_line(definition: dict[str, Any], out: str = "OUT") -> str:
     """A ``sumo-ethics sweep`` command that reproduces ``definition`` (for reports)."""
     flags = {"end": "--end", "ego_depart": "--ego-depart", "ego_from": "--ego-from", "ego_to": "--ego-to",
-             "controller": "--controller", "predictor": "--predictor", "radius": "--radius"}
+             "controller": "--controller", "predictor": "--predictor", "radius": "--radius",
+             "step_length": "--step-length"}
     scen = definition["scenarios"]
     parts = ["sumo-ethics sweep", scen[0] if len(scen) == 1 else os.path.commonpath(scen),
              "--omega-u", ",".join(f"{v:g}" for v in definition["omega_u"]),
