@@ -371,7 +371,8 @@ class Run:
         preflight.check_scenario(files, cfg.ego_from, cfg.ego_to)  # what SUMO reports badly or crashes on
         ego_id = cfg.ego_id or "ego"
         declared = scenario_files.declared(files)
-        if cfg.ego_id is None and declared is not None and ego_id in declared.vehicles:
+        # a person named "ego" too: context subscriptions of both domains come back merged by id
+        if cfg.ego_id is None and declared is not None and (ego_id in declared.vehicles or ego_id in declared.persons):
             ego_id = "sumo_ethics_ego"
         # every check that needs no SUMO has passed: only now is the run folder touched
         self.created_out, self.replaced = prepare_out(cfg.out, cfg.overwrite)

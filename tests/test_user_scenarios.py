@@ -321,3 +321,17 @@ def test_sweep_refuses_an_end_before_the_begin(tmp_path, bridge_net):
         make_sweep(cfg, "0,1000", "0-1", options={"end": 400.0}).validate()
     sw = make_sweep(cfg, "0", "0", options={"end": BEGIN + 5, "step_length": 0.05})
     assert sw.validate()[0].run_config(tmp_path / "r").step_length == 0.05
+
+
+@pytest.mark.sumo
+def test_inserted_ego_does_not_share_its_id_with_a_person(tmp_path):
+    """eclipse-sumo's tools/game/hiking names its person 'ego': the merged context subscription
+    then returned the person's position for the car (an 82 m jump in one step)."""
+    cfg = write_scenario(tmp_path / "s", '<person id="ego" depart="0" departPos="20"><walk edges="main_0"/></person>',
+                         end=10)
+    out = tmp_path / "o"
+    s = run(RunConfig(cfg, out, ego_from="main_0", ego_to="main_1", end=5, controller="baseline", progress=False))
+    steps = pd.read_parquet(out / "steps.parquet")
+    assert s.data["ego_id"] == "sumo_ethics_ego" and s.status.value == "timeout"
+    step_m = (steps.x.diff() ** 2 + steps.y.diff() ** 2) ** 0.5
+    assert step_m.max() < 14 * 0.1 + 0.05  # at most one step at the speed limit
