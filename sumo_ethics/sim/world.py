@@ -205,7 +205,12 @@ class SumoWorld:
         # own route; with 2 alone SUMO maps it onto the nearest lane in plan view, e.g. onto a road
         # on a bridge above, or a crossing movement's junction lane. Lanes searched within 10 m.
         v.moveToXY(self.ego_id, "", -1, float(fx), float(fy), float(angle), 3, 10.0)
-        v.setSpeed(self.ego_id, max(0.0, float(cmd.speed)))
+        speed = max(0.0, float(cmd.speed))
+        v.setSpeed(self.ego_id, speed)
+        # matched onto its route, SUMO derives the speed from the route distance moved, and reported
+        # 0 m/s for one step where an ego 2.4 m off its lane entered a junction (tools/game/cross):
+        # the planner then started from a standstill (-21 m/s^2). Tell SUMO the speed as well.
+        v.setPreviousSpeed(self.ego_id, speed)
 
 
 def sumo_collisions() -> list[tuple[str, str, str, str, float, float, str, str]]:
