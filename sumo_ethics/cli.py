@@ -93,6 +93,9 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
     scenario_files.plan(cfg.scenario, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id,
                         tuple(e for e in (ego_from, ego_to) if e is not None))
     scenario_files.check_out(out)
+    if step_length is not None and step_length > scenario_files.MAX_TRUSTED_STEP and controller == "ethical":
+        click.echo(f"note: --step-length {step_length:g} s: above {scenario_files.MAX_TRUSTED_STEP:g} s the planner's "
+                   f"speed changes per step exceed its acceleration limits", err=True)
 
     from sumo_ethics.runner import make_controller, run as run_scenario
     from sumo_ethics.settings import load_toml, planner_config
