@@ -8,7 +8,7 @@ pedestrian, whatever vClass its vType has.
 Road users on another level cannot meet the ego and are left out of the scene, so neither the
 planner nor the collision check sees them: more than ``VERTICAL_CLEARANCE`` above or below it
 (positions are read in 3D), or, in a network without elevation, on a lane that crosses the
-ego's lane without a junction (see :meth:`SumoWorld.grade_separated`).
+ego's lane without a junction (see :func:`crossings_without_junction`).
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ from sumo_ethics.sim.frames import centre_to_front, front_to_centre
 from sumo_ethics.sim.route import JunctionLink, RoutePath, build_route_path
 from sumo_ethics.types import AgentStates, RoadUserClass
 
-_VEH_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE, tc.VAR_LANE_ID, tc.VAR_ACCELERATION)
-_PER_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE, tc.VAR_LANE_ID)
+_VEH_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE, tc.VAR_ACCELERATION)
+_PER_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE)
 
 #: road users whose elevation differs from the ego's by more than this [m] are on another level
 #: (a bridge deck is some 5 m above the road below; a ramp changes height by a few % per metre)
@@ -70,22 +70,25 @@ class SumoWorld:
         self.ego_id = ego_id
         self.radius = radius
         self.masses = masses
-        self._types: dict[tuple[str, bool], TypeInfo] = {}
+        self._types: dict[str, TypeInfo] = {}  # vehicle types
+        self._person_types: dict[str, TypeInfo] = {}  # the same vTypes used by persons: pedestrians
         self.route: RoutePath | None = None
         self.ego_length = 0.0
-        self._separated: dict[tuple[str, str], bool] = {}
+        #: lane -> the ego's route lanes it crosses without a junction (a bridge in a flat network)
+        self._crossing: dict[str, frozenset[str]] = {}
+        self._crossing_box = np.zeros(4)  # x0, y0, x1, y1 around those lanes
 
     # ---- types -------------------------------------------------------------------------
     def type_info(self, type_id: str, person: bool = False) -> TypeInfo:
         """Class, size and mass of a vType; a person is a pedestrian whatever its vType says."""
-        info = self._types.get((type_id, person))
+        info = (self._person_types if person else self._types).get(type_id)
         if info is None:
             vt = libsumo.vehicletype
             cls = RoadUserClass.PEDESTRIAN if person else RoadUserClass.from_vclass(vt.getVehicleClass(type_id))
             length, width = vt.getLength(type_id), vt.getWidth(type_id)
             mass = float(self.masses.mass(np.array([int(cls)]), np.array([length]), np.array([width]),
                                           np.array([vt.getMass(type_id)]))[0])
-            info = self._types[(type_id, person)] = TypeInfo(cls, length, width, mass)
+            info = (self._person_types if person else self._types)[type_id] = TypeInfo(cls, length, width, mass)
         return info
 
     # ---- takeover ----------------------------------------------------------------------
@@ -98,6 +101,10 @@ class SumoWorld:
         vclass = v.getVehicleClass(ego)
         start = np.asarray(v.getPosition(ego), dtype=float)
         self.route = build_route_path(tuple(edges[v.getRouteIndex(ego):]), lane, vclass, start)
+        self._crossing = crossings_without_junction(edges[v.getRouteIndex(ego):])
+        if self._crossing:
+            pts = np.concatenate([np.asarray(libsumo.lane.getShape(k))[:, :2] for k in self._crossing])
+            self._crossing_box = np.r_[pts.min(axis=0) - 5.0, pts.max(axis=0) + 5.0]
         self.ego_length = v.getLength(ego)
         speed = v.getSpeed(ego)
         v.setSpeedMode(ego, 32)  # no safety checks: the controller decides
@@ -132,7 +139,7 @@ class SumoWorld:
                 x, y, z = dom.getPosition3D(k)
                 if k == self.ego_id or (x - ex) ** 2 + (y - ey) ** 2 <= self.radius**2:
                     r = {tc.VAR_POSITION3D: (x, y, z), tc.VAR_ANGLE: dom.getAngle(k), tc.VAR_SPEED: dom.getSpeed(k),
-                         tc.VAR_TYPE: dom.getTypeID(k), tc.VAR_LANE_ID: dom.getLaneID(k)}
+                         tc.VAR_TYPE: dom.getTypeID(k)}
                     if tc.VAR_ACCELERATION in vars_:
                         r[tc.VAR_ACCELERATION] = dom.getAcceleration(k)
                     res[k] = r
@@ -144,19 +151,20 @@ class SumoWorld:
         on another level (more than VERTICAL_CLEARANCE above or below the ego) are dropped."""
         rows = [res[k] for k in ids]
         types = tuple(r[tc.VAR_TYPE] for r in rows)
-        persons = [tc.VAR_ACCELERATION not in r for r in rows]  # only vehicles are subscribed with it
-        known = self._types
-        info = [known.get((t, p)) or self.type_info(t, p) for t, p in zip(types, persons)]
+        accel_var = tc.VAR_ACCELERATION  # only vehicles are subscribed with it: its absence marks persons
+        known, known_p = self._types, self._person_types
+        info = [(known.get(t) if accel_var in r else known_p.get(t)) or self.type_info(t, accel_var not in r)
+                for t, r in zip(types, rows)]
         # one (9, N) conversion for every numeric column, rows contiguous
-        num = np.array([(*r[tc.VAR_POSITION3D], r[tc.VAR_ANGLE], r[tc.VAR_SPEED], r.get(tc.VAR_ACCELERATION, 0.0),
+        num = np.array([(*r[tc.VAR_POSITION3D], r[tc.VAR_ANGLE], r[tc.VAR_SPEED], r.get(accel_var, 0.0),
                          t.length, t.width, t.mass) for r, t in zip(rows, info)], dtype=float).reshape(-1, 9).T.copy()
         z = num[2]
-        level = np.abs(z - z[0]) <= VERTICAL_CLEARANCE
-        ego_lane = rows[0][tc.VAR_LANE_ID]
-        if ego_lane and ego_lane[0] != ":":  # on a normal lane: is anyone on a road crossing it?
-            sep = self.grade_separated
-            level &= np.array([not sep(ego_lane, r[tc.VAR_LANE_ID]) for r in rows])
-        if not level.all():
+        dz = z.max() - z.min()
+        level = np.abs(z - z[0]) <= VERTICAL_CLEARANCE if dz > VERTICAL_CLEARANCE else None
+        if self._crossing:  # the route crosses roads without a junction: who is on one, above or below?
+            on_crossing = self._on_crossing_road(ids, num[0], num[1], [accel_var not in r for r in rows])
+            level = ~on_crossing if level is None else level & ~on_crossing
+        if level is not None and not level.all():
             keep = np.flatnonzero(level)
             num, ids = num[:, keep], [ids[i] for i in keep]
             types, info = tuple(types[i] for i in keep), [info[i] for i in keep]
@@ -175,23 +183,20 @@ class SumoWorld:
     def sumo_lane(self) -> str:
         return libsumo.vehicle.getLaneID(self.ego_id)
 
-    def grade_separated(self, a: str, b: str) -> bool:
-        """True if lanes ``a`` and ``b`` cross without meeting, in a network without elevation
-        (OSM imports usually have none): normal lanes of edges that share no junction and whose
-        centre lines cross, i.e. one is on a bridge or in a tunnel (netconvert builds a junction
-        wherever roads meet at grade). Cached per lane pair."""
-        if not a or not b or a[0] == ":" or b[0] == ":" or a == b:
-            return False
-        known = self._separated.get((a, b))
-        if known is None:
-            from shapely.geometry import LineString
-
-            edge, lane = libsumo.edge, libsumo.lane
-            ea, eb = lane.getEdgeID(a), lane.getEdgeID(b)
-            shared = {edge.getFromJunction(ea), edge.getToJunction(ea)} & {edge.getFromJunction(eb), edge.getToJunction(eb)}
-            known = ea != eb and not shared and LineString(lane.getShape(a)).intersects(LineString(lane.getShape(b)))
-            self._separated[(a, b)] = known
-        return known
+    def _on_crossing_road(self, ids: list[str], fx: np.ndarray, fy: np.ndarray, persons: list[bool]) -> np.ndarray:
+        """(N,) bool: on a lane crossing the ego's current lane without a junction. Lanes are read
+        (one call each) only for road users near those lanes, and only while the ego is on one
+        of the route lanes they cross."""
+        out = np.zeros(len(ids), dtype=bool)
+        ego_lane = libsumo.vehicle.getLaneID(self.ego_id)
+        if not any(ego_lane in crossed for crossed in self._crossing.values()):
+            return out
+        x0, y0, x1, y1 = self._crossing_box
+        near = np.flatnonzero((fx >= x0) & (fx <= x1) & (fy >= y0) & (fy <= y1))
+        for i in near[near > 0]:
+            dom = libsumo.person if persons[i] else libsumo.vehicle
+            out[i] = ego_lane in self._crossing.get(dom.getLaneID(ids[i]), ())
+        return out
 
     def sumo_speed(self) -> float:
         return libsumo.vehicle.getSpeed(self.ego_id)
@@ -211,6 +216,39 @@ class SumoWorld:
         # 0 m/s for one step where an ego 2.4 m off its lane entered a junction (tools/game/cross):
         # the planner then started from a standstill (-21 m/s^2). Tell SUMO the speed as well.
         v.setPreviousSpeed(self.ego_id, speed)
+
+
+def crossings_without_junction(route_edges) -> dict[str, frozenset[str]]:
+    """Lanes that cross a lane of ``route_edges`` without a junction: lane -> the route lanes it
+    crosses. In a network without elevation (OSM imports usually have none) such a crossing is
+    a bridge or a tunnel: netconvert builds a junction wherever roads meet at grade. Normal
+    lanes only; lanes of edges that share a junction with the route edge do not count."""
+    from shapely import STRtree
+    from shapely.geometry import LineString
+
+    edge, lane = libsumo.edge, libsumo.lane
+    route = [e for e in dict.fromkeys(route_edges) if not e.startswith(":")]
+    route_lanes = [f"{e}_{i}" for e in route for i in range(edge.getLaneNumber(e))]
+    if not route_lanes:
+        return {}
+    others = [k for k in lane.getIDList() if k[0] != ":"]
+    tree = STRtree([LineString(lane.getShape(k)) for k in others])
+    nodes = {}
+
+    def ends(e: str) -> set[str]:
+        if e not in nodes:
+            nodes[e] = {edge.getFromJunction(e), edge.getToJunction(e)}
+        return nodes[e]
+
+    out: dict[str, set[str]] = {}
+    for a in route_lanes:
+        ea = lane.getEdgeID(a)
+        for j in tree.query(LineString(lane.getShape(a)), predicate="intersects"):
+            b = others[int(j)]
+            eb = lane.getEdgeID(b)
+            if eb != ea and not ends(ea) & ends(eb):
+                out.setdefault(b, set()).add(a)
+    return {k: frozenset(v) for k, v in out.items()}
 
 
 def sumo_collisions() -> list[tuple[str, str, str, str, float, float, str, str]]:
