@@ -369,3 +369,16 @@ def test_speed_change_per_step_within_the_limit_when_pulling_away_offset(dt, lim
             if ok.any():
                 worst = max(worst, float((np.diff(speed, axis=1)[ok] / dt).max()))
     assert 2.9 < worst <= limit
+
+
+@pytest.mark.sumo
+def test_no_phantom_collision_on_the_a10_motorway_bridge(tmp_path):
+    """eclipse-sumo's tools/game/A10KW (OpenStreetMap, no elevation): veh25's primary road crosses
+    the A10 motorway without a junction. The ego used to 'collide' there with a motorway car
+    (geometry only, harm 0.78 booked, the run ended at t = 59.5 s)."""
+    cfg = Path(sumo.SUMO_HOME) / "tools" / "game" / "A10KW.sumocfg"
+    out = tmp_path / "o"
+    s = run(RunConfig(cfg, out, seed=1, ego_id="veh25", end=65, controller="baseline", progress=False))
+    steps = pd.read_parquet(out / "steps.parquet")
+    assert s.status.value == "timeout" and s.data["collisions"]["ego"] == 0
+    assert steps.time.max() == pytest.approx(65.0) and steps.speed.iloc[5:].min() > 15  # drove on, no braking
