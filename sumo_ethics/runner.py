@@ -104,6 +104,9 @@ def discard_outputs(out: Path, created: bool, written: Iterable[str] = ("config.
             os.replace(p, out / p.name)  # this run's own files with those names are gone by now
         shutil.rmtree(replaced, ignore_errors=True)
     if created:
+        import shutil
+
+        shutil.rmtree(out / "sumo-outputs", ignore_errors=True)  # made by this run (its SUMO outputs)
         try:
             out.rmdir()
         except OSError:
@@ -378,9 +381,12 @@ class Run:
         self.created_out, self.replaced = prepare_out(cfg.out, cfg.overwrite)
         # the scenario's own outputs (tripinfo, log, ...) go into the run folder, never next to it
         outputs = scenario_files.redirected_outputs(files, cfg.out / "sumo-outputs")
+        additional, left = scenario_files.redirected_additionals(files, cfg.out / "sumo-outputs")
+        if additional is not None:  # copies of the additional files whose detectors write files
+            outputs["additional-files"] = additional
         self.meta.update(scenario=str(files.config), ego_id=ego_id, **plan.record(),
                          forced_sumo_options=session.forced_option_report(files), redirected_outputs=outputs,
-                         sumo_args=list(cfg.sumo_args))
+                         outputs_not_redirected=left, sumo_args=list(cfg.sumo_args))
         write_json(cfg.out / "config.json", cfg.to_dict() | {"resolved": {
             "end": end, "ego_id": ego_id, "begin": plan.begin, "ego_depart": plan.ego_depart,
             "step_length": plan.step_length}})

@@ -44,3 +44,6 @@ def test_runs_on_shipped_scenario(tmp_path, name, ego, controller):
     assert steps.accel.abs().max() <= 8.0 + 1e-6  # no teleports: within the ego's braking limit
     if ego is not None:
         assert summary.data["ego_id"] == ego
+    if "input_additional.add.xml" in cfg.read_text():  # its edgeData dumps land in the run, not in GAME
+        assert (out / "sumo-outputs" / "netstate.xml").is_file()
+        assert "sumo-outputs/additional-files/" in summary.data["redirected_outputs"]["additional-files"]

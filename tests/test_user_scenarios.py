@@ -382,3 +382,29 @@ def test_no_phantom_collision_on_the_a10_motorway_bridge(tmp_path):
     steps = pd.read_parquet(out / "steps.parquet")
     assert s.status.value == "timeout" and s.data["collisions"]["ego"] == 0
     assert steps.time.max() == pytest.approx(65.0) and steps.speed.iloc[5:].min() > 15  # drove on, no braking
+
+
+@pytest.mark.sumo
+def test_detector_outputs_of_additional_files_go_into_the_run_folder(tmp_path, bridge_net):
+    scen = tmp_path / "scenario"
+    scen.mkdir()
+    (scen / "det.add.xml").write_text('<additional><edgeData id="dump" file="edges.xml" period="1"/>'
+                                      '<timedEvent type="SaveTLSSwitchStates" dest="tls.xml"/></additional>')
+    (scen / "vss.add.xml").write_text('<additional><variableSpeedSign id="v" lanes="road_0" file="vss.def.xml"/>'
+                                      '<edgeData id="d2" file="kept.xml"/></additional>')
+    cfg = crossing_scenario(scen, bridge_net)
+    cfg.write_text(cfg.read_text().replace('<route-files value="r.rou.xml"/>',
+                                           '<route-files value="r.rou.xml"/><additional-files value="det.add.xml"/>'))
+    out = tmp_path / "run"
+    s = run(RunConfig(cfg, out, ego_id="ego", end=BEGIN + 2, progress=False), controller=Scripted(10.0))
+    assert sorted(p.name for p in scen.iterdir()) == ["det.add.xml", "r.rou.xml", "vss.add.xml", "x.sumocfg"]
+    assert "<edge id=\"road\"" in (out / "sumo-outputs" / "edges.xml").read_text()
+    copy = (out / "sumo-outputs" / "additional-files" / "0_det.add.xml").read_text()  # what SUMO loaded
+    assert f'dest="{out / "sumo-outputs" / "tls.xml"}"' in copy
+    assert s.data["outputs_not_redirected"] == {}
+    # a file that also names an input by a relative path is not rewritten: its outputs are listed
+    from sumo_ethics.sim.scenario import read_scenario, redirected_additionals
+
+    cfg.write_text(cfg.read_text().replace('value="det.add.xml"', 'value="det.add.xml,vss.add.xml"'))
+    value, left = redirected_additionals(read_scenario(cfg), tmp_path / "elsewhere")
+    assert value.endswith(str(scen / "vss.add.xml")) and left == {str(scen / "vss.add.xml"): ["kept.xml"]}

@@ -319,6 +319,52 @@ def redirected_outputs(files: ScenarioFiles, folder: Path) -> dict[str, str]:
     return out
 
 
+#: elements of additional files that write a file, and the attribute naming it
+_ADDITIONAL_OUTPUTS = {tag: "file" for tag in (
+    "e1Detector", "inductionLoop", "instantInductionLoop", "e2Detector", "laneAreaDetector", "e3Detector",
+    "entryExitDetector", "edgeData", "laneData", "routeProbe", "vTypeProbe")} | {
+    "timedEvent": "dest", "calibrator": "output", "laneCalibrator": "output"}
+#: attributes that may name a file (inputs too: a file holding one of these is not rewritten)
+_PATH_ATTRS = ("file", "href", "imgFile", "dest", "output")
+
+
+def redirected_additionals(files: ScenarioFiles, folder: Path) -> tuple[str | None, dict[str, list[str]]]:
+    """Additional files whose detectors or dumps write files (``<edgeData file=...>``, ...):
+    each is copied into ``folder`` with those outputs pointed into ``folder``. Returns the new
+    ``additional-files`` value (None if nothing changed) and, per file that could not be
+    rewritten safely (it also names input files by relative path), the outputs left as they are."""
+    paths: list[str] = []
+    left: dict[str, list[str]] = {}
+    changed = False
+    for i, p in enumerate(files.additionals):
+        try:
+            with _open(p) as fh:
+                raw = fh.read()
+            if not any(f' {a}="'.encode() in raw for a in _PATH_ATTRS):  # most files: nothing to do
+                paths.append(str(p))
+                continue
+            tree = ET.ElementTree(ET.fromstring(raw))
+        except (ET.ParseError, OSError, EOFError):
+            paths.append(str(p))
+            continue
+        outs = [(el, attr) for el in tree.iter() if (attr := _ADDITIONAL_OUTPUTS.get(el.tag)) and el.get(attr)]
+        inputs = [el for el in tree.iter() for a in _PATH_ATTRS
+                  if el.get(a) and _ADDITIONAL_OUTPUTS.get(el.tag) != a]
+        if not outs or inputs:
+            if outs:
+                left[str(p)] = sorted({el.get(a) for el, a in outs})
+            paths.append(str(p))
+            continue
+        for el, attr in outs:
+            el.set(attr, str(folder / Path(el.get(attr)).name))
+        copy = folder / "additional-files" / f"{i}_{p.name.removesuffix('.gz')}"
+        copy.parent.mkdir(parents=True, exist_ok=True)
+        tree.write(copy, encoding="unicode")
+        paths.append(str(copy))
+        changed = True
+    return (",".join(paths) if changed else None), left
+
+
 @dataclass(frozen=True)
 class Plan:
     """A run's times and step resolved from the scenario and the user's flags, before SUMO starts.

@@ -57,7 +57,8 @@ def start(files: ScenarioFiles, seed: int, error_log: Path, extra: tuple[str, ..
     if step_length is not None:
         cmd += ["--step-length", f"{step_length:g}"]
     for key, value in (outputs or {}).items():
-        Path(value.split()[0]).parent.mkdir(parents=True, exist_ok=True)
+        if key != "additional-files":
+            Path(value.split()[0]).parent.mkdir(parents=True, exist_ok=True)
         cmd += [f"--{key}", value]
     cmd += list(extra)
     with tempfile.TemporaryFile() as captured:
