@@ -11,7 +11,7 @@ import os
 import platform
 import shutil
 import time as wallclock
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
@@ -22,7 +22,7 @@ from sumo_ethics import __version__
 from sumo_ethics.collision import PairEvents, previous_of, swept_contacts
 from sumo_ethics.interrupt import sigterm_as_interrupt, sigterm_deferred
 from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
-from sumo_ethics.config import RunConfig
+from sumo_ethics.config import EgoVehicle, RunConfig
 from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEthicsError, Terminated
 from sumo_ethics.ethics.harm import CrashOutcome, ImpactArea, Party, crash_outcome
 from sumo_ethics.plan.controller import Controller, Scene
@@ -190,6 +190,20 @@ def find_ego_route(cfg: RunConfig) -> tuple[str, ...]:
     if not best[1]:
         raise ConfigError("found no route for the ego on this network; give --ego-from and --ego-to")
     return best[1]
+
+
+def ego_limits(ego_id: str, car: EgoVehicle) -> EgoVehicle:
+    """The limits the planner drives a taken-over vehicle with: a car's (``car``), but for a
+    truck, bus or motorcycle its own size and no more than its vType's top speed,
+    acceleration and decelerations."""
+    v, vt = libsumo.vehicle, libsumo.vehicletype
+    if RoadUserClass.from_vclass(v.getVehicleClass(ego_id)) is RoadUserClass.CAR:
+        return car
+    t = v.getTypeID(ego_id)
+    return replace(car, length=v.getLength(ego_id), width=v.getWidth(ego_id),
+                   max_speed=min(car.max_speed, v.getMaxSpeed(ego_id)), max_accel=min(car.max_accel, vt.getAccel(t)),
+                   comfort_decel=min(car.comfort_decel, vt.getDecel(t)),
+                   max_decel=min(car.max_decel, vt.getEmergencyDecel(t)))
 
 
 def insert_ego(cfg: RunConfig, ego_id: str, depart: float) -> tuple[str, ...]:
@@ -411,12 +425,13 @@ class Run:
         if cfg.ego_id is not None:
             wait_for_vehicle(ego_id, end)
             check_ego_vehicle(ego_id)
+            self.cfg = cfg = replace(cfg, ego=ego_limits(ego_id, cfg.ego))
             edges = tuple(libsumo.vehicle.getRoute(ego_id))
         else:
             edges = insert_ego(cfg, ego_id, depart)
         self.world = world = SumoWorld(ego_id, cfg.sensing_radius)
         route = world.takeover()
-        self.meta.update(step_length=dt, route_edges=list(edges), route_length=route.length,
+        self.meta.update(step_length=dt, ego_limits=asdict(cfg.ego), route_edges=list(edges), route_length=route.length,
                          takeover_time=libsumo.simulation.getTime(), controller=self.controller.name,
                          takeover_wall=wallclock.perf_counter() - self.t_start)
         libsumo.simulationStep()  # subscription results arrive with the next step

@@ -408,3 +408,14 @@ def test_detector_outputs_of_additional_files_go_into_the_run_folder(tmp_path, b
     cfg.write_text(cfg.read_text().replace('value="det.add.xml"', 'value="det.add.xml,vss.add.xml"'))
     value, left = redirected_additionals(read_scenario(cfg), tmp_path / "elsewhere")
     assert value.endswith(str(scen / "vss.add.xml")) and left == {str(scen / "vss.add.xml"): ["kept.xml"]}
+
+
+@pytest.mark.sumo
+def test_truck_ego_gets_its_own_size_and_limits(tmp_path):
+    cfg = write_scenario(tmp_path / "s", """<vType id="lorry" vClass="truck" length="12" width="2.5" accel="1.1"
+        decel="4" emergencyDecel="7" maxSpeed="25"/>
+        <vehicle id="t1" type="lorry" route="r_main" depart="0" departPos="20"/>""", end=10)
+    s = run(RunConfig(cfg, tmp_path / "o", ego_id="t1", end=3, controller="baseline", progress=False))
+    lim = s.data["ego_limits"]
+    assert (lim["length"], lim["width"], lim["max_accel"], lim["comfort_decel"], lim["max_decel"]) == (12, 2.5, 1.1, 3.0, 7)
+    assert lim["max_speed"] == 25 and lim["max_lat_accel"] == 4.0  # the car's where the vType says nothing
