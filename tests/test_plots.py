@@ -3,6 +3,8 @@ every sweep, the trade-off plot split by every --by key (synthetic sweep, no SUM
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -17,7 +19,8 @@ from test_analysis import fake_sweep  # noqa: F401 - fixture
 def figures(monkeypatch):
     """Keep every figure the plot functions make instead of saving it."""
     kept = []
-    monkeypatch.setattr(plots, "_save", lambda fig, folder, name: kept.append(fig) or [])
+    monkeypatch.setattr(plots, "_save", lambda fig, folder, name: kept.append(fig) or
+                        [Path(folder) / f"{name}.png", Path(folder) / f"{name}.svg"])
     return kept
 
 
@@ -68,7 +71,7 @@ def test_tradeoff_honours_every_by_key(fake_sweep, figures, tmp_path):  # noqa: 
     assert len(markers) >= 2  # one marker per weights preset
 
 
-def test_report_uses_the_by_keys_for_the_tradeoff(fake_sweep, tmp_path, monkeypatch):  # noqa: F811
+def test_report_uses_the_by_keys_for_the_tradeoff(fake_sweep, figures, tmp_path, monkeypatch):  # noqa: F811
     from sumo_ethics.analysis.report import make_report
 
     seen = {}
