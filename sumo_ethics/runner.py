@@ -52,7 +52,7 @@ class RunSummary:
 
 #: every file or folder a run writes into its --out folder
 OUTPUT_NAMES = ("summary.json", "config.json", "steps.parquet", "timings.parquet", "collisions.parquet",
-                "sumo-errors.log", PARTIAL)
+                "sumo-errors.log", "sumo-outputs", PARTIAL)
 
 
 def prepare_out(out: Path, overwrite: bool = False) -> tuple[bool, Path | None]:
@@ -104,9 +104,6 @@ def discard_outputs(out: Path, created: bool, written: Iterable[str] = ("config.
             os.replace(p, out / p.name)  # this run's own files with those names are gone by now
         shutil.rmtree(replaced, ignore_errors=True)
     if created:
-        import shutil
-
-        shutil.rmtree(out / "sumo-outputs", ignore_errors=True)  # made by this run (its SUMO outputs)
         try:
             out.rmdir()
         except OSError:
@@ -395,6 +392,8 @@ class Run:
         self.created_out, self.replaced = prepare_out(cfg.out, cfg.overwrite)
         # the scenario's own outputs (tripinfo, log, ...) go into the run folder, never next to it
         outputs = scenario_files.redirected_outputs(files, cfg.out / "sumo-outputs")
+        if not (cfg.out / "sumo-outputs").exists():
+            self.written.append("sumo-outputs")
         additional, left = scenario_files.redirected_additionals(files, cfg.out / "sumo-outputs")
         if additional is not None:  # copies of the additional files whose detectors write files
             outputs["additional-files"] = additional
