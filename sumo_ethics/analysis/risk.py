@@ -99,7 +99,7 @@ def risk_boxplot(runs: pd.DataFrame, by: str, folder: Path, name: str = "exante_
 
     values = list(order) if order is not None else sorted(runs[by].dropna().unique(), key=lambda v: (str(type(v)), v))
     labels = [f"{v:g}" if isinstance(v, (float, np.floating)) else str(v) for v in values]
-    fig, axes = plt.subplots(1, 3, figsize=(max(9.0, 1.1 * len(values) * 3), 4.2), sharey=True)
+    fig, axes = plt.subplots(3, 1, figsize=(max(7.0, 0.8 * len(values) + 2.5), 9.0), sharex=True, sharey=True)
     colours = plt.get_cmap("tab10")
     for ax, c in zip(axes, CLASSES):
         data = [runs.loc[runs[by] == v, f"risk_{c}_mean"].dropna().to_numpy() for v in values]
@@ -111,14 +111,15 @@ def risk_boxplot(runs: pd.DataFrame, by: str, folder: Path, name: str = "exante_
         for i, d in enumerate(data):  # mean as a white diamond
             if len(d):
                 ax.plot(i + 1, d.mean(), marker="D", color="white", markeredgecolor="black", markersize=5, zorder=3)
-        ax.set_xticks(range(1, len(values) + 1), labels, rotation=30 if max(map(len, labels)) > 6 else 0,
-                      ha="right" if max(map(len, labels)) > 6 else "center")
-        ax.set_title(LABELS[c])
+        ax.set_title(LABELS[c], loc="left", fontsize=10)
         ax.set_yscale("symlog", linthresh=1e-4)
         ax.grid(axis="y", alpha=0.3)
-        ax.set_xlabel(by)
-    axes[0].set_ylabel("mean ex-ante risk per step [P(MAIS3+)]")
-    fig.suptitle(title or f"Ex-ante risk of the chosen trajectory per run, by {by} (box: quartiles, ◆ mean)")
+        ax.set_ylabel("risk per step")
+    long = max(map(len, labels)) > 6
+    axes[-1].set_xticks(range(1, len(values) + 1), labels, rotation=30 if long else 0, ha="right" if long else "center")
+    axes[-1].set_xlabel(by)
+    fig.suptitle(title or f"Ex-ante risk of the chosen trajectory [P(MAIS3+)], per-run mean, by {by}\n"
+                 "box: quartiles, whiskers 1.5 IQR, ◆ mean; symlog axis, linear below 1e-4", fontsize=10)
     fig.tight_layout()
     folder.mkdir(parents=True, exist_ok=True)
     paths = [folder / f"{name}.png", folder / f"{name}.svg"]
