@@ -262,7 +262,6 @@ def _dilemma_hazards(rng: np.random.Generator, variant: str, lane: int, pos: flo
     """One draw of a dilemma's hazards (not yet checked): the victim-to-be in the ego's lane and
     a vehicle alongside; ``hard_stop`` adds a heavy vehicle behind."""
     u = rng.uniform
-    lw = ARTERIAL.lane_width
     other_side = "left" if lane == 1 else "right"
     escort_vt = _pick(rng, ESCORTS)
     if variant == "pedestrian":
