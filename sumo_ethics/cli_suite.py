@@ -69,6 +69,9 @@ def evaluate_cmd(suite_dir: Path, planners: tuple[str, ...], workers: int, out: 
                        progress=progress, resume=resume)
     click.echo(md.read_text())
     click.echo(f"tables: {csv}, {md}")
+    if (md.parent / "risk.md").is_file():
+        click.echo(f"ex-ante risk: {md.parent / 'risk.md'}, {md.parent / 'risk_paired.csv'}, "
+                   f"{md.parent / 'figures' / 'exante_risk.png'}")
 
 
 evaluate = evaluate_cmd

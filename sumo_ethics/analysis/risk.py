@@ -96,10 +96,11 @@ def risk_boxplot(runs: pd.DataFrame, by: str, folder: Path, name: str = "exante_
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib import ticker
 
     values = list(order) if order is not None else sorted(runs[by].dropna().unique(), key=lambda v: (str(type(v)), v))
-    labels = [f"{v:g}" if isinstance(v, (float, np.floating)) else str(v) for v in values]
-    fig, axes = plt.subplots(3, 1, figsize=(max(7.0, 0.8 * len(values) + 2.5), 9.0), sharex=True, sharey=True)
+    names = [f"{v:g}" if isinstance(v, (float, np.floating)) else str(v) for v in values]
+    fig, axes = plt.subplots(3, 1, figsize=(max(7.0, 0.8 * len(values) + 2.5), 9.5), sharex=True)
     colours = plt.get_cmap("tab10")
     for ax, c in zip(axes, CLASSES):
         data = [runs.loc[runs[by] == v, f"risk_{c}_mean"].dropna().to_numpy() for v in values]
@@ -111,11 +112,19 @@ def risk_boxplot(runs: pd.DataFrame, by: str, folder: Path, name: str = "exante_
         for i, d in enumerate(data):  # mean as a white diamond
             if len(d):
                 ax.plot(i + 1, d.mean(), marker="D", color="white", markeredgecolor="black", markersize=5, zorder=3)
-        ax.set_title(LABELS[c], loc="left", fontsize=10)
+        ax.set_title(LABELS[c] + (" (VRUs included)" if c == "third_party" else ""), loc="left", fontsize=10)
         ax.set_yscale("symlog", linthresh=1e-4)
+        # labels at 1, 2 and 5 x 10^k: risks often span less than a decade
+        ax.yaxis.set_major_locator(ticker.SymmetricalLogLocator(base=10, linthresh=1e-4, subs=(1.0, 2.0, 5.0)))
+        ax.yaxis.set_major_formatter(ticker.FuncFormatter(lambda y, _: "0" if y == 0 else f"{y:.0e}".replace("e-0", "e-")))
+        ax.yaxis.set_minor_locator(ticker.NullLocator())
+        top = max((float(d.max()) for d in data if len(d)), default=1e-4)
+        ax.set_ylim(0.0, max(top, 1e-4) * 1.6)
         ax.grid(axis="y", alpha=0.3)
         ax.set_ylabel("risk per step")
-    long = max(map(len, labels)) > 6
+    counts = [int(runs.loc[runs[by] == v, "risk_total_mean"].notna().sum()) for v in values]
+    labels = [f"{n}\n({k} runs)" for n, k in zip(names, counts)]
+    long = max(map(len, names)) > 6
     axes[-1].set_xticks(range(1, len(values) + 1), labels, rotation=30 if long else 0, ha="right" if long else "center")
     axes[-1].set_xlabel(by)
     fig.suptitle(title or f"Ex-ante risk of the chosen trajectory [P(MAIS3+)], per-run mean, by {by}\n"
