@@ -27,6 +27,7 @@ import math
 import libsumo
 import numpy as np
 
+from sumo_ethics.geometry import Polyline, wrap_angle
 from sumo_ethics.types import AgentStates, RoadUserClass
 
 WRONG_WAY = math.radians(120.0)
@@ -36,7 +37,7 @@ RED = frozenset("rR")
 
 def heading_error(yaw: float, lane_yaw: float) -> float:
     """|yaw - lane_yaw| wrapped to [0, pi] [rad]."""
-    return abs((yaw - lane_yaw + math.pi) % (2.0 * math.pi) - math.pi)
+    return abs(float(wrap_angle(yaw - lane_yaw)))
 
 
 def outside_lane(lateral: float, lane_width: float, width: float, tol: float = OUTSIDE_TOLERANCE) -> bool:
@@ -51,16 +52,14 @@ class RuleMonitor:
     def __init__(self) -> None:
         self._lane: dict[str, str] = {}  # vehicle -> lane at the last step
         self._red: set[str] = set()  # vehicles that entered their junction at red
-        self._shapes: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}  # lane -> (cum length, yaw, width)
+        self._shapes: dict[str, tuple[Polyline, float]] = {}  # lane -> (centre line, width)
         self._links: dict[str, dict[str, str]] = {}  # lane -> {internal via lane: link state}
 
-    def _shape(self, lane: str) -> tuple[np.ndarray, np.ndarray, float]:
+    def _shape(self, lane: str) -> tuple[Polyline, float]:
         got = self._shapes.get(lane)
         if got is None:
-            xy = np.asarray(libsumo.lane.getShape(lane), dtype=float)
-            seg = np.diff(xy, axis=0)
-            cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
-            got = self._shapes[lane] = (cum, np.arctan2(seg[:, 1], seg[:, 0]), libsumo.lane.getWidth(lane))
+            line = Polyline.from_points(np.asarray(libsumo.lane.getShape(lane), dtype=float))
+            got = self._shapes[lane] = (line, libsumo.lane.getWidth(lane))
         return got
 
     def _entry_state(self, approach: str, via: str) -> str:
@@ -93,10 +92,8 @@ class RuleMonitor:
                     out.add(vid)
                 continue
             self._red.discard(vid)
-            cum, yaw, width = self._shape(lane)
-            pos = v.getLanePosition(vid)
-            seg = min(int(np.searchsorted(cum, pos, side="right")) - 1, len(yaw) - 1)
-            if heading_error(float(others.yaw[i]), float(yaw[max(seg, 0)])) > WRONG_WAY:
+            line, width = self._shape(lane)
+            if heading_error(float(others.yaw[i]), float(line.heading_at(v.getLanePosition(vid)))) > WRONG_WAY:
                 out.add(vid)
             elif outside_lane(v.getLateralLanePosition(vid), width, float(others.width[i])):
                 out.add(vid)
