@@ -15,11 +15,12 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from sumo_ethics.analysis.risk import COLUMNS as RISK_COLUMNS, run_risk_file
+from sumo_ethics.analysis.risk import COLUMNS as RISK_COLUMNS, INPUTS as RISK_INPUTS, run_risk
 
 TABLES = ("runs", "collisions", "steps")
 FINISHED = ("completed", "collision", "timeout", "error")
@@ -79,7 +80,9 @@ def _run_table(folder: Path, name: str) -> pa.Table:
         raise _corrupt(folder, f"{name}.parquet", exc) from None
 
 
-def _run_row(run: dict[str, Any], folder: Path) -> dict[str, Any]:
+def _run_row(run: dict[str, Any], folder: Path, steps: pa.Table | None) -> dict[str, Any]:
+    """The runs-table row of a finished run folder; ``steps``: its steps table (for the ex-ante
+    risk summary, read once by the caller), None if it has none."""
     try:
         s = json.loads((folder / "summary.json").read_text())
         if not isinstance(s, dict):
@@ -103,7 +106,8 @@ def _run_row(run: dict[str, Any], folder: Path) -> dict[str, Any]:
         "route_length": float(s["route_length"]) if s.get("route_length") is not None else None,
         "controller": s.get("controller"), "wall_time": float(wall) if wall is not None else None,
         "path": f"runs/{run['run_id']}",
-        **run_risk_file(folder),
+        **run_risk(steps.select([c for c in RISK_INPUTS if c in steps.column_names]).to_pandas()
+                   if steps is not None else pd.DataFrame()),
     }
 
 
@@ -140,10 +144,10 @@ def build_dataset(out: Path) -> dict[str, int]:
         folder = out / "runs" / run["run_id"]
         if not (folder / "summary.json").exists():
             continue
-        run_rows.append(_run_row(run, folder))
-        for name in tables:
-            if (folder / f"{name}.parquet").exists():
-                tables[name].append(_with_params(_run_table(folder, name), run["run_id"], run["params"], psch))
+        read = {name: _run_table(folder, name) for name in tables if (folder / f"{name}.parquet").exists()}
+        run_rows.append(_run_row(run, folder, read.get("steps")))
+        for name, table in read.items():
+            tables[name].append(_with_params(table, run["run_id"], run["params"], psch))
     schema = pa.schema([RUN_COLUMNS.field("run_id"), *psch, *[f for f in RUN_COLUMNS if f.name != "run_id"]])
     built = {"runs": pa.Table.from_pylist(run_rows, schema=schema)}
     for name, parts in tables.items():

@@ -29,16 +29,17 @@ CLASSES = {"ego": ("cost_ego_risk_sum", "cost_ego_risk_max"),
            "third_party": ("cost_other_risk_sum", "cost_other_risk_max"),
            "vru": ("cost_vru_risk_sum", "cost_vru_risk_max")}
 LABELS = {"ego": "Ego", "third_party": "Third party", "vru": "VRU"}
+#: the steps.parquet columns a per-run summary is made from
+INPUTS = tuple(col for pair in CLASSES.values() for col in pair)
 COLUMNS = tuple(f"risk_{c}_{k}" for c in CLASSES for k in ("mean", "peak")) + (
     "risk_total_mean", "risk_worst_peak", "risky_share")
 
 
 def run_risk(steps: pd.DataFrame) -> dict[str, float]:
     """The per-run ex-ante risk summary (module doc) of one run's steps table."""
-    need = [c for pair in CLASSES.values() for c in pair]
-    if not set(need) <= set(steps.columns):
+    if not set(INPUTS) <= set(steps.columns):
         return {k: float("nan") for k in COLUMNS}
-    s = steps[need].dropna()
+    s = steps[list(INPUTS)].dropna()
     if s.empty:
         return {k: float("nan") for k in COLUMNS}
     out: dict[str, float] = {}
@@ -53,9 +54,8 @@ def run_risk(steps: pd.DataFrame) -> dict[str, float]:
 
 def run_risk_file(run_dir: Path) -> dict[str, float]:
     """:func:`run_risk` of ``run_dir/steps.parquet`` (NaNs when it is missing or unreadable)."""
-    cols = [c for pair in CLASSES.values() for c in pair]
     try:
-        steps = pd.read_parquet(Path(run_dir) / "steps.parquet", columns=cols)
+        steps = pd.read_parquet(Path(run_dir) / "steps.parquet", columns=list(INPUTS))
     except Exception:  # noqa: BLE001 - no planner columns, no file, a truncated file
         return {k: float("nan") for k in COLUMNS}
     return run_risk(steps)
