@@ -121,7 +121,6 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str) -> dict[str, 
             torch.set_num_threads(1)
         except ImportError:
             pass
-        from sumo_ethics.config import RunConfig
         from sumo_ethics.runner import make_controller, run
         from sumo_ethics.settings import planner_config
         from sumo_ethics.sim.hazards import HazardInjector
@@ -131,11 +130,7 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str) -> dict[str, 
         spec = load(Path(scenario_dir))
         row.update(network=spec.network, hazard=",".join(spec.hazard_types), seed=spec.seed)
         pcfg = planner_config(None, **planner.options) if planner.options is not None else None
-        cfg = RunConfig(scenario=spec.sumocfg, out=Path(out_dir), seed=spec.seed, end=spec.ego.end,
-                        ego_from=spec.ego.from_edge, ego_to=spec.ego.to_edge, ego_depart=spec.ego.depart,
-                        ego_depart_lane="best" if spec.ego.lane is None else str(spec.ego.lane),
-                        controller="baseline" if pcfg is None else "ethical", planner=pcfg, progress=False,
-                        overwrite=True)
+        cfg = spec.run_config(Path(out_dir), pcfg, overwrite=True)
         injector = HazardInjector(spec.hazards)
         try:
             summary = run(cfg, controller=HazardController(make_controller(cfg), injector))
@@ -319,6 +314,18 @@ def _stat(m: np.ndarray) -> np.ndarray:
     return np.concatenate([100.0 * np.nanmean(m[..., :1], axis=-2), np.nansum(m[..., 1:], axis=-2)], axis=-1)
 
 
+def _wilcoxon_p(d: np.ndarray) -> float:
+    """Wilcoxon signed-rank p of paired differences ``d`` (1 when all are 0, NaN when undefined)."""
+    from scipy.stats import wilcoxon
+
+    if np.allclose(d, 0.0):
+        return 1.0
+    try:
+        return float(wilcoxon(d, zero_method="zsplit").pvalue)
+    except ValueError:
+        return float("nan")
+
+
 def table(rows: list[dict[str, Any]], planners: list[str], reference: str | None = None, n_boot: int = 2000,
           seed: int = 0) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """(Table 1 rows with 95 % bootstrap CIs, paired comparison rows against ``reference``)."""
@@ -338,8 +345,6 @@ def table(rows: list[dict[str, Any]], planners: list[str], reference: str | None
         t1.append(row)
     paired = []
     if reference is not None and reference in mats:
-        from scipy.stats import wilcoxon
-
         ref = mats[reference]
         for p in planners:
             if p == reference:
@@ -350,13 +355,7 @@ def table(rows: list[dict[str, Any]], planners: list[str], reference: str | None
             val = _stat(d) if ok.any() else np.zeros(5)
             for j, k in enumerate(METRICS):
                 col = d[:, j]
-                if np.allclose(col, 0.0):
-                    pval = 1.0
-                else:
-                    try:
-                        pval = float(wilcoxon(col, zero_method="zsplit").pvalue)
-                    except ValueError:
-                        pval = float("nan")
+                pval = _wilcoxon_p(col)
                 paired.append({"planner": p, "reference": reference, "metric": k, "difference": float(val[j]),
                                "lo": float(np.percentile(bd[:, j], 2.5)), "hi": float(np.percentile(bd[:, j], 97.5)),
                                "better": int(np.sum(col > 0) if k == "completed" else np.sum(col < 0)),
@@ -421,8 +420,6 @@ def paired_risk(rows: list[dict[str, Any]], planners: list[str], reference: str,
                 seed: int = 0) -> list[dict[str, Any]]:
     """Per planner and risk metric: mean over scenarios of (planner - reference) [95 % paired
     bootstrap CI], scenarios lower / higher, Wilcoxon p (scenarios where both have a value)."""
-    from scipy.stats import wilcoxon
-
     scen = sorted({r["scenario"] for r in rows})
     idx = {sc: i for i, sc in enumerate(scen)}
     val = {p: np.full((len(scen), len(RISK_METRICS)), np.nan) for p in planners}
@@ -440,10 +437,7 @@ def paired_risk(rows: list[dict[str, Any]], planners: list[str], reference: str,
             if not len(d):
                 continue
             boot = d[rng.integers(0, len(d), size=(n_boot, len(d)))].mean(axis=1)
-            try:
-                pval = 1.0 if np.allclose(d, 0.0) else float(wilcoxon(d, zero_method="zsplit").pvalue)
-            except ValueError:
-                pval = float("nan")
+            pval = _wilcoxon_p(d)
             out.append({"planner": p, "reference": reference, "metric": m, "difference": float(d.mean()),
                         "lo": float(np.percentile(boot, 2.5)), "hi": float(np.percentile(boot, 97.5)),
                         "lower": int(np.sum(d < 0)), "higher": int(np.sum(d > 0)), "wilcoxon_p": pval,
