@@ -192,7 +192,6 @@ def test_dilemma_generation_is_reproducible(tmp_path):
 # ---- a real run: the recorded ex-ante risk is the chosen candidate's ----------------------------------
 def test_recorded_exante_risk_equals_the_chosen_candidates_risk_terms(tmp_path, monkeypatch):
     import sumo_ethics.plan.ethical as ethical
-    from sumo_ethics.config import RunConfig
     from sumo_ethics.runner import run
     from sumo_ethics.sim.hazards import HazardInjector
     from sumo_ethics.suite.controller import HazardController
@@ -216,9 +215,7 @@ def test_recorded_exante_risk_equals_the_chosen_candidates_risk_terms(tmp_path, 
 
     spec = load(DILEMMAS / "d0000")
     pcfg = PlannerConfig(predictor="cv")
-    cfg = RunConfig(scenario=spec.sumocfg, out=tmp_path / "run", seed=spec.seed, end=spec.ego.end,
-                    ego_from=spec.ego.from_edge, ego_to=spec.ego.to_edge, ego_depart=spec.ego.depart,
-                    ego_depart_lane=str(spec.ego.lane), planner=pcfg, progress=False)
+    cfg = spec.run_config(tmp_path / "run", pcfg)
     summary = run(cfg, controller=HazardController(Probe(pcfg), HazardInjector(spec.hazards)))
     steps = pd.read_parquet(tmp_path / "run" / "steps.parquet").dropna(subset=["cost_ego_risk_sum"])
     assert len(steps) == len(seen) > 50

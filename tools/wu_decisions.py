@@ -24,7 +24,6 @@ import numpy as np
 
 def _run(args: tuple[str, dict, tuple[float, ...], str]) -> dict:
     scenario_dir, options, omegas, out_dir = args
-    from sumo_ethics.config import RunConfig
     from sumo_ethics.plan.ethical import EthicalPlanner, hard_pool, select
     from sumo_ethics.runner import run
     from sumo_ethics.settings import planner_config
@@ -53,10 +52,7 @@ def _run(args: tuple[str, dict, tuple[float, ...], str]) -> dict:
 
     spec = load(Path(scenario_dir))
     pcfg = planner_config(None, **options)
-    cfg = RunConfig(scenario=spec.sumocfg, out=Path(out_dir), seed=spec.seed, end=spec.ego.end,
-                    ego_from=spec.ego.from_edge, ego_to=spec.ego.to_edge, ego_depart=spec.ego.depart,
-                    ego_depart_lane="best" if spec.ego.lane is None else str(spec.ego.lane),
-                    controller="ethical", planner=pcfg, progress=False, overwrite=True)
+    cfg = spec.run_config(Path(out_dir), pcfg, overwrite=True)
     try:
         run(cfg, controller=HazardController(Probe(pcfg), HazardInjector(spec.hazards)))
     except Exception as exc:  # noqa: BLE001 - a failed run still reports its steps

@@ -237,6 +237,18 @@ class ScenarioSpec:
         assert self.folder is not None
         return self.folder / f"{self.name}.sumocfg"
 
+    def run_config(self, out: Path, planner: Any = None, **options: Any) -> Any:
+        """The RunConfig that runs this scenario as the suite defines it: its seed, end and ego
+        route, departure and lane; the ethical planner with ``planner`` (a PlannerConfig), the
+        baseline controller when it is None; ``options``: further RunConfig fields."""
+        from sumo_ethics.config import RunConfig
+
+        return RunConfig(scenario=self.sumocfg, out=Path(out), seed=self.seed, end=self.ego.end,
+                         ego_from=self.ego.from_edge, ego_to=self.ego.to_edge, ego_depart=self.ego.depart,
+                         ego_depart_lane="best" if self.ego.lane is None else str(self.ego.lane),
+                         controller="baseline" if planner is None else "ethical", planner=planner,
+                         progress=False, **options)
+
     @property
     def hazard_types(self) -> tuple[str, ...]:
         return tuple(h.type for h in self.hazards if h.type != "parked")
