@@ -1,19 +1,25 @@
-"""Collision detection that does not miss: swept oriented boxes between steps, pair events.
+"""Collisions: detection that does not miss, one event per collision, the harm to each party.
 
 SUMO misses many collisions (pedestrians on shared lanes, sideswipes, an ego off its lane)
 and checking only at step instants misses fast crossings (SUMO.md). Between two steps every
 nearby road user and the ego are interpolated over sub-steps spaced at most ``spacing``
-metres of relative motion apart, and their boxes tested for overlap at each sub-step.
+metres of relative motion apart, and their boxes tested for overlap at each sub-step
+(:func:`swept_contacts`). :class:`CollisionBook` merges those contacts with SUMO's own reports
+(carried by the snapshot), turns them into events (:class:`PairEvents`) and books each event's
+harm per class (:func:`collision_row`); the runner calls :meth:`CollisionBook.detect` once per step.
+No simulator handles here: SUMO's side arrives in :class:`~sumo_ethics.sim.world.Snapshot`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
 
+from sumo_ethics.ethics.harm import CrashOutcome, ImpactArea, Party, crash_outcome
 from sumo_ethics.geometry import OrientedBoxes, boxes_overlap, wrap_angle
-from sumo_ethics.types import AgentStates
+from sumo_ethics.types import AgentStates, RoadUserClass
 
 #: at most this much relative motion [m] between two tested sub-steps
 SUBSTEP_SPACING = 0.2
@@ -102,3 +108,147 @@ class PairEvents:
 
     def bind(self, a: str, b: str, event_index: int) -> None:
         self._event_of[frozenset((a, b))] = event_index
+
+
+# ---- harm of a collision --------------------------------------------------------------------
+def _party(s: AgentStates, i: int) -> Party:
+    return Party(x=s.x[i], y=s.y[i], yaw=s.yaw[i], speed=s.speed[i], mass=s.mass[i], cls=s.cls[i])
+
+
+def collision_row(event: int, t: float, step: int, a: AgentStates, b: AgentStates, involves_ego: bool,
+                  detector: str, sumo_type: str) -> dict[str, Any]:
+    """One collisions.parquet row for parties a and b (1 agent each, states before impact)."""
+    out: CrashOutcome = crash_outcome(_party(a, 0), _party(b, 0))
+    harm_a, harm_b = float(out.harm_a), float(out.harm_b)
+    return {
+        "event": event, "time": t, "step": step, "involves_ego": involves_ego, "detector": detector,
+        "sumo_type": sumo_type, "id_a": a.ids[0], "id_b": b.ids[0],
+        "class_a": RoadUserClass(int(a.cls[0])).label, "class_b": RoadUserClass(int(b.cls[0])).label,
+        "type_a": a.type_id[0], "type_b": b.type_id[0],
+        "x_a": float(a.x[0]), "y_a": float(a.y[0]), "x_b": float(b.x[0]), "y_b": float(b.y[0]),
+        "speed_a": float(a.speed[0]), "speed_b": float(b.speed[0]),
+        "yaw_a": float(a.yaw[0]), "yaw_b": float(b.yaw[0]),
+        "mass_a": float(a.mass[0]), "mass_b": float(b.mass[0]),
+        "delta_v": float(out.delta_v), "dv_a": float(out.dv_a), "dv_b": float(out.dv_b),
+        "area_a": ImpactArea(int(out.area_a)).name.lower(), "area_b": ImpactArea(int(out.area_b)).name.lower(),
+        "harm_a": harm_a, "harm_b": harm_b,
+    } | booking({"harm_a": harm_a, "harm_b": harm_b, "class_b": RoadUserClass(int(b.cls[0])).label},
+                is_booked({"involves_ego": involves_ego, "detector": detector}))
+
+
+def booking(row: dict[str, Any], book: bool) -> dict[str, float]:
+    """Harm booked per class for a row: to the ego, the third party and (its share) to VRUs."""
+    vru = RoadUserClass[row["class_b"].upper()].is_vulnerable
+    return {"harm_ego": row["harm_a"] if book else 0.0, "harm_third_party": row["harm_b"] if book else 0.0,
+            "harm_vru": row["harm_b"] if book and vru else 0.0}
+
+
+def is_booked(row: dict[str, Any]) -> bool:
+    """An ego collision that counts: not a SUMO report our boxes did not confirm."""
+    return row["involves_ego"] and row["detector"] != "sumo_unconfirmed"
+
+
+def merged_detector(old: str, new: str) -> str:
+    """Detector label of an event seen first as ``old`` and again as ``new`` (a confirmed label)."""
+    seen: set[str] = set()
+    for d in (old, new):
+        seen |= {"geometry", "sumo"} if d == "both" else {d.removesuffix("_unconfirmed")}
+    return "both" if len(seen) == 2 else seen.pop()
+
+
+#: SUMO-only ego reports count when the true boxes come at least this close [m]. SUMO without
+#: the sublane model reports two cars on one lane as colliding even when they pass side by side
+#: (a car parked at the kerb): the swept box check is exact, so the tolerance is small.
+CONFIRM_TOLERANCE = 0.1
+
+
+def near_contact(a: AgentStates, b: AgentStates, tol: float = CONFIRM_TOLERANCE) -> np.ndarray:
+    """(n,) bool: the boxes of a and b, each grown by ``tol`` on every side, overlap."""
+    return boxes_overlap(OrientedBoxes(a.x, a.y, a.yaw, a.length + 2 * tol, a.width + 2 * tol),
+                         OrientedBoxes(b.x, b.y, b.yaw, b.length + 2 * tol, b.width + 2 * tol))
+
+
+def _with_speed(s: AgentStates, speed: float) -> AgentStates:
+    return AgentStates(s.ids, s.x, s.y, s.yaw, np.array([speed]), s.accel, s.length, s.width, s.mass, s.cls,
+                       s.type_id)
+
+
+
+
+#: a SUMO collision report: (collider, victim, colliderType, victimType, colliderSpeed, victimSpeed, type, lane)
+SumoReport = tuple[str, str, str, str, float, float, str, str]
+
+
+class CollisionBook:
+    """The collisions of one run. :meth:`detect` once per step; its rows go to ``sink`` (the run's
+    :class:`~sumo_ethics.record.recorder.RunRecorder`: ``collisions``, ``add_collision``,
+    ``update_collision``). ``lookup(id)`` gives the state of a party outside the ego's range."""
+
+    def __init__(self, sink: Any, gap: float, lookup: Callable[[str], AgentStates | None]) -> None:
+        self.sink = sink
+        self.events = PairEvents(gap)
+        self.lookup = lookup
+
+    def _book(self, row: dict[str, Any], a: str, b: str) -> None:
+        self.events.bind(a, b, self.sink.add_collision(row))
+
+    def first_booked(self) -> dict[str, Any] | None:
+        """The first ego collision that counts (see :func:`is_booked`), or None."""
+        return next((r for r in self.sink.collisions if is_booked(r)), None)
+
+    def detect(self, before: Any, now: Any, step: int) -> bool:
+        """Log the collisions between snapshots ``before`` and ``now`` (ego step ``step``), the
+        ego's from the swept boxes and SUMO's reports, the others' from SUMO's reports (the
+        harm from the parties' states just before impact). True if the ego had a new one."""
+        rows = self.sink.collisions
+        ego_id = now.ego.ids[0]
+        t = now.time
+        hits = swept_contacts(before.ego, now.ego, now.others, previous_of(now.others, before.others))
+        geo = {now.others.ids[i] for i in np.flatnonzero(hits)}
+        reports: dict[frozenset[str], SumoReport] = {}
+        for c in now.collisions:
+            reports.setdefault(frozenset((c[0], c[1])), c)
+        ego_new = False
+        before_index, now_index = before.others.index, now.others.index
+        sumo_ego = {next(iter(p - {ego_id})) for p in reports if ego_id in p and len(p) == 2}
+        for other in sorted(geo | sumo_ego):
+            report = reports.get(frozenset((ego_id, other)))
+            if other in geo:
+                detector = "both" if other in sumo_ego else "geometry"
+            else:  # SUMO alone: its junction check uses lane shapes, wrong for an ego moved off its lane
+                confirmed = other not in now_index or bool(near_contact(now.ego, now.others.take([now_index[other]])))
+                detector = "sumo" if confirmed else "sumo_unconfirmed"
+            is_new, idx = self.events.observe(t, ego_id, other)
+            if not is_new:
+                row = rows[idx] if idx is not None else None
+                if row is not None and row["detector"] != detector and detector != "sumo_unconfirmed":
+                    if not is_booked(row):  # confirmed later: book it now
+                        self.sink.update_collision(idx, **booking(row, True))
+                        ego_new = True
+                    self.sink.update_collision(idx, detector=merged_detector(row["detector"], detector))
+                    if report and not row["sumo_type"]:
+                        self.sink.update_collision(idx, sumo_type=report[6])
+                continue
+            if other in before_index:  # states just before impact
+                b = before.others.take([before_index[other]])
+            elif other in now_index:
+                b = now.others.take([now_index[other]])
+            else:
+                b = self.lookup(other)
+                if b is None:
+                    continue
+            row = collision_row(len(rows), t, step, before.ego, b, True, detector, report[6] if report else "")
+            self._book(row, ego_id, other)
+            ego_new = ego_new or detector != "sumo_unconfirmed"
+        for pair, c in sorted(reports.items(), key=lambda kv: sorted(kv[0])):
+            if ego_id in pair or len(pair) != 2:
+                continue
+            is_new, _ = self.events.observe(t, c[0], c[1])
+            if not is_new:
+                continue
+            a, b = self.lookup(c[0]), self.lookup(c[1])
+            if a is None or b is None:
+                continue
+            a, b = _with_speed(a, c[4]), _with_speed(b, c[5])
+            self._book(collision_row(len(rows), t, step, a, b, False, "sumo", c[6]), c[0], c[1])
+        return ego_new

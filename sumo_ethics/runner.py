@@ -15,31 +15,25 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-import libsumo
 import numpy as np
 
 from sumo_ethics import __version__
-from sumo_ethics.collision import PairEvents, previous_of, swept_contacts
+from sumo_ethics.collision import CollisionBook, is_booked
 from sumo_ethics.interrupt import sigterm_as_interrupt, sigterm_deferred
-from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
-from sumo_ethics.config import EgoVehicle, RunConfig
+from sumo_ethics.config import RunConfig
 from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEthicsError, Terminated
-from sumo_ethics.ethics.harm import CrashOutcome, ImpactArea, Party, crash_outcome
 from sumo_ethics.plan.controller import Controller, Scene
 from sumo_ethics.plan.history import History
 from sumo_ethics.record.recorder import RunRecorder
 from sumo_ethics.record.writer import PARTIAL, chunk_steps, write_json
 from sumo_ethics.sim import preflight, scenario as scenario_files, session
+from sumo_ethics.sim.ego import start_ego
 from sumo_ethics.sim.rules import RuleMonitor
-from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld, party_state, sumo_collisions
-from sumo_ethics.types import VULNERABLE, AgentStates, RoadUserClass, RunStatus
+from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld
+from sumo_ethics.types import VULNERABLE, RunStatus
 
 #: called every ego step with (snapshot, world) before the controller acts
 StepHook = Callable[[Snapshot, SumoWorld], None]
-
-EGO_TYPE = "sumo_ethics_ego"
-EGO_ROUTE = "sumo_ethics_ego_route"
-INSERT_PATIENCE = 120.0  # s of simulation time to wait for the ego's insertion
 
 
 @dataclass(frozen=True)
@@ -117,178 +111,6 @@ def resolved_end(cfg: RunConfig, files: session.ScenarioFiles) -> float:
     return scenario_files.plan(files.config, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id).end
 
 
-# ---- ego selection ----------------------------------------------------------------------------
-def _step_until(pred: Callable[[], bool], limit: float) -> bool:
-    while libsumo.simulation.getTime() < limit:
-        libsumo.simulationStep()
-        if pred():
-            return True
-    return False
-
-
-def wait_for_vehicle(ego_id: str, end: float) -> None:
-    """Step until ``ego_id`` departs; ConfigError if it never does before ``end``."""
-    if ego_id in libsumo.vehicle.getIDList():
-        return
-    while libsumo.simulation.getTime() < end:
-        libsumo.simulationStep()
-        if ego_id in libsumo.simulation.getDepartedIDList():
-            return
-        if libsumo.simulation.getMinExpectedNumber() == 0:
-            break
-    raise ConfigError(f"vehicle '{ego_id}' never departed (simulated until t={libsumo.simulation.getTime():g} s)")
-
-
-def check_ego_vehicle(ego_id: str) -> None:
-    """ConfigError for a taken-over vehicle the planner does not model: not a motor road
-    vehicle (a bicycle, tram, train), or one with stops or a taxi device (it would have to serve them)."""
-    v = libsumo.vehicle
-    scenario_files.check_ego_class(ego_id, v.getVehicleClass(ego_id))
-    try:
-        v.getParameter(ego_id, "device.taxi.state")
-        scenario_files.refuse_stops(ego_id, "is a taxi")
-    except libsumo.TraCIException:
-        pass
-    if v.getStops(ego_id):
-        scenario_files.refuse_stops(ego_id)
-
-
-def _usable_edges() -> list[str]:
-    """Non-internal edges with at least one lane a passenger car may use."""
-    from sumo_ethics.sim.route import lane_allows
-
-    return sorted(e for e in libsumo.edge.getIDList() if not e.startswith(":") and any(
-        lane_allows(f"{e}_{i}", "passenger") for i in range(libsumo.edge.getLaneNumber(e))))
-
-
-def find_ego_route(cfg: RunConfig) -> tuple[str, ...]:
-    """Edges for the inserted ego: --ego-from/--ego-to, else a seeded random route."""
-    known = set(libsumo.edge.getIDList())
-    if cfg.ego_from is not None:
-        for e in (cfg.ego_from, cfg.ego_to):
-            if e not in known:
-                raise ConfigError(f"unknown edge '{e}' in --ego-from/--ego-to")
-        stage = libsumo.simulation.findRoute(cfg.ego_from, cfg.ego_to, vType=EGO_TYPE)
-        if not stage.edges:
-            raise ConfigError(f"no route from edge '{cfg.ego_from}' to edge '{cfg.ego_to}'")
-        return tuple(stage.edges)
-    edges = _usable_edges()
-    if len(edges) < 1:
-        raise ConfigError("the network has no edge a passenger car may use")
-    rng = np.random.default_rng(cfg.seed)
-    best: tuple[float, tuple[str, ...]] = (0.0, ())
-    for _ in range(300):
-        a, b = rng.choice(len(edges), size=2)
-        stage = libsumo.simulation.findRoute(edges[a], edges[b], vType=EGO_TYPE)
-        if stage.edges and stage.length > best[0]:
-            best = (stage.length, tuple(stage.edges))
-            if stage.length >= cfg.min_route_length:
-                break
-    if not best[1]:
-        raise ConfigError("found no route for the ego on this network; give --ego-from and --ego-to")
-    return best[1]
-
-
-def ego_limits(ego_id: str, car: EgoVehicle) -> EgoVehicle:
-    """The limits the planner drives a taken-over vehicle with: a car's (``car``), but for a
-    truck, bus or motorcycle its own size and no more than its vType's top speed,
-    acceleration and decelerations."""
-    v, vt = libsumo.vehicle, libsumo.vehicletype
-    if RoadUserClass.from_vclass(v.getVehicleClass(ego_id)) is RoadUserClass.CAR:
-        return car
-    t = v.getTypeID(ego_id)
-    return replace(car, length=v.getLength(ego_id), width=v.getWidth(ego_id),
-                   max_speed=min(car.max_speed, v.getMaxSpeed(ego_id)), max_accel=min(car.max_accel, vt.getAccel(t)),
-                   comfort_decel=min(car.comfort_decel, vt.getDecel(t)),
-                   max_decel=min(car.max_decel, vt.getEmergencyDecel(t)))
-
-
-def insert_ego(cfg: RunConfig, ego_id: str, depart: float) -> tuple[str, ...]:
-    """Define the ego's vType, wait until ``depart`` [s], insert it, step until it departs."""
-    vt = libsumo.vehicletype
-    vt.copy("DEFAULT_VEHTYPE", EGO_TYPE)
-    vt.setVehicleClass(EGO_TYPE, "passenger")
-    vt.setLength(EGO_TYPE, cfg.ego.length)
-    vt.setWidth(EGO_TYPE, cfg.ego.width)
-    vt.setMass(EGO_TYPE, cfg.ego.mass)
-    vt.setMaxSpeed(EGO_TYPE, cfg.ego.max_speed)
-    vt.setAccel(EGO_TYPE, cfg.ego.max_accel)
-    vt.setDecel(EGO_TYPE, cfg.ego.comfort_decel)
-    vt.setEmergencyDecel(EGO_TYPE, cfg.ego.max_decel)
-    edges = find_ego_route(cfg)
-    _step_until(lambda: False, depart)
-    libsumo.route.add(EGO_ROUTE, list(edges))
-    libsumo.vehicle.add(ego_id, EGO_ROUTE, typeID=EGO_TYPE, depart="now", departLane=cfg.ego_depart_lane,
-                       departSpeed="max")
-    limit = libsumo.simulation.getTime() + INSERT_PATIENCE
-    if not _step_until(lambda: ego_id in libsumo.simulation.getDepartedIDList(), limit):
-        raise SimulationError(f"the ego could not be inserted on edge '{edges[0]}' within {INSERT_PATIENCE:g} s")
-    return edges
-
-
-# ---- harm of a collision --------------------------------------------------------------------
-def _party(s: AgentStates, i: int) -> Party:
-    return Party(x=s.x[i], y=s.y[i], yaw=s.yaw[i], speed=s.speed[i], mass=s.mass[i], cls=s.cls[i])
-
-
-def collision_row(event: int, t: float, step: int, a: AgentStates, b: AgentStates, involves_ego: bool,
-                  detector: str, sumo_type: str) -> dict[str, Any]:
-    """One collisions.parquet row for parties a and b (1 agent each, states before impact)."""
-    out: CrashOutcome = crash_outcome(_party(a, 0), _party(b, 0))
-    harm_a, harm_b = float(out.harm_a), float(out.harm_b)
-    return {
-        "event": event, "time": t, "step": step, "involves_ego": involves_ego, "detector": detector,
-        "sumo_type": sumo_type, "id_a": a.ids[0], "id_b": b.ids[0],
-        "class_a": RoadUserClass(int(a.cls[0])).label, "class_b": RoadUserClass(int(b.cls[0])).label,
-        "type_a": a.type_id[0], "type_b": b.type_id[0],
-        "x_a": float(a.x[0]), "y_a": float(a.y[0]), "x_b": float(b.x[0]), "y_b": float(b.y[0]),
-        "speed_a": float(a.speed[0]), "speed_b": float(b.speed[0]),
-        "yaw_a": float(a.yaw[0]), "yaw_b": float(b.yaw[0]),
-        "mass_a": float(a.mass[0]), "mass_b": float(b.mass[0]),
-        "delta_v": float(out.delta_v), "dv_a": float(out.dv_a), "dv_b": float(out.dv_b),
-        "area_a": ImpactArea(int(out.area_a)).name.lower(), "area_b": ImpactArea(int(out.area_b)).name.lower(),
-        "harm_a": harm_a, "harm_b": harm_b,
-    } | booking({"harm_a": harm_a, "harm_b": harm_b, "class_b": RoadUserClass(int(b.cls[0])).label},
-                is_booked({"involves_ego": involves_ego, "detector": detector}))
-
-
-def booking(row: dict[str, Any], book: bool) -> dict[str, float]:
-    """Harm booked per class for a row: to the ego, the third party and (its share) to VRUs."""
-    vru = RoadUserClass[row["class_b"].upper()].is_vulnerable
-    return {"harm_ego": row["harm_a"] if book else 0.0, "harm_third_party": row["harm_b"] if book else 0.0,
-            "harm_vru": row["harm_b"] if book and vru else 0.0}
-
-
-def is_booked(row: dict[str, Any]) -> bool:
-    """An ego collision that counts: not a SUMO report our boxes did not confirm."""
-    return row["involves_ego"] and row["detector"] != "sumo_unconfirmed"
-
-
-def merged_detector(old: str, new: str) -> str:
-    """Detector label of an event seen first as ``old`` and again as ``new`` (a confirmed label)."""
-    seen: set[str] = set()
-    for d in (old, new):
-        seen |= {"geometry", "sumo"} if d == "both" else {d.removesuffix("_unconfirmed")}
-    return "both" if len(seen) == 2 else seen.pop()
-
-
-#: SUMO-only ego reports count when the true boxes come at least this close [m]. SUMO without
-#: the sublane model reports two cars on one lane as colliding even when they pass side by side
-#: (a car parked at the kerb): the swept box check is exact, so the tolerance is small.
-CONFIRM_TOLERANCE = 0.1
-
-
-def near_contact(a: AgentStates, b: AgentStates, tol: float = CONFIRM_TOLERANCE) -> np.ndarray:
-    """(n,) bool: the boxes of a and b, each grown by ``tol`` on every side, overlap."""
-    return boxes_overlap(OrientedBoxes(a.x, a.y, a.yaw, a.length + 2 * tol, a.width + 2 * tol),
-                         OrientedBoxes(b.x, b.y, b.yaw, b.length + 2 * tol, b.width + 2 * tol))
-
-
-def _with_speed(s: AgentStates, speed: float) -> AgentStates:
-    return AgentStates(s.ids, s.x, s.y, s.yaw, np.array([speed]), s.accel, s.length, s.width, s.mass, s.cls,
-                       s.type_id)
-
-
 # ---- the run ----------------------------------------------------------------------------------
 class Run:
     """State of one run; :meth:`execute` is the loop."""
@@ -298,7 +120,6 @@ class Run:
         self.controller = controller
         self.hooks = hooks
         self.rec = RunRecorder(cfg.out)
-        self.events = PairEvents(cfg.collision_gap)
         self.status = RunStatus.ERROR
         self.message = ""
         self.written: list[str] = []  # files of the run folder this run wrote (removed on bad input)
@@ -307,65 +128,6 @@ class Run:
         self.meta: dict[str, Any] = {}
         self.step = 0
         self.t_start = wallclock.perf_counter()
-
-    # -- collisions --
-    def _book(self, row: dict[str, Any], a: str, b: str) -> None:
-        self.events.bind(a, b, self.rec.add_collision(row))
-
-    def detect(self, before: Snapshot, now: Snapshot) -> bool:
-        """Log this step's collisions; True if the ego had a new one."""
-        ego_id = now.ego.ids[0]
-        t = now.time
-        hits = swept_contacts(before.ego, now.ego, now.others, previous_of(now.others, before.others))
-        geo = {now.others.ids[i] for i in np.flatnonzero(hits)}
-        reports = {}
-        for c in sumo_collisions():
-            reports.setdefault(frozenset((c[0], c[1])), c)
-        ego_new = False
-        before_index, now_index = before.others.index, now.others.index
-        sumo_ego = {next(iter(p - {ego_id})) for p in reports if ego_id in p and len(p) == 2}
-        for other in sorted(geo | sumo_ego):
-            report = reports.get(frozenset((ego_id, other)))
-            if other in geo:
-                detector = "both" if other in sumo_ego else "geometry"
-            else:  # SUMO alone: its junction check uses lane shapes, wrong for an ego moved off its lane
-                confirmed = other not in now_index or bool(near_contact(now.ego, now.others.take([now_index[other]])))
-                detector = "sumo" if confirmed else "sumo_unconfirmed"
-            is_new, idx = self.events.observe(t, ego_id, other)
-            if not is_new:
-                row = self.rec.collisions[idx] if idx is not None else None
-                if row is not None and row["detector"] != detector and detector != "sumo_unconfirmed":
-                    if not is_booked(row):  # confirmed later: book it now
-                        self.rec.update_collision(idx, **booking(row, True))
-                        ego_new = True
-                    self.rec.update_collision(idx, detector=merged_detector(row["detector"], detector))
-                    if report and not row["sumo_type"]:
-                        self.rec.update_collision(idx, sumo_type=report[6])
-                continue
-            if other in before_index:  # states just before impact
-                b = before.others.take([before_index[other]])
-            elif other in now_index:
-                b = now.others.take([now_index[other]])
-            else:
-                b = party_state(other, self.world)
-                if b is None:
-                    continue
-            row = collision_row(len(self.rec.collisions), t, self.step, before.ego, b, True, detector,
-                                report[6] if report else "")
-            self._book(row, ego_id, other)
-            ego_new = ego_new or detector != "sumo_unconfirmed"
-        for pair, c in sorted(reports.items(), key=lambda kv: sorted(kv[0])):
-            if ego_id in pair or len(pair) != 2:
-                continue
-            is_new, _ = self.events.observe(t, c[0], c[1])
-            if not is_new:
-                continue
-            a, b = party_state(c[0], self.world), party_state(c[1], self.world)
-            if a is None or b is None:
-                continue
-            a, b = _with_speed(a, c[4]), _with_speed(b, c[5])
-            self._book(collision_row(len(self.rec.collisions), t, self.step, a, b, False, "sumo", c[6]), c[0], c[1])
-        return ego_new
 
     def stop_line(self, s_front: float) -> float | None:
         """Arc length of the next red/yellow stop line within 100 m ahead of the ego's front."""
@@ -411,32 +173,27 @@ class Run:
         self.meta["sumo_version"] = session.version()
         try:
             self._loop(ego_id, end, plan.ego_depart)
-        except (libsumo.TraCIException, libsumo.FatalTraCIError) as exc:
+        except session.SUMO_ERRORS as exc:
             raise SimulationError(f"SUMO failed at t={self.meta.get('last_time', 0):g} s: "
                                   f"{session.first_line(exc, cfg.out / 'sumo-errors.log')}") from None
         finally:
             session.close()
 
     def _loop(self, ego_id: str, end: float, depart: float) -> None:
-        cfg = self.cfg
-        dt = libsumo.simulation.getDeltaT()
+        dt = session.step_length()
         self.rec.chunk = chunk_steps(dt)
-        if cfg.ego_id is not None:
-            wait_for_vehicle(ego_id, end)
-            check_ego_vehicle(ego_id)
-            self.cfg = cfg = replace(cfg, ego=ego_limits(ego_id, cfg.ego))
-            edges = tuple(libsumo.vehicle.getRoute(ego_id))
-        else:
-            edges = insert_ego(cfg, ego_id, depart)
+        ego, edges = start_ego(self.cfg, ego_id, end, depart)
+        self.cfg = cfg = replace(self.cfg, ego=ego)
         self.world = world = SumoWorld(ego_id, cfg.sensing_radius)
         route = world.takeover()
         self.meta.update(step_length=dt, ego_limits=asdict(cfg.ego), route_edges=list(edges), route_length=route.length,
-                         takeover_time=libsumo.simulation.getTime(), controller=self.controller.name,
+                         takeover_time=session.sim_time(), controller=self.controller.name,
                          takeover_wall=wallclock.perf_counter() - self.t_start)
-        libsumo.simulationStep()  # subscription results arrive with the next step
-        snap = world.read(libsumo.simulation.getTime())
+        world.step()  # subscription results arrive with the next step
+        snap = world.read()
         if snap is None:
             raise SimulationError(f"the ego '{ego_id}' left the simulation right after the takeover")
+        collisions = CollisionBook(self.rec, cfg.collision_gap, world.party_state)
         half = float(snap.ego.length[0]) / 2
         s, d = route.path.project_point(float(snap.ego.x[0]), float(snap.ego.y[0]))
         progress = _progress(cfg.progress, snap.time, end)
@@ -452,6 +209,7 @@ class Run:
                 w0 = wallclock.perf_counter()
                 for hook in self.hooks:  # e.g. hazards injected relative to the ego
                     hook(snap, world)
+                # read
                 obs = None
                 if history is not None:
                     history.push(snap.others)
@@ -459,13 +217,14 @@ class Run:
                 scene = Scene(time=t, dt=dt, ego=snap.ego, others=snap.others, route=route, s=s, d=d,
                               stop_s=self.stop_line(s + half), vehicle=cfg.ego, history=obs,
                               rule_breakers=rules.breakers(snap.others) if rules is not None else frozenset())
+                # act
                 decision = self.controller.act(scene)
                 w1 = wallclock.perf_counter()
-                world.apply(decision.command)
-                libsumo.simulationStep()
+                # step
+                world.step(decision.command)
                 w2 = wallclock.perf_counter()
                 self.step += 1
-                new = world.read(libsumo.simulation.getTime())
+                new = world.read()
                 if new is None:
                     # SUMO removes a vehicle that passes its route's end: within one step of travel
                     # of our goal that is arrival, anywhere else a failure
@@ -476,8 +235,10 @@ class Run:
                     raise SimulationError(f"the ego '{world.ego_id}' left the simulation at t={t + dt:g} s "
                                           f"{route.length - s - half:.1f} m before its goal")
                 w3 = wallclock.perf_counter()
-                ego_hit = self.detect(snap, new)
+                # detect
+                ego_hit = collisions.detect(snap, new, self.step)
                 w4 = wallclock.perf_counter()
+                # record
                 s, d = route.path.project_point(float(new.ego.x[0]), float(new.ego.y[0]),
                                                 near=(s - 5.0, s + 5.0 + 50.0 * dt))
                 row, timing = self._rows(new, snap, decision, s, d, dt, (w1 - w0, w2 - w1, w3 - w2, w4 - w3),
@@ -488,7 +249,7 @@ class Run:
                 if progress is not None and self.step % 50 == 0:
                     progress[0].update(progress[1], completed=min(snap.time, end))
                 if ego_hit and cfg.stop_at_collision:
-                    first = next(r for r in self.rec.collisions if is_booked(r))
+                    first = collisions.first_booked()
                     self.status = RunStatus.COLLISION
                     self.message = f"ego collided with {first['class_b']} '{first['id_b']}' at t={first['time']:g} s"
                     return

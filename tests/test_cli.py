@@ -158,7 +158,7 @@ def test_settings_keep_the_planners_default_grid():
 
 
 def test_detector_labels_merge():
-    from sumo_ethics.runner import merged_detector
+    from sumo_ethics.collision import merged_detector
 
     assert merged_detector("geometry", "sumo") == merged_detector("sumo", "geometry") == "both"
     assert merged_detector("sumo_unconfirmed", "sumo") == "sumo"  # confirmed by SUMO alone later

@@ -28,7 +28,8 @@ import pandas as pd
 from libsumo import constants as tc
 
 from sumo_ethics.config import RunConfig
-from sumo_ethics.runner import insert_ego, run
+from sumo_ethics.runner import run
+from sumo_ethics.sim.ego import insert_ego
 from sumo_ethics.sim import session
 from sumo_ethics.sim.frames import centre_to_front
 from sumo_ethics.sim.world import _PER_VARS, _VEH_VARS

@@ -96,6 +96,20 @@ def _first_error(text: str) -> str:
     return ""
 
 
+#: what libsumo raises when SUMO fails during a run
+SUMO_ERRORS = (libsumo.TraCIException, libsumo.FatalTraCIError)
+
+
+def step_length() -> float:
+    """The running simulation's step length [s]."""
+    return libsumo.simulation.getDeltaT()
+
+
+def sim_time() -> float:
+    """The running simulation's time [s]."""
+    return libsumo.simulation.getTime()
+
+
 def close() -> None:
     try:
         libsumo.close()

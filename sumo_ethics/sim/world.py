@@ -46,11 +46,13 @@ class TypeInfo:
 
 @dataclass(frozen=True)
 class Snapshot:
-    """The scene at one instant: ego (1 agent) and neighbours within the sensing radius."""
+    """The scene at one instant: ego (1 agent) and neighbours within the sensing radius;
+    collisions: SUMO's collision reports of the step that led here (see :func:`sumo_collisions`)."""
 
     time: float
     ego: AgentStates
     others: AgentStates
+    collisions: tuple[tuple[str, str, str, str, float, float, str, str], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -116,7 +118,7 @@ class SumoWorld:
         return self.route
 
     # ---- reading -----------------------------------------------------------------------
-    def read(self, time: float) -> Snapshot | None:
+    def read(self) -> Snapshot | None:
         """The scene now; None once the ego is no longer in the simulation."""
         res = libsumo.vehicle.getContextSubscriptionResults(self.ego_id)
         if self.ego_id not in res:
@@ -124,7 +126,17 @@ class SumoWorld:
             if res is None:
                 return None
         ego, others = self._states([self.ego_id] + sorted(k for k in res if k != self.ego_id), res)
-        return Snapshot(time, ego, others)
+        return Snapshot(libsumo.simulation.getTime(), ego, others, tuple(sumo_collisions()))
+
+    def step(self, cmd: EgoCommand | None = None) -> None:
+        """Apply ``cmd`` (if any) and advance SUMO one step (then :meth:`read` the scene)."""
+        if cmd is not None:
+            self.apply(cmd)
+        libsumo.simulationStep()
+
+    def party_state(self, agent_id: str) -> AgentStates | None:
+        """Full state of any vehicle or person by id (None if it is not in the simulation)."""
+        return party_state(agent_id, self)
 
     def _read_off_network(self) -> dict | None:
         """Context subscriptions return nothing while the ego is off every lane (moved there by

@@ -1,0 +1,137 @@
+"""Choosing and inserting the ego: a vehicle of the scenario taken over, or one inserted on a
+seeded random route (or --ego-from/--ego-to), and the limits the planner drives it with."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Callable
+
+import libsumo
+import numpy as np
+
+from sumo_ethics.config import EgoVehicle, RunConfig
+from sumo_ethics.errors import ConfigError, SimulationError
+from sumo_ethics.sim import scenario as scenario_files
+from sumo_ethics.sim.route import lane_allows
+from sumo_ethics.types import RoadUserClass
+
+EGO_TYPE = "sumo_ethics_ego"
+EGO_ROUTE = "sumo_ethics_ego_route"
+INSERT_PATIENCE = 120.0  # s of simulation time to wait for the ego's insertion
+
+
+def _step_until(pred: Callable[[], bool], limit: float) -> bool:
+    while libsumo.simulation.getTime() < limit:
+        libsumo.simulationStep()
+        if pred():
+            return True
+    return False
+
+
+def wait_for_vehicle(ego_id: str, end: float) -> None:
+    """Step until ``ego_id`` departs; ConfigError if it never does before ``end``."""
+    if ego_id in libsumo.vehicle.getIDList():
+        return
+    while libsumo.simulation.getTime() < end:
+        libsumo.simulationStep()
+        if ego_id in libsumo.simulation.getDepartedIDList():
+            return
+        if libsumo.simulation.getMinExpectedNumber() == 0:
+            break
+    raise ConfigError(f"vehicle '{ego_id}' never departed (simulated until t={libsumo.simulation.getTime():g} s)")
+
+
+def check_ego_vehicle(ego_id: str) -> None:
+    """ConfigError for a taken-over vehicle the planner does not model: not a motor road
+    vehicle (a bicycle, tram, train), or one with stops or a taxi device (it would have to serve them)."""
+    v = libsumo.vehicle
+    scenario_files.check_ego_class(ego_id, v.getVehicleClass(ego_id))
+    try:
+        v.getParameter(ego_id, "device.taxi.state")
+        scenario_files.refuse_stops(ego_id, "is a taxi")
+    except libsumo.TraCIException:
+        pass
+    if v.getStops(ego_id):
+        scenario_files.refuse_stops(ego_id)
+
+
+def _usable_edges() -> list[str]:
+    """Non-internal edges with at least one lane a passenger car may use."""
+    return sorted(e for e in libsumo.edge.getIDList() if not e.startswith(":") and any(
+        lane_allows(f"{e}_{i}", "passenger") for i in range(libsumo.edge.getLaneNumber(e))))
+
+
+def find_ego_route(cfg: RunConfig) -> tuple[str, ...]:
+    """Edges for the inserted ego: --ego-from/--ego-to, else a seeded random route."""
+    known = set(libsumo.edge.getIDList())
+    if cfg.ego_from is not None:
+        for e in (cfg.ego_from, cfg.ego_to):
+            if e not in known:
+                raise ConfigError(f"unknown edge '{e}' in --ego-from/--ego-to")
+        stage = libsumo.simulation.findRoute(cfg.ego_from, cfg.ego_to, vType=EGO_TYPE)
+        if not stage.edges:
+            raise ConfigError(f"no route from edge '{cfg.ego_from}' to edge '{cfg.ego_to}'")
+        return tuple(stage.edges)
+    edges = _usable_edges()
+    if len(edges) < 1:
+        raise ConfigError("the network has no edge a passenger car may use")
+    rng = np.random.default_rng(cfg.seed)
+    best: tuple[float, tuple[str, ...]] = (0.0, ())
+    for _ in range(300):
+        a, b = rng.choice(len(edges), size=2)
+        stage = libsumo.simulation.findRoute(edges[a], edges[b], vType=EGO_TYPE)
+        if stage.edges and stage.length > best[0]:
+            best = (stage.length, tuple(stage.edges))
+            if stage.length >= cfg.min_route_length:
+                break
+    if not best[1]:
+        raise ConfigError("found no route for the ego on this network; give --ego-from and --ego-to")
+    return best[1]
+
+
+def ego_limits(ego_id: str, car: EgoVehicle) -> EgoVehicle:
+    """The limits the planner drives a taken-over vehicle with: a car's (``car``), but for a
+    truck, bus or motorcycle its own size and no more than its vType's top speed,
+    acceleration and decelerations."""
+    v, vt = libsumo.vehicle, libsumo.vehicletype
+    if RoadUserClass.from_vclass(v.getVehicleClass(ego_id)) is RoadUserClass.CAR:
+        return car
+    t = v.getTypeID(ego_id)
+    return replace(car, length=v.getLength(ego_id), width=v.getWidth(ego_id),
+                   max_speed=min(car.max_speed, v.getMaxSpeed(ego_id)), max_accel=min(car.max_accel, vt.getAccel(t)),
+                   comfort_decel=min(car.comfort_decel, vt.getDecel(t)),
+                   max_decel=min(car.max_decel, vt.getEmergencyDecel(t)))
+
+
+def insert_ego(cfg: RunConfig, ego_id: str, depart: float) -> tuple[str, ...]:
+    """Define the ego's vType, wait until ``depart`` [s], insert it, step until it departs."""
+    vt = libsumo.vehicletype
+    vt.copy("DEFAULT_VEHTYPE", EGO_TYPE)
+    vt.setVehicleClass(EGO_TYPE, "passenger")
+    vt.setLength(EGO_TYPE, cfg.ego.length)
+    vt.setWidth(EGO_TYPE, cfg.ego.width)
+    vt.setMass(EGO_TYPE, cfg.ego.mass)
+    vt.setMaxSpeed(EGO_TYPE, cfg.ego.max_speed)
+    vt.setAccel(EGO_TYPE, cfg.ego.max_accel)
+    vt.setDecel(EGO_TYPE, cfg.ego.comfort_decel)
+    vt.setEmergencyDecel(EGO_TYPE, cfg.ego.max_decel)
+    edges = find_ego_route(cfg)
+    _step_until(lambda: False, depart)
+    libsumo.route.add(EGO_ROUTE, list(edges))
+    libsumo.vehicle.add(ego_id, EGO_ROUTE, typeID=EGO_TYPE, depart="now", departLane=cfg.ego_depart_lane,
+                       departSpeed="max")
+    limit = libsumo.simulation.getTime() + INSERT_PATIENCE
+    if not _step_until(lambda: ego_id in libsumo.simulation.getDepartedIDList(), limit):
+        raise SimulationError(f"the ego could not be inserted on edge '{edges[0]}' within {INSERT_PATIENCE:g} s")
+    return edges
+
+
+def start_ego(cfg: RunConfig, ego_id: str, end: float, depart: float) -> tuple[EgoVehicle, tuple[str, ...]]:
+    """Bring the ego into the simulation: wait for the scenario's vehicle ``cfg.ego_id`` (checked
+    and driven within its own limits), else insert one at ``depart`` [s]. Returns the limits the
+    planner drives it with and its route's edges."""
+    if cfg.ego_id is not None:
+        wait_for_vehicle(ego_id, end)
+        check_ego_vehicle(ego_id)
+        return ego_limits(ego_id, cfg.ego), tuple(libsumo.vehicle.getRoute(ego_id))
+    return cfg.ego, insert_ego(cfg, ego_id, depart)
