@@ -73,12 +73,16 @@ def cli() -> None:
 @click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")
 @click.option("--radius", type=float, default=80.0, show_default=True, help="Sensing radius around the ego [m].")
 @click.option("--overwrite", is_flag=True, help="Replace the outputs of an earlier run in --out (refused otherwise).")
+@click.option("--record-decisions", type=click.Choice(["off", "collisions", "risky", "all"]), default="off",
+              show_default=True, help="Keep what the planner weighed, for 'explain' and 'replay': every step, the "
+              "steps with any risk and the 5 s before each ego collision, only those 5 s, or nothing but the last step "
+              "before each ego collision.")
 @click.option("--quiet", is_flag=True, help="No progress display.")
 def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float | None,
         seed: int, end: float | None, step_length: float | None, sumo_arg: tuple[str, ...], out: Path | None,
         controller: str, omega_u: float | None, omega_o: float | None, weights: str | None, selection: str | None,
         utility: str | None, predictor: str | None, predictor_weights: Path | None, config_file: Path | None,
-        continue_after_collision: bool, radius: float, overwrite: bool, quiet: bool) -> None:
+        continue_after_collision: bool, radius: float, overwrite: bool, record_decisions: str, quiet: bool) -> None:
     """Run SCENARIO (a .sumocfg) with one vehicle taken over by the ego controller."""
     from dataclasses import replace
 
@@ -90,7 +94,7 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
     cfg = RunConfig(scenario=scenario, out=out, seed=seed, end=end, ego_id=ego_id, ego_from=ego_from, ego_to=ego_to,
                     ego_depart=ego_depart, stop_at_collision=not continue_after_collision, controller=controller,
                     sensing_radius=radius, progress=not quiet, overwrite=overwrite, step_length=step_length,
-                    sumo_args=scenario_files.parse_sumo_args(sumo_arg))
+                    sumo_args=scenario_files.parse_sumo_args(sumo_arg), record_decisions=record_decisions)
     scenario_files.plan(cfg.scenario, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id,
                         tuple(e for e in (ego_from, ego_to) if e is not None))
     scenario_files.check_out(out)

@@ -65,8 +65,13 @@ class RunConfig:
     progress: bool = True
     overwrite: bool = False  # replace the outputs of an earlier run in ``out`` (refused otherwise)
     planner: Any = None  # sumo_ethics.plan.ethical.PlannerConfig for the "ethical" controller (None: defaults)
+    record_decisions: str = "off"  # off | collisions | risky | all (sumo_ethics.record.decisions)
 
     def __post_init__(self) -> None:
+        from sumo_ethics.record.decisions import MODES
+
+        if self.record_decisions not in MODES:
+            raise ConfigError(f"--record-decisions must be one of {', '.join(MODES)}, got {self.record_decisions!r}")
         object.__setattr__(self, "scenario", Path(self.scenario))
         object.__setattr__(self, "out", Path(self.out))
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed < 2**31:

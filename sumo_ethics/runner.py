@@ -25,7 +25,8 @@ from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEt
 from sumo_ethics.plan.controller import Controller, Scene
 from sumo_ethics.plan.history import History
 from sumo_ethics.record.recorder import RunRecorder
-from sumo_ethics.record.writer import PARTIAL, chunk_steps, write_json
+from sumo_ethics.record.decisions import FOLDER as DECISIONS, SNAPSHOTS
+from sumo_ethics.record.writer import PARTIAL, write_json
 from sumo_ethics.sim import preflight, scenario as scenario_files, session
 from sumo_ethics.sim.ego import start_ego
 from sumo_ethics.sim.rules import RuleMonitor
@@ -46,7 +47,7 @@ class RunSummary:
 
 #: every file or folder a run writes into its --out folder
 OUTPUT_NAMES = ("summary.json", "config.json", "steps.parquet", "timings.parquet", "collisions.parquet",
-                "sumo-errors.log", "sumo-outputs", PARTIAL)
+                "sumo-errors.log", "sumo-outputs", PARTIAL, DECISIONS, SNAPSHOTS)
 
 
 def prepare_out(out: Path, overwrite: bool = False) -> tuple[bool, Path | None]:
@@ -181,7 +182,7 @@ class Run:
 
     def _loop(self, ego_id: str, end: float, depart: float) -> None:
         dt = session.step_length()
-        self.rec.chunk = chunk_steps(dt)
+        self.rec.start(dt, self.cfg.record_decisions)
         ego, edges = start_ego(self.cfg, ego_id, end, depart)
         self.cfg = cfg = replace(self.cfg, ego=ego)
         self.world = world = SumoWorld(ego_id, cfg.sensing_radius)
@@ -244,7 +245,8 @@ class Run:
                 row, timing = self._rows(new, snap, decision, s, d, dt, (w1 - w0, w2 - w1, w3 - w2, w4 - w3),
                                          scene.stop_s)
                 timing["record_ms"] = 1e3 * (wallclock.perf_counter() - w4)
-                self.rec.step(row, timing)  # flushes a chunk every CHUNK_SECONDS of simulated time
+                # flushes a chunk every CHUNK_SECONDS of simulated time; keeps the decision by mode
+                self.rec.step(row, timing, decision.trace, t, ego_hit)
                 snap = new
                 if progress is not None and self.step % 50 == 0:
                     progress[0].update(progress[1], completed=min(snap.time, end))

@@ -243,3 +243,31 @@ class CostBreakdown:
     def row(self, k: int) -> dict[str, float]:
         """The terms of candidate k as plain floats, for logging."""
         return {name: float(v[k]) for name, v in self.terms.items()} | {"total": float(self.total[k])}
+
+
+@dataclass(frozen=True)
+class DecisionTrace:
+    """What one planning step weighed, kept so the decision can be explained afterwards.
+
+    The controller fills it from arrays it computed anyway (no copies); the runner hands it to the
+    recorder and never reads it. ego: the ego (1 agent) at planning time; agents: the N
+    neighbours; prediction: their (N, T) Gaussians; candidates: the K scored (feasible)
+    candidates; cost: their named terms, each (K,), and ``cost.total`` = J_risk; selection: (K,)
+    what the selection rule minimised (J_risk + envelope + entry under "cost", J_risk else);
+    validity: (K,) int8 index of each candidate's validity class (``plan.ethical.VALIDITY``);
+    eligible: (K,) bool, the candidates the rule could choose (the hard pool, or the chosen class);
+    first_hit: (K,) int first step entering a predicted envelope (T if never); risk: (K,) summed
+    ex-ante risk over every party (ego's and the others') [-]; chosen: index of the chosen one.
+    """
+
+    ego: AgentStates
+    agents: AgentStates
+    prediction: Prediction
+    candidates: Candidates
+    cost: CostBreakdown
+    selection: np.ndarray
+    validity: np.ndarray
+    eligible: np.ndarray
+    first_hit: np.ndarray
+    risk: np.ndarray
+    chosen: int

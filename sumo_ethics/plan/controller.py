@@ -8,7 +8,7 @@ from typing import Protocol
 from sumo_ethics.config import EgoVehicle
 from sumo_ethics.sim.route import RoutePath
 from sumo_ethics.sim.world import EgoCommand
-from sumo_ethics.types import AgentStates, Observation
+from sumo_ethics.types import AgentStates, DecisionTrace, Observation
 
 
 @dataclass(frozen=True)
@@ -37,11 +37,13 @@ class Scene:
 
 @dataclass(frozen=True)
 class Decision:
-    """A controller's answer: the command, plus named numbers explaining it (logged per step)."""
+    """A controller's answer: the command, plus named numbers explaining it (logged per step) and,
+    from a planner that weighs candidates, what it weighed (``trace``, for recorded decisions)."""
 
     command: EgoCommand
     info: dict[str, float] = field(default_factory=dict)
     timings_ms: dict[str, float] = field(default_factory=dict)
+    trace: DecisionTrace | None = None
 
 
 class Controller(Protocol):

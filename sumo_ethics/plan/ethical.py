@@ -22,7 +22,7 @@ from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior
 from sumo_ethics.sim.world import EgoCommand
-from sumo_ethics.types import Candidates, Observation, Prediction
+from sumo_ethics.types import Candidates, DecisionTrace, Observation, Prediction
 
 PREDICTORS = ("attention", "cslstm", "cv")
 
@@ -190,6 +190,12 @@ def hard_pool(legal: np.ndarray, on_road: np.ndarray) -> np.ndarray:
     return next((m for m in (legal & on_road, on_road) if m.any()), np.ones_like(on_road))
 
 
+def validity_classes(classes: list[np.ndarray]) -> np.ndarray:
+    """(K,) int8: the index of the first class each candidate belongs to (len(classes) if none)."""
+    member = np.vstack(classes + [np.ones_like(classes[0])])
+    return np.argmax(member, axis=0).astype(np.int8)
+
+
 def class_of(classes: list[np.ndarray], k: int) -> int:
     """Index of the first class candidate k belongs to (len(classes) if none)."""
     return next((c for c, members in enumerate(classes) if members[k]), len(classes))
@@ -287,7 +293,14 @@ class EthicalPlanner:
         self._lateral = ((d2 - d0) / (2 * dt), (d2 - 2 * d1 + d0) / dt**2)
         self._accel = float(cand.accel[k, 0])
         cmd = EgoCommand(float(cand.x[k, 0]), float(cand.y[k, 0]), float(cand.yaw[k, 0]), float(cand.speed[k, 0]))
-        return Decision(cmd, info=info, timings_ms=timings)
+        eligible = hard_pool(legal, on_road) if self.cfg.selection == "cost" else \
+            (classes[cls] if cls < len(classes) else np.ones(len(fc), dtype=bool))
+        trace = DecisionTrace(
+            ego=scene.ego, agents=agents, prediction=pred, candidates=fc, cost=cost, selection=total,
+            validity=validity_classes(classes), eligible=eligible, first_hit=first_hit,
+            risk=(risk.ego_risk.sum(axis=1) + risk.other_risk.sum(axis=1)) if len(agents) else np.zeros(len(fc)),
+            chosen=j)
+        return Decision(cmd, info=info, timings_ms=timings, trace=trace)
 
     def pool(self, classes: list[np.ndarray], legal: np.ndarray, on_road: np.ndarray,
              overlap: np.ndarray) -> np.ndarray:

@@ -9,13 +9,16 @@ added with :meth:`RunRecorder.table` (they are flushed and merged with the other
 from __future__ import annotations
 
 import shutil
+import time
 from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
 
 from sumo_ethics.record import schema
-from sumo_ethics.record.writer import PARTIAL, STREAMED, ChunkedTable, write_table
+from sumo_ethics.record.decisions import DecisionLog
+from sumo_ethics.record.writer import PARTIAL, STREAMED, ChunkedTable, chunk_steps, write_table
+from sumo_ethics.types import DecisionTrace
 
 
 class RunRecorder:
@@ -36,6 +39,13 @@ class RunRecorder:
         self.n_steps = 0
         self.first_step: dict[str, Any] | None = None
         self.last_step: dict[str, Any] | None = None
+        self.decisions: DecisionLog | None = None
+
+    def start(self, dt: float, decisions: str = "off") -> None:
+        """Called once the step length ``dt`` [s] is known: chunks of CHUNK_SECONDS, and the
+        decisions kept by mode ``decisions`` (:mod:`sumo_ethics.record.decisions`)."""
+        self.chunk = chunk_steps(dt)
+        self.decisions = DecisionLog(self.out, decisions, dt)
 
     def table(self, name: str, base: pa.Schema) -> ChunkedTable:
         """A further per-step table ``name`` (file ``name.parquet``), flushed with the others."""
@@ -44,7 +54,14 @@ class RunRecorder:
         return self.tables[name]
 
     # -- the callback --
-    def step(self, row: dict[str, Any], timing: dict[str, Any]) -> None:
+    def step(self, row: dict[str, Any], timing: dict[str, Any], trace: DecisionTrace | None = None,
+             plan_time: float | None = None, collided: bool = False) -> None:
+        """This step's rows; the decision that led to it (``trace``, made at ``plan_time`` [s]) and
+        whether the step ended in a new ego collision, for the recorded decisions."""
+        if self.decisions is not None:
+            w = time.perf_counter()
+            self.decisions.add(int(row["step"]), row["time"] if plan_time is None else plan_time, trace, collided)
+            timing["decisions_ms"] = 1e3 * (time.perf_counter() - w)
         self.tables["steps"].append(row)
         self.tables["timings"].append(timing)
         self.n_steps += 1

@@ -1,0 +1,226 @@
+"""Recorded decisions: what the planner weighed at a step, stored compactly so that
+``sumo-ethics explain`` and ``replay`` can draw it afterwards.
+
+One file per recorded planning step, ``RUN/decisions/step_NNNNNN.npz`` (a zip of ``.npy`` arrays,
+written under a temporary name and renamed, with fixed zip timestamps so the same seed gives the
+same bytes). ``step`` is the steps.parquet row the decision led to (the row of the state one
+step later) and the ``step`` of a collision it ended in; ``time`` is the planning time.
+
+What a step holds (float32 unless said; positions relative to the ego's centre at planning
+time, so float32 keeps millimetres):
+
+=====================  ==============  =========================================================
+``ego``                (8,) float64     x, y, yaw, speed, length, width, mass, class of the ego
+``agent_ids``          (N,) str         the neighbours' SUMO ids
+``agents``             (N, 7)           x, y, yaw, speed, length, width (m, rad, m/s), class
+``pred_mean``          (N, T, 2)        predicted centres [m]
+``pred_cov``           (N, T, 3)        covariance xx, xy, yy [m^2]
+``cand_xy``            (K, S, 2) f16    every scored candidate's centres, every ``stride``-th step
+                                        (float16: within 3 cm up to 64 m from the ego, 6 cm to 128 m)
+``cand_t``             (S,)             the time after planning of those samples [s]
+``selection``          (K,)             what the selection rule minimised
+``j_risk``             (K,)             J_risk = cost total
+``risk``               (K,)             summed ex-ante risk over every party
+``validity``           (K,) int8        validity class (``plan.ethical.VALIDITY``)
+``eligible``           (K,) bool        could be chosen (hard pool / chosen class)
+``first_hit``          (K,) int16       first step entering a predicted envelope (T: never)
+``term_names``         (M,) str         the named cost terms
+``terms``              (K, M)           their values per candidate
+``meta``               (6,) float64     step, time, chosen, dt, horizon steps T, stride
+=====================  ==============  =========================================================
+
+Modes (``--record-decisions``): ``all`` every planning step; ``risky`` the steps whose chosen
+candidate carries risk (ex-ante risk > 0 to any party; on a busy junction some candidate always
+does, so that would keep nearly every step), and every step of the ``PRE_COLLISION`` seconds before an ego collision;
+``collisions`` only those seconds before each ego collision; ``off`` nothing but the last step
+before each ego collision (what its snapshot figure needs). Recording never changes a decision:
+it reads what the planner computed.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import zipfile
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sumo_ethics.types import DecisionTrace
+
+MODES = ("off", "collisions", "risky", "all")
+FOLDER = "decisions"
+#: the run folder's collision snapshot figures (collision_<event>.png/.svg)
+SNAPSHOTS = "snapshots"
+#: seconds of decisions kept before every ego collision (modes collisions and risky)
+PRE_COLLISION = 5.0
+#: candidate positions are kept every this many seconds (at least every planning step)
+CANDIDATE_SPACING = 0.2
+_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
+
+
+def step_path(out: Path, step: int) -> Path:
+    return Path(out) / FOLDER / f"step_{step:06d}.npz"
+
+
+def encode(trace: DecisionTrace, step: int, time: float, dt: float) -> dict[str, np.ndarray]:
+    """The compact arrays of one decision (see the module docstring)."""
+    e, a, p, c = trace.ego, trace.agents, trace.prediction, trace.candidates
+    ox, oy = float(e.x[0]), float(e.y[0])
+    f32 = np.float32
+    T = c.x.shape[1]
+    stride = max(1, int(round(CANDIDATE_SPACING / c.dt)))
+    idx = np.unique(np.r_[np.arange(stride - 1, T, stride), T - 1])  # always the horizon's end
+    names = sorted(trace.cost.terms)
+    cov = p.cov
+    return {
+        "meta": np.array([step, time, trace.chosen, dt, p.mean.shape[1] if len(a) else T, stride], dtype=np.float64),
+        "ego": np.array([ox, oy, e.yaw[0], e.speed[0], e.length[0], e.width[0], e.mass[0], e.cls[0]], dtype=np.float64),
+        "agent_ids": np.array(a.ids, dtype=str),
+        "agents": np.stack([a.x - ox, a.y - oy, a.yaw, a.speed, a.length, a.width, a.cls], axis=-1).astype(f32)
+        if len(a) else np.zeros((0, 7), f32),
+        "pred_mean": (p.mean - np.array([ox, oy])).astype(f32),
+        "pred_cov": np.stack([cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]], axis=-1).astype(f32),
+        "cand_xy": np.stack([c.x[:, idx] - ox, c.y[:, idx] - oy], axis=-1).astype(np.float16),
+        "cand_t": ((idx + 1) * c.dt).astype(f32),
+        "selection": np.asarray(trace.selection, dtype=f32),
+        "j_risk": np.asarray(trace.cost.total, dtype=f32),
+        "risk": np.asarray(trace.risk, dtype=f32),
+        "validity": np.asarray(trace.validity, dtype=np.int8),
+        "eligible": np.asarray(trace.eligible, dtype=bool),
+        "first_hit": np.minimum(trace.first_hit, np.iinfo(np.int16).max).astype(np.int16),
+        "term_names": np.array(names, dtype=str),
+        "terms": np.stack([trace.cost.terms[n] for n in names], axis=-1).astype(f32)
+        if names else np.zeros((len(c.x), 0), f32),
+    }
+
+
+def write(path: Path, arrays: dict[str, np.ndarray]) -> int:
+    """Write ``arrays`` as a compressed .npz, atomically and byte-reproducibly; returns its size [B]."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=6) as z:
+        for name, arr in arrays.items():
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.ascontiguousarray(arr), allow_pickle=False)
+            z.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_TIME), buf.getvalue(),
+                       compress_type=zipfile.ZIP_DEFLATED, compresslevel=6)
+    os.replace(tmp, path)
+    return path.stat().st_size
+
+
+@dataclass
+class DecisionLog:
+    """Keeps the decisions of one run by ``mode``; :meth:`add` once per planning step (after the
+    step's collisions were detected: ``collided`` says whether the step ended in a new ego
+    collision)."""
+
+    out: Path
+    mode: str
+    dt: float
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"unknown decision recording mode {self.mode!r}; known: {', '.join(MODES)}")
+        keep = int(np.ceil(PRE_COLLISION / self.dt - 1e-9)) if self.mode in ("collisions", "risky") else 0
+        self.keep = max(keep, 1)  # steps kept before a collision
+        #: the not yet written decisions of the last PRE_COLLISION seconds: (step, arrays or trace)
+        self.ring: deque[tuple[int, Any]] = deque(maxlen=self.keep)
+        self.written: list[int] = []
+        self.bytes = 0
+
+    def add(self, step: int, time: float, trace: DecisionTrace | None, collided: bool) -> None:
+        if trace is None:  # no planner decision this step (emergency brake, baseline controller)
+            if collided:
+                self._flush_ring(step)
+            return
+        risky = bool(trace.risk[trace.chosen] > 0.0)
+        if self.mode == "all" or (self.mode == "risky" and risky):
+            self._write(step, encode(trace, step, time, self.dt))
+        elif self.mode == "off":  # the trace itself (no cost): encoded only if it ends in a collision
+            self.ring.append((step, (trace, time)))
+        else:
+            self.ring.append((step, encode(trace, step, time, self.dt)))
+        if collided:
+            self._flush_ring(step)
+
+    def _flush_ring(self, now: int) -> None:
+        """Write the kept decisions of the ``keep`` steps up to step ``now``."""
+        while self.ring:
+            step, item = self.ring.popleft()
+            if step <= now - self.keep:  # older (risky mode keeps only the steps it did not write)
+                continue
+            if isinstance(item, tuple):
+                item = encode(item[0], step, item[1], self.dt)
+            self._write(step, item)
+
+    def _write(self, step: int, arrays: dict[str, np.ndarray]) -> None:
+        self.bytes += write(step_path(self.out, step), arrays)
+        self.written.append(step)
+
+
+# ---- reading ------------------------------------------------------------------------------------
+def recorded_steps(run: Path) -> list[int]:
+    """The steps of ``run`` with a recorded decision, in order."""
+    folder = Path(run) / FOLDER
+    if not folder.is_dir():
+        return []
+    return sorted(int(p.stem.removeprefix("step_")) for p in folder.glob("step_[0-9]*.npz"))
+
+
+@dataclass(frozen=True)
+class RecordedDecision:
+    """One recorded decision, positions back in the network frame [m].
+
+    step, time: steps.parquet row it led to, planning time [s]; chosen: index into the K
+    candidates; ego: (8,) x, y, yaw, speed, length, width, mass, class; agent_ids: (N,);
+    agents: (N, 7) x, y, yaw, speed, length, width, class; pred_mean: (N, T, 2); pred_cov:
+    (N, T, 2, 2); cand_xy: (K, S, 2); cand_t: (S,); selection, j_risk, risk: (K,);
+    validity: (K,) int8; eligible: (K,) bool; first_hit: (K,); terms: name -> (K,).
+    """
+
+    step: int
+    time: float
+    dt: float
+    chosen: int
+    ego: np.ndarray
+    agent_ids: tuple[str, ...]
+    agents: np.ndarray
+    pred_mean: np.ndarray
+    pred_cov: np.ndarray
+    cand_xy: np.ndarray
+    cand_t: np.ndarray
+    selection: np.ndarray
+    j_risk: np.ndarray
+    risk: np.ndarray
+    validity: np.ndarray
+    eligible: np.ndarray
+    first_hit: np.ndarray
+    terms: dict[str, np.ndarray]
+
+    @property
+    def n_candidates(self) -> int:
+        return len(self.j_risk)
+
+
+def load(run: Path, step: int) -> RecordedDecision:
+    """The decision recorded for ``step`` of ``run`` (FileNotFoundError if none)."""
+    with np.load(step_path(run, step), allow_pickle=False) as z:
+        d = {k: z[k] for k in z.files}
+    meta, ego = d["meta"], d["ego"]
+    origin = ego[:2].astype(np.float64)
+    agents = d["agents"].astype(np.float64)
+    agents[:, :2] += origin
+    c = d["pred_cov"].astype(np.float64)
+    cov = np.stack([np.stack([c[..., 0], c[..., 1]], -1), np.stack([c[..., 1], c[..., 2]], -1)], -2)
+    return RecordedDecision(
+        step=int(meta[0]), time=float(meta[1]), dt=float(meta[3]), chosen=int(meta[2]), ego=ego,
+        agent_ids=tuple(str(x) for x in d["agent_ids"]), agents=agents,
+        pred_mean=d["pred_mean"].astype(np.float64) + origin, pred_cov=cov,
+        cand_xy=d["cand_xy"].astype(np.float64) + origin, cand_t=d["cand_t"].astype(np.float64),
+        selection=d["selection"], j_risk=d["j_risk"], risk=d["risk"], validity=d["validity"],
+        eligible=d["eligible"], first_hit=d["first_hit"],
+        terms={str(n): d["terms"][:, i] for i, n in enumerate(d["term_names"])})
