@@ -128,6 +128,27 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
 
 
 @cli.command()
+@click.argument("run_dir", type=click.Path(path_type=Path))
+@click.option("--step", type=int, help="The steps.parquet step the decision led to (also a collision's step).")
+@click.option("--time", "at_time", type=float, help="The planning time [s] (the nearest recorded decision).")
+@click.option("--collision", type=int, help="A collision event of collisions.parquet: its last decision before impact.")
+@click.option("--out", type=click.Path(path_type=Path), help="Figure path without suffix; .png and .svg are written "
+              "(default RUN_DIR/explain/step_NNNNNN).")
+def explain(run_dir: Path, step: int | None, at_time: float | None, collision: int | None, out: Path | None) -> None:
+    """Draw one recorded planning step of RUN_DIR: the scene, predictions, candidates and the cost terms of the choice.
+
+    The run must have been made with --record-decisions (risky, all or collisions).
+    """
+    from sumo_ethics.analysis.explain import explain as draw, resolve_step
+
+    k = resolve_step(run_dir, step=step, time=at_time, collision=collision)
+    res = draw(run_dir, k, out)
+    d = res.decision
+    click.echo(f"step {d.step} (t={d.time:g} s): chose candidate {d.chosen} of {d.n_candidates}; "
+               f"figure {res.paths[0]} (+ .svg)")
+
+
+@cli.command()
 @click.argument("scenarios", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Dataset folder.")
 @click.option("--seeds", default="1-7", show_default=True, help="Run seeds, e.g. 1-7 or 1,4,9 (split by seed).")

@@ -54,9 +54,12 @@ def generate_cmd(count: int, seed: int, out: Path, family: str) -> None:
 @click.option("--limit", type=int, help="Only the first N scenarios.")
 @click.option("--reference", help="Planner the others are compared with (default origin, else the first).")
 @click.option("--resume", is_flag=True, help="Keep finished runs found in OUT/runs, run only the rest.")
+@click.option("--record-decisions", type=click.Choice(["off", "collisions", "risky", "all"]), default="risky",
+              show_default=True, help="Decisions each run keeps for 'explain'/'replay' (risky: the steps whose choice "
+                                      "carries risk and the 5 s before every ego collision).")
 @click.option("--quiet", is_flag=True, help="No per-run progress lines.")
 def evaluate_cmd(suite_dir: Path, planners: tuple[str, ...], workers: int, out: Path, limit: int | None,
-                 reference: str | None, resume: bool, quiet: bool) -> None:
+                 reference: str | None, resume: bool, record_decisions: str, quiet: bool) -> None:
     """Run every scenario of SUITE with each planner and write the paper's Table 1."""
     from sumo_ethics.suite.evaluate import evaluate
 
@@ -66,7 +69,7 @@ def evaluate_cmd(suite_dir: Path, planners: tuple[str, ...], workers: int, out: 
                        f"({row.get('wall_s', 0):.1f} s)")
 
     csv, md = evaluate(suite_dir, list(planners), out, workers=workers, limit=limit, reference=reference,
-                       progress=progress, resume=resume)
+                       progress=progress, resume=resume, record_decisions=record_decisions)
     click.echo(md.read_text())
     click.echo(f"tables: {csv}, {md}")
     if (md.parent / "risk.md").is_file():

@@ -37,12 +37,16 @@ import click
 @click.option("--radius", type=float, help="Sensing radius around the ego [m].")
 @click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")
+@click.option("--record-decisions", type=click.Choice(["off", "collisions", "risky", "all"]),
+              help="Decisions each run keeps for 'explain'/'replay' (default risky: the steps whose choice carries "
+                   "risk and the 5 s before every ego collision).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def sweep(scenario_or_suite: Path, omega_u: str, seeds: str, sets: tuple[str, ...], out: Path, workers: int | None,
           scheduler: str | None, end: float | None, ego_depart: float | None, step_length: float | None,
           ego_from: str | None,
           ego_to: str | None, controller: str | None, predictor: str | None, radius: float | None,
-          continue_after_collision: bool, config_file: Path | None, quiet: bool) -> None:
+          continue_after_collision: bool, config_file: Path | None, record_decisions: str | None,
+          quiet: bool) -> None:
     """Run the grid SCENARIO(S) x omega_u x seeds x --set values, one SUMO process per run.
 
     SCENARIO_OR_SUITE is a .sumocfg or a folder searched for *.sumocfg. Running the same
@@ -60,7 +64,8 @@ def sweep(scenario_or_suite: Path, omega_u: str, seeds: str, sets: tuple[str, ..
         raise ConfigError("--workers and --scheduler exclude each other")
     options = {"end": end, "ego_depart": ego_depart, "step_length": step_length, "ego_from": ego_from, "ego_to": ego_to,
                "controller": controller, "predictor": predictor, "radius": radius,
-               "stop_at_collision": False if continue_after_collision else None}
+               "stop_at_collision": False if continue_after_collision else None,
+               "record_decisions": None if record_decisions == "risky" else record_decisions}
     planner = load_toml(config_file) if config_file is not None else None
     sw = make_sweep(scenario_or_suite, omega_u, seeds, sets, options=options, planner=planner)
     res = run_sweep(sw, out, workers=workers or os.cpu_count() or 1, scheduler=scheduler, progress=not quiet)

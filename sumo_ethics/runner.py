@@ -292,6 +292,8 @@ class Run:
             except OSError as exc:  # e.g. a full disk: the chunks written so far stay in partial/
                 self.status, self.message = RunStatus.ERROR, f"cannot write the outputs to {out}: {exc.strerror or exc}"
                 error = error if isinstance(error, KeyboardInterrupt) else OutputError(self.message)
+            if not isinstance(error, KeyboardInterrupt):  # a stopped run leaves the drawing to 'explain'
+                self._snapshots()
             data = self.summary(wall)
             try:
                 write_json(out / "summary.json", data)
@@ -303,6 +305,25 @@ class Run:
         if self.replaced is not None and self.replaced.exists():  # the earlier run's outputs, now replaced
             shutil.rmtree(self.replaced, ignore_errors=True)
         return data, error
+
+    def _snapshots(self) -> None:
+        """A figure of the last decision before each ego collision (RUN/snapshots/); a failure to draw
+        is noted in the summary, never fatal: the decisions stay on disk for 'sumo-ethics explain'."""
+        log = self.rec.decisions
+        if log is None:
+            return
+        self.meta["decisions"] = {"mode": log.mode, "steps": len(log.written), "bytes": log.bytes}
+        if not any(is_booked(r) for r in self.rec.collisions):
+            return
+        w = wallclock.perf_counter()
+        try:
+            from sumo_ethics.analysis.explain import collision_snapshots
+
+            paths = collision_snapshots(self.cfg.out, self.rec.collisions)
+            self.meta["snapshots"] = [str(p.relative_to(self.cfg.out)) for p in paths if p.suffix == ".png"]
+        except Exception as exc:  # noqa: BLE001 - a figure must never cost the run's outputs
+            self.meta["snapshot_error"] = f"{type(exc).__name__}: {exc}"
+        self.meta["snapshot_wall"] = wallclock.perf_counter() - w
 
     def summary(self, wall: float) -> dict[str, Any]:
         ego_rows = [r for r in self.rec.collisions if is_booked(r)]

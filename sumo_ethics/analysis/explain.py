@@ -128,12 +128,18 @@ def _ellipse(mean: np.ndarray, cov: np.ndarray, k: float, n: int = 40) -> np.nda
     return circle @ vecs.T + mean
 
 
-def window(d: RecordedDecision, half: float = 45.0) -> tuple[float, float, float, float]:
-    """The plot window [m]: around the ego, ``half`` metres each way, grown to the candidates' reach."""
-    x, y = d.ego[0], d.ego[1]
-    reach = np.abs(d.cand_xy - d.ego[:2]).max() if d.n_candidates else 0.0
-    h = max(half, min(float(reach) + 8.0, 120.0))
-    return x - h, y - h, x + h, y + h
+def window(d: RecordedDecision, near: float = 30.0, margin: float = 6.0,
+           min_size: float = 30.0) -> tuple[float, float, float, float]:
+    """The plot window [m]: the ego, its candidates and the road users within ``near`` metres of
+    it, with ``margin``, at least ``min_size`` metres each way and at most 160 m."""
+    pts = [d.ego[None, :2], d.cand_xy.reshape(-1, 2)]
+    if len(d.agents):
+        close = np.hypot(*(d.agents[:, :2] - d.ego[:2]).T) <= near
+        pts.append(d.agents[close, :2])
+    p = np.concatenate(pts)
+    lo, hi = p.min(axis=0) - margin, p.max(axis=0) + margin
+    centre, size = (lo + hi) / 2, np.clip(hi - lo, min_size, 160.0)
+    return centre[0] - size[0] / 2, centre[1] - size[1] / 2, centre[0] + size[0] / 2, centre[1] + size[1] / 2
 
 
 def draw_road(ax: Any, road: Any) -> None:
@@ -234,6 +240,9 @@ def cost_panel(ax: Any, d: RecordedDecision, alt: int | None, weights: dict[str,
     """A table of the chosen candidate's named cost terms beside the alternative's; with the
     run's principle ``weights`` the J_origin rows are weighted (they then add up to J_origin)."""
     ax.axis("off")
+    if alt is None:
+        ax.text(0.5, 0.02, "Every candidate is in the chosen class:\nno alternative of another class.",
+                ha="center", va="bottom", fontsize=9, transform=ax.transAxes)
     head = ["term", f"chosen\n{VALIDITY_LABELS[int(d.validity[d.chosen])]}"]
     if alt is not None:
         head.append(f"best of another\nclass: {VALIDITY_LABELS[int(d.validity[alt])]}")
@@ -292,7 +301,8 @@ def decision_figure(d: RecordedDecision, road: Any, title: str,
             classes = sorted(set(seen), key=lambda s: list(CLASS_COLOURS).index(s))
             handles += [Patch(fc=EGO_COLOUR, label="ego")] + [Patch(fc=CLASS_COLOURS[c], label=c) for c in classes]
             handles.append(Patch(fc="0.5", alpha=0.35, ec="0.3", ls="--", label="predicted 1 sigma (2 sigma dashed), each s"))
-            ax.legend(handles=handles, loc="upper left", fontsize=7.5, framealpha=0.9)
+            fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 7), fontsize=8.5,
+                       frameon=False)
         else:
             j = np.asarray(d.j_risk, dtype=float)
             pos = j[j > 0]
@@ -301,8 +311,6 @@ def decision_figure(d: RecordedDecision, road: Any, title: str,
             norm = LogNorm(vmin=lo, vmax=hi)
             cmap = plt.get_cmap("viridis")
             _candidates(ax, d, cmap(norm(np.clip(j, lo, hi))))
-            fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.8,
-                         label="J_risk of the candidate [cost units, log]")
             ax.set_title("The same candidates by J_risk", fontsize=10)
         ax.set_xlim(x0, x1)
         ax.set_ylim(y0, y1)
@@ -310,6 +318,8 @@ def decision_figure(d: RecordedDecision, road: Any, title: str,
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
         ax.set_facecolor("#f7f7f2")
+    fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes, shrink=0.5, location="bottom",
+                 label="J_risk of the candidate (right panel) [cost units, log scale]")
     alt = alternative(d)
     cost_panel(fig.add_subplot(gs[0, 2]), d, alt, weights)
     fig.suptitle(title, fontsize=11.5)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 from sumo_ethics.analysis import load
 from sumo_ethics.analysis.stats import (check_groups, collision_table, status_table, summary_table,
@@ -111,6 +111,7 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
                   "each class (summed over its parties); mean over runs [95 % bootstrap CI], median, and the",
                   "median per-run peak risk of a single party.", "",
                   to_markdown(tables["exante_risk"])]
+    lines += snapshot_links(sweep_dir, folder, res.collisions)
     lines += ["## Figures", ""]
     captions = {"harm": "Harm per class vs the swept parameter (mean over runs, 95% CI band)",
                 "completion": "Completion and ego-collision rate",
@@ -122,3 +123,31 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
         lines += [f"### {captions[key]}", "", f"![{captions[key]}]({png})", "", f"[SVG]({svg})", ""]
     rep.report.write_text("\n".join(lines))
     return rep
+
+
+def snapshot_links(sweep_dir: Path, folder: Path, collisions: Any, limit: int = 200) -> list[str]:
+    """report.md lines linking the snapshot figure of every booked ego collision (the last decision
+    before impact, written by the run into runs/<run_id>/snapshots/)."""
+    import os
+
+    if collisions is None or len(collisions) == 0 or "run_id" not in collisions:
+        return []
+    booked = collisions[collisions["involves_ego"] & (collisions["detector"] != "sumo_unconfirmed")]
+    rows = []
+    for r in booked.sort_values(["run_id", "event"]).itertuples():
+        png = sweep_dir / "runs" / r.run_id / "snapshots" / f"collision_{r.event}.png"
+        if png.is_file():
+            rel = Path(os.path.relpath(png, folder)).as_posix()
+            rows.append(f"| {r.run_id} | {r.event} | {r.time:.1f} | {r.class_b} | {r.harm_ego:.3f} | "
+                        f"{r.harm_third_party:.3f} | [png]({rel}) |")
+    if not rows:
+        return []
+    lines = ["## Collision snapshots", "",
+             "The last planning step before each ego collision: the scene, the predictions, every candidate",
+             "by validity class and by J_risk, and the chosen candidate's cost terms beside the best one of",
+             "another validity class (`sumo-ethics explain RUN --collision EVENT` redraws one).", "",
+             "| run | event | t [s] | other party | harm ego | harm third party | figure |",
+             "| --- | --- | --- | --- | --- | --- | --- |", *rows[:limit]]
+    if len(rows) > limit:
+        lines.append(f"\n... and {len(rows) - limit} more in runs/*/snapshots/.")
+    return lines + [""]

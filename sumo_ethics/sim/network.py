@@ -34,11 +34,12 @@ class RoadMap:
     stop_lines: np.ndarray
 
     def window(self, x0: float, y0: float, x1: float, y1: float) -> RoadMap:
-        """The lanes with a point inside the box (x0, y0)-(x1, y1) grown by 20 m."""
+        """The lanes whose bounding box meets the box (x0, y0)-(x1, y1) grown by 20 m."""
         m = 20.0
 
         def inside(xy: np.ndarray) -> bool:
-            return bool(np.any((xy[:, 0] >= x0 - m) & (xy[:, 0] <= x1 + m) & (xy[:, 1] >= y0 - m) & (xy[:, 1] <= y1 + m)))
+            lo, hi = xy.min(axis=0), xy.max(axis=0)
+            return bool(lo[0] <= x1 + m and hi[0] >= x0 - m and lo[1] <= y1 + m and hi[1] >= y0 - m)
 
         stops = self.stop_lines[[inside(s) for s in self.stop_lines]] if len(self.stop_lines) else self.stop_lines
         return RoadMap(tuple(ln for ln in self.lanes if inside(ln.xy)), stops)

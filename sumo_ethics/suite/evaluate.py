@@ -110,8 +110,9 @@ def parse_planners(texts: Iterable[str]) -> list[PlannerSpec]:
 
 
 # ---- one run (in a worker process) ------------------------------------------------------
-def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str) -> dict[str, Any]:
-    """Run one scenario with one planner; returns the result row (never raises)."""
+def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str, record_decisions: str = "risky") -> dict[str, Any]:
+    """Run one scenario with one planner, keeping its decisions by ``record_decisions``; returns
+    the result row (never raises)."""
     t0 = time.perf_counter()
     row: dict[str, Any] = {"scenario": Path(scenario_dir).name, "planner": planner.name}
     try:
@@ -130,7 +131,7 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str) -> dict[str, 
         spec = load(Path(scenario_dir))
         row.update(network=spec.network, hazard=",".join(spec.hazard_types), seed=spec.seed)
         pcfg = planner_config(None, **planner.options) if planner.options is not None else None
-        cfg = spec.run_config(Path(out_dir), pcfg, overwrite=True)
+        cfg = spec.run_config(Path(out_dir), pcfg, overwrite=True, record_decisions=record_decisions)
         injector = HazardInjector(spec.hazards)
         try:
             summary = run(cfg, controller=HazardController(make_controller(cfg), injector))
@@ -209,7 +210,7 @@ def _dead_row(scenario: str, planner: PlannerSpec, why: str) -> dict[str, Any]:
             "hazards_fired": "", "collided_with": "", "wall_s": 0.0}
 
 
-def _row_from_folder(scenario: str, planner: PlannerSpec, out_dir: str) -> dict[str, Any] | None:
+def _row_from_folder(scenario: str, planner: PlannerSpec, out_dir: str, *_: Any) -> dict[str, Any] | None:
     """The row of a finished run (for --resume), None if the folder holds no finished run."""
     out = Path(out_dir)
     data = _read_summary(out)
@@ -233,7 +234,7 @@ def _row_from_folder(scenario: str, planner: PlannerSpec, out_dir: str) -> dict[
 
 def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, workers: int = 2,
               progress: Callable[[int, int, dict[str, Any]], None] | None = None,
-              resume: bool = False) -> list[dict[str, Any]]:
+              resume: bool = False, record_decisions: str = "risky") -> list[dict[str, Any]]:
     """Every scenario with every planner; one row per run (order: scenario, then planner).
 
     Each run is its own process, forked from a forkserver that has the heavy modules loaded:
@@ -247,7 +248,7 @@ def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, wor
     if workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    tasks = [(str(s), p, str(out / "runs" / p.name / s.name)) for s in scenarios for p in planners]
+    tasks = [(str(s), p, str(out / "runs" / p.name / s.name), record_decisions) for s in scenarios for p in planners]
     rows: list[dict[str, Any]] = []
 
     def done(row: dict[str, Any]) -> None:
@@ -502,7 +503,7 @@ def write_outputs(rows: list[dict[str, Any]], planners: list[PlannerSpec], out: 
 
 def evaluate(suite: Path, planner_texts: list[str], out: Path, workers: int = 2, limit: int | None = None,
              reference: str | None = None, progress: Callable | None = None,
-             resume: bool = False) -> tuple[Path, Path]:
+             resume: bool = False, record_decisions: str = "risky") -> tuple[Path, Path]:
     from sumo_ethics.suite.spec import load_suite
 
     planners = parse_planners(planner_texts)
@@ -514,7 +515,7 @@ def evaluate(suite: Path, planner_texts: list[str], out: Path, workers: int = 2,
     if ref not in names:
         raise ConfigError(f"--reference {ref!r} is not one of the planners {names}")
     t0 = time.perf_counter()
-    rows = run_suite([s.folder for s in specs], planners, Path(out), workers, progress, resume)
+    rows = run_suite([s.folder for s in specs], planners, Path(out), workers, progress, resume, record_decisions)
     meta = {"suite": str(suite), "scenarios": len(specs), "workers": workers, "wall_s": time.perf_counter() - t0,
             "planners": {p.name: p.describe() for p in planners}, "reference": ref}
     return write_outputs(rows, planners, Path(out), ref, meta)

@@ -39,7 +39,11 @@ RUN_KEYS: dict[str, tuple[str, type]] = {
     "ego_from": ("ego_from", str),
     "ego_to": ("ego_to", str),
     "step_length": ("step_length", float),
+    "record_decisions": ("record_decisions", str),
 }
+#: decisions a sweep's runs keep unless --record-decisions says otherwise (not part of the
+#: sweep's definition then, so sweeps made before it resume as they were)
+SWEEP_RECORD_DECISIONS = "risky"
 PLANNER_SIMPLE = ("omega_o", "weights", "utility", "predictor", "max_risk", "selection", "envelope", "entry")
 
 
@@ -249,6 +253,7 @@ class RunSpec:
             overrides["predictor"] = opts["predictor"]
         planner = planner_config(table, **overrides)
         kw = {RUN_KEYS[k][0]: v for k, v in opts.items() if k in RUN_KEYS}
+        kw.setdefault("record_decisions", SWEEP_RECORD_DECISIONS)
         return RunConfig(scenario=Path(self.scenario), out=out, seed=int(self.params["seed"]), planner=planner,
                          progress=False, **kw)
 
