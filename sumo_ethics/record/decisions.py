@@ -15,7 +15,8 @@ time, so float32 keeps millimetres):
 ``agents``             (N, 7)           x, y, yaw, speed, length, width (m, rad, m/s), class
 ``pred_mean``          (N, T, 2)        predicted centres [m]
 ``pred_cov``           (N, T, 3)        covariance xx, xy, yy [m^2]
-``cand_xy``            (K, S, 2) f16    every scored candidate's centres, every ``stride``-th step
+``cand_xy``            (K, S, 2) f16    every scored candidate's centres: the next step, every
+                                        ``stride``-th step and the horizon's end
                                         (float16: within 3 cm up to 64 m from the ego, 6 cm to 128 m)
 ``cand_t``             (S,)             the time after planning of those samples [s]
 ``selection``          (K,)             what the selection rule minimised
@@ -73,7 +74,7 @@ def encode(trace: DecisionTrace, step: int, time: float, dt: float) -> dict[str,
     f32 = np.float32
     T = c.x.shape[1]
     stride = max(1, int(round(CANDIDATE_SPACING / c.dt)))
-    idx = np.unique(np.r_[np.arange(stride - 1, T, stride), T - 1])  # always the horizon's end
+    idx = np.unique(np.r_[0, np.arange(stride - 1, T, stride), T - 1])  # always the next step and the end
     names = sorted(trace.cost.terms)
     cov = p.cov
     return {
