@@ -290,7 +290,7 @@ def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, wor
             if proc.pid is not None:  # started
                 proc.kill()
                 proc.join()
-    order = {(Path(s).name, p.name): i for i, (s, p, _) in enumerate(tasks)}
+    order = {(Path(s).name, p.name): i for i, (s, p, *_) in enumerate(tasks)}
     rows.sort(key=lambda r: order[(r["scenario"], r["planner"])])
     return rows
 
