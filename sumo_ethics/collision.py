@@ -192,6 +192,14 @@ class CollisionBook:
     def _book(self, row: dict[str, Any], a: str, b: str) -> None:
         self.events.bind(a, b, self.sink.add_collision(row))
 
+    def _party_before(self, other: str, before: Any, now: Any) -> AgentStates | None:
+        """The state of ``other`` just before impact (at ``before``, else now, else looked up)."""
+        if other in before.others.index:
+            return before.others.take([before.others.index[other]])
+        if other in now.others.index:
+            return now.others.take([now.others.index[other]])
+        return self.lookup(other)
+
     def first_booked(self) -> dict[str, Any] | None:
         """The first ego collision that counts (see :func:`is_booked`), or None."""
         return next((r for r in self.sink.collisions if is_booked(r)), None)
@@ -209,7 +217,7 @@ class CollisionBook:
         for c in now.collisions:
             reports.setdefault(frozenset((c[0], c[1])), c)
         ego_new = False
-        before_index, now_index = before.others.index, now.others.index
+        now_index = now.others.index
         sumo_ego = {next(iter(p - {ego_id})) for p in reports if ego_id in p and len(p) == 2}
         for other in sorted(geo | sumo_ego):
             report = reports.get(frozenset((ego_id, other)))
@@ -219,26 +227,26 @@ class CollisionBook:
                 confirmed = other not in now_index or bool(near_contact(now.ego, now.others.take([now_index[other]])))
                 detector = "sumo" if confirmed else "sumo_unconfirmed"
             is_new, idx = self.events.observe(t, ego_id, other)
-            if not is_new:
-                row = rows[idx] if idx is not None else None
-                if row is not None and row["detector"] != detector and detector != "sumo_unconfirmed":
-                    if not is_booked(row):  # confirmed later: book it now
-                        self.sink.update_collision(idx, **booking(row, True))
-                        ego_new = True
+            row = rows[idx] if not is_new and idx is not None else None
+            if not is_new and row is not None and is_booked(row):
+                if row["detector"] != detector and detector != "sumo_unconfirmed":
                     self.sink.update_collision(idx, detector=merged_detector(row["detector"], detector))
                     if report and not row["sumo_type"]:
                         self.sink.update_collision(idx, sumo_type=report[6])
                 continue
-            if other in before_index:  # states just before impact
-                b = before.others.take([before_index[other]])
-            elif other in now_index:
-                b = now.others.take([now_index[other]])
-            else:
-                b = self.lookup(other)
-                if b is None:
-                    continue
-            row = collision_row(len(rows), t, step, before.ego, b, True, detector, report[6] if report else "")
-            self._book(row, ego_id, other)
+            if not is_new and (row is None or detector == "sumo_unconfirmed"):
+                continue
+            b = self._party_before(other, before, now)
+            if b is None:
+                continue
+            new = collision_row(len(rows) if row is None else idx, t, step, before.ego, b, True, detector,
+                                report[6] if report else "")
+            if row is None:
+                self._book(new, ego_id, other)
+            else:  # SUMO reported the pair earlier, unconfirmed by the boxes: the impact is now
+                new.update(event=row["event"], detector=merged_detector(row["detector"], detector),
+                           sumo_type=row["sumo_type"] or new["sumo_type"])
+                self.sink.update_collision(idx, **new)
             ego_new = ego_new or detector != "sumo_unconfirmed"
         for pair, c in sorted(reports.items(), key=lambda kv: sorted(kv[0])):
             if ego_id in pair or len(pair) != 2:
