@@ -318,8 +318,11 @@ def decision_figure(d: RecordedDecision, road: Any, title: str,
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
         ax.set_facecolor("#f7f7f2")
-    fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes, shrink=0.5, location="bottom",
-                 label="J_risk of the candidate (right panel) [cost units, log scale]")
+    from matplotlib.ticker import NullFormatter
+
+    cb = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes, shrink=0.5, location="bottom",
+                      label="J_risk of the candidate (right panel) [cost units, log scale]")
+    cb.ax.xaxis.set_minor_formatter(NullFormatter())
     alt = alternative(d)
     cost_panel(fig.add_subplot(gs[0, 2]), d, alt, weights)
     fig.suptitle(title, fontsize=11.5)
