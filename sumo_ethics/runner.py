@@ -164,6 +164,7 @@ class Run:
                          forced_sumo_options=session.forced_option_report(files), redirected_outputs=outputs,
                          outputs_not_redirected=left, sumo_args=list(cfg.sumo_args))
         write_json(cfg.out / "config.json", cfg.to_dict() | {"resolved": {
+            "scenario": str(files.config.resolve()), "net": str(files.net.resolve()),
             "end": end, "ego_id": ego_id, "begin": plan.begin, "ego_depart": plan.ego_depart,
             "step_length": plan.step_length}})
         self.written.append("config.json")

@@ -139,6 +139,8 @@ def window(d: RecordedDecision, near: float = 30.0, margin: float = 6.0,
     p = np.concatenate(pts)
     lo, hi = p.min(axis=0) - margin, p.max(axis=0) + margin
     centre, size = (lo + hi) / 2, np.clip(hi - lo, min_size, 160.0)
+    # no taller than 1.25 x its width (the maps stand side by side), no wider than 2.5 x its height
+    size = np.maximum(size, [size[1] / 1.25, size[0] / 2.5])
     return centre[0] - size[0] / 2, centre[1] - size[1] / 2, centre[0] + size[0] / 2, centre[1] + size[1] / 2
 
 
@@ -178,6 +180,8 @@ def draw_agents(ax: Any, d: RecordedDecision, predictions: bool = True) -> list[
         colour = CLASS_COLOURS[label]
         seen.append(label)
         ax.add_patch(Patch(_box(x, y, yaw, length, width), closed=True, fc=colour, ec="black", lw=0.6, zorder=5))
+        if RoadUserClass(int(cls)) in (RoadUserClass.PEDESTRIAN, RoadUserClass.BICYCLE):  # small: ringed
+            ax.plot(x, y, "o", ms=11, mfc="none", mec=colour, mew=1.5, zorder=5.1)
         if predictions and d.pred_mean.shape[0] > i:
             m = d.pred_mean[i]
             ax.plot(np.r_[x, m[:, 0]], np.r_[y, m[:, 1]], color=colour, lw=1.2, zorder=4)
@@ -201,6 +205,9 @@ def _candidates(ax: Any, d: RecordedDecision, colours: Any, chosen: bool = True)
         p = paths[d.chosen]
         ax.plot(p[:, 0], p[:, 1], color="white", lw=4.0, zorder=7, solid_capstyle="round")
         ax.plot(p[:, 0], p[:, 1], color="black", lw=2.0, zorder=7.1, solid_capstyle="round", label="chosen")
+        whole = np.flatnonzero(np.isclose(d.cand_t % 1.0, 0.0, atol=1e-3) | np.isclose(d.cand_t % 1.0, 1.0, atol=1e-3))
+        ax.plot(d.cand_xy[d.chosen, whole, 0], d.cand_xy[d.chosen, whole, 1], "o", ms=4.5, mfc="white", mec="black",
+                zorder=7.2)
     return len(paths)
 
 
@@ -245,7 +252,7 @@ def cost_panel(ax: Any, d: RecordedDecision, alt: int | None, weights: dict[str,
                 ha="center", va="bottom", fontsize=9, transform=ax.transAxes)
     head = ["term", f"chosen\n{VALIDITY_LABELS[int(d.validity[d.chosen])]}"]
     if alt is not None:
-        head.append(f"best of another\nclass: {VALIDITY_LABELS[int(d.validity[alt])]}")
+        head.append(f"best of another class:\n{VALIDITY_LABELS[int(d.validity[alt])]}")
     def label_of(name: str, label: str) -> str:
         if weights is None:
             return label
@@ -258,7 +265,7 @@ def cost_panel(ax: Any, d: RecordedDecision, alt: int | None, weights: dict[str,
     cells = [[label_of(name, label)] + [_fmt(_term(d, d.chosen, name, weights))]
              + ([_fmt(_term(d, alt, name, weights))] if alt is not None else []) for name, label in PANEL_TERMS]
     table = ax.table(cellText=cells, colLabels=head, loc="upper center", cellLoc="right", colLoc="center",
-                     colWidths=[0.5, 0.25, 0.25][:len(head)])
+                     colWidths=[0.46, 0.22, 0.32][:len(head)])
     table.auto_set_font_size(False)
     table.set_fontsize(8)
     table.scale(1.0, 1.35)
@@ -282,11 +289,18 @@ def decision_figure(d: RecordedDecision, road: Any, title: str,
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    fig = plt.figure(figsize=(17, 7.2), layout="constrained")
-    gs = fig.add_gridspec(1, 3, width_ratios=[1.0, 1.0, 0.9])
     x0, y0, x1, y1 = window(d)
+    if (x1 - x0) > 1.6 * (y1 - y0):  # a long straight window: the two maps one above the other
+        fig = plt.figure(figsize=(17, 8.5), layout="constrained")
+        gs = fig.add_gridspec(2, 2, width_ratios=[2.0, 0.75])
+        axes = [fig.add_subplot(gs[0, 0]), fig.add_subplot(gs[1, 0])]
+        panel = fig.add_subplot(gs[:, 1])
+    else:
+        fig = plt.figure(figsize=(17, 7.2), layout="constrained")
+        gs = fig.add_gridspec(1, 3, width_ratios=[1.0, 1.0, 0.9])
+        axes = [fig.add_subplot(gs[0, 0]), fig.add_subplot(gs[0, 1])]
+        panel = fig.add_subplot(gs[0, 2])
     box = road.window(x0, y0, x1, y1) if road is not None else None
-    axes = [fig.add_subplot(gs[0, 0]), fig.add_subplot(gs[0, 1])]
     n_drawn = 0
     for i, ax in enumerate(axes):
         if box is not None:
@@ -297,7 +311,8 @@ def decision_figure(d: RecordedDecision, road: Any, title: str,
             ax.set_title(f"Candidates by validity class ({d.n_candidates}; chosen in black)", fontsize=10)
             handles = [Line2D([], [], color=VALIDITY_COLOURS[c], lw=2, label=VALIDITY_LABELS[c])
                        for c in sorted(set(int(v) for v in d.validity))]
-            handles.append(Line2D([], [], color="black", lw=2.5, label="chosen"))
+            handles.append(Line2D([], [], color="black", lw=2.5, marker="o", mfc="white", mec="black",
+                                  label="chosen (dots: each second)"))
             classes = sorted(set(seen), key=lambda s: list(CLASS_COLOURS).index(s))
             handles += [Patch(fc=EGO_COLOUR, label="ego")] + [Patch(fc=CLASS_COLOURS[c], label=c) for c in classes]
             handles.append(Patch(fc="0.5", alpha=0.35, ec="0.3", ls="--", label="predicted 1 sigma (2 sigma dashed), each s"))
@@ -321,23 +336,36 @@ def decision_figure(d: RecordedDecision, road: Any, title: str,
     from matplotlib.ticker import NullFormatter
 
     cb = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes, shrink=0.5, location="bottom",
-                      label="J_risk of the candidate (right panel) [cost units, log scale]")
+                      label="J_risk of the candidate (second map) [cost units, log scale]")
     cb.ax.xaxis.set_minor_formatter(NullFormatter())
     alt = alternative(d)
-    cost_panel(fig.add_subplot(gs[0, 2]), d, alt, weights)
+    cost_panel(panel, d, alt, weights)
     fig.suptitle(title, fontsize=11.5)
     return fig, n_drawn, alt
 
 
 def net_file(run: Path) -> Path | None:
     """The SUMO network of a run's scenario (from config.json), or None if it cannot be found."""
+    from sumo_ethics.sim.scenario import read_scenario
+
     try:
         cfg = json.loads((Path(run) / "config.json").read_text())
-        from sumo_ethics.sim.scenario import read_scenario
-
-        return read_scenario(Path(cfg["scenario"])).net
-    except (OSError, ValueError, KeyError, ConfigError):
+        net = Path(cfg.get("resolved", {}).get("net", ""))
+        if net.name and net.is_file():  # runs since the network's absolute path was recorded
+            return net
+        scenario = Path(cfg["scenario"])
+        if not scenario.is_absolute():  # the summary names it resolved
+            scenario = Path(json.loads((Path(run) / "summary.json").read_text()).get("scenario") or scenario)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
+    # a relative path is relative to where the run was started: here, or a folder above the run
+    bases = [Path.cwd()] if scenario.is_absolute() else [Path.cwd(), *Path(run).resolve().parents]
+    for base in bases:
+        try:
+            return read_scenario(base / scenario).net
+        except ConfigError:
+            continue
+    return None
 
 
 def weights_of(run: Path) -> dict[str, float] | None:
