@@ -26,7 +26,9 @@ time, so float32 keeps millimetres):
 ``eligible``           (K,) bool        could be chosen (hard pool / chosen class)
 ``first_hit``          (K,) int16       first step entering a predicted envelope (T: never)
 ``term_names``         (M,) str         the named cost terms
-``terms``              (K, M)           their values per candidate
+``term_rows``          (R,) int32       the candidates whose terms are kept: the chosen one, then
+                                        the best (lowest selection) of every other validity class
+``terms``              (R, M)           their values
 ``meta``               (6,) float64     step, time, chosen, dt, horizon steps T, stride
 =====================  ==============  =========================================================
 
@@ -76,6 +78,9 @@ def encode(trace: DecisionTrace, step: int, time: float, dt: float) -> dict[str,
     stride = max(1, int(round(CANDIDATE_SPACING / c.dt)))
     idx = np.unique(np.r_[0, np.arange(stride - 1, T, stride), T - 1])  # always the next step and the end
     names = sorted(trace.cost.terms)
+    # the named terms of the chosen candidate and of the best (lowest selection) of each other class
+    rows = [trace.chosen] + [int(np.flatnonzero(trace.validity == v)[np.argmin(trace.selection[trace.validity == v])])
+                             for v in np.unique(trace.validity) if v != trace.validity[trace.chosen]]
     cov = p.cov
     return {
         "meta": np.array([step, time, trace.chosen, dt, p.mean.shape[1] if len(a) else T, stride], dtype=np.float64),
@@ -94,8 +99,9 @@ def encode(trace: DecisionTrace, step: int, time: float, dt: float) -> dict[str,
         "eligible": np.asarray(trace.eligible, dtype=bool),
         "first_hit": np.minimum(trace.first_hit, np.iinfo(np.int16).max).astype(np.int16),
         "term_names": np.array(names, dtype=str),
-        "terms": np.stack([trace.cost.terms[n] for n in names], axis=-1).astype(f32)
-        if names else np.zeros((len(c.x), 0), f32),
+        "term_rows": np.array(rows, dtype=np.int32),
+        "terms": np.stack([trace.cost.terms[n][rows] for n in names], axis=-1).astype(f32)
+        if names else np.zeros((len(rows), 0), f32),
     }
 
 
@@ -103,12 +109,12 @@ def write(path: Path, arrays: dict[str, np.ndarray]) -> int:
     """Write ``arrays`` as a compressed .npz, atomically and byte-reproducibly; returns its size [B]."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
-    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=6) as z:
+    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as z:
         for name, arr in arrays.items():
             buf = io.BytesIO()
             np.lib.format.write_array(buf, np.ascontiguousarray(arr), allow_pickle=False)
             z.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_TIME), buf.getvalue(),
-                       compress_type=zipfile.ZIP_DEFLATED, compresslevel=6)
+                       compress_type=zipfile.ZIP_DEFLATED, compresslevel=1)
     os.replace(tmp, path)
     return path.stat().st_size
 
@@ -180,7 +186,8 @@ class RecordedDecision:
     candidates; ego: (8,) x, y, yaw, speed, length, width, mass, class; agent_ids: (N,);
     agents: (N, 7) x, y, yaw, speed, length, width, class; pred_mean: (N, T, 2); pred_cov:
     (N, T, 2, 2); cand_xy: (K, S, 2); cand_t: (S,); selection, j_risk, risk: (K,);
-    validity: (K,) int8; eligible: (K,) bool; first_hit: (K,); terms: name -> (K,).
+    validity: (K,) int8; eligible: (K,) bool; first_hit: (K,); terms: name -> (K,), NaN but for
+    the chosen candidate and the best one of every other validity class (the ones kept).
     """
 
     step: int
@@ -224,4 +231,13 @@ def load(run: Path, step: int) -> RecordedDecision:
         cand_xy=d["cand_xy"].astype(np.float64) + origin, cand_t=d["cand_t"].astype(np.float64),
         selection=d["selection"], j_risk=d["j_risk"], risk=d["risk"], validity=d["validity"],
         eligible=d["eligible"], first_hit=d["first_hit"],
-        terms={str(n): d["terms"][:, i] for i, n in enumerate(d["term_names"])})
+        terms=_terms(d, len(d["j_risk"])))
+
+
+def _terms(d: dict[str, np.ndarray], k: int) -> dict[str, np.ndarray]:
+    out = {}
+    for i, n in enumerate(d["term_names"]):
+        v = np.full(k, np.nan, dtype=np.float32)
+        v[d["term_rows"]] = d["terms"][:, i]
+        out[str(n)] = v
+    return out
