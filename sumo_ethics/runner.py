@@ -313,7 +313,8 @@ class Run:
         log = self.rec.decisions
         if log is None:
             return
-        self.meta["decisions"] = {"mode": log.mode, "steps": len(log.written), "bytes": log.bytes}
+        self.meta["decisions"] = {"mode": log.mode, "steps": len(log.written), "bytes": log.bytes,
+                                  "thinned": log.thinned}
         if not any(is_booked(r) for r in self.rec.collisions):
             return
         w = wallclock.perf_counter()

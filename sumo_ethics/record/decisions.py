@@ -34,7 +34,8 @@ time, so float32 keeps millimetres):
 
 Modes (``--record-decisions``): ``all`` every planning step; ``risky`` the steps whose chosen
 candidate carries risk (ex-ante risk > 0 to any party; on a busy junction some candidate always
-does, so that would keep nearly every step), and every step of the ``PRE_COLLISION`` seconds before an ego collision;
+does, so that would keep nearly every step; past RISKY_BUDGET kept steps, one per THIN_SECONDS),
+and every step of the ``PRE_COLLISION`` seconds before an ego collision;
 ``collisions`` only those seconds before each ego collision; ``off`` nothing but the last step
 before each ego collision (what its snapshot figure needs). Recording never changes a decision:
 it reads what the planner computed.
@@ -62,6 +63,10 @@ SNAPSHOTS = "snapshots"
 PRE_COLLISION = 5.0
 #: candidate positions are kept every this many seconds (at least every planning step)
 CANDIDATE_SPACING = 0.2
+#: mode risky keeps every risky step until this many are kept, then at most one per THIN_SECONDS
+#: (the steps before a collision always), so a long run's decisions stay within some 50 MB
+RISKY_BUDGET = 1000
+THIN_SECONDS = 1.0
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 
 
@@ -138,6 +143,9 @@ class DecisionLog:
         self.ring: deque[tuple[int, Any]] = deque(maxlen=self.keep)
         self.written: list[int] = []
         self.bytes = 0
+        self.risky_kept = 0
+        self.thinned = 0  # risky steps not kept after the budget (mode risky)
+        self._last_risky = -np.inf
 
     def add(self, step: int, time: float, trace: DecisionTrace | None, collided: bool) -> None:
         if trace is None:  # no planner decision this step (emergency brake, baseline controller)
@@ -145,8 +153,15 @@ class DecisionLog:
                 self._flush_ring(step)
             return
         risky = bool(trace.risk[trace.chosen] > 0.0)
+        if risky and self.mode == "risky" and self.risky_kept >= RISKY_BUDGET \
+                and time - self._last_risky < THIN_SECONDS - 1e-9:
+            self.thinned += 1
+            risky = False  # past the budget: kept only if it ends in a collision (the ring below)
         if self.mode == "all" or (self.mode == "risky" and risky):
             self._write(step, encode(trace, step, time, self.dt))
+            if risky:
+                self.risky_kept += 1
+                self._last_risky = time
         elif self.mode == "off":  # the trace itself (no cost): encoded only if it ends in a collision
             self.ring.append((step, (trace, time)))
         else:
