@@ -41,7 +41,8 @@ DPI = 100
 class ReplayResult:
     """What :func:`replay` wrote: the file (a .gif when an .mp4 was asked for without ffmpeg),
     the frames, the writer used ("ffmpeg" or "gif"), the frame rate and playback speed (1.0 =
-    real time), and the notes to show the user (fallback, partial recording, playback speed)."""
+    real time), the recorded and total steps of the run, the notes to show the user (MP4
+    fallback, partial recording) and a line describing the playback."""
 
     path: Path
     n_frames: int
@@ -51,6 +52,7 @@ class ReplayResult:
     recorded: int = 0
     total_steps: int = 0
     notes: tuple[str, ...] = field(default_factory=tuple)
+    playback: str = ""
 
 
 class GifStream:
@@ -217,10 +219,15 @@ def _progress(enabled: bool, total: int) -> Any:
     return prog, task
 
 
-def _check(out: Path, every: int, fps: float | None, half: float) -> None:
+def check_out(out: Path) -> None:
+    """ConfigError unless ``out`` ends in .mp4 or .gif."""
     if Path(out).suffix.lower() not in SUFFIXES:
-        raise ConfigError(f"--out {out}: the replay is written as .mp4 or .gif (got "
-                          f"{Path(out).suffix or 'no suffix'})")
+        raise ConfigError(f"--out {out}: a replay is written as .mp4 or .gif, not "
+                          f"{Path(out).suffix or 'a name without suffix'}")
+
+
+def _check(out: Path, every: int, fps: float | None, half: float) -> None:
+    check_out(out)
     if every < 1:
         raise ConfigError(f"--every {every}: must be a whole number of at least 1")
     if fps is not None and not (0 < fps <= 100):
@@ -277,8 +284,8 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
     if fps is None:
         fps = min(real, GIF_FPS_CAP if writer_name == "gif" else MP4_FPS_CAP)
     speed = fps / real
-    notes.append(f"{len(steps)} frames at {fps:.3g} frames/s: {len(steps) / fps:.1f} s of playback for "
-                 f"{len(steps) * dt * every:.1f} s of run ({_speed(speed)})")
+    playback = (f"{len(steps)} frames at {fps:.3g} frames/s, {len(steps) / fps:.1f} s of playback for "
+                f"{len(steps) * dt * every:.1f} s of run ({_speed(speed)})")
 
     # the figure: road drawn once (the part the ego's views can reach), the view pans
     fig = plt.figure(figsize=FIGSIZE, dpi=DPI)
@@ -347,7 +354,8 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
             bar[0].stop()
         plt.close(fig)
         tmp.unlink(missing_ok=True)
-    return ReplayResult(out, len(steps), writer_name, float(fps), float(speed), len(all_steps), total, tuple(notes))
+    return ReplayResult(out, len(steps), writer_name, float(fps), float(speed), len(all_steps), total, tuple(notes),
+                        playback)
 
 
 def _speed(speed: float) -> str:
