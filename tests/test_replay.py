@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import shutil
 import subprocess
 import sys
@@ -66,7 +67,7 @@ def test_every_third_step(run, tmp_path):
 
 
 def test_mp4_without_ffmpeg_writes_a_gif(run, tmp_path, capsys, monkeypatch):
-    import matplotlib.animation as animation
+    from matplotlib import animation
 
     monkeypatch.setattr(animation.writers, "is_available", lambda name: False)
     assert main(["replay", str(run), "--out", str(tmp_path / "run.mp4"), "--every", "10", "--fps", "4"]) == 0
@@ -76,6 +77,24 @@ def test_mp4_without_ffmpeg_writes_a_gif(run, tmp_path, capsys, monkeypatch):
     said = capsys.readouterr()
     assert "note: ffmpeg not found" in said.err and "run.gif instead of" in said.err
     assert "4x real time" in said.out
+
+
+def ffmpeg() -> bool:
+    from matplotlib import animation
+
+    return animation.writers.is_available("ffmpeg")
+
+
+@pytest.mark.skipif(not ffmpeg(), reason="no ffmpeg on PATH")
+def test_mp4_with_ffmpeg(run, tmp_path, capsys):
+    out = tmp_path / "run.mp4"
+    assert main(["replay", str(run), "--out", str(out), "--every", "5", "--quiet"]) == 0
+    assert out.stat().st_size > 0 and not (tmp_path / "run.gif").exists()
+    probe = subprocess.run(["ffmpeg", "-i", str(out), "-map", "0:v", "-c", "copy", "-f", "null", "-"],
+                           capture_output=True, text=True, check=False)
+    assert "yuv420p" in probe.stderr  # plays in browsers (matplotlib adds it for codec h264)
+    assert int(re.findall(r"frame=\s*(\d+)", probe.stderr)[-1]) == math.ceil(len(rec.recorded_steps(run)) / 5)
+    assert capsys.readouterr().err == ""
 
 
 def test_partly_recorded_run_says_so(run, tmp_path, capsys):

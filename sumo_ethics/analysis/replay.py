@@ -87,7 +87,7 @@ class GifStream:
     def _delay_cs(self) -> int:
         """This frame's delay in centiseconds, rounded so the total stays on the requested rate."""
         target = (self.frames + 1) * self.duration_ms / 10.0
-        delay = max(2, int(round(target - self._shown_cs)))  # viewers slow delays < 2 cs down to 10
+        delay = max(2, round(target - self._shown_cs))  # viewers slow delays < 2 cs down to 10
         self._shown_cs += delay
         return delay
 
@@ -160,7 +160,7 @@ def _scene(ax: Any, d: rec.RecordedDecision, class_colours: dict[str, str], ego_
     if n and d.pred_mean.shape[1]:
         paths = np.concatenate([a[:n, None, :2], d.pred_mean[:n]], axis=1)
         ax.add_collection(LineCollection(list(paths), colors=colours[:n], linewidths=1.2, zorder=4))
-        per_s = max(1, int(round(1.0 / d.dt)))
+        per_s = max(1, round(1.0 / d.dt))
         ts = np.arange(per_s - 1, d.pred_mean.shape[1], per_s)
         if len(ts):
             m = d.pred_mean[:n, ts].reshape(-1, 2)
@@ -175,18 +175,21 @@ def _scene(ax: Any, d: rec.RecordedDecision, class_colours: dict[str, str], ego_
                                      edgecolors="white", linewidths=1.0, zorder=6))
 
 
-def _scan(run: Path, steps: list[int]) -> tuple[np.ndarray, set[int], float]:
+def _scan(run: Path, steps: list[int]) -> tuple[np.ndarray, np.ndarray, set[int], set[int], float]:
     """One cheap pass over the recorded steps (only the small arrays): the ego's centres (S, 2)
-    [m], the road-user classes seen, the step length [s]."""
-    xy = np.zeros((len(steps), 2))
+    [m], the planning times (S,) [s], the road-user classes and validity classes seen, the step
+    length [s]."""
+    xy, times = np.zeros((len(steps), 2)), np.zeros(len(steps))
     classes: set[int] = set()
+    validity: set[int] = set()
     dt = 0.1
     for i, s in enumerate(steps):
         with np.load(rec.step_path(run, s), allow_pickle=False) as z:
             xy[i] = z["ego"][:2]
-            classes.update(int(c) for c in z["agents"][:, 6])
-            dt = float(z["meta"][3])
-    return xy, classes, dt
+            classes.update(int(c) for c in np.unique(z["agents"][:, 6]))
+            validity.update(int(v) for v in np.unique(z["validity"]))
+            times[i], dt = float(z["meta"][1]), float(z["meta"][3])
+    return xy, times, classes, validity, dt
 
 
 def _total_steps(run: Path) -> int:
@@ -246,7 +249,7 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.animation as animation
+    from matplotlib import animation
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -279,13 +282,13 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
             notes.append(f"ffmpeg not found: wrote {gif} instead of {out} (install ffmpeg for MP4)")
             out = gif
 
-    ego_xy, classes, dt = _scan(run, steps)
+    ego_xy, times, classes, validity, dt = _scan(run, steps)
     real = 1.0 / (dt * every)
     if fps is None:
         fps = min(real, GIF_FPS_CAP if writer_name == "gif" else MP4_FPS_CAP)
     speed = fps / real
     playback = (f"{len(steps)} frames at {fps:.3g} frames/s, {len(steps) / fps:.1f} s of playback for "
-                f"{len(steps) * dt * every:.1f} s of run ({_speed(speed)})")
+                f"t = {times[0]:.1f} to {times[-1]:.1f} s of the run ({_speed(speed)})")
 
     # the figure: road drawn once (the part the ego's views can reach), the view pans
     fig = plt.figure(figsize=FIGSIZE, dpi=DPI)
@@ -305,8 +308,8 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
     handles += [Line2D([], [], color="0.4", lw=1.2, label="predicted mean path"),
                 Patch(fc="0.5", alpha=0.3, ec="0.4", ls="--", label="predicted 1 sigma\n(2 sigma dashed), each s"),
                 Line2D([], [], color="black", lw=2.5, label="chosen trajectory")]
-    handles += [Line2D([], [], color=c, lw=1.5, alpha=0.6, label=f"candidate: {lab}")
-                for c, lab in zip(VALIDITY_COLOURS, VALIDITY_LABELS)]
+    handles += [Line2D([], [], color=VALIDITY_COLOURS[v], lw=1.5, alpha=0.6, label=f"candidate: {VALIDITY_LABELS[v]}")
+                for v in sorted(validity)]
     fig.legend(handles=handles, loc="center left", bbox_to_anchor=(0.71, 0.5), fontsize=8, frameon=False)
     fig.text(0.99, 0.01, f"{run.name} · {len(steps)} frames · playback {_speed(speed)}", ha="right",
              va="bottom", fontsize=7.5, color="0.35")
@@ -316,7 +319,8 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
 
     tmp = out.with_name(f".{out.stem}.part{out.suffix}")
     out.parent.mkdir(parents=True, exist_ok=True)
-    writer = GifStream(fps, dynamic=ax) if writer_name == "gif" else animation.FFMpegWriter(fps=fps, codec="libx264")
+    # codec h264 gets -pix_fmt yuv420p from matplotlib: plays in browsers and QuickTime (yuv444p would not)
+    writer = GifStream(fps, dynamic=ax) if writer_name == "gif" else animation.FFMpegWriter(fps=fps, codec="h264")
     bar = _progress(progress, len(steps))
     try:
         with writer.saving(fig, tmp, DPI):
