@@ -202,7 +202,8 @@ def replay(run_dir: Path, out: Path, every: int, fps: float | None, quiet: bool)
     res = animate(run_dir, out, every=every, fps=fps, progress=not quiet)
     for note in res.notes:
         click.echo(f"note: {note}", err=True)
-    click.echo(f"wrote {res.path}: {res.playback}, {res.path.stat().st_size / 1e6:.1f} MB")
+    size = res.path.stat().st_size
+    click.echo(f"wrote {res.path}: {res.playback}, " + (f"{size / 1e6:.1f} MB" if size >= 1e5 else f"{size / 1e3:.0f} kB"))
 
 
 from sumo_ethics.cli_sweep import analyze, sweep  # noqa: E402

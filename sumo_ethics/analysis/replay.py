@@ -297,6 +297,8 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
     if road is not None:
         lo, hi = ego_xy.min(axis=0) - half, ego_xy.max(axis=0) + half
         draw_road(ax, road.window(lo[0], lo[1], hi[0], hi[1]))
+    else:
+        notes.append(f"the road is not drawn: the SUMO network of {run / 'config.json'}'s scenario was not found")
     ax.set_aspect("equal", adjustable="box")
     ax.set_facecolor("#f7f7f2")
     ax.set_xlabel("x [m]")
