@@ -130,3 +130,10 @@ def test_run_without_decisions_names_the_flag(run, tmp_path):
 @pytest.mark.parametrize("name", ["run.avi", "run", "run.png"])
 def test_wrong_suffix(run, tmp_path, name):
     one_line_error(cli("replay", str(run), "--out", str(tmp_path / name)), ".mp4 or .gif")
+
+
+@pytest.mark.parametrize(("option", "value"), [("--every", "0"), ("--fps", "0"), ("--fps", "60"), ("--fps", "nan")])
+def test_bad_rate(run, tmp_path, capsys, option, value):
+    assert main(["replay", str(run), "--out", str(tmp_path / "x.gif"), option, value]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and err[0].startswith(f"error: {option} ") and not (tmp_path / "x.gif").exists()

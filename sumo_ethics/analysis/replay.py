@@ -233,8 +233,8 @@ def _check(out: Path, every: int, fps: float | None, half: float) -> None:
     check_out(out)
     if every < 1:
         raise ConfigError(f"--every {every}: must be a whole number of at least 1")
-    if fps is not None and not (0 < fps <= 100):
-        raise ConfigError(f"--fps {fps:g}: must be above 0 and at most 100 frames per second")
+    if fps is not None and not (0 < fps <= 50):  # a GIF's delays are whole centiseconds, at least 2
+        raise ConfigError(f"--fps {fps:g}: must be above 0 and at most 50 frames per second")
     if not half > 0:
         raise ConfigError(f"half-width {half:g} m of the view must be positive")
 
