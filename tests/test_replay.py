@@ -112,6 +112,25 @@ def test_partly_recorded_run_says_so(run, tmp_path, capsys):
     assert f"{kept} of {len(steps)} steps recorded; run with --record-decisions all for every step" in err
 
 
+def test_an_ego_collision_is_always_a_frame(run, tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from sumo_ethics.record.schema import COLLISIONS
+
+    crash = tmp_path / "crash"
+    shutil.copytree(run, crash)
+    steps = rec.recorded_steps(crash)
+    hit = next(s for s in reversed(steps) if s not in steps[::3])  # a step --every 3 would skip
+    default = {pa.bool_(): False, pa.string(): ""}
+    row = {f.name: default.get(f.type, 0) for f in COLLISIONS}
+    row.update(event=0, step=hit, time=60.0 + hit / 10, involves_ego=True, detector="geometry", id_a="ego",
+               id_b="p0", class_a="car", class_b="pedestrian", harm_third_party=0.5)
+    pq.write_table(pa.Table.from_pylist([row], schema=COLLISIONS), crash / "collisions.parquet")
+    assert main(["replay", str(crash), "--out", str(tmp_path / "c.gif"), "--every", "3", "--quiet"]) == 0
+    assert frames(tmp_path / "c.gif")[0] == math.ceil(len(steps) / 3) + 1
+
+
 def one_line_error(p: subprocess.CompletedProcess, fragment: str) -> None:
     assert p.returncode == 2, p.stderr
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]

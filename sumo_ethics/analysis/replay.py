@@ -4,7 +4,9 @@ Each frame is an ego-centred view (``half`` metres each way, axes in metres of t
 frame): the road from the SUMO network (read and drawn once; the view pans), every road user
 as its true box coloured by class with its predicted mean path and 1-sigma ellipse every
 second, all candidates faint by validity class, the chosen trajectory in black, the ego's trail,
-and a title with the time, the ego's speed and the choice (validity class, J_risk).
+and a title with the time, the ego's speed and the choice (validity class, J_risk). The frames
+are every ``every``-th recorded step plus the recorded step of every ego collision, which is
+marked in red (who was hit, the harm booked).
 
 Frames are rendered one at a time and handed to a writer: ``.mp4`` through ffmpeg (when it is
 missing a ``.gif`` is written next to the requested name, with a message saying so), ``.gif``
@@ -201,6 +203,24 @@ def _total_steps(run: Path) -> int:
         return 0
 
 
+def _collisions(run: Path) -> dict[int, str]:
+    """The run's booked ego collisions: step -> a line saying who was hit and the harm booked."""
+    from sumo_ethics.collision import is_booked
+    from sumo_ethics.record.reader import read_table
+
+    try:
+        rows = read_table(run, "collisions").to_pylist()
+    except ConfigError:
+        return {}
+    marks: dict[int, list[str]] = {}
+    for r in rows:
+        if is_booked(r):
+            marks.setdefault(int(r["step"]), []).append(
+                f"COLLISION at t = {r['time']:.1f} s: ego hit {r['class_b']} '{r['id_b']}'\n"
+                f"harm P(MAIS 3+): ego {r['harm_ego']:.3f}, third party {r['harm_third_party']:.3f}")
+    return {k: "\n".join(v) for k, v in marks.items()}
+
+
 def _record_mode(run: Path) -> str | None:
     try:
         return str(json.loads((run / "config.json").read_text())["record_decisions"])
@@ -241,7 +261,8 @@ def _check(out: Path, every: int, fps: float | None, half: float) -> None:
 
 def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half: float = 40.0,
            progress: bool = True) -> ReplayResult:
-    """Animate the recorded decisions of ``run`` (every ``every``-th) to ``out`` (.mp4 or .gif).
+    """Animate the recorded decisions of ``run`` (every ``every``-th, and the step of every ego
+    collision) to ``out`` (.mp4 or .gif).
 
     ``fps`` defaults to real time, 1 / (dt x every), capped at 10 for a GIF and 30 for an MP4.
     ConfigError for a bad suffix or value and for a run without recorded decisions (naming the
@@ -261,7 +282,8 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
     run, out = Path(run), Path(out)
     _check(out, every, fps, half)
     all_steps = recorded(run)
-    steps = all_steps[::every]
+    crashes = _collisions(run)
+    steps = sorted(set(all_steps[::every]) | (set(crashes) & set(all_steps)))  # every collision is shown
     notes: list[str] = []
 
     total = _total_steps(run)
@@ -343,6 +365,10 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
                               f"{VALIDITY_LABELS[int(d.validity[d.chosen])]}, J_risk {_fmt(float(d.j_risk[d.chosen]))}")
                 else:
                     choice = "no candidates"
+                if s in crashes:
+                    ax.text(0.5, 0.98, crashes[s], transform=ax.transAxes, ha="center", va="top", fontsize=8,
+                            color="white", weight="bold", zorder=10,
+                            bbox={"boxstyle": "round", "fc": "#d62728", "ec": "none"})
                 trail.set_data(ego_xy[: i + 1, 0], ego_xy[: i + 1, 1])
                 ax.set_xlim(ex - half, ex + half)
                 ax.set_ylim(ey - half, ey + half)
