@@ -187,8 +187,10 @@ def evaluate_predictor(dataset_dir: Path, out: Path) -> None:
 @click.argument("run_dir", type=click.Path(path_type=Path))
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="Animation to write: .mp4 (needs ffmpeg; a .gif of the same name without it) or .gif.")
-@click.option("--every", type=int, default=1, show_default=True, help="Draw every N-th recorded step.")
-@click.option("--fps", type=float, help="Frames per second (default real time, at most 10 for a GIF, 30 for an MP4).")
+@click.option("--every", type=int, default=1, show_default=True,
+              help="Draw every N-th recorded step (and always the step of each ego collision).")
+@click.option("--fps", type=float, help="Frames per second, at most 50 (default: real time, capped at 10 for a GIF and 30 "
+              "for an MP4).")
 @click.option("--quiet", is_flag=True, help="No progress display.")
 def replay(run_dir: Path, out: Path, every: int, fps: float | None, quiet: bool) -> None:
     """Animate RUN_DIR's recorded decisions: an ego-centred view per planning step with the road users,
