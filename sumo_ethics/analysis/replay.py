@@ -361,7 +361,7 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
                     p = paths[d.chosen]
                     ax.plot(p[:, 0], p[:, 1], color="white", lw=4.0, zorder=5.5, solid_capstyle="round")
                     ax.plot(p[:, 0], p[:, 1], color="black", lw=2.0, zorder=5.6, solid_capstyle="round")
-                    choice = (f"chosen {d.chosen + 1} of {d.n_candidates}: "
+                    choice = (f"chose candidate {d.chosen} of {d.n_candidates}: "
                               f"{VALIDITY_LABELS[int(d.validity[d.chosen])]}, J_risk {_fmt(float(d.j_risk[d.chosen]))}")
                 else:
                     choice = "no candidates"
