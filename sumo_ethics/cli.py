@@ -189,8 +189,8 @@ def evaluate_predictor(dataset_dir: Path, out: Path) -> None:
               help="Animation to write: .mp4 (needs ffmpeg; a .gif of the same name without it) or .gif.")
 @click.option("--every", type=int, default=1, show_default=True,
               help="Draw every N-th recorded step (and always the step of each ego collision).")
-@click.option("--fps", type=float, help="Frames per second, at most 50 (default: real time, capped at 10 for a GIF and 30 "
-              "for an MP4).")
+@click.option("--fps", type=float,
+              help="Frames per second, at most 50 (default: real time, capped at 10 for a GIF and 30 for an MP4).")
 @click.option("--quiet", is_flag=True, help="No progress display.")
 def replay(run_dir: Path, out: Path, every: int, fps: float | None, quiet: bool) -> None:
     """Animate RUN_DIR's recorded decisions: an ego-centred view per planning step with the road users,
@@ -205,7 +205,8 @@ def replay(run_dir: Path, out: Path, every: int, fps: float | None, quiet: bool)
     for note in res.notes:
         click.echo(f"note: {note}", err=True)
     size = res.path.stat().st_size
-    click.echo(f"wrote {res.path}: {res.playback}, " + (f"{size / 1e6:.1f} MB" if size >= 1e5 else f"{size / 1e3:.0f} kB"))
+    shown = f"{size / 1e6:.1f} MB" if size >= 1e5 else f"{size / 1e3:.0f} kB"
+    click.echo(f"wrote {res.path}: {res.playback}, {shown}")
 
 
 from sumo_ethics.cli_sweep import analyze, sweep  # noqa: E402
