@@ -204,6 +204,32 @@ def evaluate_predictor(dataset_dir: Path, out: Path) -> None:
     click.echo(f"written to {out}/prediction_eval.csv and .md")
 
 
+@cli.command()
+@click.argument("run_dir", type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), required=True,
+              help="Animation to write: .mp4 (needs ffmpeg; a .gif of the same name without it) or .gif.")
+@click.option("--every", type=int, default=1, show_default=True,
+              help="Draw every N-th recorded step (and always the step of each ego collision).")
+@click.option("--fps", type=float,
+              help="Frames per second, at most 50 (default: real time, capped at 10 for a GIF and 30 for an MP4).")
+@click.option("--quiet", is_flag=True, help="No progress display.")
+def replay(run_dir: Path, out: Path, every: int, fps: float | None, quiet: bool) -> None:
+    """Animate RUN_DIR's recorded decisions: an ego-centred view per planning step with the road users,
+    their predictions, the candidates and the chosen trajectory.
+
+    The run must have been made with --record-decisions (all for every step).
+    """
+    from sumo_ethics.analysis.replay import check_out, replay as animate
+
+    check_out(out)
+    res = animate(run_dir, out, every=every, fps=fps, progress=not quiet)
+    for note in res.notes:
+        click.echo(f"note: {note}", err=True)
+    size = res.path.stat().st_size
+    shown = f"{size / 1e6:.1f} MB" if size >= 1e5 else f"{size / 1e3:.0f} kB"
+    click.echo(f"wrote {res.path}: {res.playback}, {shown}")
+
+
 from sumo_ethics.cli_sweep import analyze, sweep  # noqa: E402
 
 cli.add_command(sweep)

@@ -1,0 +1,396 @@
+"""``sumo-ethics replay``: the ego's run as an animation, one frame per recorded planning step.
+
+Each frame is an ego-centred view (``half`` metres each way, axes in metres of the network
+frame): the road from the SUMO network (read and drawn once; the view pans), every road user
+as its true box coloured by class with its predicted mean path and 1-sigma ellipse every
+second, all candidates faint by validity class, the chosen trajectory in black, the ego's trail,
+and a title with the time, the ego's speed and the choice (validity class, J_risk). The frames
+are every ``every``-th recorded step plus the recorded step of every ego collision, which is
+marked in red (who was hit, the harm booked).
+
+Frames are rendered one at a time and handed to a writer: ``.mp4`` through ffmpeg (when it is
+missing a ``.gif`` is written next to the requested name, with a message saying so), ``.gif``
+through :class:`GifStream`, which writes each frame to the file as it comes (matplotlib's
+PillowWriter keeps every frame in memory until the end), so memory stays flat however long the
+run. The file is written under a temporary name and renamed when complete.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sumo_ethics.errors import ConfigError
+from sumo_ethics.record import decisions as rec
+
+SUFFIXES = (".mp4", ".gif")
+#: default frame rate cap for a GIF [frames/s] (file size; real time at dt = 0.1 s)
+GIF_FPS_CAP = 10.0
+#: default frame rate cap for an MP4 [frames/s]
+MP4_FPS_CAP = 30.0
+#: figure size [in] and resolution [dpi]: 800 x 600 pixels
+FIGSIZE = (8.0, 6.0)
+DPI = 100
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    """What :func:`replay` wrote: the file (a .gif when an .mp4 was asked for without ffmpeg),
+    the frames, the writer used ("ffmpeg" or "gif"), the frame rate and playback speed (1.0 =
+    real time), the recorded and total steps of the run, the notes to show the user (MP4
+    fallback, partial recording) and a line describing the playback."""
+
+    path: Path
+    n_frames: int
+    writer: str
+    fps: float = 0.0
+    speed: float = 1.0
+    recorded: int = 0
+    total_steps: int = 0
+    notes: tuple[str, ...] = field(default_factory=tuple)
+    playback: str = ""
+
+
+class GifStream:
+    """A matplotlib movie writer (``saving`` / ``grab_frame``) that appends each frame to a GIF
+    file at once: adaptive 256-colour palette per frame (no dithering), only the rectangle that
+    changed since the previous frame, every frame kept (none merged) and looped forever."""
+
+    def __init__(self, fps: float, dynamic: Any = None) -> None:
+        self.duration_ms = 1000.0 / fps
+        #: the one axes that changes between frames: the rest of the figure is drawn once
+        self.dynamic = dynamic
+        self._background: Any = None
+        self.frames = 0
+        self._fp: Any = None
+        self._prev: Any = None
+        self._shown_cs = 0.0  # centiseconds written so far (GIF delays are whole centiseconds)
+
+    def saving(self, fig: Any, path: Path, dpi: float) -> Any:
+        from contextlib import contextmanager
+
+        @contextmanager
+        def ctx():
+            self.fig, self.dpi = fig, dpi
+            fig.set_dpi(dpi)
+            with open(path, "wb") as self._fp:
+                yield self
+                self._fp.write(b";")  # trailer
+            self._fp = None
+
+        return ctx()
+
+    def _delay_cs(self) -> int:
+        """This frame's delay in centiseconds, rounded so the total stays on the requested rate."""
+        target = (self.frames + 1) * self.duration_ms / 10.0
+        delay = max(2, round(target - self._shown_cs))  # viewers slow delays < 2 cs down to 10
+        self._shown_cs += delay
+        return delay
+
+    def _draw(self) -> None:
+        canvas = self.fig.canvas
+        if self.dynamic is None:
+            canvas.draw()
+            return
+        if self._background is None:
+            self.dynamic.set_visible(False)
+            canvas.draw()
+            self._background = canvas.copy_from_bbox(self.fig.bbox)
+            self.dynamic.set_visible(True)
+        canvas.restore_region(self._background)
+        self.fig.draw_artist(self.dynamic)
+
+    def grab_frame(self) -> None:
+        from PIL import GifImagePlugin, Image, ImageChops
+
+        self._draw()
+        rgb = Image.frombuffer("RGBA", self.fig.canvas.get_width_height(physical=True),
+                               self.fig.canvas.buffer_rgba(), "raw", "RGBA", 0, 1).convert("RGB")
+        delay = self._delay_cs() * 10
+        if self._prev is None:
+            im = rgb.quantize(256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+            header, _ = GifImagePlugin.getheader(im, info={"loop": 0, "duration": delay})
+            for chunk in header:
+                self._fp.write(chunk)
+            chunks = GifImagePlugin.getdata(im, (0, 0), duration=delay)
+        else:
+            bbox = ImageChops.difference(rgb, self._prev).getbbox() or (0, 0, 1, 1)  # never merge frames
+            part = rgb.crop(bbox).quantize(256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+            chunks = GifImagePlugin.getdata(part, bbox[:2], duration=delay, include_color_table=True)
+        for chunk in chunks:
+            self._fp.write(chunk)
+        self._prev = rgb
+        self.frames += 1
+
+
+# ---- the frames -----------------------------------------------------------------------------------
+def _boxes(xy: np.ndarray, yaw: np.ndarray, length: np.ndarray, width: np.ndarray) -> np.ndarray:
+    """(N, 4, 2) corners of N oriented boxes [m]."""
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    lx = np.array([1, 1, -1, -1]) * length[:, None] / 2
+    ly = np.array([1, -1, -1, 1]) * width[:, None] / 2
+    return np.stack([xy[:, :1] + lx * c - ly * s, xy[:, 1:] + lx * s + ly * c], axis=-1)
+
+
+def _ellipses(mean: np.ndarray, cov: np.ndarray, k: float, n: int = 32) -> np.ndarray:
+    """(E, n, 2) outlines of the k-sigma ellipses of E 2-D Gaussians."""
+    vals, vecs = np.linalg.eigh(cov)
+    a = np.linspace(0, 2 * np.pi, n)
+    circle = np.stack([np.cos(a), np.sin(a)], -1)[None] * (k * np.sqrt(np.maximum(vals, 0)))[:, None, :]
+    return np.einsum("enj,eij->eni", circle, vecs) + mean[:, None, :]
+
+
+def _scene(ax: Any, d: rec.RecordedDecision, class_colours: dict[str, str], ego_colour: str) -> None:
+    """Every road user's true box by class, its predicted mean path and its 1-sigma (filled) and
+    2-sigma (dashed) ellipses each second, and the ego: a few collections, drawn fast."""
+    from matplotlib.collections import LineCollection, PolyCollection
+
+    from sumo_ethics.types import RoadUserClass
+
+    a = d.agents
+    colours = [class_colours[RoadUserClass(int(c)).label] for c in a[:, 6]]
+    if len(a):
+        ax.add_collection(PolyCollection(_boxes(a[:, :2], a[:, 2], a[:, 4], a[:, 5]), facecolors=colours,
+                                         edgecolors="black", linewidths=0.6, zorder=5))
+    n = min(len(a), d.pred_mean.shape[0])
+    if n and d.pred_mean.shape[1]:
+        paths = np.concatenate([a[:n, None, :2], d.pred_mean[:n]], axis=1)
+        ax.add_collection(LineCollection(list(paths), colors=colours[:n], linewidths=1.2, zorder=4))
+        per_s = max(1, round(1.0 / d.dt))
+        ts = np.arange(per_s - 1, d.pred_mean.shape[1], per_s)
+        if len(ts):
+            m = d.pred_mean[:n, ts].reshape(-1, 2)
+            cov = d.pred_cov[:n, ts].reshape(-1, 2, 2)
+            ec = [c for c in colours[:n] for _ in ts]
+            ax.add_collection(PolyCollection(list(_ellipses(m, cov, 1.0)), facecolors=ec, edgecolors="none",
+                                             alpha=0.22, zorder=3))
+            ax.add_collection(LineCollection(list(_ellipses(m, cov, 2.0)), colors=ec, linewidths=0.6, alpha=0.5,
+                                             linestyles="--", zorder=3))
+    e = d.ego
+    ax.add_collection(PolyCollection(_boxes(e[None, :2], e[2:3], e[4:5], e[5:6]), facecolors=ego_colour,
+                                     edgecolors="white", linewidths=1.0, zorder=6))
+
+
+def _scan(run: Path, steps: list[int]) -> tuple[np.ndarray, np.ndarray, set[int], set[int], float]:
+    """One cheap pass over the recorded steps (only the small arrays): the ego's centres (S, 2)
+    [m], the planning times (S,) [s], the road-user classes and validity classes seen, the step
+    length [s]."""
+    xy, times = np.zeros((len(steps), 2)), np.zeros(len(steps))
+    classes: set[int] = set()
+    validity: set[int] = set()
+    dt = 0.1
+    for i, s in enumerate(steps):
+        with np.load(rec.step_path(run, s), allow_pickle=False) as z:
+            xy[i] = z["ego"][:2]
+            classes.update(int(c) for c in np.unique(z["agents"][:, 6]))
+            validity.update(int(v) for v in np.unique(z["validity"]))
+            times[i], dt = float(z["meta"][1]), float(z["meta"][3])
+    return xy, times, classes, validity, dt
+
+
+def _total_steps(run: Path) -> int:
+    from sumo_ethics.record.reader import read_table
+
+    try:
+        return read_table(run, "steps").num_rows
+    except ConfigError:
+        return 0
+
+
+def _collisions(run: Path) -> dict[int, str]:
+    """The run's booked ego collisions: step -> a line saying who was hit and the harm booked."""
+    from sumo_ethics.collision import is_booked
+    from sumo_ethics.record.reader import read_table
+
+    try:
+        rows = read_table(run, "collisions").to_pylist()
+    except ConfigError:
+        return {}
+    marks: dict[int, list[str]] = {}
+    for r in rows:
+        if is_booked(r):
+            marks.setdefault(int(r["step"]), []).append(
+                f"COLLISION at t = {r['time']:.1f} s: ego hit {r['class_b']} '{r['id_b']}'\n"
+                f"harm P(MAIS 3+): ego {r['harm_ego']:.3f}, third party {r['harm_third_party']:.3f}")
+    return {k: "\n".join(v) for k, v in marks.items()}
+
+
+def _record_mode(run: Path) -> str | None:
+    try:
+        return str(json.loads((run / "config.json").read_text())["record_decisions"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _progress(enabled: bool, total: int) -> Any:
+    if not enabled:
+        return None
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    prog = Progress(TextColumn("[bold]replay"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"),
+                    TimeRemainingColumn(), transient=True)
+    if not prog.console.is_terminal:
+        return None
+    task = prog.add_task("frames", total=total)
+    prog.start()
+    return prog, task
+
+
+def check_out(out: Path) -> None:
+    """ConfigError unless ``out`` ends in .mp4 or .gif."""
+    if Path(out).suffix.lower() not in SUFFIXES:
+        raise ConfigError(f"--out {out}: a replay is written as .mp4 or .gif, not "
+                          f"{Path(out).suffix or 'a name without suffix'}")
+
+
+def _check(out: Path, every: int, fps: float | None, half: float) -> None:
+    check_out(out)
+    if every < 1:
+        raise ConfigError(f"--every {every}: must be a whole number of at least 1")
+    if fps is not None and not (0 < fps <= 50):  # a GIF's delays are whole centiseconds, at least 2
+        raise ConfigError(f"--fps {fps:g}: must be above 0 and at most 50 frames per second")
+    if not half > 0:
+        raise ConfigError(f"half-width {half:g} m of the view must be positive")
+
+
+def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half: float = 40.0,
+           progress: bool = True) -> ReplayResult:
+    """Animate the recorded decisions of ``run`` (every ``every``-th, and the step of every ego
+    collision) to ``out`` (.mp4 or .gif).
+
+    ``fps`` defaults to real time, 1 / (dt x every), capped at 10 for a GIF and 30 for an MP4.
+    ConfigError for a bad suffix or value and for a run without recorded decisions (naming the
+    flag). Without ffmpeg an .mp4 request writes the .gif of the same name instead (see the notes)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import animation
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    from sumo_ethics.analysis.explain import (CLASS_COLOURS, EGO_COLOUR, VALIDITY_COLOURS, VALIDITY_LABELS, _fmt,
+                                              draw_road, recorded, road_of)
+    from sumo_ethics.types import RoadUserClass
+
+    run, out = Path(run), Path(out)
+    _check(out, every, fps, half)
+    all_steps = recorded(run)
+    crashes = _collisions(run)
+    steps = sorted(set(all_steps[::every]) | (set(crashes) & set(all_steps)))  # every collision is shown
+    notes: list[str] = []
+
+    total = _total_steps(run)
+    if total and len(all_steps) < total:
+        if _record_mode(run) == "all":
+            notes.append(f"{len(all_steps)} of {total} steps have a decision (the others had no planner "
+                         f"decision, e.g. emergency braking)")
+        else:
+            notes.append(f"{len(all_steps)} of {total} steps recorded; run with --record-decisions all "
+                         f"for every step")
+
+    writer_name = "gif"
+    if out.suffix.lower() == ".mp4":
+        if animation.writers.is_available("ffmpeg"):
+            writer_name = "ffmpeg"
+        else:
+            gif = out.with_suffix(".gif")
+            notes.append(f"ffmpeg not found: wrote {gif} instead of {out} (install ffmpeg for MP4)")
+            out = gif
+
+    ego_xy, times, classes, validity, dt = _scan(run, steps)
+    real = 1.0 / (dt * every)
+    if fps is None:
+        fps = min(real, GIF_FPS_CAP if writer_name == "gif" else MP4_FPS_CAP)
+    speed = fps / real
+    playback = (f"{len(steps)} frames at {fps:.3g} frames/s, {len(steps) / fps:.1f} s of playback for "
+                f"t = {times[0]:.1f} to {times[-1]:.1f} s of the run ({_speed(speed)})")
+
+    # the figure: road drawn once (the part the ego's views can reach), the view pans
+    fig = plt.figure(figsize=FIGSIZE, dpi=DPI)
+    ax = fig.add_axes((0.09, 0.09, 0.6, 0.8))
+    road = road_of(run)
+    if road is not None:
+        lo, hi = ego_xy.min(axis=0) - half, ego_xy.max(axis=0) + half
+        draw_road(ax, road.window(lo[0], lo[1], hi[0], hi[1]))
+    else:
+        notes.append(f"the road is not drawn: the SUMO network of {run / 'config.json'}'s scenario was not found")
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_facecolor("#f7f7f2")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    trail, = ax.plot([], [], color=EGO_COLOUR, lw=1.0, ls=":", zorder=1.5)
+    handles = [Patch(fc=EGO_COLOUR, label="ego"), Line2D([], [], color=EGO_COLOUR, lw=1, ls=":", label="ego's trail")]
+    handles += [Patch(fc=CLASS_COLOURS[RoadUserClass(c).label], ec="black", lw=0.6, label=RoadUserClass(c).label)
+                for c in sorted(classes)]
+    handles += [Line2D([], [], color="0.4", lw=1.2, label="predicted mean path"),
+                Patch(fc="0.5", alpha=0.3, ec="0.4", ls="--", label="predicted 1 sigma\n(2 sigma dashed), each s"),
+                Line2D([], [], color="black", lw=2.5, label="chosen trajectory")]
+    handles += [Line2D([], [], color=VALIDITY_COLOURS[v], lw=1.5, alpha=0.6, label=f"candidate: {VALIDITY_LABELS[v]}")
+                for v in sorted(validity)]
+    fig.legend(handles=handles, loc="center left", bbox_to_anchor=(0.71, 0.5), fontsize=8, frameon=False)
+    fig.text(0.99, 0.01, f"{run.name} · {len(steps)} frames · playback {_speed(speed)}", ha="right",
+             va="bottom", fontsize=7.5, color="0.35")
+    static = set(ax.get_children())
+
+    from matplotlib.collections import LineCollection
+
+    tmp = out.with_name(f".{out.stem}.part{out.suffix}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    # codec h264 gets -pix_fmt yuv420p from matplotlib: plays in browsers and QuickTime (yuv444p would not)
+    writer = GifStream(fps, dynamic=ax) if writer_name == "gif" else animation.FFMpegWriter(fps=fps, codec="h264")
+    bar = _progress(progress, len(steps))
+    try:
+        with writer.saving(fig, tmp, DPI):
+            for i, s in enumerate(steps):
+                d = rec.load(run, s)
+                ex, ey = float(d.ego[0]), float(d.ego[1])
+                _scene(ax, d, CLASS_COLOURS, EGO_COLOUR)
+                if d.n_candidates:
+                    start = np.broadcast_to(d.ego[:2], (d.n_candidates, 1, 2))
+                    paths = np.concatenate([start, d.cand_xy], axis=1)
+                    colours = [VALIDITY_COLOURS[int(v)] for v in d.validity]
+                    ax.add_collection(LineCollection(list(paths), colors=colours, linewidths=0.5, alpha=0.25,
+                                                     zorder=2))
+                    p = paths[d.chosen]
+                    ax.plot(p[:, 0], p[:, 1], color="white", lw=4.0, zorder=5.5, solid_capstyle="round")
+                    ax.plot(p[:, 0], p[:, 1], color="black", lw=2.0, zorder=5.6, solid_capstyle="round")
+                    choice = (f"chose candidate {d.chosen} of {d.n_candidates}: "
+                              f"{VALIDITY_LABELS[int(d.validity[d.chosen])]}, J_risk {_fmt(float(d.j_risk[d.chosen]))}")
+                else:
+                    choice = "no candidates"
+                if s in crashes:
+                    ax.text(0.5, 0.98, crashes[s], transform=ax.transAxes, ha="center", va="top", fontsize=8,
+                            color="white", weight="bold", zorder=10,
+                            bbox={"boxstyle": "round", "fc": "#d62728", "ec": "none"})
+                trail.set_data(ego_xy[: i + 1, 0], ego_xy[: i + 1, 1])
+                ax.set_xlim(ex - half, ex + half)
+                ax.set_ylim(ey - half, ey + half)
+                ax.set_title(f"t = {d.time:.1f} s (step {d.step}) · ego {d.ego[3]:.1f} m/s "
+                             f"({d.ego[3] * 3.6:.0f} km/h)\n{choice}", fontsize=9.5)
+                writer.grab_frame()
+                for artist in ax.get_children():
+                    if artist not in static:
+                        artist.remove()
+                if bar is not None:
+                    bar[0].advance(bar[1])
+        os.replace(tmp, out)
+    finally:
+        if bar is not None:
+            bar[0].stop()
+        plt.close(fig)
+        tmp.unlink(missing_ok=True)
+    return ReplayResult(out, len(steps), writer_name, float(fps), float(speed), len(all_steps), total, tuple(notes),
+                        playback)
+
+
+def _speed(speed: float) -> str:
+    if math.isclose(speed, 1.0, rel_tol=1e-3):
+        return "real time"
+    return f"{speed:.3g}x real time"
