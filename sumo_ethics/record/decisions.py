@@ -250,6 +250,8 @@ def load(run: Path, step: int) -> RecordedDecision:
 
 
 def _terms(d: dict[str, np.ndarray], k: int) -> dict[str, np.ndarray]:
+    if "term_rows" not in d:  # files of the first version kept every candidate's terms
+        return {str(n): d["terms"][:, i] for i, n in enumerate(d["term_names"])}
     out = {}
     for i, n in enumerate(d["term_names"]):
         v = np.full(k, np.nan, dtype=np.float32)
