@@ -198,10 +198,11 @@ def test_unavoidable_collision_writes_its_snapshot(tmp_path):
 
 
 def test_risky_past_its_budget_keeps_one_step_per_second(tmp_path, monkeypatch):
-    """With a budget of 5 risky steps at 0.1 s: steps 1-5 (t = 0.1-0.5 s) are kept, then one per
-    second after the last kept (15, 25, 35, 45: t = 1.5, 2.5, ...), and the 5 s (50 steps) before
+    """With a budget of 5 risky steps at 0.1 s and thinning to one per second: steps 1-5
+    (t = 0.1-0.5 s) are kept, then one per second after the last kept (15, 25, 35, 45: t = 1.5, 2.5, ...), and the 5 s (50 steps) before
     a collision at step 100 in full."""
     monkeypatch.setattr(rec, "RISKY_BUDGET", 5)
+    monkeypatch.setattr(rec, "THIN_SECONDS", 1.0)
     log = rec.DecisionLog(tmp_path, "risky", dt=0.1)
     for k in range(1, 101):
         log.add(k, round(k * 0.1, 10), _trace(1e-3), collided=k == 100)
