@@ -80,13 +80,10 @@ junction lanes ``:C_1_0`` / ``:C_1_1`` (eastbound) and ``:C_0_0`` (westbound) ar
 from __future__ import annotations
 
 import math
-import re
-import subprocess
 import sys
 from pathlib import Path
-from xml.sax.saxutils import quoteattr
 
-from sumo_ethics.suite.networks import OPTIONS as NETCONVERT_OPTIONS
+from sumo_ethics.sim.netbuild import PlainNet, attrs as _attrs, write_if_changed as _write
 
 ROOT = Path(__file__).resolve().parent.parent
 NETWORKS = ROOT / "networks"
@@ -97,112 +94,13 @@ END = 600
 
 
 # --------------------------------------------------------------------------- helpers
-def _netconvert() -> Path:
-    import sumo  # imported here: the package only provides SUMO_HOME
+class Net(PlainNet):
+    """A bundled network: built into ``networks/<name>/`` with its ``.netccfg``."""
 
-    exe = Path(sumo.SUMO_HOME) / "bin" / "netconvert"
-    if not exe.exists() and exe.with_suffix(".exe").exists():
-        exe = exe.with_suffix(".exe")
-    return exe
-
-
-def _attrs(d: dict) -> str:
-    return " ".join(f"{k}={quoteattr(str(v))}" for k, v in d.items() if v is not None)
-
-
-def _fmt(x: float) -> str:
-    s = f"{x:.2f}".rstrip("0").rstrip(".")
-    return "0" if s in ("-0", "") else s
-
-
-def _shape(points) -> str:
-    return " ".join(f"{_fmt(x)},{_fmt(y)}" for x, y in points)
-
-
-def _write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if path.exists() and path.read_text() == text:
-        return
-    path.write_text(text)
-
-
-class Net:
-    """Collects plain-XML network elements and writes/builds them."""
-
-    def __init__(self, name: str, options: dict | None = None):
-        self.name = name
-        self.nodes: list[dict] = []
-        self.edges: list[dict] = []
-        self.connections: list[dict] = []
-        self.crossings: list[dict] = []
-        self.options = dict(NETCONVERT_OPTIONS)  # shared with the suite generator
-        self.options.update(options or {})
-
-    def node(self, id, x, y, type=None, **kw):
-        self.nodes.append({"id": id, "x": _fmt(x), "y": _fmt(y), "type": type, **kw})
-
-    def edge(self, id, fr, to, **kw):
-        self.edges.append({"id": id, "from": fr, "to": to, **kw})
-
-    def two_way(self, fwd, bwd, fr, to, shape=None, **kw):
-        """A two-way road: edge fwd fr->to and edge bwd to->fr on the same centre line."""
-        self.edge(fwd, fr, to, shape=_shape(shape) if shape else None, **kw)
-        self.edge(bwd, to, fr, shape=_shape(shape[::-1]) if shape else None, **kw)
-
-    def connection(self, fr, to, fromLane, toLane):
-        self.connections.append({"from": fr, "to": to, "fromLane": fromLane, "toLane": toLane})
-
-    def crossing(self, node, edges, priority=None):
-        self.crossings.append({"node": node, "edges": " ".join(edges), "priority": priority})
-
-    def build(self) -> Path:
-        d = NETWORKS / self.name
-        n = self.name
-        nod = "".join(f"    <node {_attrs(x)}/>\n" for x in self.nodes)
-        _write(d / f"{n}.nod.xml", f"<nodes>\n{nod}</nodes>\n")
-        edg = "".join(f"    <edge {_attrs(x)}/>\n" for x in self.edges)
-        _write(d / f"{n}.edg.xml", f"<edges>\n{edg}</edges>\n")
-        con = "".join(f"    <connection {_attrs(x)}/>\n" for x in self.connections)
-        con += "".join(f"    <crossing {_attrs(x)}/>\n" for x in self.crossings)
-        _write(d / f"{n}.con.xml", f"<connections>\n{con}</connections>\n")
-        opts = "".join(f"        <{k} value={quoteattr(v)}/>\n" for k, v in self.options.items())
-        cfg = (
-            "<configuration>\n"
-            "    <input>\n"
-            f"        <node-files value=\"{n}.nod.xml\"/>\n"
-            f"        <edge-files value=\"{n}.edg.xml\"/>\n"
-            f"        <connection-files value=\"{n}.con.xml\"/>\n"
-            "    </input>\n"
-            "    <output>\n"
-            f"        <output-file value=\"{n}.net.xml\"/>\n"
-            "    </output>\n"
-            "    <processing>\n"
-            f"{opts}"
-            "    </processing>\n"
-            "    <report>\n"
-            "        <verbose value=\"false\"/>\n"
-            "    </report>\n"
-            "</configuration>\n"
-        )
-        _write(d / f"{n}.netccfg", cfg)
-        net = d / f"{n}.net.xml"
-        tmp = d / f".{n}.net.xml.tmp"
-        proc = subprocess.run(
-            [str(_netconvert()), "-c", f"{n}.netccfg", "--output-file", tmp.name],
-            cwd=d, capture_output=True, text=True,
-        )
-        out = (proc.stdout + proc.stderr).strip()
-        if proc.returncode != 0:
-            tmp.unlink(missing_ok=True)
-            raise RuntimeError(f"netconvert failed for {n}:\n{out}")
-        if out and out != "Success.":
-            print(f"[{n}] netconvert says:\n{out}", file=sys.stderr)
-        text = tmp.read_text()
-        tmp.unlink()
-        # strip the run-dependent parts of the header (date, temporary file name)
-        text = re.sub(r"<!-- generated on [^\n]*? by ", "<!-- generated by ", text, count=1)
-        text = text.replace(tmp.name, net.name)
-        _write(net, text)
+    def build(self) -> Path:  # type: ignore[override]
+        net = super().build(NETWORKS / self.name, config_file=True)
+        if self.messages:
+            print(f"[{self.name}] netconvert says:\n{self.messages}", file=sys.stderr)
         return net
 
 
@@ -401,8 +299,8 @@ def build_highway() -> None:
     # degrees and meets the acceleration lane (centre y = -13.125) tangentially; the
     # off-ramp leaves lane 0 of hw_2 (centre y = -9.375) tangentially.
     ramp = dict(numLanes=1, speed=22.22, width=3.75, priority=5, disallow="pedestrian bicycle")
-    net.edge("ramp_on", "LJ", "M", shape=_shape(_bezier((500, -150), (560, -13.125), (800, -13.125))), **ramp)
-    net.edge("ramp_off", "D", "OX", shape=_shape(_bezier((1600, -9.375), (1750, -9.375), (1900, -110))), **ramp)
+    net.edge("ramp_on", "LJ", "M", shape=_bezier((500, -150), (560, -13.125), (800, -13.125)), **ramp)
+    net.edge("ramp_off", "D", "OX", shape=_bezier((1600, -9.375), (1750, -9.375), (1900, -110)), **ramp)
     loc = dict(numLanes=1, speed=13.89, width=3.25, sidewalkWidth=2.0, priority=3)
     net.two_way("loc_e0", "loc_w0", "LW", "LJ", **loc)
     net.two_way("loc_e1", "loc_w1", "LJ", "LE", **loc)
@@ -456,7 +354,7 @@ def build_testbed() -> None:
     r.route("r_main", ["main_0", "main_1"])
     r.route("r_opp", ["opp_1", "opp_0"])
     write_scenario("testbed", "testbed", r)
-    readme = f"""# testbed network
+    readme = """# testbed network
 
 Tiny network for automated tests, built by `python tools/build_networks.py testbed`
 (coordinates as written, no offset).
