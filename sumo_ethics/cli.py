@@ -124,6 +124,11 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
               f"drove {d['distance']:.0f} m in {d['steps']} steps, wall {d['wall_time']:.1f} s")
     con.print(f"  collisions: ego {d['collisions']['ego']}, others {d['collisions']['others']}; harm total "
               f"{h['total']:.3f} = ego {h['ego']:.3f} + third party {h['third_party']:.3f} (VRU {h['vru']:.3f})")
+    if d.get("decisions", {}).get("steps"):
+        con.print(f"  decisions: {d['decisions']['steps']} steps kept ({d['decisions']['mode']}, "
+                  f"{d['decisions']['bytes'] / 1e6:.1f} MB) in {summary.out / 'decisions'}: sumo-ethics explain / replay")
+    for snap in d.get("snapshots", []):
+        con.print(f"  collision snapshot: {summary.out / snap}")
     con.print(f"  outputs in {summary.out}")
 
 
@@ -137,12 +142,13 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
 def explain(run_dir: Path, step: int | None, at_time: float | None, collision: int | None, out: Path | None) -> None:
     """Draw one recorded planning step of RUN_DIR: the scene, predictions, candidates and the cost terms of the choice.
 
-    The run must have been made with --record-decisions (risky, all or collisions).
+    Every run keeps the last decision before each ego collision (--collision K); other steps need a run made with
+    --record-decisions risky, all or collisions. --time picks the nearest recorded step within 0.5 s.
     """
-    from sumo_ethics.analysis.explain import explain as draw, resolve_step
+    from sumo_ethics.analysis.explain import explain as draw, hit_of, resolve_step
 
     k = resolve_step(run_dir, step=step, time=at_time, collision=collision)
-    res = draw(run_dir, k, out)
+    res = draw(run_dir, k, out, hit=hit_of(run_dir, collision) if collision is not None else None)
     d = res.decision
     click.echo(f"step {d.step} (t={d.time:g} s): chose candidate {d.chosen} of {d.n_candidates}; "
                f"figure {res.paths[0]} (+ .svg)")

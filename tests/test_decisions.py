@@ -209,3 +209,19 @@ def test_risky_past_its_budget_keeps_one_step_per_second(tmp_path, monkeypatch):
     assert log.written[:9] == [1, 2, 3, 4, 5, 15, 25, 35, 45]
     assert rec.recorded_steps(tmp_path) == [1, 2, 3, 4, 5, 15, 25, 35, 45] + list(range(51, 101))
     assert log.thinned == 100 - 14  # kept as risky: 1-5 and 15, 25, ..., 95
+
+
+def test_unreadable_or_empty_recordings_are_one_line_errors(urban_runs, tmp_path):
+    import shutil
+
+    run = tmp_path / "copy"
+    shutil.copytree(urban_runs["all"], run)
+    k = rec.recorded_steps(run)[3]
+    path = rec.step_path(run, k)
+    path.write_bytes(path.read_bytes()[:1000])  # a file cut short
+    assert_one_line_error(sumo_ethics("explain", str(run), "--step", str(k)), "truncated or corrupt", 2)
+    assert_one_line_error(sumo_ethics("explain", str(run), "--time", "nan"), "finite", 2)
+    quiet = tmp_path / "quiet"  # a risky run whose choices never carried risk keeps nothing
+    quiet.mkdir()
+    (quiet / "summary.json").write_text(json.dumps({"decisions": {"mode": "risky", "steps": 0, "bytes": 0}}))
+    assert_one_line_error(sumo_ethics("explain", str(quiet), "--step", "1"), "--record-decisions all", 2)

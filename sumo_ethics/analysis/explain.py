@@ -11,6 +11,7 @@ validity class (the alternative the rule did not take).
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,12 +26,12 @@ from sumo_ethics.types import RoadUserClass
 #: box and prediction colour per road-user class
 CLASS_COLOURS = {
     "car": "#1f77b4", "truck": "#8c564b", "bus": "#9467bd", "motorcycle": "#ff7f0e",
-    "bicycle": "#2ca02c", "pedestrian": "#d62728", "other": "#7f7f7f",
+    "bicycle": "#e7298a", "pedestrian": "#d62728", "other": "#7f7f7f",
 }
 EGO_COLOUR = "#111111"
 #: validity classes (plan.ethical.VALIDITY) and their colours, best first
 VALIDITY_LABELS = ("safe", "no overlap, on road", "no overlap", "feasible", "emergency")
-VALIDITY_COLOURS = ("#2ca02c", "#17becf", "#bcbd22", "#e377c2", "#7f7f7f")
+VALIDITY_COLOURS = ("#1b7837", "#7fbf7b", "#c2a5cf", "#762a83", "#7f7f7f")  # ordered: green (best) to purple
 ROAD_COLOURS = {"junction": "#c8c8c8", "road": "#b4b4b4", "bike": "#d9b38c", "sidewalk": "#e6e6e6",
                 "walkingarea": "#e6e6e6", "crossing": "#f4f4f4"}
 #: cost terms shown in the panel, in order, with their labels
@@ -50,6 +51,7 @@ PANEL_TERMS = (
     ("ego_risk_sum", "risk to the ego"),
     ("other_risk_sum", "risk to third parties"),
     ("vru_risk_sum", "  of which VRUs"),
+    ("boundary_harm", "leaving the road (ego harm)"),
 )
 
 
@@ -71,8 +73,25 @@ def recorded(run: Path) -> list[int]:
         raise ConfigError(f"run folder not found: {run}")
     steps = rec.recorded_steps(run)
     if not steps:
-        raise ConfigError(f"{run} has no recorded decisions: run it with --record-decisions risky (or all)")
+        mode = _mode(run)
+        if mode in (None, "off"):
+            raise ConfigError(f"{run} has no recorded decisions: run it with --record-decisions risky (or all)")
+        raise ConfigError(f"{run} kept no decisions with --record-decisions {mode} (no chosen trajectory carried "
+                          "risk and the ego did not collide); run it with --record-decisions all for every step")
     return steps
+
+
+def _mode(run: Path) -> str | None:
+    """The recording mode of a run (summary.json, else config.json), or None."""
+    for name, key in (("summary.json", ("decisions", "mode")), ("config.json", ("record_decisions",))):
+        try:
+            d: Any = json.loads((Path(run) / name).read_text())
+            for k in key:
+                d = d[k]
+            return str(d)
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+    return None
 
 
 def resolve_step(run: Path, step: int | None = None, time: float | None = None, collision: int | None = None) -> int:
@@ -83,6 +102,8 @@ def resolve_step(run: Path, step: int | None = None, time: float | None = None, 
         raise ConfigError("give exactly one of --step, --time and --collision")
     run = Path(run)
     steps = recorded(run)
+    if time is not None and not np.isfinite(time):
+        raise ConfigError(f"--time must be a finite time in seconds, got {time}")
     if collision is not None:
         from sumo_ethics.record.reader import read_table
 
@@ -105,9 +126,30 @@ def resolve_step(run: Path, step: int | None = None, time: float | None = None, 
     return int(step)
 
 
+def load_checked(run: Path, step: int) -> RecordedDecision:
+    """:func:`sumo_ethics.record.decisions.load`, with a ConfigError for an unreadable file."""
+    try:
+        return rec.load(run, step)
+    except (OSError, ValueError, KeyError, IndexError, EOFError, zipfile.BadZipFile) as exc:
+        raise ConfigError(f"{rec.step_path(run, step)} is not a readable decision file (truncated or corrupt: "
+                          f"{type(exc).__name__})") from None
+
+
+def hit_of(run: Path, event: int) -> tuple[float, float, str] | None:
+    """Where the other party of collision ``event`` was just before impact, and who it was."""
+    from sumo_ethics.record.reader import read_table
+
+    rows = [r for r in read_table(Path(run), "collisions").to_pylist() if r["event"] == event]
+    return (float(rows[0]["x_b"]), float(rows[0]["y_b"]), f"{rows[0]['class_b']} '{rows[0]['id_b']}'") if rows else None
+
+
 def _time_of(run: Path, step: int) -> float:
-    with np.load(rec.step_path(run, step), allow_pickle=False) as z:
-        return float(z["meta"][1])
+    try:
+        with np.load(rec.step_path(run, step), allow_pickle=False) as z:
+            return float(z["meta"][1])
+    except (OSError, ValueError, KeyError, IndexError, EOFError, zipfile.BadZipFile) as exc:
+        raise ConfigError(f"{rec.step_path(run, step)} is not a readable decision file (truncated or corrupt: "
+                          f"{type(exc).__name__})") from None
 
 
 def _spans(times: np.ndarray) -> str:
@@ -128,14 +170,16 @@ def _ellipse(mean: np.ndarray, cov: np.ndarray, k: float, n: int = 40) -> np.nda
     return circle @ vecs.T + mean
 
 
-def window(d: RecordedDecision, near: float = 30.0, margin: float = 6.0,
-           min_size: float = 30.0) -> tuple[float, float, float, float]:
+def window(d: RecordedDecision, near: float = 30.0, margin: float = 6.0, min_size: float = 30.0,
+           extra: np.ndarray | None = None) -> tuple[float, float, float, float]:
     """The plot window [m]: the ego, its candidates and the road users within ``near`` metres of
     it, with ``margin``, at least ``min_size`` metres each way and at most 160 m."""
     pts = [d.ego[None, :2], d.cand_xy.reshape(-1, 2)]
     if len(d.agents):
         close = np.hypot(*(d.agents[:, :2] - d.ego[:2]).T) <= near
         pts.append(d.agents[close, :2])
+    if extra is not None:  # (M, 2) further points to show, e.g. where a collision's other party was
+        pts.append(np.asarray(extra, dtype=float).reshape(-1, 2))
     p = np.concatenate(pts)
     lo, hi = p.min(axis=0) - margin, p.max(axis=0) + margin
     centre, size = (lo + hi) / 2, np.clip(hi - lo, min_size, 160.0)
@@ -257,7 +301,7 @@ def cost_panel(ax: Any, d: RecordedDecision, alt: int | None, weights: dict[str,
         if weights is None:
             return label
         if name in PRINCIPLES:
-            return f"{label.split(' (')[0]} x {weights.get('risk', 1.0) * weights.get(name, 1.0):g}"
+            return f"{label.split(' (')[0]} x {weights.get('risk', 1.0):g} x {weights.get(name, 1.0):g}"
         if name in ("progress", "lateral"):
             return f"{label} x {weights.get('velocity' if name == 'progress' else 'lateral', 1.0):g}"
         return label
@@ -275,11 +319,11 @@ def cost_panel(ax: Any, d: RecordedDecision, alt: int | None, weights: dict[str,
             cell.set_height(cell.get_height() * 1.8)
         if c == 0:
             cell.set_text_props(ha="left")
-    ax.set_title("Named cost terms [cost units; risks: P(collision) x harm]", fontsize=9.5)
+    ax.set_title("Named cost terms [cost units]\nrisks: P(collision) x harm, summed over parties", fontsize=9.5)
 
 
-def decision_figure(d: RecordedDecision, road: Any, title: str,
-                    weights: dict[str, float] | None = None) -> tuple[Any, int, int | None]:
+def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[str, float] | None = None,
+                    hit: tuple[float, float, str] | None = None) -> tuple[Any, int, int | None]:
     """The three-part figure of one decision; (figure, candidates drawn, alternative index)."""
     import matplotlib
 
@@ -289,7 +333,7 @@ def decision_figure(d: RecordedDecision, road: Any, title: str,
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    x0, y0, x1, y1 = window(d)
+    x0, y0, x1, y1 = window(d, extra=None if hit is None else np.array([hit[:2]]))
     if (x1 - x0) > 1.6 * (y1 - y0):  # a long straight window: the two maps one above the other
         fig = plt.figure(figsize=(17, 8.5), layout="constrained")
         gs = fig.add_gridspec(2, 2, width_ratios=[2.0, 0.75])
@@ -313,7 +357,8 @@ def decision_figure(d: RecordedDecision, road: Any, title: str,
                        for c in sorted(set(int(v) for v in d.validity))]
             handles.append(Line2D([], [], color="black", lw=2.5, marker="o", mfc="white", mec="black",
                                   label="chosen (dots: each second)"))
-            classes = sorted(set(seen), key=lambda s: list(CLASS_COLOURS).index(s))
+            in_view = {RoadUserClass(int(a[6])).label for a in d.agents if x0 <= a[0] <= x1 and y0 <= a[1] <= y1}
+            classes = sorted(set(seen) & in_view, key=lambda s: list(CLASS_COLOURS).index(s))
             handles += [Patch(fc=EGO_COLOUR, label="ego")] + [Patch(fc=CLASS_COLOURS[c], label=c) for c in classes]
             handles.append(Patch(fc="0.5", alpha=0.35, ec="0.3", ls="--", label="predicted 1 sigma (2 sigma dashed), each s"))
             fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 7), fontsize=8.5,
@@ -327,6 +372,10 @@ def decision_figure(d: RecordedDecision, road: Any, title: str,
             cmap = plt.get_cmap("viridis")
             _candidates(ax, d, cmap(norm(np.clip(j, lo, hi))))
             ax.set_title("The same candidates by J_risk", fontsize=10)
+        if hit is not None:  # the other party of a collision, where it was just before impact
+            ax.plot(hit[0], hit[1], marker="X", ms=13, mfc="red", mec="white", mew=1.2, zorder=8)
+            ax.annotate(f"hit: {hit[2]}", (hit[0], hit[1]), xytext=(8, 8), textcoords="offset points",
+                        color="red", fontsize=9, weight="bold", zorder=8)
         ax.set_xlim(x0, x1)
         ax.set_ylim(y0, y1)
         ax.set_aspect("equal")
@@ -394,14 +443,15 @@ def describe(run: Path, d: RecordedDecision) -> str:
             f"J_risk {_fmt(float(d.j_risk[d.chosen]))}")
 
 
-def explain(run: Path, step: int, out: Path | None = None, title: str | None = None) -> Explained:
+def explain(run: Path, step: int, out: Path | None = None, title: str | None = None,
+            hit: tuple[float, float, str] | None = None) -> Explained:
     """Draw the decision recorded for ``step`` of ``run`` to ``out`` (.png and .svg; default
     RUN/explain/step_NNNNNN)."""
     import matplotlib.pyplot as plt
 
     run = Path(run)
-    d = rec.load(run, step)
-    fig, n, alt = decision_figure(d, road_of(run), title or describe(run, d), weights_of(run))
+    d = load_checked(run, step)
+    fig, n, alt = decision_figure(d, road_of(run), title or describe(run, d), weights_of(run), hit)
     base = Path(out) if out is not None else run / "explain" / f"step_{step:06d}"
     base = base.with_suffix("") if base.suffix in (".png", ".svg") else base
     base.parent.mkdir(parents=True, exist_ok=True)
@@ -427,6 +477,7 @@ def collision_snapshots(run: Path, rows: list[dict[str, Any]]) -> list[Path]:
         title = (f"Collision {r['event']}: ego hit {r['class_b']} '{r['id_b']}' at t = {r['time']:.2f} s, "
                  f"harm ego {r['harm_ego']:.3f}, third party {r['harm_third_party']:.3f}. "
                  f"The last decision before impact:")
-        res = explain(run, int(r["step"]), Path(run) / rec.SNAPSHOTS / f"collision_{r['event']}", title=title)
+        res = explain(run, int(r["step"]), Path(run) / rec.SNAPSHOTS / f"collision_{r['event']}", title=title,
+                      hit=(float(r["x_b"]), float(r["y_b"]), f"{r['class_b']} '{r['id_b']}'"))
         out.extend(res.paths)
     return out

@@ -158,6 +158,10 @@ def _scene(ax: Any, d: rec.RecordedDecision, class_colours: dict[str, str], ego_
     if len(a):
         ax.add_collection(PolyCollection(_boxes(a[:, :2], a[:, 2], a[:, 4], a[:, 5]), facecolors=colours,
                                          edgecolors="black", linewidths=0.6, zorder=5))
+        small = np.isin(a[:, 6], (int(RoadUserClass.PEDESTRIAN), int(RoadUserClass.BICYCLE)))
+        if small.any():  # pedestrians and cyclists ringed, as in explain: a 0.5 m box is a dot at 80 m
+            ax.scatter(a[small, 0], a[small, 1], s=90, facecolors="none",
+                       edgecolors=[c for c, k in zip(colours, small) if k], linewidths=1.4, zorder=5.1)
     n = min(len(a), d.pred_mean.shape[0])
     if n and d.pred_mean.shape[1]:
         paths = np.concatenate([a[:n, None, :2], d.pred_mean[:n]], axis=1)
@@ -185,12 +189,20 @@ def _scan(run: Path, steps: list[int]) -> tuple[np.ndarray, np.ndarray, set[int]
     classes: set[int] = set()
     validity: set[int] = set()
     dt = 0.1
+    import zipfile
+
+    from sumo_ethics.errors import ConfigError
+
     for i, s in enumerate(steps):
-        with np.load(rec.step_path(run, s), allow_pickle=False) as z:
-            xy[i] = z["ego"][:2]
-            classes.update(int(c) for c in np.unique(z["agents"][:, 6]))
-            validity.update(int(v) for v in np.unique(z["validity"]))
-            times[i], dt = float(z["meta"][1]), float(z["meta"][3])
+        try:
+            with np.load(rec.step_path(run, s), allow_pickle=False) as z:
+                xy[i] = z["ego"][:2]
+                classes.update(int(c) for c in np.unique(z["agents"][:, 6]))
+                validity.update(int(v) for v in np.unique(z["validity"]))
+                times[i], dt = float(z["meta"][1]), float(z["meta"][3])
+        except (OSError, ValueError, KeyError, IndexError, EOFError, zipfile.BadZipFile) as exc:
+            raise ConfigError(f"{rec.step_path(run, s)} is not a readable decision file (truncated or corrupt: "
+                              f"{type(exc).__name__})") from None
     return xy, times, classes, validity, dt
 
 
@@ -276,7 +288,7 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
     from matplotlib.patches import Patch
 
     from sumo_ethics.analysis.explain import (CLASS_COLOURS, EGO_COLOUR, VALIDITY_COLOURS, VALIDITY_LABELS, _fmt,
-                                              draw_road, recorded, road_of)
+                                              draw_road, load_checked, recorded, road_of)
     from sumo_ethics.types import RoadUserClass
 
     run, out = Path(run), Path(out)
@@ -301,7 +313,8 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
             writer_name = "ffmpeg"
         else:
             gif = out.with_suffix(".gif")
-            notes.append(f"ffmpeg not found: wrote {gif} instead of {out} (install ffmpeg for MP4)")
+            notes.append(f"ffmpeg not found: wrote {gif} instead of {out} (install ffmpeg for MP4)"
+                         + (f"; it replaced the {gif.name} that was there" if gif.exists() else ""))
             out = gif
 
     ego_xy, times, classes, validity, dt = _scan(run, steps)
@@ -309,8 +322,11 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
     if fps is None:
         fps = min(real, GIF_FPS_CAP if writer_name == "gif" else MP4_FPS_CAP)
     speed = fps / real
-    playback = (f"{len(steps)} frames at {fps:.3g} frames/s, {len(steps) / fps:.1f} s of playback for "
-                f"t = {times[0]:.1f} to {times[-1]:.1f} s of the run ({_speed(speed)})")
+    gaps = len(steps) > 1 and bool(np.any(np.diff(steps) > every))
+    playback = (f"{len(steps)} frame{'s' if len(steps) != 1 else ''} at {fps:.3g} frames/s, "
+                f"{len(steps) / fps:.1f} s of playback for t = {times[0]:.1f} to {times[-1]:.1f} s of the run ("
+                + (f"{_speed(speed)} between recorded steps; the steps not recorded are skipped)" if gaps
+                   else f"{_speed(speed)})"))
 
     # the figure: road drawn once (the part the ego's views can reach), the view pans
     fig = plt.figure(figsize=FIGSIZE, dpi=DPI)
@@ -349,7 +365,7 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
     try:
         with writer.saving(fig, tmp, DPI):
             for i, s in enumerate(steps):
-                d = rec.load(run, s)
+                d = load_checked(run, s)
                 ex, ey = float(d.ego[0]), float(d.ego[1])
                 _scene(ax, d, CLASS_COLOURS, EGO_COLOUR)
                 if d.n_candidates:
