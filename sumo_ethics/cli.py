@@ -65,7 +65,7 @@ def cli() -> None:
               help="Selection rule (default cost: the ethical cost decides unavoidable harms; validity: Origin's).")
 @click.option("--utility", type=click.Choice(["candidate_mean", "literal"]),
               help="Reading of J_mean in J_utility (default candidate_mean).")
-@click.option("--predictor", type=click.Choice(["attention", "cslstm", "cv"]),
+@click.option("--predictor", type=click.Choice(["map", "attention", "cslstm", "cv"]),
               help="Neighbour prediction (default attention).")
 @click.option("--predictor-weights", type=click.Path(path_type=Path),
               help="Weights file for the LSTM predictor (default: the one shipped in the package).")
@@ -129,14 +129,19 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
 @click.option("--seeds", default="1-7", show_default=True, help="Run seeds, e.g. 1-7 or 1,4,9 (split by seed).")
 @click.option("--sim-seconds", type=float, default=600.0, show_default=True, help="Simulated time per run [s].")
 @click.option("--workers", type=int, default=1, show_default=True, help="Parallel SUMO processes.")
-def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: float, workers: int) -> None:
-    """Record trajectories of vehicles, cyclists and pedestrians from SUMO runs into a prediction dataset."""
+@click.option("--suite", "suite_dirs", multiple=True, type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="A suite scenario folder to record with its hazards (repeat; split by scenario).")
+def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: float, workers: int,
+            suite_dirs: tuple[Path, ...]) -> None:
+    """Record trajectories of vehicles, cyclists and pedestrians (with their lanes and signals) from SUMO runs
+    into a prediction dataset."""
     from sumo_ethics.predict import dataset_main
     from sumo_ethics.sweep import parse_seeds
 
     if not sim_seconds > 0 or workers < 1:
         raise click.BadParameter("--sim-seconds must be positive and --workers at least 1")
-    path = dataset_main(scenarios, out, seeds=parse_seeds(seeds), sim_seconds=sim_seconds, workers=workers)
+    path = dataset_main(scenarios, out, seeds=parse_seeds(seeds), sim_seconds=sim_seconds, workers=workers,
+                        suite=suite_dirs)
     click.echo(f"dataset written to {path}")
 
 
@@ -153,7 +158,7 @@ def _dataset_folder(path: Path) -> Path:
 
 @cli.command()
 @click.argument("dataset_dir", metavar="DATASET", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--model", type=click.Choice(["attention", "cslstm"]), default="attention", show_default=True)
+@click.option("--model", type=click.Choice(["map", "attention", "cslstm"]), default="map", show_default=True)
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Weights file to write (.pt).")
 @click.option("--max-minutes", type=float, default=14.0, show_default=True, help="CPU-time budget [min].")
 @click.option("--seed", type=int, default=0, show_default=True)

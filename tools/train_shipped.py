@@ -1,10 +1,15 @@
-"""Rebuild the shipped predictor weights: dataset -> train attention and CS-LSTM -> evaluate.
+"""Rebuild the shipped predictor weights: dataset -> train -> evaluate.
 
-    python tools/train_shipped.py [--work DIR] [--stages dataset,train,evaluate] [--parallel]
+    python tools/train_shipped.py [--work DIR] [--stages dataset,train,evaluate] [--models map]
 
-Uses the bundled scenarios (scenarios/{urban,rural,highway,urban_grid}). Writes the
-weights to sumo_ethics/predict/weights/{attention,cslstm}.pt (+ .json training logs) and
-the evaluation table to sumo_ethics/predict/weights/evaluation.{csv,md}.
+Data: the bundled scenarios (scenarios/{urban,rural,highway,urban_grid}, seeds 1-7, 600 s,
+anchors every 2 s, split by seed) and the first SUITE_TRAIN suite scenarios recorded with
+their hazards (anchors every 0.4 s, split by scenario). Writes the weights to
+sumo_ethics/predict/weights/<model>.pt (+ .json training logs); "evaluate" writes
+prediction_eval.{csv,md} there. ``--models`` picks what is trained: "map" (the shipped
+default, feature version 1 + map version 1) and/or the ablation's "attention", "cslstm"
+(their shipped files were trained on the version-1 dataset without map columns or suite
+runs: ``--stages dataset --no-suite`` and then ``--models attention,cslstm`` rebuild them).
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 WEIGHTS = ROOT / "sumo_ethics" / "predict" / "weights"
 SCENARIOS = ("urban", "rural", "highway", "urban_grid")
 SEEDS = tuple(range(1, 8))
+SUITE_TRAIN = 100  # suite scenarios s0000..s0099 go into the dataset; s0100.. stay held out
 
 
 def main() -> None:
@@ -32,6 +38,8 @@ def main() -> None:
     ap.add_argument("--out-dir", default=str(WEIGHTS), help="where weights and the evaluation go")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--model", default=None, help="(internal) train only this model")
+    ap.add_argument("--models", default="map", help="comma-separated models to train (map, attention, cslstm)")
+    ap.add_argument("--no-suite", action="store_true", help="dataset without the suite's hazard runs")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     sys.path.insert(0, str(ROOT))
@@ -50,12 +58,13 @@ def main() -> None:
         scen = [ROOT / "scenarios" / s / f"{s}.sumocfg" for s in SCENARIOS]
         scen = [s for s in scen if s.exists()]
         t0 = time.time()
-        dataset_main(scen, work, seeds=SEEDS, workers=args.workers)
+        suite = [] if args.no_suite else sorted((ROOT / "scenarios" / "suite").glob("s[0-9]*"))[:SUITE_TRAIN]
+        dataset_main(scen, work, seeds=SEEDS, workers=args.workers, suite=suite)
         logging.info("dataset: %.1f min", (time.time() - t0) / 60)
     if "train" in stages:
         cmds = [[sys.executable, __file__, "--work", str(work), "--model", m, "--max-minutes", str(args.max_minutes),
                  "--out-dir", args.out_dir] + (["--max-wall-minutes", str(args.max_wall_minutes)] if args.max_wall_minutes else [])
-                for m in ("attention", "cslstm")]
+                for m in args.models.split(",")]
         if args.parallel:
             procs = [subprocess.Popen(c) for c in cmds]
             if any(p.wait() for p in procs):

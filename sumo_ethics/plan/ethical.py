@@ -24,7 +24,7 @@ from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior
 from sumo_ethics.sim.world import EgoCommand
 from sumo_ethics.types import Candidates, Observation, Prediction
 
-PREDICTORS = ("attention", "cslstm", "cv")
+PREDICTORS = ("map", "attention", "cslstm", "cv")
 
 #: validity classes, best first (the selected candidate's class is logged as ``validity``)
 VALIDITY = ("safe", "no_overlap_on_road", "no_overlap", "feasible", "emergency")
@@ -103,12 +103,20 @@ def keep_heap_warm(pad: int = 64 << 20) -> None:
 
 
 def make_predictor(name: str, weights: str | None = None) -> Predictor:
-    """"cv", or an LSTM ("attention", "cslstm") from ``weights`` or the shipped file."""
+    """"cv", or an LSTM ("map", "attention", "cslstm") from ``weights`` or the shipped file; the
+    map-aware one reads lanes and signals from the running simulation (sim.lanes.SumoMapSource)."""
     from sumo_ethics.predict import ConstantVelocityPredictor, LSTMPredictor
 
     if name == "cv":
         return ConstantVelocityPredictor()
-    return LSTMPredictor.from_file(weights, kind=name) if weights else LSTMPredictor.default(name)
+    source = None
+    if name == "map":
+        from sumo_ethics.sim.lanes import SumoMapSource
+
+        source = SumoMapSource()
+    if weights:
+        return LSTMPredictor.from_file(weights, kind=name, map_source=source)
+    return LSTMPredictor.default(name, map_source=source)
 
 
 def first_overlap(cand: Candidates, pred: Prediction, risk: RiskTerms, length: np.ndarray,
