@@ -333,7 +333,8 @@ class LaneGraph:
 
 @dataclass(frozen=True)
 class MapContext:
-    """Per agent (N,): lane index into a LaneGraph (-1 none), SUMO lane position [m], distance
+    """Per agent (N,): lane index into a LaneGraph (-1 none), position of its centre along that
+    lane [m, SUMO's lane length units], distance
     to the next traffic light's stop line [m] (inf: none) and its state (TLS_CODES value)."""
 
     lane: np.ndarray

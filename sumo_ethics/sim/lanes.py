@@ -6,8 +6,9 @@ arrays; this module is where they come from in a running simulation:
 - :func:`lane_graph` reads every lane's centre line, speed limit and successors once
   (``lane.getShape``, ``lane.getMaxSpeed``, ``lane.getLinks``) into a
   :class:`~sumo_ethics.predict.features.LaneGraph`.
-- :func:`agent_context` reads, for a list of vehicles, the lane each one is on, its position
-  along that lane and the next traffic light ahead (distance to its stop line and the state
+- :func:`agent_context` reads, for a list of vehicles, the lane each one is on, the position
+  of its centre along that lane (SUMO's front-bumper position minus half its length, at least
+  0) and the next traffic light ahead (distance to its stop line and the state
   of the link it will use), as arrays.
 - :class:`SumoMapSource` bundles both for the run-time predictor; the dataset builder calls
   the same two functions, so training and run-time inputs come from the same code.
@@ -67,7 +68,8 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
             if j < 0:
                 continue
             lane[i] = j
-            pos[i] = v.getLanePosition(k)
+            # SUMO's lane position is the front bumper's; the features use the centre's
+            pos[i] = max(v.getLanePosition(k) - 0.5 * v.getLength(k), 0.0)
             nxt = v.getNextTLS(k)
         except libsumo.TraCIException:  # left the simulation in between: no context
             lane[i] = -1
