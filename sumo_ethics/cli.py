@@ -162,24 +162,40 @@ def _dataset_folder(path: Path) -> Path:
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Weights file to write (.pt).")
 @click.option("--max-minutes", type=float, default=14.0, show_default=True, help="CPU-time budget [min].")
 @click.option("--seed", type=int, default=0, show_default=True)
-def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int) -> None:
+@click.option("--hazard-repeat", type=int, default=1, show_default=True,
+              help="Use each hazard actor's training sample this many times per epoch.")
+def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation)."""
     from sumo_ethics.predict import train_main
 
     if not max_minutes > 0:
         raise click.BadParameter("--max-minutes must be positive")
-    result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed)
+    if hazard_repeat < 1:
+        raise click.BadParameter("--hazard-repeat must be at least 1")
+    result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed,
+                        hazard_repeat=hazard_repeat)
     click.echo(f"weights written to {out}: {result}")
 
 
 @cli.command("evaluate-predictor")
 @click.argument("dataset_dir", metavar="DATASET", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(path_type=Path), default=Path("prediction_eval"), show_default=True)
-def evaluate_predictor(dataset_dir: Path, out: Path) -> None:
-    """RMSE at 1-4 s, ADE, FDE and NLL of constant velocity, CS-LSTM and attention per agent class."""
+@click.option("--model", "models", multiple=True, metavar="NAME=FILE",
+              help="A weights file to evaluate under NAME (repeat; default: the shipped map, attention, cslstm).")
+@click.option("--split", type=click.Choice(["test", "val", "train", "all"]), default="test", show_default=True,
+              help="Samples evaluated: a split of the seeds/scenarios, or all (a dataset never trained on).")
+def evaluate_predictor(dataset_dir: Path, out: Path, models: tuple[str, ...], split: str) -> None:
+    """RMSE at 1-4 s, ADE, FDE, NLL and 1-/2-sigma calibration of constant velocity and the learned models,
+    per agent class and per manoeuvre."""
     from sumo_ethics.predict import evaluate_main
 
-    table = evaluate_main(_dataset_folder(dataset_dir), out)
+    weights = {}
+    for text in models:
+        name, sep, path = text.partition("=")
+        if not sep or not name or not path:
+            raise click.BadParameter(f"--model expects NAME=FILE, got {text!r}")
+        weights[name] = Path(path)
+    table = evaluate_main(_dataset_folder(dataset_dir), out, weights=weights or None, split=split)
     click.echo(table.to_string(index=False))
     click.echo(f"written to {out}/prediction_eval.csv and .md")
 

@@ -1,12 +1,14 @@
 """Rebuild the shipped predictor weights: dataset -> train -> evaluate.
 
-    python tools/train_shipped.py [--work DIR] [--stages dataset,train,evaluate] [--models map]
+    python tools/train_shipped.py [--work DIR] [--stages dataset,heldout,train,evaluate] [--models map]
 
 Data: the bundled scenarios (scenarios/{urban,rural,highway,urban_grid}, seeds 1-7, 600 s,
 anchors every 2 s, split by seed) and the first SUITE_TRAIN suite scenarios recorded with
 their hazards (anchors every 0.4 s, split by scenario). Writes the weights to
-sumo_ethics/predict/weights/<model>.pt (+ .json training logs); "evaluate" writes
-prediction_eval.{csv,md} there. ``--models`` picks what is trained: "map" (the shipped
+sumo_ethics/predict/weights/<model>.pt (+ .json training logs); "heldout" records a second
+dataset of scenarios never trained on (GAME configs of eclipse-sumo's tools/game, 3 seeds x
+300 s, and suite scenarios s0100-s0139); "evaluate" writes prediction_eval.{csv,md} (test
+seeds/scenarios) and heldout/prediction_eval.{csv,md} (the held-out dataset) there. ``--models`` picks what is trained: "map" (the shipped
 default, feature version 1 + map version 1) and/or the ablation's "attention", "cslstm"
 (their shipped files were trained on the version-1 dataset without map columns or suite
 runs: ``--stages dataset --no-suite`` and then ``--models attention,cslstm`` rebuild them).
@@ -26,6 +28,9 @@ WEIGHTS = ROOT / "sumo_ethics" / "predict" / "weights"
 SCENARIOS = ("urban", "rural", "highway", "urban_grid")
 SEEDS = tuple(range(1, 8))
 SUITE_TRAIN = 100  # suite scenarios s0000..s0099 go into the dataset; s0100.. stay held out
+SUITE_HELDOUT = 40  # s0100..s0139 are the held-out suite scenarios of the evaluation
+GAME = ("cross", "square", "grid6", "corridor", "fkk_in", "ramp")  # eclipse-sumo tools/game configs
+TRAIN = {"map": {"hazard_repeat": 4}}  # per-model train_main options (others: defaults)
 
 
 def main() -> None:
@@ -33,7 +38,7 @@ def main() -> None:
     ap.add_argument("--work", default="/tmp/sumo_ethics_predict_data")
     ap.add_argument("--stages", default="dataset,train,evaluate")
     ap.add_argument("--parallel", action="store_true", help="train both models at once (one thread each)")
-    ap.add_argument("--max-minutes", type=float, default=14.0)
+    ap.add_argument("--max-minutes", type=float, default=20.0, help="CPU-time budget per model [min]")
     ap.add_argument("--max-wall-minutes", type=float, default=None)
     ap.add_argument("--out-dir", default=str(WEIGHTS), help="where weights and the evaluation go")
     ap.add_argument("--workers", type=int, default=2)
@@ -50,7 +55,7 @@ def main() -> None:
     if args.model:
         t0 = time.time()
         info = train_main(work, args.model, Path(args.out_dir) / f"{args.model}.pt", max_minutes=args.max_minutes,
-                          max_wall_minutes=args.max_wall_minutes, progress=False)
+                          max_wall_minutes=args.max_wall_minutes, progress=False, **TRAIN.get(args.model, {}))
         logging.info("%s: %.1f min, best epoch %s, val nll %.3f, %s", args.model, (time.time() - t0) / 60,
                      info["best_epoch"], info["best_val_nll"], info["stopped"])
         return
@@ -72,10 +77,27 @@ def main() -> None:
         else:
             for c in cmds:
                 subprocess.run(c, check=True)
+    heldout = Path(str(work) + "_heldout")
+    if "heldout" in stages:
+        # never trained on: eclipse-sumo's tools/game scenarios (vehicles only) and the suite
+        # scenarios after the first SUITE_TRAIN (all their hazard kinds, pedestrians included)
+        import sumo
+
+        game = [Path(sumo.SUMO_HOME) / "tools" / "game" / f"{g}.sumocfg" for g in GAME]
+        suite = sorted((ROOT / "scenarios" / "suite").glob("s[0-9]*"))[SUITE_TRAIN:SUITE_TRAIN + SUITE_HELDOUT]
+        t0 = time.time()
+        dataset_main([g for g in game if g.exists()], heldout, seeds=(1, 2, 3), sim_seconds=300.0,
+                     workers=args.workers, suite=suite)
+        logging.info("held-out dataset: %.1f min", (time.time() - t0) / 60)
     if "evaluate" in stages:
         out_dir = Path(args.out_dir)
-        df = evaluate_main(work, out_dir, weights={"cslstm": out_dir / "cslstm.pt", "attention": out_dir / "attention.pt"})
+        weights = {m: out_dir / f"{m}.pt" for m in ("cslstm", "attention", "map") if (out_dir / f"{m}.pt").is_file()}
+        df = evaluate_main(work, out_dir, weights=weights)
         print(df.to_string())
+        if (heldout / "samples.npz").is_file():
+            df = evaluate_main(heldout, out_dir / "heldout", weights=weights, split="all", calibration_dataset=work,
+                               title="Scenarios never trained on (tools/game and held-out suite scenarios)")
+            print(df.to_string())
 
 
 if __name__ == "__main__":

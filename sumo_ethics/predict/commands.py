@@ -62,12 +62,16 @@ def evaluate_main(
     weights: dict[str, Path | str] | None = None,
     max_samples: int | None = 50_000,
     seed: int = 0,
+    split: str = "test",
+    calibration_dataset: Path | str | None = None,
+    title: str | None = None,
 ) -> "object":
     """Evaluate constant velocity and the LSTM models on the test seeds of ``dataset``.
 
-    ``weights`` maps model name -> weights file (default: the shipped attention and
-    cslstm). Writes ``out``/prediction_eval.csv and .md; returns the DataFrame.
+    ``weights`` maps model name -> weights file (default: the shipped map, attention and
+    cslstm); split "all" evaluates every sample (a dataset of scenarios never trained on). Writes ``out``/prediction_eval.csv and .md; returns the DataFrame.
     """
     from sumo_ethics.predict.evaluate import evaluate
 
-    return evaluate(Path(dataset), Path(out), weights=weights, max_samples=max_samples, seed=seed)
+    return evaluate(Path(dataset), Path(out), weights=weights, max_samples=max_samples, seed=seed, split=split,
+                    calibration_dataset=None if calibration_dataset is None else Path(calibration_dataset), title=title)

@@ -6,13 +6,20 @@ varying by seed), and writes to ``out``:
 
 - ``trajectories.parquet``: one row per agent per 0.1 s step, internal frame (centre
   position, yaw CCW from +x): run_id, seed, scenario, scale, time, agent_id, cls
-  (RoadUserClass int), x, y, yaw, speed, length, width.
+  (RoadUserClass int), x, y, yaw, speed, length, width, and at the model rate (every
+  0.2 s; other rows lane = -1) the map context of :mod:`sumo_ethics.sim.lanes`: lane (index
+  into the run's lane graph, -1 none), lane_pos (centre), tls_dist, tls_state.
+- ``lane_graphs.pkl``: scenario path -> :class:`features.LaneGraph` of its network.
 - ``samples.npz``: training samples at the model rate (5 Hz, see
   :mod:`sumo_ethics.predict.features`): a target with 3 s history and 4 s future,
   neighbours in its social grid, all in the target's frame. One anchor every
   ``anchor_every`` s per agent. Neighbours are stored packed (``nbr_*`` arrays, sorted by
   sample, ``nbr_ptr`` offsets).
-- ``split.json``: the seeds of each split; the split is by run seed, never by frame.
+  Per sample also its map features (``map_pts``, ``map_valid``, ``map_scalar``), its
+  manoeuvre label (``manoeuvre``, see :data:`MANOEUVRES`) and ``fut_valid`` (T,) bool
+  (hazard actors may vanish after 1 s: their futures are partly observed).
+- ``split.json``: the seeds of each split; the split is by run seed, never by frame. Suite
+  scenarios recorded with their hazards (``suite=``) are split by scenario.
 """
 
 from __future__ import annotations

@@ -354,6 +354,26 @@ def sample_path(graph: LaneGraph, path: tuple[int, ...], start: float, ds: float
     return np.stack([np.interp(s, cum, pts[:, 0]), np.interp(s, cum, pts[:, 1])], -1)
 
 
+def _sample_many(lines: list[tuple[np.ndarray, np.ndarray]], s: np.ndarray) -> np.ndarray:
+    """Points at arc lengths s (R, K) along R polylines (pts (P_r, 2), cum (P_r,)), held at
+    the ends: :func:`sample_path` for all rows in one vectorised pass."""
+    r = len(lines)
+    lens = np.array([len(c) for _, c in lines])
+    first = np.concatenate([[0], np.cumsum(lens)[:-1]])
+    big = 1e7 * np.arange(r)  # rows apart on one axis, so one searchsorted serves all
+    cum = np.concatenate([c for _, c in lines]) + np.repeat(big, lens)
+    pts = np.concatenate([p for p, _ in lines])
+    ends = np.array([c[-1] for _, c in lines])
+    q = np.clip(s, 0.0, ends[:, None]) + big[:, None]
+    i = np.searchsorted(cum, q, side="right") - 1
+    i = np.clip(i, first[:, None], np.maximum(first + lens - 2, first)[:, None])
+    j = np.minimum(i + 1, (first + lens - 1)[:, None])
+    span = cum[j] - cum[i]
+    w = np.where(span > 0, (q - cum[i]) / np.where(span > 0, span, 1.0), 0.0)
+    w = np.clip(w, 0.0, 1.0)[..., None]
+    return pts[i] * (1.0 - w) + pts[j] * w
+
+
 def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: np.ndarray,
                  speed: np.ndarray) -> dict[str, np.ndarray]:
     """Map inputs of N targets (see the layout above): map_pts, map_valid, map_kind, map_scalar.
@@ -372,19 +392,25 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
     scalar = np.zeros((n, MAP_SCALARS))
     if graph is not None:
         speed = np.maximum(np.asarray(speed, dtype=float), 0.0)
+        steps = np.arange(MAP_POINTS, dtype=float)
+        who, row, lines, where = [], [], [], []
         for i in np.flatnonzero(np.asarray(ctx.lane) >= 0):
             lane = int(ctx.lane[i])
             ds = max(MAP_DS_MIN, MAP_DS_PER_SPEED * float(speed[i]))
             reach = (MAP_POINTS - 1) * ds
             start = graph.shape_pos(lane, ctx.lane_pos[i])
             for r, path in enumerate(graph.paths(lane, start, reach, MAP_AHEAD)):
-                pts[i, r] = sample_path(graph, path, start, ds)
-                valid[i, r] = True
+                who.append(i)
+                row.append(r)
+                lines.append(graph.polyline(path))
+                where.append(start + steps * ds)
             for r, side in ((MAP_AHEAD, graph.left[lane]), (MAP_AHEAD + 1, graph.right[lane])):
                 if side >= 0:
                     s0 = min(start, graph.cum[side][-1])
-                    pts[i, r] = sample_path(graph, graph.first_path(side, s0, reach), s0, ds)
-                    valid[i, r] = True
+                    who.append(i)
+                    row.append(r)
+                    lines.append(graph.polyline(graph.first_path(side, s0, reach)))
+                    where.append(s0 + steps * ds)
             scalar[i, 0] = 1.0
             if np.isfinite(ctx.tls_dist[i]):
                 scalar[i, 1] = 1.0
@@ -393,9 +419,15 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
                 if code > 0:
                     scalar[i, 2 + code] = 1.0
             scalar[i, 6] = graph.speed[lane] / SPEED_SCALE
-        if valid.any():
+        if lines:
+            who_a, row_a = np.array(who), np.array(row)
+            world = _sample_many(lines, np.stack(where))  # (R, MAP_POINTS, 2)
             yaw = np.asarray(yaw, dtype=float)
-            pts = np.where(valid[..., None, None], to_target_frame(pts, xy, yaw), 0.0)
+            c, s_ = np.cos(yaw[who_a])[:, None], np.sin(yaw[who_a])[:, None]
+            dx = world[..., 0] - xy[who_a, 0][:, None]
+            dy = world[..., 1] - xy[who_a, 1][:, None]
+            pts[who_a, row_a] = np.stack([c * dx + s_ * dy, -s_ * dx + c * dy], -1)
+            valid[who_a, row_a] = True
     return {
         "map_pts": pts.astype(np.float32),
         "map_valid": valid,
