@@ -221,3 +221,23 @@ def test_dataset_carries_map_context_from_sumo(tmp_path):
     labels = set(np.unique(s["manoeuvre"][veh]).tolist())
     assert {MANOEUVRES.index("straight"), MANOEUVRES.index("turn")} <= labels
     assert (s["manoeuvre"][ped] == -1).all()
+
+
+SUITE = ROOT / "scenarios" / "suite"
+
+
+@pytest.mark.sumo
+@pytest.mark.skipif(not (SUITE / "s0002").is_dir(), reason="bundled suite missing")
+def test_suite_runs_bring_hazard_actors_into_the_data(tmp_path):
+    """A suite scenario recorded with its hazards: the hazard actor is in the trajectories, and
+    its samples are labelled 'hazard' with a future observed for at least 1 s."""
+    from sumo_ethics.predict.dataset import HAZARD_MIN_FUTURE, MANOEUVRES, build_dataset, load_samples
+
+    out = build_dataset([], [], tmp_path / "ds", suite=[SUITE / "s0002"], suite_anchor_every=0.4)
+    traj = __import__("pandas").read_parquet(out / "trajectories.parquet")
+    assert traj["agent_id"].str.startswith("hazard_").any()
+    s = load_samples(out)
+    hz = s["manoeuvre"] == MANOEUVRES.index("hazard")
+    assert hz.any()
+    assert s["fut_valid"][hz][:, :HAZARD_MIN_FUTURE].all()
+    assert s["fut_valid"][~hz].all()

@@ -374,7 +374,7 @@ def build_dataset(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     seeds = sorted(set(int(s) for s in seeds))
-    split = split_seeds(seeds, val_fraction, test_fraction)
+    split = split_seeds(seeds, val_fraction, test_fraction) if seeds else {"train": [], "val": [], "test": []}
     specs = []
     for scenario in scenarios:
         for i, seed in enumerate(seeds):
