@@ -66,7 +66,7 @@ def cli() -> None:
 @click.option("--utility", type=click.Choice(["candidate_mean", "literal"]),
               help="Reading of J_mean in J_utility (default candidate_mean).")
 @click.option("--predictor", type=click.Choice(["map", "attention", "cslstm", "cv"]),
-              help="Neighbour prediction (default attention).")
+              help="Neighbour prediction (default map: the attention LSTM reading lanes and signals too).")
 @click.option("--predictor-weights", type=click.Path(path_type=Path),
               help="Weights file for the LSTM predictor (default: the one shipped in the package).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")
