@@ -12,6 +12,12 @@ seeds/scenarios) and heldout/prediction_eval.{csv,md} (the held-out dataset) the
 default, feature version 1 + map version 1) and/or the ablation's "attention", "cslstm"
 (their shipped files were trained on the version-1 dataset without map columns or suite
 runs: ``--stages dataset --no-suite`` and then ``--models attention,cslstm`` rebuild them).
+
+Wall time of the shipped map model on this shared 2-core machine (one worker, one thread):
+dataset 19.0 min, training 22.2 min (20 CPU-minute budget, best epoch 6 of 9), held-out
+dataset 6.7 min, evaluation about 2 min: about 50 min in all.
+
+    python tools/train_shipped.py --work /tmp/pred --stages dataset,train,heldout,evaluate --workers 1
 """
 
 from __future__ import annotations

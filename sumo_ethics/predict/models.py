@@ -1,9 +1,13 @@
-"""CS-LSTM and the paper's attention variant, the bivariate Gaussian NLL, weight files.
+"""CS-LSTM, the paper's attention variant and the map-aware one, the bivariate Gaussian NLL, weight files.
 
-Both models share one interface::
+All models share one interface::
 
-    model(tgt_hist, tgt_group, nbr_hist, nbr_group, nbr_batch, nbr_cell, nbr_valid=None)
+    model(tgt_hist, tgt_group, nbr_hist, nbr_group, nbr_batch, nbr_cell, nbr_valid=None,
+          map_pts=None, map_valid=None, map_scalar=None)
         -> (B, FUT_STEPS, 5) = (mu_x, mu_y, sigma_x, sigma_y, rho)
+
+(the map inputs are read by kind "map" only; see ``features.map_features``: map_pts are
+normalised like the histories, by the target's position scale).
 
 Inputs are in the target's frame and NORMALISED: positions divided by
 ``model.scale(tgt_group)`` (per target group, see ``features.POS_SCALE``); outputs are
@@ -34,6 +38,16 @@ cosines sum to ~0 and gives negative weights; we use the guarded form
 (clamped to >= 0.01, initialised at 0.1). ``W_H = sum_i A_i H_i`` (0 without neighbours),
 projected 64 -> 80 without bias and added to the pooled grid: ``E = cs_pool + P W_H``;
 ``[E, dyn]`` goes to the decoder, as in CS-LSTM.
+
+Map (kind="map"): the attention model plus a lane context. Each of the MAP_LANES polylines
+(MAP_POINTS x 2 points, flattened, with a one-hot of its row kind: ahead / left / right) is
+encoded by a 2-layer MLP (-> 64); the query is a linear map of [target encoding, map
+scalars]; scaled dot-product attention over the valid polylines (none valid: zero) gives a
+64-d context, concatenated with a 32-d embedding of the scalars (traffic light ahead, its
+distance and state, speed limit): ``[E, dyn, lane context, scalars]`` goes to the decoder.
+The cslstm/attention parameters are built exactly as before (same names, same order), so
+their shipped files and seeded initialisations are unchanged. Weight files of kind "map"
+carry ``map_version`` (features.MAP_VERSION) and are refused with any other.
 """
 
 from __future__ import annotations
