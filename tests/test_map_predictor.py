@@ -241,3 +241,20 @@ def test_suite_runs_bring_hazard_actors_into_the_data(tmp_path):
     assert hz.any()
     assert s["fut_valid"][hz][:, :HAZARD_MIN_FUTURE].all()
     assert s["fut_valid"][~hz].all()
+
+
+@pytest.mark.sumo
+@pytest.mark.skipif(not URBAN.exists(), reason="bundled urban scenario missing")
+def test_runs_with_the_default_map_predictor_are_byte_identical_for_one_seed(tmp_path):
+    """The default planner (map predictor, lanes and signals read from SUMO each step): the
+    same seed gives the same step table, byte for byte."""
+    outs = []
+    for k in range(2):
+        out = tmp_path / f"r{k}"
+        p = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "run", str(URBAN), "--end", "22", "--ego-depart",
+                            "15", "--seed", "3", "--quiet", "--out", str(out)], capture_output=True, text=True,
+                           cwd=ROOT, timeout=300)
+        assert p.returncode == 0, p.stderr
+        outs.append(out)
+    assert '"predictor": "map"' in (outs[0] / "config.json").read_text()
+    assert (outs[0] / "steps.parquet").read_bytes() == (outs[1] / "steps.parquet").read_bytes()

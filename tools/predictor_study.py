@@ -1,7 +1,7 @@
 """Table 1 per predictor, and the planner's braking/lateral priors off and on, on suite
 scenarios that no predictor was trained or evaluated on.
 
-    python tools/predictor_study.py [--first 140] [--count 20] [--workers 1] [--out runs/predictor_study]
+    python tools/predictor_study.py [--first 140] [--count 20] [--workers 1] [--out runs/predictor_study] [--resume]
 
 Planners (the paper's planner, only the predictor or the priors changed): cv, cslstm,
 attention, map (the default), map_nopriors (map with braking_prior = lateral_prior = 0).
@@ -35,6 +35,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default=str(ROOT / "runs" / "predictor_study"))
     ap.add_argument("--planner", action="append", help="override the planner list (NAME=key=value;...)")
+    ap.add_argument("--resume", action="store_true", help="keep finished runs found in --out")
     args = ap.parse_args()
     from sumo_ethics.suite.evaluate import parse_planners, run_suite, write_outputs
     from sumo_ethics.suite.spec import load_suite
@@ -44,7 +45,7 @@ def main() -> None:
     planners = parse_planners(args.planner or PLANNERS)
     out = Path(args.out)
     t0 = time.perf_counter()
-    rows = run_suite([s.folder for s in specs], planners, out, args.workers, None, False)
+    rows = run_suite([s.folder for s in specs], planners, out, args.workers, None, args.resume)
     meta = {"suite": str(suite), "scenarios": [s.folder.name for s in specs], "workers": args.workers,
             "wall_s": time.perf_counter() - t0, "planners": {p.name: p.describe() for p in planners},
             "reference": "map"}
