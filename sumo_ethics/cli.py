@@ -65,8 +65,8 @@ def cli() -> None:
               help="Selection rule (default cost: the ethical cost decides unavoidable harms; validity: Origin's).")
 @click.option("--utility", type=click.Choice(["candidate_mean", "literal"]),
               help="Reading of J_mean in J_utility (default candidate_mean).")
-@click.option("--predictor", type=click.Choice(["attention", "cslstm", "cv"]),
-              help="Neighbour prediction (default attention).")
+@click.option("--predictor", type=click.Choice(["map", "attention", "cslstm", "cv"]),
+              help="Neighbour prediction (default map: the attention LSTM reading lanes and signals too).")
 @click.option("--predictor-weights", type=click.Path(path_type=Path),
               help="Weights file for the LSTM predictor (default: the one shipped in the package).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")
@@ -160,14 +160,19 @@ def explain(run_dir: Path, step: int | None, at_time: float | None, collision: i
 @click.option("--seeds", default="1-7", show_default=True, help="Run seeds, e.g. 1-7 or 1,4,9 (split by seed).")
 @click.option("--sim-seconds", type=float, default=600.0, show_default=True, help="Simulated time per run [s].")
 @click.option("--workers", type=int, default=1, show_default=True, help="Parallel SUMO processes.")
-def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: float, workers: int) -> None:
-    """Record trajectories of vehicles, cyclists and pedestrians from SUMO runs into a prediction dataset."""
+@click.option("--suite", "suite_dirs", multiple=True, type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="A suite scenario folder to record with its hazards (repeat; split by scenario).")
+def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: float, workers: int,
+            suite_dirs: tuple[Path, ...]) -> None:
+    """Record trajectories of vehicles, cyclists and pedestrians (with their lanes and signals) from SUMO runs
+    into a prediction dataset."""
     from sumo_ethics.predict import dataset_main
     from sumo_ethics.sweep import parse_seeds
 
     if not sim_seconds > 0 or workers < 1:
         raise click.BadParameter("--sim-seconds must be positive and --workers at least 1")
-    path = dataset_main(scenarios, out, seeds=parse_seeds(seeds), sim_seconds=sim_seconds, workers=workers)
+    path = dataset_main(scenarios, out, seeds=parse_seeds(seeds), sim_seconds=sim_seconds, workers=workers,
+                        suite=suite_dirs)
     click.echo(f"dataset written to {path}")
 
 
@@ -184,28 +189,44 @@ def _dataset_folder(path: Path) -> Path:
 
 @cli.command()
 @click.argument("dataset_dir", metavar="DATASET", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--model", type=click.Choice(["attention", "cslstm"]), default="attention", show_default=True)
+@click.option("--model", type=click.Choice(["map", "attention", "cslstm"]), default="map", show_default=True)
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Weights file to write (.pt).")
 @click.option("--max-minutes", type=float, default=14.0, show_default=True, help="CPU-time budget [min].")
 @click.option("--seed", type=int, default=0, show_default=True)
-def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int) -> None:
+@click.option("--hazard-repeat", type=int, default=1, show_default=True,
+              help="Use each hazard actor's training sample this many times per epoch.")
+def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation)."""
     from sumo_ethics.predict import train_main
 
     if not max_minutes > 0:
         raise click.BadParameter("--max-minutes must be positive")
-    result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed)
+    if hazard_repeat < 1:
+        raise click.BadParameter("--hazard-repeat must be at least 1")
+    result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed,
+                        hazard_repeat=hazard_repeat)
     click.echo(f"weights written to {out}: {result}")
 
 
 @cli.command("evaluate-predictor")
 @click.argument("dataset_dir", metavar="DATASET", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(path_type=Path), default=Path("prediction_eval"), show_default=True)
-def evaluate_predictor(dataset_dir: Path, out: Path) -> None:
-    """RMSE at 1-4 s, ADE, FDE and NLL of constant velocity, CS-LSTM and attention per agent class."""
+@click.option("--model", "models", multiple=True, metavar="NAME=FILE",
+              help="A weights file to evaluate under NAME (repeat; default: the shipped map, attention, cslstm).")
+@click.option("--split", type=click.Choice(["test", "val", "train", "all"]), default="test", show_default=True,
+              help="Samples evaluated: a split of the seeds/scenarios, or all (a dataset never trained on).")
+def evaluate_predictor(dataset_dir: Path, out: Path, models: tuple[str, ...], split: str) -> None:
+    """RMSE at 1-4 s, ADE, FDE, NLL and 1-/2-sigma calibration of constant velocity and the learned models,
+    per agent class and per manoeuvre."""
     from sumo_ethics.predict import evaluate_main
 
-    table = evaluate_main(_dataset_folder(dataset_dir), out)
+    weights = {}
+    for text in models:
+        name, sep, path = text.partition("=")
+        if not sep or not name or not path:
+            raise click.BadParameter(f"--model expects NAME=FILE, got {text!r}")
+        weights[name] = Path(path)
+    table = evaluate_main(_dataset_folder(dataset_dir), out, weights=weights or None, split=split)
     click.echo(table.to_string(index=False))
     click.echo(f"written to {out}/prediction_eval.csv and .md")
 

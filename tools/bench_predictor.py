@@ -1,6 +1,12 @@
 """Median latency of one LSTMPredictor.predict call: 32 agents, 3 s history at 0.1 s, one core.
 
-    python tools/bench_predictor.py [--kind attention|cslstm] [--weights PATH] [--agents 32] [--repeats 200]
+    python tools/bench_predictor.py [--kind map|attention|cslstm] [--weights PATH] [--agents 32] [--repeats 200]
+
+For the map-aware model (the default) the call includes building every agent's map features
+from a synthetic lane graph: a 4-lane road (lanes r_0..r_3, 600 m) whose lanes each branch into
+a straight and a turning successor at x = 100 m, so each agent has its current lane, two
+branches ahead and its left/right neighbours (the libsumo reads of a real run, about 3 calls per
+vehicle, are not included; tools/bench_sumo_api.py measures those).
 """
 
 from __future__ import annotations
@@ -35,9 +41,30 @@ def make_observation(n_agents: int = 32, hist_s: float = 3.0, dt: float = 0.1, s
     return Observation(time=0.0, dt=dt, history=hist, valid=np.ones(hist.shape[:2], dtype=bool), current=cur, ego=ego)
 
 
+def lane_source(obs):
+    """A map source for make_observation's road (see the module docstring)."""
+    from sumo_ethics.predict import features as F
+
+    ids, shapes, links = [], [], []
+    for i in range(4):
+        y = i * 3.5
+        ids += [f"r_{i}", f"s_{i}", f"t_{i}"]
+        shapes += [np.array([[-300.0, y], [100.0, y]]), np.array([[100.0, y], [400.0, y]]),
+                   np.array([[100.0, y], [110.0, y + 5.0], [115.0, y + 60.0]])]
+        links += [(f"s_{i}", f"t_{i}"), (), ()]
+    graph = F.LaneGraph.build(ids, shapes, np.full(len(ids), 13.9), links)
+    cur = obs.current
+
+    def source(agent_ids, person):
+        lane = np.where(person, -1, 3 * np.clip(np.round(cur.y / 3.5), 0, 3).astype(np.int64))
+        return graph, F.MapContext(lane, cur.x + 300.0, np.full(len(agent_ids), 40.0), np.full(len(agent_ids), 3))
+
+    return source
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--kind", default="attention")
+    ap.add_argument("--kind", default="map")
     ap.add_argument("--weights", default=None)
     ap.add_argument("--agents", type=int, default=32)
     ap.add_argument("--repeats", type=int, default=200)
@@ -46,8 +73,10 @@ def main() -> None:
     torch.set_num_threads(1)
     from sumo_ethics.predict.predictor import LSTMPredictor
 
-    pred = LSTMPredictor.from_file(args.weights, kind=args.kind) if args.weights else LSTMPredictor.default(args.kind)
     obs = make_observation(args.agents)
+    source = lane_source(obs) if args.kind == "map" else None
+    pred = (LSTMPredictor.from_file(args.weights, kind=args.kind, map_source=source) if args.weights
+            else LSTMPredictor.default(args.kind, map_source=source))
     for _ in range(10):
         pred.predict(obs, args.horizon, 0.1)
     times, cpu = [], []

@@ -1,10 +1,23 @@
-"""Rebuild the shipped predictor weights: dataset -> train attention and CS-LSTM -> evaluate.
+"""Rebuild the shipped predictor weights: dataset -> train -> evaluate.
 
-    python tools/train_shipped.py [--work DIR] [--stages dataset,train,evaluate] [--parallel]
+    python tools/train_shipped.py [--work DIR] [--stages dataset,heldout,train,evaluate] [--models map]
 
-Uses the bundled scenarios (scenarios/{urban,rural,highway,urban_grid}). Writes the
-weights to sumo_ethics/predict/weights/{attention,cslstm}.pt (+ .json training logs) and
-the evaluation table to sumo_ethics/predict/weights/evaluation.{csv,md}.
+Data: the bundled scenarios (scenarios/{urban,rural,highway,urban_grid}, seeds 1-7, 600 s,
+anchors every 2 s, split by seed) and the first SUITE_TRAIN suite scenarios recorded with
+their hazards (anchors every 0.4 s, split by scenario). Writes the weights to
+sumo_ethics/predict/weights/<model>.pt (+ .json training logs); "heldout" records a second
+dataset of scenarios never trained on (GAME configs of eclipse-sumo's tools/game, 3 seeds x
+300 s, and suite scenarios s0100-s0139); "evaluate" writes prediction_eval.{csv,md} (test
+seeds/scenarios) and heldout/prediction_eval.{csv,md} (the held-out dataset) there. ``--models`` picks what is trained: "map" (the shipped
+default, feature version 1 + map version 1) and/or the ablation's "attention", "cslstm"
+(their shipped files were trained on the version-1 dataset without map columns or suite
+runs: ``--stages dataset --no-suite`` and then ``--models attention,cslstm`` rebuild them).
+
+Wall time of the shipped map model on this shared 2-core machine (one worker, one thread):
+dataset 19.0 min, training 22.2 min (20 CPU-minute budget, best epoch 6 of 9), held-out
+dataset 6.7 min, evaluation about 2 min: about 50 min in all.
+
+    python tools/train_shipped.py --work /tmp/pred --stages dataset,train,heldout,evaluate --workers 1
 """
 
 from __future__ import annotations
@@ -20,6 +33,10 @@ ROOT = Path(__file__).resolve().parents[1]
 WEIGHTS = ROOT / "sumo_ethics" / "predict" / "weights"
 SCENARIOS = ("urban", "rural", "highway", "urban_grid")
 SEEDS = tuple(range(1, 8))
+SUITE_TRAIN = 100  # suite scenarios s0000..s0099 go into the dataset; s0100.. stay held out
+SUITE_HELDOUT = 40  # s0100..s0139 are the held-out suite scenarios of the evaluation
+GAME = ("cross", "square", "grid6", "corridor", "fkk_in", "ramp")  # eclipse-sumo tools/game configs
+TRAIN = {"map": {"hazard_repeat": 4}}  # per-model train_main options (others: defaults)
 
 
 def main() -> None:
@@ -27,11 +44,13 @@ def main() -> None:
     ap.add_argument("--work", default="/tmp/sumo_ethics_predict_data")
     ap.add_argument("--stages", default="dataset,train,evaluate")
     ap.add_argument("--parallel", action="store_true", help="train both models at once (one thread each)")
-    ap.add_argument("--max-minutes", type=float, default=14.0)
+    ap.add_argument("--max-minutes", type=float, default=20.0, help="CPU-time budget per model [min]")
     ap.add_argument("--max-wall-minutes", type=float, default=None)
     ap.add_argument("--out-dir", default=str(WEIGHTS), help="where weights and the evaluation go")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--model", default=None, help="(internal) train only this model")
+    ap.add_argument("--models", default="map", help="comma-separated models to train (map, attention, cslstm)")
+    ap.add_argument("--no-suite", action="store_true", help="dataset without the suite's hazard runs")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     sys.path.insert(0, str(ROOT))
@@ -42,7 +61,7 @@ def main() -> None:
     if args.model:
         t0 = time.time()
         info = train_main(work, args.model, Path(args.out_dir) / f"{args.model}.pt", max_minutes=args.max_minutes,
-                          max_wall_minutes=args.max_wall_minutes, progress=False)
+                          max_wall_minutes=args.max_wall_minutes, progress=False, **TRAIN.get(args.model, {}))
         logging.info("%s: %.1f min, best epoch %s, val nll %.3f, %s", args.model, (time.time() - t0) / 60,
                      info["best_epoch"], info["best_val_nll"], info["stopped"])
         return
@@ -50,12 +69,13 @@ def main() -> None:
         scen = [ROOT / "scenarios" / s / f"{s}.sumocfg" for s in SCENARIOS]
         scen = [s for s in scen if s.exists()]
         t0 = time.time()
-        dataset_main(scen, work, seeds=SEEDS, workers=args.workers)
+        suite = [] if args.no_suite else sorted((ROOT / "scenarios" / "suite").glob("s[0-9]*"))[:SUITE_TRAIN]
+        dataset_main(scen, work, seeds=SEEDS, workers=args.workers, suite=suite)
         logging.info("dataset: %.1f min", (time.time() - t0) / 60)
     if "train" in stages:
         cmds = [[sys.executable, __file__, "--work", str(work), "--model", m, "--max-minutes", str(args.max_minutes),
                  "--out-dir", args.out_dir] + (["--max-wall-minutes", str(args.max_wall_minutes)] if args.max_wall_minutes else [])
-                for m in ("attention", "cslstm")]
+                for m in args.models.split(",")]
         if args.parallel:
             procs = [subprocess.Popen(c) for c in cmds]
             if any(p.wait() for p in procs):
@@ -63,10 +83,27 @@ def main() -> None:
         else:
             for c in cmds:
                 subprocess.run(c, check=True)
+    heldout = Path(str(work) + "_heldout")
+    if "heldout" in stages:
+        # never trained on: eclipse-sumo's tools/game scenarios (vehicles only) and the suite
+        # scenarios after the first SUITE_TRAIN (all their hazard kinds, pedestrians included)
+        import sumo
+
+        game = [Path(sumo.SUMO_HOME) / "tools" / "game" / f"{g}.sumocfg" for g in GAME]
+        suite = sorted((ROOT / "scenarios" / "suite").glob("s[0-9]*"))[SUITE_TRAIN:SUITE_TRAIN + SUITE_HELDOUT]
+        t0 = time.time()
+        dataset_main([g for g in game if g.exists()], heldout, seeds=(1, 2, 3), sim_seconds=300.0,
+                     workers=args.workers, suite=suite)
+        logging.info("held-out dataset: %.1f min", (time.time() - t0) / 60)
     if "evaluate" in stages:
         out_dir = Path(args.out_dir)
-        df = evaluate_main(work, out_dir, weights={"cslstm": out_dir / "cslstm.pt", "attention": out_dir / "attention.pt"})
+        weights = {m: out_dir / f"{m}.pt" for m in ("cslstm", "attention", "map") if (out_dir / f"{m}.pt").is_file()}
+        df = evaluate_main(work, out_dir, weights=weights)
         print(df.to_string())
+        if (heldout / "samples.npz").is_file():
+            df = evaluate_main(heldout, out_dir / "heldout", weights=weights, split="all", calibration_dataset=work,
+                               title="Scenarios never trained on (tools/game and held-out suite scenarios)")
+            print(df.to_string())
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior
 from sumo_ethics.sim.world import EgoCommand
 from sumo_ethics.types import Candidates, DecisionTrace, Observation, Prediction
 
-PREDICTORS = ("attention", "cslstm", "cv")
+PREDICTORS = ("map", "attention", "cslstm", "cv")
 
 #: validity classes, best first (the selected candidate's class is logged as ``validity``)
 VALIDITY = ("safe", "no_overlap_on_road", "no_overlap", "feasible", "emergency")
@@ -47,7 +47,8 @@ class PlannerConfig:
     """Everything the ethical planner decides with.
 
     max_risk: a candidate is "safe" when its largest risk against any party (ego's plus the
-    other's) stays below this [-]; predictor: "attention", "cslstm" or "cv" (constant velocity);
+    other's) stays below this [-]; predictor: "map" (the attention LSTM that also reads lanes and
+    signals, the default), "attention" (the paper's), "cslstm" or "cv" (constant velocity);
     braking_prior: agents decelerating at least this hard [m/s^2] are predicted to keep braking
     until they stand; lateral_prior: agents moving across their straight predicted path keep
     their lateral speed for this long [s] (both ``sumo_ethics.predict.braking``; 0 = off);
@@ -65,7 +66,7 @@ class PlannerConfig:
     sampling: SamplingConfig = field(default_factory=lambda: SamplingConfig(horizons=(1.0, 2.0, 3.0, 4.0),
                                                                             n_offsets=17))
     probability: ProbabilityConfig = field(default_factory=ProbabilityConfig)
-    predictor: str = "attention"
+    predictor: str = "map"
     predictor_weights: str | None = None  # a weights file for the LSTM predictors (default: shipped)
     max_risk: float = 0.01
     braking_prior: float = 3.0
@@ -103,12 +104,20 @@ def keep_heap_warm(pad: int = 64 << 20) -> None:
 
 
 def make_predictor(name: str, weights: str | None = None) -> Predictor:
-    """"cv", or an LSTM ("attention", "cslstm") from ``weights`` or the shipped file."""
+    """"cv", or an LSTM ("map", "attention", "cslstm") from ``weights`` or the shipped file; the
+    map-aware one reads lanes and signals from the running simulation (sim.lanes.SumoMapSource)."""
     from sumo_ethics.predict import ConstantVelocityPredictor, LSTMPredictor
 
     if name == "cv":
         return ConstantVelocityPredictor()
-    return LSTMPredictor.from_file(weights, kind=name) if weights else LSTMPredictor.default(name)
+    source = None
+    if name == "map":
+        from sumo_ethics.sim.lanes import SumoMapSource
+
+        source = SumoMapSource()
+    if weights:
+        return LSTMPredictor.from_file(weights, kind=name, map_source=source)
+    return LSTMPredictor.default(name, map_source=source)
 
 
 def first_overlap(cand: Candidates, pred: Prediction, risk: RiskTerms, length: np.ndarray,

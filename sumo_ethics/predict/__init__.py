@@ -1,4 +1,4 @@
-"""Trajectory prediction: constant velocity baseline and LSTM predictors (CS-LSTM, attention).
+"""Trajectory prediction: constant velocity baseline and LSTM predictors (CS-LSTM, attention, map-aware attention).
 
 Importing this package is cheap: torch is imported only when an LSTM class or the
 training/evaluation code is first used (attributes resolve lazily).

@@ -17,13 +17,17 @@ def dataset_main(
     anchor_every: float = 2.0,
     scales: Sequence[float] = (0.7, 1.0, 1.3),
     workers: int = 1,
+    suite: Sequence[Path | str] = (),
+    suite_anchor_every: float = 0.4,
 ) -> Path:
-    """Simulate ``scenarios`` (.sumocfg) x ``seeds`` and write a prediction dataset folder to ``out``."""
+    """Simulate ``scenarios`` (.sumocfg) x ``seeds`` (and record the ``suite`` scenario folders
+    with their hazards) and write a prediction dataset folder to ``out``."""
     from sumo_ethics.predict.dataset import build_dataset
 
     return build_dataset(
         [Path(s) for s in scenarios], list(seeds), Path(out), scales=tuple(scales),
         sim_seconds=sim_seconds, anchor_every=anchor_every, workers=workers,
+        suite=[Path(s) for s in suite], suite_anchor_every=suite_anchor_every,
     )
 
 
@@ -39,15 +43,16 @@ def train_main(
     seed: int = 0,
     threads: int = 1,
     progress: bool = True,
+    hazard_repeat: int = 1,
 ) -> dict:
-    """Train ``model`` ("attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
+    """Train ``model`` ("map", "attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
 
     max_minutes is a CPU-time budget (one thread); max_wall_minutes caps wall time (default 3x).
     """
     from sumo_ethics.predict.train import TrainConfig, train_model
 
     cfg = TrainConfig(epochs=epochs, mse_epochs=mse_epochs, max_minutes=max_minutes, max_train=max_train,
-                      seed=seed, threads=threads, max_wall_minutes=max_wall_minutes)
+                      seed=seed, threads=threads, max_wall_minutes=max_wall_minutes, hazard_repeat=hazard_repeat)
     return train_model(Path(dataset), model, Path(out), cfg, progress=progress)
 
 
@@ -57,12 +62,16 @@ def evaluate_main(
     weights: dict[str, Path | str] | None = None,
     max_samples: int | None = 50_000,
     seed: int = 0,
+    split: str = "test",
+    calibration_dataset: Path | str | None = None,
+    title: str | None = None,
 ) -> "object":
     """Evaluate constant velocity and the LSTM models on the test seeds of ``dataset``.
 
-    ``weights`` maps model name -> weights file (default: the shipped attention and
-    cslstm). Writes ``out``/prediction_eval.csv and .md; returns the DataFrame.
+    ``weights`` maps model name -> weights file (default: the shipped map, attention and
+    cslstm); split "all" evaluates every sample (a dataset of scenarios never trained on). Writes ``out``/prediction_eval.csv and .md; returns the DataFrame.
     """
     from sumo_ethics.predict.evaluate import evaluate
 
-    return evaluate(Path(dataset), Path(out), weights=weights, max_samples=max_samples, seed=seed)
+    return evaluate(Path(dataset), Path(out), weights=weights, max_samples=max_samples, seed=seed, split=split,
+                    calibration_dataset=None if calibration_dataset is None else Path(calibration_dataset), title=title)

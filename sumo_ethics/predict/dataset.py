@@ -6,13 +6,20 @@ varying by seed), and writes to ``out``:
 
 - ``trajectories.parquet``: one row per agent per 0.1 s step, internal frame (centre
   position, yaw CCW from +x): run_id, seed, scenario, scale, time, agent_id, cls
-  (RoadUserClass int), x, y, yaw, speed, length, width.
+  (RoadUserClass int), x, y, yaw, speed, length, width, and at the model rate (every
+  0.2 s; other rows lane = -1) the map context of :mod:`sumo_ethics.sim.lanes`: lane (index
+  into the run's lane graph, -1 none), lane_pos (centre), tls_dist, tls_state.
+- ``lane_graphs.pkl``: scenario path -> :class:`features.LaneGraph` of its network.
 - ``samples.npz``: training samples at the model rate (5 Hz, see
   :mod:`sumo_ethics.predict.features`): a target with 3 s history and 4 s future,
   neighbours in its social grid, all in the target's frame. One anchor every
   ``anchor_every`` s per agent. Neighbours are stored packed (``nbr_*`` arrays, sorted by
   sample, ``nbr_ptr`` offsets).
-- ``split.json``: the seeds of each split; the split is by run seed, never by frame.
+  Per sample also its map features (``map_pts``, ``map_valid``, ``map_scalar``), its
+  manoeuvre label (``manoeuvre``, see :data:`MANOEUVRES`) and ``fut_valid`` (T,) bool
+  (hazard actors may vanish after 1 s: their futures are partly observed).
+- ``split.json``: the seeds of each split; the split is by run seed, never by frame. Suite
+  scenarios recorded with their hazards (``suite=``) are split by scenario.
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ from __future__ import annotations
 import json
 import logging
 import multiprocessing as mp
+import pickle
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,9 +52,13 @@ class RunSpec:
     sim_seconds: float
 
 
-def _simulate(spec: RunSpec) -> pd.DataFrame:
-    """One SUMO run through libsumo -> trajectory rows (runs inside a worker process)."""
+def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
+    """One SUMO run through libsumo -> trajectory rows and the network's lane graph (runs
+    inside a worker process). Map context (lane, lane_pos, tls_dist, tls_state; see
+    :mod:`sumo_ethics.sim.lanes`) is read at the model rate only (other rows: lane -1)."""
     import libsumo as ls
+
+    from sumo_ethics.sim.lanes import agent_context, lane_graph
 
     cmd = [
         "sumo", "-c", str(spec.scenario), "--seed", str(spec.seed), "--scale", f"{spec.scale:g}",
@@ -68,6 +80,9 @@ def _simulate(spec: RunSpec) -> pd.DataFrame:
         return type_info[type_id]
 
     rows_t, rows_id, rows_x, rows_y, rows_a, rows_v = [], [], [], [], [], []
+    rows_lane, rows_pos, rows_td, rows_ts = [], [], [], []
+    graph = lane_graph()
+    ratio = int(round(F.MODEL_DT / SIM_DT))
     t0 = ls.simulation.getTime()
     try:
         while ls.simulation.getTime() - t0 < spec.sim_seconds and ls.simulation.getMinExpectedNumber() > 0:
@@ -79,7 +94,17 @@ def _simulate(spec: RunSpec) -> pd.DataFrame:
                 ls.person.subscribe(p, vars_)
                 agent_type[p] = info(ls.person.getTypeID(p))
             t = ls.simulation.getTime()
-            for res in (ls.vehicle.getAllSubscriptionResults(), ls.person.getAllSubscriptionResults()):
+            at_model_rate = int(round(t / SIM_DT)) % ratio == 0
+            for is_person, res in enumerate((ls.vehicle.getAllSubscriptionResults(), ls.person.getAllSubscriptionResults())):
+                ids = list(res)
+                if at_model_rate:
+                    ctx = agent_context(graph, ids, np.full(len(ids), bool(is_person)))
+                else:
+                    ctx = F.MapContext.empty(len(ids))
+                rows_lane.extend(ctx.lane.tolist())
+                rows_pos.extend(ctx.lane_pos.tolist())
+                rows_td.extend(ctx.tls_dist.tolist())
+                rows_ts.extend(ctx.tls_state.tolist())
                 for aid, r in res.items():
                     pos = r[ls.VAR_POSITION]
                     rows_t.append(t)
@@ -106,8 +131,12 @@ def _simulate(spec: RunSpec) -> pd.DataFrame:
             "x": x, "y": y, "yaw": yaw,
             "speed": np.array(rows_v, dtype=np.float32),
             "length": length.astype(np.float32), "width": width.astype(np.float32),
+            "lane": np.array(rows_lane, dtype=np.int32),
+            "lane_pos": np.array(rows_pos, dtype=np.float32),
+            "tls_dist": np.array(rows_td, dtype=np.float32),
+            "tls_state": np.array(rows_ts, dtype=np.int8),
         }
-    )
+    ), graph
 
 
 def split_seeds(seeds: list[int], val_fraction: float = 0.15, test_fraction: float = 0.2) -> dict[str, list[int]]:
@@ -120,19 +149,65 @@ def split_seeds(seeds: list[int], val_fraction: float = 0.15, test_fraction: flo
     return {"train": s[: len(s) - n_test - n_val], "val": s[len(s) - n_test - n_val: len(s) - n_test], "test": s[len(s) - n_test:]}
 
 
-def simulate_runs(specs: list[RunSpec], workers: int = 1) -> pd.DataFrame:
-    """Run every spec in a fresh spawned process (libsumo: one simulation per process)."""
+def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame, dict[str, F.LaneGraph]]:
+    """Run every spec in a fresh spawned process (libsumo: one simulation per process).
+
+    Returns the trajectory rows and each scenario's lane graph (keyed by the scenario path)."""
     ctx = mp.get_context("spawn")
     frames = []
+    graphs: dict[str, F.LaneGraph] = {}
     with ctx.Pool(processes=max(1, workers), maxtasksperchild=1) as pool:
-        for i, df in enumerate(pool.imap(_simulate, specs)):
+        for i, (df, graph) in enumerate(pool.imap(_simulate, specs)):
             log.info("run %d/%d: %s seed %d scale %.2f -> %d rows", i + 1, len(specs), specs[i].scenario.name, specs[i].seed, specs[i].scale, len(df))
             frames.append(df)
-    return pd.concat(frames, ignore_index=True)
+            graphs.setdefault(str(specs[i].scenario), graph)
+    return pd.concat(frames, ignore_index=True), graphs
 
 
-def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: float = 1.0) -> dict[str, np.ndarray]:
-    """Training samples from one run's trajectory rows (see module docstring)."""
+#: manoeuvre labels of a sample (vehicles and cyclists; pedestrians are -1), see :func:`manoeuvre_labels`
+MANOEUVRES = ("straight", "turn", "stop_at_light", "lane_change", "hazard")
+HAZARD_MIN_FUTURE = 5  # model steps (1 s) of future a hazard actor's sample needs at least
+TURN_ANGLE = 0.5  # [rad] heading change over the horizon that makes a turn (about 29 degrees)
+
+
+def manoeuvre_labels(group: np.ndarray, fut: np.ndarray, speed: np.ndarray, lanes: np.ndarray,
+                     tls_dist: np.ndarray, tls_state: np.ndarray, hazard: np.ndarray,
+                     graph: F.LaneGraph | None) -> np.ndarray:
+    """(S,) MANOEUVRES index of each sample, first match wins:
+
+    hazard: the target is an injected hazard actor (id ``hazard_*``); stop_at_light: a red or
+    yellow light ahead within the 4 s reach (speed x 4 s + 10 m); lane_change: between two
+    consecutive model steps of [now, +4 s] the target's lane becomes its left or right
+    neighbour; turn: the heading of its path at the end of the horizon differs from now by more
+    than TURN_ANGLE; straight: anything else. Pedestrians: -1.
+    fut: (S, T, 2) target frame; lanes: (S, T + 1) lane index now and at each future step.
+    """
+    s = len(group)
+    out = np.zeros(s, dtype=np.int8)
+    seg = fut[:, -1] - fut[:, -3]
+    moved = np.hypot(seg[:, 0], seg[:, 1]) > 0.5
+    head = np.where(moved, np.arctan2(seg[:, 1], seg[:, 0]), np.arctan2(fut[:, -1, 1], np.abs(fut[:, -1, 0]) + 1e-6))
+    far = np.hypot(fut[:, -1, 0], fut[:, -1, 1]) > 2.0
+    out[far & (np.abs(head) > TURN_ANGLE)] = 1
+    if graph is not None and lanes.shape[1] > 1:
+        a, b = lanes[:, :-1], lanes[:, 1:]
+        ok = (a >= 0) & (b >= 0)
+        side = ok & ((b == graph.left[np.maximum(a, 0)]) | (b == graph.right[np.maximum(a, 0)]))
+        out[side.any(axis=1)] = 3
+    light = np.isfinite(tls_dist) & (tls_dist <= speed * 4.0 + 10.0) & ((tls_state == 2) | (tls_state == 3))
+    out[light] = 2
+    out[hazard] = 4
+    out[group == F.GROUP_PEDESTRIAN] = -1
+    return out
+
+
+def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: float = 1.0,
+                     graph: F.LaneGraph | None = None) -> dict[str, np.ndarray]:
+    """Training samples from one run's trajectory rows (see module docstring).
+
+    With the run's lane ``graph`` (and the map columns in ``df``), each sample also carries
+    its map features (``map_*``, see :func:`features.map_features`); without, those are empty.
+    """
     ratio = int(round(F.MODEL_DT / SIM_DT))
     k = np.round(df["time"].to_numpy() / SIM_DT).astype(np.int64)
     keep = k % ratio == 0
@@ -148,8 +223,19 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
     pos[agent_codes, frame, 1] = d["y"].to_numpy()
     yaw[agent_codes, frame] = d["yaw"].to_numpy()
     speed[agent_codes, frame] = d["speed"].to_numpy()
+    lane = np.full((na, nf), -1, dtype=np.int64)
+    lane_pos = np.zeros((na, nf))
+    tls_dist = np.full((na, nf), np.inf)
+    tls_state = np.zeros((na, nf), dtype=np.int64)
+    has_map = graph is not None and "lane" in d.columns
+    if has_map:
+        lane[agent_codes, frame] = d["lane"].to_numpy()
+        lane_pos[agent_codes, frame] = d["lane_pos"].to_numpy()
+        tls_dist[agent_codes, frame] = d["tls_dist"].to_numpy()
+        tls_state[agent_codes, frame] = d["tls_state"].to_numpy()
     cls = np.zeros(na, dtype=np.int64)
     cls[agent_codes] = d["cls"].to_numpy()
+    hazard_agent = np.array([str(a).startswith("hazard_") for a in agent_names], dtype=bool)
     present = ~np.isnan(pos[..., 0])
 
     h, fsteps = F.HIST_STEPS, F.FUT_STEPS
@@ -157,14 +243,18 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
     min_valid = int(round(min_history / F.MODEL_DT)) + 1
     out: dict[str, list[np.ndarray]] = {key: [] for key in (
         "tgt_hist", "tgt_group", "tgt_cls", "tgt_speed", "fut", "time",
-        "nbr_hist", "nbr_group", "nbr_cell", "nbr_count")}
+        "nbr_hist", "nbr_group", "nbr_cell", "nbr_count",
+        "map_pts", "map_valid", "map_scalar", "manoeuvre", "fut_valid")}
     for f in range(h - 1, nf - fsteps, step):
         here = np.flatnonzero(present[:, f])
         if here.size == 0:
             continue
         hv = present[here, f - h + 1: f + 1]
-        fut_ok = present[here, f + 1: f + 1 + fsteps].all(axis=1)
-        tmask = fut_ok & (hv.sum(axis=1) >= min_valid)
+        fp = np.logical_and.accumulate(present[here, f + 1: f + 1 + fsteps], axis=1)  # future seen without a gap
+        fut_ok = fp[:, -1]
+        # hazard actors live a few seconds: 0.4 s of history and 1 s of future suffice for them
+        hz = hazard_agent[here]
+        tmask = (fut_ok & (hv.sum(axis=1) >= min_valid)) | (hz & fp[:, HAZARD_MIN_FUTURE - 1] & (hv.sum(axis=1) >= 3))
         if not tmask.any():
             continue
         hist = np.nan_to_num(pos[here, f - h + 1: f + 1])
@@ -172,31 +262,51 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
         targets = np.flatnonzero(tmask)
         feats = F.build_features(hist, cls[here], yaw[here, f], targets)
         ta = here[targets]
-        fut = F.to_target_frame(pos[ta, f + 1: f + 1 + fsteps], pos[ta, f], yaw[ta, f])
+        fvalid = fp[targets]
+        fpos = pos[ta, f + 1: f + 1 + fsteps]
+        last = fpos[np.arange(len(ta)), fvalid.sum(axis=1) - 1]  # hold the last seen position
+        fpos = np.where(fvalid[..., None], fpos, last[:, None, :])
+        fut = F.to_target_frame(fpos, pos[ta, f], yaw[ta, f])
+        ctx = F.MapContext(lane[ta, f], lane_pos[ta, f], tls_dist[ta, f], tls_state[ta, f])
+        mf = F.map_features(graph if has_map else None, ctx, pos[ta, f], yaw[ta, f], speed[ta, f])
         out["tgt_hist"].append(feats["tgt_hist"])
         out["tgt_group"].append(feats["tgt_group"])
         out["tgt_cls"].append(cls[ta])
         out["tgt_speed"].append(speed[ta, f].astype(np.float32))
         out["fut"].append(fut.astype(np.float32))
+        out["fut_valid"].append(fvalid)
         out["time"].append(np.full(len(ta), f * F.MODEL_DT, dtype=np.float32))
         out["nbr_hist"].append(feats["nbr_hist"])
         out["nbr_group"].append(feats["nbr_group"])
         out["nbr_cell"].append(feats["nbr_cell"])
         out["nbr_count"].append(np.bincount(feats["nbr_batch"], minlength=len(ta)))
+        out["map_pts"].append(mf["map_pts"])
+        out["map_valid"].append(mf["map_valid"])
+        out["map_scalar"].append(mf["map_scalar"])
+        out["manoeuvre"].append(manoeuvre_labels(
+            feats["tgt_group"], fut, speed[ta, f], lane[ta, f: f + 1 + fsteps], tls_dist[ta, f], tls_state[ta, f],
+            hazard_agent[ta], graph if has_map else None))
     if not out["tgt_hist"]:
         return {}
     return {key: np.concatenate(v) for key, v in out.items()}
 
 
-def build_samples(traj: pd.DataFrame, split: dict[str, list[int]], anchor_every: float = 1.0) -> dict[str, np.ndarray]:
-    """Samples of every run, concatenated, with ``run_id``/``seed``/``split`` per sample."""
+def build_samples(traj: pd.DataFrame, split: dict[str, list[int]], anchor_every: float = 1.0,
+                  graphs: dict[str, F.LaneGraph] | None = None, suite_anchor_every: float = 0.4) -> dict[str, np.ndarray]:
+    """Samples of every run, concatenated, with ``run_id``/``seed``/``split`` per sample.
+
+    graphs: scenario path -> lane graph (from :func:`simulate_runs`), for the map features;
+    suite runs (seed >= SUITE_SEED0: short, rare hazard behaviour) are anchored every
+    ``suite_anchor_every`` s instead of ``anchor_every``."""
     parts = []
     split_of = {s: i for i, name in enumerate(("train", "val", "test")) for s in split[name]}
+    graphs = graphs or {}
     for run_id, df in traj.groupby("run_id", sort=True):
-        s = samples_from_run(df, anchor_every=anchor_every)
+        seed = int(df["seed"].iloc[0])
+        every = suite_anchor_every if seed >= SUITE_SEED0 else anchor_every
+        s = samples_from_run(df, anchor_every=every, graph=graphs.get(str(df["scenario"].iloc[0])))
         if not s:
             continue
-        seed = int(df["seed"].iloc[0])
         n = len(s["tgt_hist"])
         s["run_id"] = np.full(n, run_id, dtype=np.int32)
         s["seed"] = np.full(n, seed, dtype=np.int32)
@@ -207,11 +317,46 @@ def build_samples(traj: pd.DataFrame, split: dict[str, list[int]], anchor_every:
     return out
 
 
+#: suite runs enter the dataset with these seeds (SUITE_SEED0 + their index): the split is by
+#: scenario, every 10th to test, the one before it to validation
+SUITE_SEED0 = 100_000
+
+
+def _simulate_suite(args: tuple[int, Path]) -> tuple[pd.DataFrame, F.LaneGraph | None]:
+    """One suite scenario with its hazards (worker process) -> trajectory rows, lane graph."""
+    from sumo_ethics.suite.traffic import record_scenario
+
+    run_id, scenario = args
+    df, graph = record_scenario(scenario)
+    if len(df):
+        df.insert(0, "run_id", np.int32(run_id))
+        df.insert(1, "seed", np.int32(SUITE_SEED0 + run_id))
+        df.insert(2, "scenario", str(scenario))
+        df.insert(3, "scale", np.float32(1.0))
+    return df, graph
+
+
+def simulate_suite(scenarios: list[Path], first_run_id: int, workers: int = 1) -> tuple[list[pd.DataFrame], dict[str, F.LaneGraph]]:
+    """Record suite scenarios (hazards included), one spawned process each."""
+    ctx = mp.get_context("spawn")
+    frames, graphs = [], {}
+    jobs = [(first_run_id + i, Path(s).resolve()) for i, s in enumerate(scenarios)]
+    with ctx.Pool(processes=max(1, workers), maxtasksperchild=1) as pool:
+        for (run_id, scen), (df, graph) in zip(jobs, pool.imap(_simulate_suite, jobs)):
+            log.info("suite run %d: %s -> %d rows", run_id, scen.name, len(df))
+            if len(df) and graph is not None:
+                frames.append(df)
+                graphs[str(scen)] = graph
+    return frames, graphs
+
+
 def build_dataset(
     scenarios: list[Path],
     seeds: list[int],
     out: Path,
     *,
+    suite: list[Path] = (),
+    suite_anchor_every: float = 0.4,
     scales: tuple[float, ...] = DEFAULT_SCALES,
     sim_seconds: float = 600.0,
     anchor_every: float = 1.0,
@@ -219,7 +364,9 @@ def build_dataset(
     val_fraction: float = 0.15,
     test_fraction: float = 0.2,
 ) -> Path:
-    """Simulate scenarios x seeds and write trajectories.parquet, samples.npz, split.json.
+    """Simulate scenarios x seeds (and record the ``suite`` scenarios with their hazards, split
+    by scenario, see SUITE_SEED0) and write trajectories.parquet, lane_graphs.pkl,
+    samples.npz, split.json.
 
     The demand scale of seed s is ``scales[i % len(scales)]`` where i is the seed's rank,
     so every split sees every scale when it has enough seeds. Returns ``out``.
@@ -227,20 +374,31 @@ def build_dataset(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     seeds = sorted(set(int(s) for s in seeds))
-    split = split_seeds(seeds, val_fraction, test_fraction)
+    split = split_seeds(seeds, val_fraction, test_fraction) if seeds else {"train": [], "val": [], "test": []}
     specs = []
     for scenario in scenarios:
         for i, seed in enumerate(seeds):
             specs.append(RunSpec(len(specs), Path(scenario).resolve(), seed, float(scales[i % len(scales)]), sim_seconds))
-    traj = simulate_runs(specs, workers=workers)
+    traj, graphs = simulate_runs(specs, workers=workers) if specs else (pd.DataFrame(), {})
+    if suite:
+        frames, suite_graphs = simulate_suite(list(suite), len(specs), workers=workers)
+        graphs.update(suite_graphs)
+        traj = pd.concat([traj, *frames], ignore_index=True)
+        for i in range(len(suite)):
+            name = "test" if i % 10 == 9 else "val" if i % 10 == 8 else "train"
+            split[name].append(SUITE_SEED0 + len(specs) + i)
     traj.to_parquet(out / "trajectories.parquet", index=False)
-    samples = build_samples(traj, split, anchor_every=anchor_every)
+    with open(out / "lane_graphs.pkl", "wb") as fh:
+        pickle.dump(graphs, fh)
+    samples = build_samples(traj, split, anchor_every=anchor_every, graphs=graphs, suite_anchor_every=suite_anchor_every)
     np.savez_compressed(out / "samples.npz", **samples)
     meta = {
         "split": split,
         "scenarios": [str(Path(s)) for s in scenarios],
+        "suite": [str(Path(s)) for s in suite],
         "runs": [{"run_id": s.run_id, "scenario": str(s.scenario), "seed": s.seed, "scale": s.scale} for s in specs],
         "feature_version": F.FEATURE_VERSION,
+        "map_version": F.MAP_VERSION,
         "model_dt": F.MODEL_DT,
         "hist_steps": F.HIST_STEPS,
         "fut_steps": F.FUT_STEPS,

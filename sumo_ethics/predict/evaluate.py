@@ -1,4 +1,4 @@
-"""Held-out evaluation: constant velocity vs CS-LSTM vs attention, per agent group.
+"""Held-out evaluation: constant velocity vs CS-LSTM vs attention vs map, per agent group and manoeuvre.
 
 On the TEST seeds of a dataset (split by run seed, see dataset.py), for each model and
 agent group (vehicle, cyclist, pedestrian, all): RMSE of the mean at 1, 2, 3, 4 s,
@@ -56,13 +56,13 @@ def lstm_outputs(model, batch: dict[str, np.ndarray], batch_size: int = 1024) ->
     """(S, FUT_STEPS, 5) model Gaussians in the target frame [m]."""
     import torch
 
-    from sumo_ethics.predict.models import batch_to_tensors
+    from sumo_ethics.predict.models import MAP_KINDS, batch_to_tensors
 
     outs = []
     with torch.inference_mode():
         for start in range(0, len(batch["tgt_speed"]), batch_size):
             b = subset(batch, np.arange(start, min(start + batch_size, len(batch["tgt_speed"]))))
-            x = batch_to_tensors(b, model.pos_scale)
+            x = batch_to_tensors(b, model.pos_scale, with_map=model.kind in MAP_KINDS)
             s = model.scale(x["tgt_group"])[:, None, None]
             o = model(**x)
             outs.append(torch.cat([o[..., :4] * s, o[..., 4:]], -1).numpy().astype(float))
@@ -77,15 +77,36 @@ def nll_points(params: np.ndarray, fut: np.ndarray) -> np.ndarray:
     return 0.5 * (dx**2 + dy**2 - 2 * rho * dx * dy) / one_m + np.log(sx) + np.log(sy) + 0.5 * np.log(one_m) + np.log(2 * np.pi)
 
 
-def metrics(params: np.ndarray, fut: np.ndarray) -> dict[str, float]:
+def mahalanobis2(params: np.ndarray, fut: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis distance of each true point from its predicted Gaussian."""
+    mux, muy, sx, sy, rho = np.moveaxis(params, -1, 0)
+    dx, dy = (fut[..., 0] - mux) / sx, (fut[..., 1] - muy) / sy
+    return (dx**2 + dy**2 - 2 * rho * dx * dy) / (1.0 - rho**2)
+
+
+#: probability mass inside the 1- and 2-sigma ellipse of a 2D Gaussian (1 - exp(-k^2 / 2))
+ELLIPSE_MASS = {1: 1.0 - np.exp(-0.5), 2: 1.0 - np.exp(-2.0)}
+
+
+def metrics(params: np.ndarray, fut: np.ndarray, valid: np.ndarray | None = None) -> dict[str, float]:
+    """RMSE at 1-4 s, ADE, FDE [m], NLL per point [nats] and the share of true points inside the
+    predicted 1- and 2-sigma ellipses (in_1sigma, in_2sigma; a calibrated Gaussian gives 0.393
+    and 0.865). ``valid`` (S, T) restricts every term to observed future points (FDE: each
+    sample's last observed one; the RMSE at a horizon: the samples observed then)."""
     err = np.linalg.norm(params[..., :2] - fut, axis=-1)  # (S, T)
+    valid = np.ones(err.shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
     out: dict[str, float] = {"n": float(len(fut))}
     for h in HORIZONS_S:
         k = int(round(h / F.MODEL_DT)) - 1
-        out[f"rmse_{h:g}s"] = float(np.sqrt(np.mean(err[:, k] ** 2)))
-    out["ade"] = float(err.mean())
-    out["fde"] = float(err[:, -1].mean())
-    out["nll"] = float(nll_points(params, fut).mean())
+        v = valid[:, k]
+        out[f"rmse_{h:g}s"] = float(np.sqrt(np.mean(err[v, k] ** 2))) if v.any() else float("nan")
+    out["ade"] = float(err[valid].mean())
+    last = valid.sum(axis=1) - 1
+    out["fde"] = float(err[np.arange(len(err)), last].mean())
+    out["nll"] = float(nll_points(params, fut)[valid].mean())
+    m2 = mahalanobis2(params, fut)[valid]
+    out["in_1sigma"] = float((m2 <= 1.0).mean())
+    out["in_2sigma"] = float((m2 <= 4.0).mean())
     return out
 
 
@@ -96,40 +117,57 @@ def evaluate(
     max_samples: int | None = 50_000,
     seed: int = 0,
     split: str = "test",
+    calibration_dataset: Path | None = None,
+    title: str | None = None,
 ) -> pd.DataFrame:
-    """Table of metrics (rows: model x group) on the ``split`` seeds; written to ``out`` if given."""
+    """Table of metrics (rows: model x group, group = a class or, for vehicles and cyclists, a
+    manoeuvre ``m:<name>``) on the ``split`` seeds ("all": every sample, for a dataset of
+    scenarios never trained on); written to ``out`` if given. The calibrated constant velocity
+    is fitted on the train split of ``calibration_dataset`` (default: ``dataset``)."""
+    from sumo_ethics.predict.dataset import MANOEUVRES
     from sumo_ethics.predict.models import load_model
     from sumo_ethics.predict.predictor import default_weights
 
     samples = load_samples(dataset)
-    code = {"train": 0, "val": 1, "test": 2}[split]
-    idx = np.flatnonzero(samples["split"] == code)
+    if split == "all":
+        idx = np.arange(len(samples["split"]))
+    else:
+        idx = np.flatnonzero(samples["split"] == {"train": 0, "val": 1, "test": 2}[split])
     if max_samples is not None and len(idx) > max_samples:
         idx = np.sort(np.random.default_rng(seed).choice(idx, size=max_samples, replace=False))
     batch = subset(samples, idx)
     if weights is None:
-        weights = {k: default_weights(k) for k in ("cslstm", "attention")}
-    cv_cal = calibrate_cv(samples)
+        weights = {k: default_weights(k) for k in ("cslstm", "attention", "map") if default_weights(k).is_file()}
+    cal = samples if calibration_dataset is None else load_samples(calibration_dataset)
+    cv_cal = calibrate_cv(cal)
     outputs = {"constant_velocity": cv_outputs(batch), "constant_velocity_calibrated": cv_outputs(batch, cv_cal)}
     for name, path in weights.items():
         model, _ = load_model(Path(path))
         outputs[name] = lstm_outputs(model, batch)
     fut = batch["fut"].astype(float)
+    valid = batch["fut_valid"] if "fut_valid" in batch else np.ones(fut.shape[:2], dtype=bool)
     groups = batch["tgt_group"]
+    selections: list[tuple[str, np.ndarray]] = [("all", np.ones(len(fut), dtype=bool))]
+    selections += [(g, groups == i) for i, g in enumerate(F.GROUP_NAMES)]
+    if "manoeuvre" in batch:
+        selections += [(f"m:{m}", batch["manoeuvre"] == i) for i, m in enumerate(MANOEUVRES)]
     rows = []
     for name, params in outputs.items():
-        for g, gname in [(None, "all"), *enumerate(F.GROUP_NAMES)]:
-            sel = np.ones(len(fut), dtype=bool) if g is None else groups == g
+        for gname, sel in selections:
             if not sel.any():
                 continue
-            rows.append({"model": name, "group": gname, **metrics(params[sel], fut[sel])})
+            rows.append({"model": name, "group": gname, **metrics(params[sel], fut[sel], valid[sel])})
     df = pd.DataFrame(rows)
     df["n"] = df["n"].astype(int)
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         df.to_csv(out / "prediction_eval.csv", index=False)
-        note = (f"Test seeds only ({len(idx)} samples). constant_velocity_calibrated: growth rates [m/s] (lon, lat) "
+        what = "Test seeds only" if split == "test" else f"Split {split!r}"
+        note = (f"{title + ': ' if title else ''}{what} of {dataset} ({len(idx)} samples). Groups m:<manoeuvre> are vehicles "
+                f"and cyclists by manoeuvre (dataset.manoeuvre_labels). in_1sigma / in_2sigma: share of true "
+                f"positions inside the predicted 1- and 2-sigma ellipses (a calibrated Gaussian: 0.393 / 0.865). "
+                f"constant_velocity_calibrated: growth rates [m/s] (lon, lat) "
                 f"fitted on the train seeds: vehicle {tuple(round(v, 3) for v in cv_cal.growth)}, "
                 f"cyclist {tuple(round(v, 3) for v in cv_cal.growth_cyclist)}, "
                 f"pedestrian {tuple(round(v, 3) for v in cv_cal.growth_pedestrian)}.")
@@ -138,18 +176,21 @@ def evaluate(
 
 
 def improvement_summary(df: pd.DataFrame) -> str:
-    """ADE improvements of attention over constant velocity and CS-LSTM, per group (Markdown)."""
-    lines = ["ADE reduction of the attention model (positive = attention better):", ""]
+    """ADE improvements of the learned models over constant velocity and CS-LSTM, per group (Markdown)."""
+    lines = ["ADE reduction (positive = better):", ""]
     piv = df.pivot(index="group", columns="model", values="ade")
     for g in piv.index:
         r = piv.loc[g]
         parts = []
-        if "attention" in r and "constant_velocity" in r:
-            parts.append(f"{100 * (1 - r['attention'] / r['constant_velocity']):+.1f}% vs constant velocity")
-        if "attention" in r and "cslstm" in r:
-            parts.append(f"{100 * (1 - r['attention'] / r['cslstm']):+.1f}% vs CS-LSTM")
+        for m in ("map", "attention"):
+            if m in r and "constant_velocity" in r:
+                parts.append(f"{m} {100 * (1 - r[m] / r['constant_velocity']):+.1f}% vs constant velocity")
+            if m in r and "cslstm" in r:
+                parts.append(f"{m} {100 * (1 - r[m] / r['cslstm']):+.1f}% vs CS-LSTM")
+        if "map" in r and "attention" in r:
+            parts.append(f"map {100 * (1 - r['map'] / r['attention']):+.1f}% vs attention")
         if parts:
-            lines.append(f"- {g}: attention ADE reduction " + ", ".join(parts))
+            lines.append(f"- {g}: " + ", ".join(parts))
     return "\n".join(lines)
 
 

@@ -26,6 +26,8 @@ Layout (FEATURE_VERSION 1):
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from sumo_ethics.types import RoadUserClass
@@ -212,4 +214,223 @@ def build_features(
         "nbr_batch": ti.astype(np.int64),
         "nbr_cell": cells.astype(np.int64),
         "nbr_agent": ai.astype(np.int64),
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# Map and signal context (MAP_VERSION 1), for the map-aware model (kind "map")
+#
+# For each target on a lane (vehicles and cyclists; pedestrians get none):
+#
+# - ``map_pts`` (N, MAP_LANES, MAP_POINTS, 2): centre lines of the lanes it may take next, in
+#   the target's frame [m]. Rows 0..MAP_AHEAD-1: the paths through its current lane and its
+#   successors (internal junction lanes included, in SUMO's link order, depth first), one row
+#   per branch; row MAP_AHEAD: the lane to its left, row MAP_AHEAD + 1: the lane to its right
+#   (same edge, each followed through its first successors). Every row is sampled at arc
+#   lengths pos + k * ds, k = 0..MAP_POINTS-1 from the target's lane position, with
+#   ``ds = max(MAP_DS_MIN, MAP_DS_PER_SPEED * speed)`` (2.5 m at rest, 0.5 s of travel at
+#   speed: 9 ds = 4.5 s, the 4 s horizon's reach plus a margin); a path that ends (a dead
+#   end) repeats its last point.
+# - ``map_valid`` (N, MAP_LANES) bool: which rows exist; ``map_kind`` (N, MAP_LANES):
+#   0 ahead, 1 left, 2 right.
+# - ``map_scalar`` (N, MAP_SCALARS): [on a lane, a traffic light ahead, its stop-line
+#   distance / 50 m clipped to [0, 2], green, yellow, red (one-hot of its link state),
+#   speed limit of the lane / 30 m/s].
+# ---------------------------------------------------------------------------------------------
+
+MAP_VERSION = 1
+MAP_AHEAD = 4
+MAP_LANES = MAP_AHEAD + 2
+MAP_POINTS = 10
+MAP_DS_MIN = 2.5
+MAP_DS_PER_SPEED = 0.5
+MAP_SCALARS = 7
+MAP_KIND_AHEAD, MAP_KIND_LEFT, MAP_KIND_RIGHT = 0, 1, 2
+TLS_DIST_SCALE = 50.0
+SPEED_SCALE = 30.0
+#: link state character -> 0 none/off, 1 green, 2 yellow, 3 red
+TLS_CODES = {"G": 1, "g": 1, "s": 1, "y": 2, "Y": 2, "u": 2, "r": 3, "R": 3}
+
+
+class LaneGraph:
+    """Lanes of a network as plain arrays: centre lines, speed limits, successors, neighbours.
+
+    ids: lane ids; shapes: (P_i, 2) centre lines [m]; speed: (L,) limits [m/s];
+    succ: per lane the ids it leads to (via internal lanes, as SUMO links them); lengths:
+    SUMO's lane lengths (positions along a lane are scaled onto its shape's arc length).
+    """
+
+    def __init__(self, ids, shapes, speed, succ, left, right, lengths) -> None:
+        self.ids = tuple(ids)
+        self.index = {k: i for i, k in enumerate(self.ids)}
+        self.shapes = [np.asarray(s, dtype=float) for s in shapes]
+        self.cum = [np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(s, axis=0).T))]) for s in self.shapes]
+        self.speed = np.asarray(speed, dtype=float)
+        self.succ = tuple(tuple(s) for s in succ)
+        self.left = np.asarray(left, dtype=np.int64)
+        self.right = np.asarray(right, dtype=np.int64)
+        self.lengths = np.asarray(lengths, dtype=float)
+        self._poly: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
+
+    @classmethod
+    def build(cls, ids, shapes, speed, links, lengths=None) -> "LaneGraph":
+        """From lane ids, shapes, limits and successor ids; lane ``edge_i``'s left neighbour is
+        ``edge_{i+1}``, its right one ``edge_{i-1}`` (SUMO numbers lanes from the right)."""
+        ids = tuple(ids)
+        index = {k: i for i, k in enumerate(ids)}
+        succ = [tuple(index[s] for s in nxt if s in index) for nxt in links]
+        left, right = np.full(len(ids), -1), np.full(len(ids), -1)
+        for i, k in enumerate(ids):
+            edge, _, num = k.rpartition("_")
+            if k.startswith(":") or not edge or not num.isdigit():
+                continue
+            left[i] = index.get(f"{edge}_{int(num) + 1}", -1)
+            right[i] = index.get(f"{edge}_{int(num) - 1}", -1)
+        if lengths is None:
+            lengths = [float(np.hypot(*np.diff(np.asarray(s, dtype=float), axis=0).T).sum()) for s in shapes]
+        return cls(ids, shapes, speed, succ, left, right, lengths)
+
+    def shape_pos(self, lane: int, pos: float) -> float:
+        """SUMO lane position -> arc length along the lane's shape [m]."""
+        geo = self.cum[lane][-1]
+        length = self.lengths[lane]
+        return float(pos) * geo / length if length > 1e-9 else 0.0
+
+    def paths(self, lane: int, start: float, reach: float, limit: int) -> list[tuple[int, ...]]:
+        """Up to ``limit`` lane sequences from ``lane`` (arc length ``start`` on it) covering
+        ``reach`` metres, depth first in link order; dead ends end a path early."""
+        out: list[tuple[int, ...]] = []
+
+        def walk(path: tuple[int, ...], left: float) -> None:
+            if len(out) >= limit:
+                return
+            nxt = self.succ[path[-1]]
+            if left <= 0.0 or not nxt or len(path) >= 12:
+                out.append(path)
+                return
+            for j in nxt:
+                walk(path + (j,), left - self.cum[j][-1])
+
+        walk((lane,), reach - (self.cum[lane][-1] - start))
+        return out
+
+    def first_path(self, lane: int, start: float, reach: float) -> tuple[int, ...]:
+        return self.paths(lane, start, reach, 1)[0]
+
+    def polyline(self, path: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """Concatenated centre line (P, 2) of a lane sequence and its arc lengths (P,)."""
+        got = self._poly.get(path)
+        if got is None:
+            pts = [self.shapes[path[0]]]
+            for j in path[1:]:
+                s = self.shapes[j]
+                pts.append(s[1:] if np.hypot(*(s[0] - pts[-1][-1])) < 1e-6 else s)
+            p = np.concatenate(pts)
+            cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))]) if len(p) > 1 else np.zeros(1)
+            got = self._poly[path] = (p, cum)
+        return got
+
+
+@dataclass(frozen=True)
+class MapContext:
+    """Per agent (N,): lane index into a LaneGraph (-1 none), position of its centre along that
+    lane [m, SUMO's lane length units], distance
+    to the next traffic light's stop line [m] (inf: none) and its state (TLS_CODES value)."""
+
+    lane: np.ndarray
+    lane_pos: np.ndarray
+    tls_dist: np.ndarray
+    tls_state: np.ndarray
+
+    @staticmethod
+    def empty(n: int) -> "MapContext":
+        return MapContext(np.full(n, -1, dtype=np.int64), np.zeros(n), np.full(n, np.inf), np.zeros(n, dtype=np.int64))
+
+
+def sample_path(graph: LaneGraph, path: tuple[int, ...], start: float, ds: float) -> np.ndarray:
+    """(MAP_POINTS, 2) world points at arc lengths start + k ds along ``path``."""
+    pts, cum = graph.polyline(path)
+    s = start + np.arange(MAP_POINTS) * ds
+    return np.stack([np.interp(s, cum, pts[:, 0]), np.interp(s, cum, pts[:, 1])], -1)
+
+
+def _sample_many(lines: list[tuple[np.ndarray, np.ndarray]], s: np.ndarray) -> np.ndarray:
+    """Points at arc lengths s (R, K) along R polylines (pts (P_r, 2), cum (P_r,)), held at
+    the ends: :func:`sample_path` for all rows in one vectorised pass."""
+    r = len(lines)
+    lens = np.array([len(c) for _, c in lines])
+    first = np.concatenate([[0], np.cumsum(lens)[:-1]])
+    big = 1e7 * np.arange(r)  # rows apart on one axis, so one searchsorted serves all
+    cum = np.concatenate([c for _, c in lines]) + np.repeat(big, lens)
+    pts = np.concatenate([p for p, _ in lines])
+    ends = np.array([c[-1] for _, c in lines])
+    q = np.clip(s, 0.0, ends[:, None]) + big[:, None]
+    i = np.searchsorted(cum, q, side="right") - 1
+    i = np.clip(i, first[:, None], np.maximum(first + lens - 2, first)[:, None])
+    j = np.minimum(i + 1, (first + lens - 1)[:, None])
+    span = cum[j] - cum[i]
+    w = np.where(span > 0, (q - cum[i]) / np.where(span > 0, span, 1.0), 0.0)
+    w = np.clip(w, 0.0, 1.0)[..., None]
+    return pts[i] * (1.0 - w) + pts[j] * w
+
+
+def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: np.ndarray,
+                 speed: np.ndarray) -> dict[str, np.ndarray]:
+    """Map inputs of N targets (see the layout above): map_pts, map_valid, map_kind, map_scalar.
+
+    xy (N, 2), yaw (N,), speed (N,): the targets' current centre, heading and speed; ctx:
+    their lanes and signals. Targets without a lane (or without a graph) get all rows invalid
+    and zero scalars.
+    """
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    n = len(xy)
+    pts = np.zeros((n, MAP_LANES, MAP_POINTS, 2))
+    valid = np.zeros((n, MAP_LANES), dtype=bool)
+    kind = np.zeros((n, MAP_LANES), dtype=np.int64)
+    kind[:, MAP_AHEAD] = MAP_KIND_LEFT
+    kind[:, MAP_AHEAD + 1] = MAP_KIND_RIGHT
+    scalar = np.zeros((n, MAP_SCALARS))
+    if graph is not None:
+        speed = np.maximum(np.asarray(speed, dtype=float), 0.0)
+        steps = np.arange(MAP_POINTS, dtype=float)
+        who, row, lines, where = [], [], [], []
+        for i in np.flatnonzero(np.asarray(ctx.lane) >= 0):
+            lane = int(ctx.lane[i])
+            ds = max(MAP_DS_MIN, MAP_DS_PER_SPEED * float(speed[i]))
+            reach = (MAP_POINTS - 1) * ds
+            start = graph.shape_pos(lane, ctx.lane_pos[i])
+            for r, path in enumerate(graph.paths(lane, start, reach, MAP_AHEAD)):
+                who.append(i)
+                row.append(r)
+                lines.append(graph.polyline(path))
+                where.append(start + steps * ds)
+            for r, side in ((MAP_AHEAD, graph.left[lane]), (MAP_AHEAD + 1, graph.right[lane])):
+                if side >= 0:
+                    s0 = min(start, graph.cum[side][-1])
+                    who.append(i)
+                    row.append(r)
+                    lines.append(graph.polyline(graph.first_path(side, s0, reach)))
+                    where.append(s0 + steps * ds)
+            scalar[i, 0] = 1.0
+            if np.isfinite(ctx.tls_dist[i]):
+                scalar[i, 1] = 1.0
+                scalar[i, 2] = min(max(float(ctx.tls_dist[i]) / TLS_DIST_SCALE, 0.0), 2.0)
+                code = int(ctx.tls_state[i])
+                if code > 0:
+                    scalar[i, 2 + code] = 1.0
+            scalar[i, 6] = graph.speed[lane] / SPEED_SCALE
+        if lines:
+            who_a, row_a = np.array(who), np.array(row)
+            world = _sample_many(lines, np.stack(where))  # (R, MAP_POINTS, 2)
+            yaw = np.asarray(yaw, dtype=float)
+            c, s_ = np.cos(yaw[who_a])[:, None], np.sin(yaw[who_a])[:, None]
+            dx = world[..., 0] - xy[who_a, 0][:, None]
+            dy = world[..., 1] - xy[who_a, 1][:, None]
+            pts[who_a, row_a] = np.stack([c * dx + s_ * dy, -s_ * dx + c * dy], -1)
+            valid[who_a, row_a] = True
+    return {
+        "map_pts": pts.astype(np.float32),
+        "map_valid": valid,
+        "map_kind": kind,
+        "map_scalar": scalar.astype(np.float32),
     }

@@ -1,9 +1,13 @@
-"""CS-LSTM and the paper's attention variant, the bivariate Gaussian NLL, weight files.
+"""CS-LSTM, the paper's attention variant and the map-aware one, the bivariate Gaussian NLL, weight files.
 
-Both models share one interface::
+All models share one interface::
 
-    model(tgt_hist, tgt_group, nbr_hist, nbr_group, nbr_batch, nbr_cell, nbr_valid=None)
+    model(tgt_hist, tgt_group, nbr_hist, nbr_group, nbr_batch, nbr_cell, nbr_valid=None,
+          map_pts=None, map_valid=None, map_scalar=None)
         -> (B, FUT_STEPS, 5) = (mu_x, mu_y, sigma_x, sigma_y, rho)
+
+(the map inputs are read by kind "map" only; see ``features.map_features``: map_pts are
+normalised like the histories, by the target's position scale).
 
 Inputs are in the target's frame and NORMALISED: positions divided by
 ``model.scale(tgt_group)`` (per target group, see ``features.POS_SCALE``); outputs are
@@ -34,6 +38,16 @@ cosines sum to ~0 and gives negative weights; we use the guarded form
 (clamped to >= 0.01, initialised at 0.1). ``W_H = sum_i A_i H_i`` (0 without neighbours),
 projected 64 -> 80 without bias and added to the pooled grid: ``E = cs_pool + P W_H``;
 ``[E, dyn]`` goes to the decoder, as in CS-LSTM.
+
+Map (kind="map"): the attention model plus a lane context. Each of the MAP_LANES polylines
+(MAP_POINTS x 2 points, flattened, with a one-hot of its row kind: ahead / left / right) is
+encoded by a 2-layer MLP (-> 64); the query is a linear map of [target encoding, map
+scalars]; scaled dot-product attention over the valid polylines (none valid: zero) gives a
+64-d context, concatenated with a 32-d embedding of the scalars (traffic light ahead, its
+distance and state, speed limit): ``[E, dyn, lane context, scalars]`` goes to the decoder.
+The cslstm/attention parameters are built exactly as before (same names, same order), so
+their shipped files and seeded initialisations are unchanged. Weight files of kind "map"
+carry ``map_version`` (features.MAP_VERSION) and are refused with any other.
 """
 
 from __future__ import annotations
@@ -49,7 +63,9 @@ from torch import nn
 from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
 
-KINDS = ("cslstm", "attention")
+KINDS = ("cslstm", "attention", "map")
+#: kinds that read the map features (features.map_features) besides the histories
+MAP_KINDS = ("map",)
 FILE_FORMAT = "sumo-ethics-predictor"
 FILE_FORMAT_VERSION = 1
 
@@ -73,6 +89,7 @@ class TrajectoryLSTM(nn.Module):
         sigma_min: float = 0.01,
         residual: bool = True,
         residual_groups: tuple[int, ...] = (F.GROUP_VEHICLE, F.GROUP_CYCLIST),
+        map_size: int = 64,
     ) -> None:
         super().__init__()
         if kind not in KINDS:
@@ -94,10 +111,19 @@ class TrajectoryLSTM(nn.Module):
         self.conv_3x1 = nn.Conv2d(conv1, conv2, (3, 1))
         self.soc_maxpool = nn.MaxPool2d((2, 1), padding=(1, 0))
         self.soc_size = ((F.GRID_LON - 4) + 1) // 2 * conv2
-        if kind == "attention":
+        if kind in ("attention", "map"):
             self.att_proj = nn.Linear(enc, self.soc_size, bias=False)
             self.log_tau = nn.Parameter(torch.tensor(math.log(0.1)))
-        self.decoder = nn.LSTM(self.soc_size + dyn, dec, batch_first=True)
+        self.map_size = 0
+        if kind == "map":
+            # lane polylines: flattened points + kind one-hot -> 64; query from the target's
+            # encoding and its signal/speed-limit scalars; scaled dot-product attention
+            self.poly_enc = nn.Sequential(nn.Linear(F.MAP_POINTS * 2 + 3, map_size), nn.LeakyReLU(0.1),
+                                          nn.Linear(map_size, map_size))
+            self.map_query = nn.Linear(enc + F.MAP_SCALARS, map_size)
+            self.scalar_emb = nn.Linear(F.MAP_SCALARS, 32)
+            self.map_size = map_size + 32
+        self.decoder = nn.LSTM(self.soc_size + dyn + self.map_size, dec, batch_first=True)
         self.output = nn.Linear(dec, 5)
         if self.residual:  # start exactly at constant velocity
             with torch.no_grad():
@@ -125,6 +151,9 @@ class TrajectoryLSTM(nn.Module):
         nbr_batch: torch.Tensor,
         nbr_cell: torch.Tensor,
         nbr_valid: torch.Tensor | None = None,
+        map_pts: torch.Tensor | None = None,
+        map_valid: torch.Tensor | None = None,
+        map_scalar: torch.Tensor | None = None,
     ) -> torch.Tensor:
         b = tgt_hist.shape[0]
         hidden = self.encode(torch.cat([tgt_hist, nbr_hist]), torch.cat([tgt_group, nbr_group]))
@@ -139,9 +168,12 @@ class TrajectoryLSTM(nn.Module):
         soc = self.act(self.soc_conv(grid))
         soc = self.act(self.conv_3x1(soc))
         soc = self.soc_maxpool(soc).reshape(b, self.soc_size)
-        if self.kind == "attention":
+        if self.kind in ("attention", "map"):
             soc = soc + self.att_proj(self.attend(tgt_enc, nbr_enc, nbr_batch))
-        enc = torch.cat([soc, dyn], dim=-1)
+        parts = [soc, dyn]
+        if self.kind == "map":
+            parts.append(self.map_context(tgt_enc, map_pts, map_valid, map_scalar))
+        enc = torch.cat(parts, dim=-1)
         h_dec, _ = self.decoder(enc[:, None, :].expand(b, self.fut_steps, enc.shape[-1]))
         out = self.output(h_dec)
         mu = out[..., :2]
@@ -153,6 +185,32 @@ class TrajectoryLSTM(nn.Module):
         sigma = Fn.softplus(out[..., 2:4]) + self.sigma_min
         rho = 0.95 * torch.tanh(out[..., 4:5])
         return torch.cat([mu, sigma, rho], dim=-1)
+
+    def map_context(self, tgt_enc: torch.Tensor, pts: torch.Tensor | None, valid: torch.Tensor | None,
+                    scalar: torch.Tensor | None) -> torch.Tensor:
+        """(B, map_size): attention of the target over its lane polylines + its scalars.
+
+        pts (B, MAP_LANES, MAP_POINTS, 2) normalised target-frame points; valid (B, MAP_LANES);
+        scalar (B, MAP_SCALARS). Missing inputs (or no valid polyline) give a zero lane context."""
+        b = tgt_enc.shape[0]
+        if pts is None:
+            pts = tgt_enc.new_zeros(b, F.MAP_LANES, F.MAP_POINTS, 2)
+            valid = torch.zeros(b, F.MAP_LANES, dtype=torch.bool)
+        if scalar is None:
+            scalar = tgt_enc.new_zeros(b, F.MAP_SCALARS)
+        valid = valid.to(torch.bool)
+        kind = torch.zeros(F.MAP_LANES, 3, dtype=pts.dtype)
+        kind[: F.MAP_AHEAD, F.MAP_KIND_AHEAD] = 1.0
+        kind[F.MAP_AHEAD, F.MAP_KIND_LEFT] = 1.0
+        kind[F.MAP_AHEAD + 1, F.MAP_KIND_RIGHT] = 1.0
+        x = torch.cat([pts.reshape(b, F.MAP_LANES, -1), kind.expand(b, -1, -1)], -1)
+        key = self.poly_enc(x)  # (B, L, M)
+        q = self.map_query(torch.cat([tgt_enc, scalar], -1))  # (B, M)
+        logits = (key * q[:, None, :]).sum(-1) / math.sqrt(key.shape[-1])
+        logits = logits.masked_fill(~valid, -1e9)
+        a = torch.softmax(logits, -1) * valid.to(logits.dtype)
+        ctx = (a[..., None] * key).sum(1)
+        return torch.cat([ctx, self.act(self.scalar_emb(scalar))], -1)
 
     def attend(self, x: torch.Tensor, h: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
         """W_H per target: softmax over its neighbours of cos(X, H_i)/tau, times H_i; 0 if none."""
@@ -211,6 +269,7 @@ def model_config(model: TrajectoryLSTM) -> dict[str, Any]:
         "sigma_min": model.sigma_min,
         "residual": model.residual,
         "residual_groups": list(model.residual_groups),
+        **({"map_size": model.map_size - 32} if model.kind in MAP_KINDS else {}),
     }
 
 
@@ -229,6 +288,7 @@ def save_model(model: TrajectoryLSTM, path: Path, info: dict[str, Any] | None = 
         "grid": [F.GRID_LON, F.GRID_LAT],
         "grid_cell": F.GRID_CELL.tolist(),
         "pos_scale": [float(v) for v in model.pos_scale.tolist()],
+        "map_version": F.MAP_VERSION if model.kind in MAP_KINDS else None,
         "config": model_config(model),
         "info": info or {},
         "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
@@ -259,13 +319,20 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
     for key, want in checks.items():
         if blob.get(key) != want:
             raise PredictorError(f"predictor weights file {path} has {key}={blob.get(key)!r}, this code needs {want!r}")
+    if blob.get("kind") not in KINDS:
+        raise PredictorError(f"predictor weights file {path} holds an unknown model kind {blob.get('kind')!r}; "
+                             f"this code knows {', '.join(KINDS)}")
+    if blob.get("kind") in MAP_KINDS and blob.get("map_version") != F.MAP_VERSION:
+        raise PredictorError(f"predictor weights file {path} has map_version={blob.get('map_version')!r}, "
+                             f"this code needs {F.MAP_VERSION!r}")
     if abs(float(blob.get("dt", -1)) - F.MODEL_DT) > 1e-9 or blob.get("grid_cell") != F.GRID_CELL.tolist():
         raise PredictorError(f"predictor weights file {path} was trained for another time step or grid")
     try:
         cfg = blob["config"]
         model = TrajectoryLSTM(kind=cfg["kind"], pos_scale=tuple(cfg["pos_scale"]), sigma_min=cfg.get("sigma_min", 1e-3),
                                residual=cfg.get("residual", False),
-                               residual_groups=tuple(cfg.get("residual_groups", (0, 1, 2))))
+                               residual_groups=tuple(cfg.get("residual_groups", (0, 1, 2))),
+                               map_size=cfg.get("map_size", 64))
         model.load_state_dict(blob["state_dict"])
     except Exception as exc:  # noqa: BLE001
         raise PredictorError(f"predictor weights file {path} does not match the model: {exc}") from None
@@ -273,8 +340,9 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
     return model, blob
 
 
-def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE) -> dict[str, torch.Tensor]:
-    """numpy sample batch (see dataset.subset) -> model input tensors, normalised."""
+def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE, with_map: bool = False) -> dict[str, torch.Tensor]:
+    """numpy sample batch (see dataset.subset) -> model input tensors, normalised (with the
+    map inputs if ``with_map``; a batch without map arrays then gets an empty map)."""
     g = torch.as_tensor(batch["tgt_group"], dtype=torch.long)
     nb = torch.as_tensor(batch["nbr_batch"], dtype=torch.long)
     scale = torch.as_tensor(pos_scale, dtype=torch.float32)[g]
@@ -286,4 +354,8 @@ def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE) -> dic
         "nbr_batch": nb,
         "nbr_cell": torch.as_tensor(batch["nbr_cell"], dtype=torch.long),
     }
+    if with_map and "map_pts" in batch:
+        out["map_pts"] = torch.as_tensor(batch["map_pts"], dtype=torch.float32) / scale[:, None, None, None]
+        out["map_valid"] = torch.as_tensor(batch["map_valid"], dtype=torch.bool)
+        out["map_scalar"] = torch.as_tensor(batch["map_scalar"], dtype=torch.float32)
     return out

@@ -1,4 +1,9 @@
-"""LSTMPredictor: Observation (numpy) -> Prediction (numpy) with a trained CS-LSTM / attention model.
+"""LSTMPredictor: Observation (numpy) -> Prediction (numpy) with a trained CS-LSTM / attention / map model.
+
+The map-aware model (kind "map") also reads each target's lane polylines and signal state
+(:func:`features.map_features`), asked of its ``map_source`` (in a run:
+:class:`sumo_ethics.sim.lanes.SumoMapSource`, wired by the planner); without a source it
+predicts from the histories alone, as if no agent were on a lane.
 
 Run-time path, per call, one batched forward pass for all N agents:
 
@@ -20,21 +25,25 @@ Run-time path, per call, one batched forward pass for all N agents:
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
 
 from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
-from sumo_ethics.predict.models import load_model
+from sumo_ethics.predict.models import KINDS, MAP_KINDS, load_model
 from sumo_ethics.types import AgentStates, Observation, Prediction
+
+#: (ids, is_person (N,)) -> (LaneGraph | None, MapContext) of those agents, e.g. sim.lanes.SumoMapSource
+MapSource = Callable[[tuple, np.ndarray], tuple]
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 MIN_YAW_SPEED = 0.3  # [m/s] below this the predicted yaw is held
 
 
 def default_weights(kind: str) -> Path:
-    """Path of the weights shipped in the package for ``kind`` ("attention" or "cslstm")."""
+    """Path of the weights shipped in the package for ``kind`` ("map", "attention" or "cslstm")."""
     return WEIGHTS_DIR / f"{kind}.pt"
 
 
@@ -48,7 +57,8 @@ def straight_history(xy: np.ndarray, yaw: np.ndarray, speed: np.ndarray) -> np.n
 class LSTMPredictor:
     """A trained TrajectoryLSTM behind the ``predict(obs, horizon_steps, dt)`` interface."""
 
-    def __init__(self, model: torch.nn.Module, header: dict, path: Path | None = None, sigma0: float = 0.1) -> None:
+    def __init__(self, model: torch.nn.Module, header: dict, path: Path | None = None, sigma0: float = 0.1,
+                 map_source: MapSource | None = None) -> None:
         self.model = model.eval()
         # one batched forward pass of a small LSTM per step: extra threads only add contention
         # (measured on 2 busy cores: 4.6 ms with 1 thread, 800 ms with 2)
@@ -58,19 +68,22 @@ class LSTMPredictor:
         self.kind = header.get("kind", getattr(model, "kind", "?"))
         self.sigma0 = sigma0
         self._scale = np.asarray(header.get("pos_scale", F.POS_SCALE), dtype=np.float32)
+        self.uses_map = self.kind in MAP_KINDS
+        #: (ids, is_person) -> (LaneGraph, MapContext) of the agents; None: no map (all rows invalid)
+        self.map_source = map_source
 
     @classmethod
-    def from_file(cls, path: Path | str, kind: str | None = None) -> "LSTMPredictor":
+    def from_file(cls, path: Path | str, kind: str | None = None, map_source: MapSource | None = None) -> "LSTMPredictor":
         """Load weights; ``kind`` (optional) must match the file's. Problems -> PredictorError."""
         model, header = load_model(Path(path), kind=kind)
-        return cls(model, header, Path(path))
+        return cls(model, header, Path(path), map_source=map_source)
 
     @classmethod
-    def default(cls, kind: str = "attention") -> "LSTMPredictor":
+    def default(cls, kind: str = "map", map_source: MapSource | None = None) -> "LSTMPredictor":
         """The weights shipped with the package (sumo_ethics/predict/weights/<kind>.pt)."""
-        if kind not in ("attention", "cslstm"):
-            raise PredictorError(f"unknown predictor kind {kind!r}: expected 'attention' or 'cslstm'")
-        return cls.from_file(default_weights(kind), kind=kind)
+        if kind not in KINDS:
+            raise PredictorError(f"unknown predictor kind {kind!r}: expected one of {', '.join(KINDS)}")
+        return cls.from_file(default_weights(kind), kind=kind, map_source=map_source)
 
     def __repr__(self) -> str:
         return f"LSTMPredictor(kind={self.kind!r}, path={str(self.path)!r})"
@@ -100,6 +113,17 @@ class LSTMPredictor:
         feats = F.build_features(hist, cls, yaw_all, targets=np.arange(n))
         g = feats["tgt_group"]
         s = self._scale[g]
+        extra = {}
+        if self.uses_map:
+            person = g == F.GROUP_PEDESTRIAN
+            if self.map_source is not None:
+                graph, ctx = self.map_source(cur.ids, person)
+            else:
+                graph, ctx = None, F.MapContext.empty(n)
+            mf = F.map_features(graph, ctx, xy, yaw, cur.speed)
+            extra = {"map_pts": torch.from_numpy(mf["map_pts"] / s[:, None, None, None]),
+                     "map_valid": torch.from_numpy(mf["map_valid"]),
+                     "map_scalar": torch.from_numpy(mf["map_scalar"])}
         with torch.inference_mode():
             out = self.model(
                 torch.from_numpy(feats["tgt_hist"] / s[:, None, None]),
@@ -108,6 +132,7 @@ class LSTMPredictor:
                 torch.from_numpy(feats["nbr_group"]),
                 torch.from_numpy(feats["nbr_batch"]),
                 torch.from_numpy(feats["nbr_cell"]),
+                **extra,
             ).numpy().astype(float)
         mu = out[..., :2] * s[:, None, None]
         sx, sy, rho = out[..., 2] * s[:, None], out[..., 3] * s[:, None], out[..., 4]

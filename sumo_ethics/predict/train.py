@@ -23,6 +23,7 @@ from sumo_ethics.predict.models import (
     TrajectoryLSTM,
     batch_to_tensors,
     bivariate_nll,
+    MAP_KINDS,
     masked_mse,
     save_model,
 )
@@ -39,7 +40,9 @@ class TrainConfig:
     time budget [min], measured as this process's CPU time (budget_clock="cpu": the same
     amount of work however loaded the machine is, so runs are reproducible) or wall time
     ("wall"); max_wall_minutes: hard wall-clock cap (default 3 x max_minutes);
-    max_train/max_val: caps on sample counts (random subset)."""
+    max_train/max_val: caps on sample counts (random subset); hazard_repeat: each training
+    sample of a hazard actor (manoeuvre "hazard") is used this many times per epoch (they are
+    rare and the planner's risk depends on them most)."""
 
     epochs: int = 40
     mse_epochs: int = 4
@@ -55,6 +58,7 @@ class TrainConfig:
     max_wall_minutes: float | None = None
     max_train: int | None = None
     max_val: int | None = 8000
+    hazard_repeat: int = 1
 
 
 def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -66,11 +70,12 @@ def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng
 
 def _loss(model: TrajectoryLSTM, samples: dict[str, np.ndarray], index: np.ndarray, use_nll: bool) -> torch.Tensor:
     batch = subset(samples, index)
-    x = batch_to_tensors(batch, model.pos_scale)
+    x = batch_to_tensors(batch, model.pos_scale, with_map=model.kind in MAP_KINDS)
     scale = model.scale(x["tgt_group"])
     y = torch.as_tensor(batch["fut"], dtype=torch.float32) / scale[:, None, None]
+    mask = torch.as_tensor(batch["fut_valid"]) if "fut_valid" in batch else None
     out = model(**x)
-    return bivariate_nll(out, y) if use_nll else masked_mse(out, y)
+    return bivariate_nll(out, y, mask) if use_nll else masked_mse(out, y, mask)
 
 
 @torch.no_grad()
@@ -81,12 +86,14 @@ def validate(model: TrajectoryLSTM, samples: dict[str, np.ndarray], index: np.nd
     for start in range(0, len(index), batch_size):
         idx = index[start: start + batch_size]
         batch = subset(samples, idx)
-        x = batch_to_tensors(batch, model.pos_scale)
+        x = batch_to_tensors(batch, model.pos_scale, with_map=model.kind in MAP_KINDS)
         scale = model.scale(x["tgt_group"])
         fut = torch.as_tensor(batch["fut"], dtype=torch.float32)
+        mask = torch.as_tensor(batch["fut_valid"]) if "fut_valid" in batch else torch.ones(fut.shape[:2], dtype=torch.bool)
         out = model(**x)
-        nll_sum += float(bivariate_nll(out, fut / scale[:, None, None])) * len(idx)
-        ade_sum += float(((out[..., :2] * scale[:, None, None] - fut).norm(dim=-1)).mean()) * len(idx)
+        nll_sum += float(bivariate_nll(out, fut / scale[:, None, None], mask)) * len(idx)
+        err = (out[..., :2] * scale[:, None, None] - fut).norm(dim=-1)
+        ade_sum += float((err * mask).sum() / mask.sum().clamp_min(1)) * len(idx)
         n += len(idx)
     model.train()
     return {"nll": nll_sum / max(n, 1), "ade": ade_sum / max(n, 1)}
@@ -109,6 +116,9 @@ def train_model(
     rng = np.random.default_rng(config.seed)
     samples = load_samples(dataset)
     train_idx = _split_index(samples, "train", config.max_train, rng)
+    if config.hazard_repeat > 1 and "manoeuvre" in samples:
+        hz = train_idx[samples["manoeuvre"][train_idx] == 4]
+        train_idx = np.sort(np.concatenate([train_idx] + [hz] * (config.hazard_repeat - 1)))
     val_idx = _split_index(samples, "val", config.max_val, rng)
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise ValueError(f"dataset {dataset} has no train or no validation samples")

@@ -1,0 +1,153 @@
+"""Map and signal context for the map-aware predictor: the libsumo side.
+
+The predictor's map features (:mod:`sumo_ethics.predict.features`) are built from plain
+arrays; this module is where they come from in a running simulation:
+
+- :func:`lane_graph` reads every lane's centre line, speed limit and successors once
+  (``lane.getShape``, ``lane.getMaxSpeed``, ``lane.getLinks``) into a
+  :class:`~sumo_ethics.predict.features.LaneGraph`.
+- :func:`agent_context` reads, for a list of vehicles, the lane each one is on, the position
+  of its centre along that lane (SUMO's front-bumper position minus half its length, at least
+  0) and the next traffic light ahead (distance to its stop line and the state
+  of the link it will use), as arrays.
+- :class:`SumoMapSource` bundles both for the run-time predictor; the dataset builder calls
+  the same two functions, so training and run-time inputs come from the same code.
+
+Persons get no map context (lane index -1): their sidewalks and walking areas have no
+direction of travel to follow.
+"""
+
+from __future__ import annotations
+
+import libsumo
+import numpy as np
+
+from sumo_ethics.predict.features import TLS_CODES, LaneGraph, MapContext
+
+
+def lane_graph() -> LaneGraph:
+    """Every lane of the loaded network (internal junction lanes included) as a LaneGraph."""
+    ln = libsumo.lane
+    ids = tuple(ln.getIDList())
+    shapes = [np.asarray(ln.getShape(k), dtype=float)[:, :2] for k in ids]
+    speed = np.array([ln.getMaxSpeed(k) for k in ids], dtype=float)
+    lengths = np.array([ln.getLength(k) for k in ids], dtype=float)
+    links = []
+    for k in ids:
+        nxt = []
+        for link in ln.getLinks(k):
+            # (approached lane, prio, open, foe, via internal lane, state, direction, length)
+            nxt.append(link[4] if link[4] else link[0])
+        links.append(tuple(nxt))
+    return LaneGraph.build(ids, shapes, speed, links, lengths)
+
+
+def tls_code(state: str) -> int:
+    """A link state character -> TLS_CODES index (0 none, 1 green, 2 yellow, 3 red)."""
+    return TLS_CODES.get(state, 0)
+
+
+def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np.ndarray) -> MapContext:
+    """Lane index (-1: none), lane position, next traffic light distance/state of ``ids``.
+
+    person: (N,) bool, True for persons (no context, no libsumo calls).
+    """
+    n = len(ids)
+    lane = np.full(n, -1, dtype=np.int64)
+    pos = np.zeros(n)
+    tls_dist = np.full(n, np.inf)
+    tls_state = np.zeros(n, dtype=np.int64)
+    v = libsumo.vehicle
+    index = graph.index
+    for i, k in enumerate(ids):
+        if person[i]:
+            continue
+        try:
+            lane_id = v.getLaneID(k)
+            j = index.get(lane_id, -1)
+            if j < 0:
+                continue
+            lane[i] = j
+            # SUMO's lane position is the front bumper's; the features use the centre's
+            pos[i] = max(v.getLanePosition(k) - 0.5 * v.getLength(k), 0.0)
+            nxt = v.getNextTLS(k)
+        except libsumo.TraCIException:  # left the simulation in between: no context
+            lane[i] = -1
+            continue
+        if nxt:
+            tls_dist[i] = float(nxt[0][2])
+            tls_state[i] = tls_code(nxt[0][3])
+    return MapContext(lane=lane, lane_pos=pos, tls_dist=tls_dist, tls_state=tls_state)
+
+
+class SumoMapSource:
+    """Map context of the running simulation for the map-aware predictor (built lazily)."""
+
+    def __init__(self) -> None:
+        self._graph: LaneGraph | None = None
+
+    @property
+    def graph(self) -> LaneGraph:
+        if self._graph is None:
+            self._graph = lane_graph()
+        return self._graph
+
+    def __call__(self, ids: tuple[str, ...], person: np.ndarray) -> tuple[LaneGraph, MapContext]:
+        graph = self.graph
+        return graph, agent_context(graph, ids, person)
+
+
+class TrafficRecorder:
+    """Every road user's state each step (the whole simulation, not only the ego's
+    neighbours), with map context at the predictor's rate: the rows of a prediction dataset
+    (columns as ``sumo_ethics.predict.dataset``'s trajectories) from a run driven by someone
+    else, e.g. a suite scenario with its hazards. ``skip``: ids left out (the ego)."""
+
+    def __init__(self, skip: tuple[str, ...] = (), sim_dt: float = 0.1, model_dt: float = 0.2) -> None:
+        self.skip = set(skip)
+        self.graph = lane_graph()
+        self.ratio = int(round(model_dt / sim_dt))
+        self.sim_dt = sim_dt
+        self.cols: dict[str, list] = {k: [] for k in ("time", "agent_id", "cls", "x", "y", "yaw", "speed", "length",
+                                                      "width", "lane", "lane_pos", "tls_dist", "tls_state")}
+        self._types: dict[tuple[str, bool], tuple[float, float, int]] = {}
+
+    def _info(self, type_id: str, person: bool) -> tuple[float, float, int]:
+        key = (type_id, person)
+        if key not in self._types:
+            from sumo_ethics.types import RoadUserClass
+
+            vt = libsumo.vehicletype
+            cls = RoadUserClass.PEDESTRIAN if person else RoadUserClass.from_vclass(vt.getVehicleClass(type_id))
+            self._types[key] = (vt.getLength(type_id), vt.getWidth(type_id), int(cls))
+        return self._types[key]
+
+    def step(self) -> None:
+        """Record the simulation's current state."""
+        from sumo_ethics.sim.frames import front_to_centre
+
+        t = libsumo.simulation.getTime()
+        at_rate = int(round(t / self.sim_dt)) % self.ratio == 0
+        for person, dom in ((False, libsumo.vehicle), (True, libsumo.person)):
+            ids = [k for k in dom.getIDList() if k not in self.skip]
+            if not ids:
+                continue
+            ctx = agent_context(self.graph, ids, np.full(len(ids), person)) if at_rate else None
+            for i, k in enumerate(ids):
+                length, width, cls = self._info(dom.getTypeID(k), person)
+                fx, fy = dom.getPosition(k)
+                x, y, yaw = front_to_centre(np.array([fx]), np.array([fy]), np.array([dom.getAngle(k)]), np.array([length]))
+                c = self.cols
+                c["time"].append(round(t, 3))
+                c["agent_id"].append(k)
+                c["cls"].append(cls)
+                c["x"].append(float(x[0]))
+                c["y"].append(float(y[0]))
+                c["yaw"].append(float(yaw[0]))
+                c["speed"].append(dom.getSpeed(k))
+                c["length"].append(length)
+                c["width"].append(width)
+                c["lane"].append(int(ctx.lane[i]) if ctx is not None else -1)
+                c["lane_pos"].append(float(ctx.lane_pos[i]) if ctx is not None else 0.0)
+                c["tls_dist"].append(float(ctx.tls_dist[i]) if ctx is not None else np.inf)
+                c["tls_state"].append(int(ctx.tls_state[i]) if ctx is not None else 0)

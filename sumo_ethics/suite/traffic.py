@@ -1,0 +1,73 @@
+"""Trajectories of a suite scenario's road users, hazard actors included, for the predictor's
+training and evaluation data (``sumo-ethics dataset --suite``).
+
+The scenario runs as the suite defines it (its seed, ego route and hazards) with the ethical planner
+(constant-velocity prediction) driving the ego; a :class:`~sumo_ethics.sim.lanes.TrafficRecorder` reads every road
+user but the ego each step, so cut-ins, drifts, emergency stops, red-light runners and
+pedestrians stepping out appear in the data as they appear to the planner.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from sumo_ethics.plan.controller import Decision, Scene
+
+
+class _Recording:
+    """A controller wrapper: record the traffic, inject the hazards, then let ``inner`` act."""
+
+    def __init__(self, inner: Any, injector: Any) -> None:
+        self.inner, self.injector = inner, injector
+        self.name = inner.name
+        self.needs_history = getattr(inner, "needs_history", False)
+        self.needs_rules = getattr(inner, "needs_rules", False)
+        self.recorder: Any = None
+
+    def act(self, scene: Scene) -> Decision:
+        from sumo_ethics.sim.lanes import TrafficRecorder
+
+        if self.recorder is None:
+            self.recorder = TrafficRecorder(skip=tuple(scene.ego.ids))
+        self.injector.on_step(scene)
+        self.recorder.step()
+        return self.inner.act(scene)
+
+
+def record_scenario(scenario_dir: Path | str) -> tuple[pd.DataFrame, Any]:
+    """Run one suite scenario (ethical planner with constant velocity, its hazards) -> (trajectory rows, lane graph).
+
+    Rows have the columns of ``predict.dataset``'s trajectories but run_id/seed/scenario/scale,
+    which the caller adds. Runs SUMO in this process (call it in a worker process)."""
+    from sumo_ethics.runner import make_controller, run
+    from sumo_ethics.settings import planner_config
+    from sumo_ethics.sim.hazards import HazardInjector
+    from sumo_ethics.suite.spec import load
+
+    spec = load(Path(scenario_dir))
+    with tempfile.TemporaryDirectory() as tmp:
+        # the ethical planner with constant-velocity prediction: it avoids most hazards, so the
+        # run (and the hazard actors' tracks) goes on after them; it is fast
+        cfg = spec.run_config(Path(tmp) / "run", planner_config(None, predictor="cv"), overwrite=True)
+        ctrl = _Recording(make_controller(cfg), HazardInjector(spec.hazards))
+        try:
+            run(cfg, controller=ctrl)
+        except Exception:  # noqa: BLE001 - a run that ends in an error still leaves its trajectories
+            pass
+    if ctrl.recorder is None:
+        return pd.DataFrame(), None
+    c = ctrl.recorder.cols
+    df = pd.DataFrame({
+        "time": np.array(c["time"]), "agent_id": np.array(c["agent_id"], dtype=str),
+        "cls": np.array(c["cls"], dtype=np.int8), "x": np.array(c["x"]), "y": np.array(c["y"]),
+        "yaw": np.array(c["yaw"]), "speed": np.array(c["speed"], dtype=np.float32),
+        "length": np.array(c["length"], dtype=np.float32), "width": np.array(c["width"], dtype=np.float32),
+        "lane": np.array(c["lane"], dtype=np.int32), "lane_pos": np.array(c["lane_pos"], dtype=np.float32),
+        "tls_dist": np.array(c["tls_dist"], dtype=np.float32), "tls_state": np.array(c["tls_state"], dtype=np.int8),
+    })
+    return df, ctrl.recorder.graph

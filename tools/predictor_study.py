@@ -1,0 +1,58 @@
+"""Table 1 per predictor, and the planner's braking/lateral priors off and on, on suite
+scenarios that no predictor was trained or evaluated on.
+
+    python tools/predictor_study.py [--first 140] [--count 20] [--workers 1] [--out runs/predictor_study] [--resume]
+
+Planners (the paper's planner, only the predictor or the priors changed): cv, cslstm,
+attention, map (the default), map_nopriors (map with braking_prior = lateral_prior = 0).
+Scenarios s<first>..s<first+count-1> of scenarios/suite (tools/train_shipped.py trains on
+s0000-s0099 and evaluates prediction on s0100-s0139). Writes the suite's table1.md,
+paired.csv and results.csv to --out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+PLANNERS = (
+    "cv=predictor=cv",
+    "cslstm=predictor=cslstm",
+    "attention=predictor=attention",
+    "map=predictor=map",
+    "map_nopriors=predictor=map;braking_prior=0;lateral_prior=0",
+)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--first", type=int, default=140)
+    ap.add_argument("--count", type=int, default=20)
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--out", default=str(ROOT / "runs" / "predictor_study"))
+    ap.add_argument("--planner", action="append", help="override the planner list (NAME=key=value;...)")
+    ap.add_argument("--resume", action="store_true", help="keep finished runs found in --out")
+    args = ap.parse_args()
+    from sumo_ethics.suite.evaluate import parse_planners, run_suite, write_outputs
+    from sumo_ethics.suite.spec import load_suite
+
+    suite = ROOT / "scenarios" / "suite"
+    specs = load_suite(suite)[args.first: args.first + args.count]
+    planners = parse_planners(args.planner or PLANNERS)
+    out = Path(args.out)
+    t0 = time.perf_counter()
+    rows = run_suite([s.folder for s in specs], planners, out, args.workers, None, args.resume)
+    meta = {"suite": str(suite), "scenarios": [s.folder.name for s in specs], "workers": args.workers,
+            "wall_s": time.perf_counter() - t0, "planners": {p.name: p.describe() for p in planners},
+            "reference": "map"}
+    write_outputs(rows, planners, out, "map", meta)
+    print((out / "table1.md").read_text())
+    print(json.dumps({"wall_s": round(meta["wall_s"], 1), "scenarios": len(specs)}))
+
+
+if __name__ == "__main__":
+    main()
