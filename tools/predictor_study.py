@@ -46,7 +46,9 @@ def main() -> None:
     out = Path(args.out)
     t0 = time.perf_counter()
     rows = run_suite([s.folder for s in specs], planners, out, args.workers, None, args.resume)
-    meta = {"suite": str(suite), "scenarios": [s.folder.name for s in specs], "workers": args.workers,
+    names = [s.folder.name for s in specs]
+    meta = {"suite": f"scenarios/suite {names[0]}-{names[-1]}" if names else str(suite), "scenarios": len(names),
+            "scenario_names": names, "workers": args.workers,
             "wall_s": time.perf_counter() - t0, "planners": {p.name: p.describe() for p in planners},
             "reference": "map"}
     write_outputs(rows, planners, out, "map", meta)
