@@ -279,7 +279,10 @@ def test_ctrl_c_stops_an_evaluation_without_tracebacks_and_resumes(tmp_path):
     out = tmp_path / "ev"
     args = [sys.executable, "-m", "sumo_ethics.cli", "evaluate", str(suite), "--planner", "origin",
             "--planner", "baseline", "--workers", "2", "--quiet", "--out", str(out)]
-    proc = subprocess.Popen(args, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    # SIGINT as in a terminal, also when pytest itself was started in the background (`pytest &`),
+    # which leaves it ignored: Python then installs no Ctrl-C handler
+    proc = subprocess.Popen(args, start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
         runs = out / "runs" / "origin"

@@ -273,7 +273,10 @@ def test_ctrl_c_stops_cleanly_and_resumes(tmp_path):
             "cli.add_command(sweep) if 'sweep' not in cli.commands else None\nsys.exit(main(sys.argv[1:]))")
     args = ["sweep", str(TESTBED), "--omega-u", "0:1:0.5", "--seeds", "0-1", "--end", "15", "--ego-depart", "2",
             "--predictor", "cv", "--workers", "2", "--quiet", "--out", str(out)]
+    # a shell starting pytest in the background (`pytest &`) leaves SIGINT ignored, and Python then
+    # installs no Ctrl-C handler in the child: restore the terminal's default first
     proc = subprocess.Popen([sys.executable, "-c", code, *args], start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
