@@ -3,8 +3,9 @@
 Each step: read (``SumoWorld.read`` -> Scene) -> act (``controller.act`` -> Decision) -> step
 (``SumoWorld.step``: moveToXY, simulationStep) -> detect (``collision.CollisionBook``) -> record
 (``record.recorder.RunRecorder.step``: the step's rows and the decision, kept by
-``--record-decisions``). The ego is brought in by ``sim.ego``; no libsumo here. Whatever happens (a SUMO error, the ego leaving the network, Ctrl-C), the rows recorded so
-far and a summary saying why the run ended are written to the run folder.
+``--record-decisions``). The ego is brought in by ``sim.ego``; no libsumo here. Whatever
+happens (a SUMO error, the ego leaving the network, Ctrl-C), the rows recorded so far and a
+summary saying why the run ended are written to the run folder.
 """
 
 from __future__ import annotations

@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import json
 import zipfile
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -73,7 +74,7 @@ def recorded(run: Path) -> list[int]:
         raise ConfigError(f"run folder not found: {run}")
     steps = rec.recorded_steps(run)
     if not steps:
-        mode = _mode(run)
+        mode = record_mode(run)
         if mode in (None, "off"):
             raise ConfigError(f"{run} has no recorded decisions: run it with --record-decisions risky (or all)")
         raise ConfigError(f"{run} kept no decisions with --record-decisions {mode} (no chosen trajectory carried "
@@ -81,9 +82,9 @@ def recorded(run: Path) -> list[int]:
     return steps
 
 
-def _mode(run: Path) -> str | None:
-    """The recording mode of a run (summary.json, else config.json), or None."""
-    for name, key in (("summary.json", ("decisions", "mode")), ("config.json", ("record_decisions",))):
+def record_mode(run: Path) -> str | None:
+    """The recording mode a run was made with (config.json, else summary.json), or None."""
+    for name, key in (("config.json", ("record_decisions",)), ("summary.json", ("decisions", "mode"))):
         try:
             d: Any = json.loads((Path(run) / name).read_text())
             for k in key:
@@ -126,13 +127,21 @@ def resolve_step(run: Path, step: int | None = None, time: float | None = None, 
     return int(step)
 
 
-def load_checked(run: Path, step: int) -> RecordedDecision:
-    """:func:`sumo_ethics.record.decisions.load`, with a ConfigError for an unreadable file."""
+@contextmanager
+def readable(run: Path, step: int) -> Iterator[None]:
+    """Reading step ``step``'s decision file of ``run``: a file that cannot be read (cut short by
+    a full disk, or not a decision file) becomes one ConfigError line."""
     try:
-        return rec.load(run, step)
+        yield
     except (OSError, ValueError, KeyError, IndexError, EOFError, zipfile.BadZipFile) as exc:
         raise ConfigError(f"{rec.step_path(run, step)} is not a readable decision file (truncated or corrupt: "
                           f"{type(exc).__name__})") from None
+
+
+def load_checked(run: Path, step: int) -> RecordedDecision:
+    """:func:`sumo_ethics.record.decisions.load`, with a ConfigError for an unreadable file."""
+    with readable(run, step):
+        return rec.load(run, step)
 
 
 def hit_of(run: Path, event: int) -> tuple[float, float, str] | None:
@@ -144,12 +153,8 @@ def hit_of(run: Path, event: int) -> tuple[float, float, str] | None:
 
 
 def _time_of(run: Path, step: int) -> float:
-    try:
-        with np.load(rec.step_path(run, step), allow_pickle=False) as z:
-            return float(z["meta"][1])
-    except (OSError, ValueError, KeyError, IndexError, EOFError, zipfile.BadZipFile) as exc:
-        raise ConfigError(f"{rec.step_path(run, step)} is not a readable decision file (truncated or corrupt: "
-                          f"{type(exc).__name__})") from None
+    with readable(run, step), np.load(rec.step_path(run, step), allow_pickle=False) as z:
+        return float(z["meta"][1])
 
 
 def _spans(times: np.ndarray) -> str:

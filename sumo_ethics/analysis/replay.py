@@ -17,7 +17,6 @@ run. The file is written under a temporary name and renamed when complete.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -189,20 +188,14 @@ def _scan(run: Path, steps: list[int]) -> tuple[np.ndarray, np.ndarray, set[int]
     classes: set[int] = set()
     validity: set[int] = set()
     dt = 0.1
-    import zipfile
-
-    from sumo_ethics.errors import ConfigError
+    from sumo_ethics.analysis.explain import readable
 
     for i, s in enumerate(steps):
-        try:
-            with np.load(rec.step_path(run, s), allow_pickle=False) as z:
-                xy[i] = z["ego"][:2]
-                classes.update(int(c) for c in np.unique(z["agents"][:, 6]))
-                validity.update(int(v) for v in np.unique(z["validity"]))
-                times[i], dt = float(z["meta"][1]), float(z["meta"][3])
-        except (OSError, ValueError, KeyError, IndexError, EOFError, zipfile.BadZipFile) as exc:
-            raise ConfigError(f"{rec.step_path(run, s)} is not a readable decision file (truncated or corrupt: "
-                              f"{type(exc).__name__})") from None
+        with readable(run, s), np.load(rec.step_path(run, s), allow_pickle=False) as z:
+            xy[i] = z["ego"][:2]
+            classes.update(int(c) for c in np.unique(z["agents"][:, 6]))
+            validity.update(int(v) for v in np.unique(z["validity"]))
+            times[i], dt = float(z["meta"][1]), float(z["meta"][3])
     return xy, times, classes, validity, dt
 
 
@@ -233,11 +226,6 @@ def _collisions(run: Path) -> dict[int, str]:
     return {k: "\n".join(v) for k, v in marks.items()}
 
 
-def _record_mode(run: Path) -> str | None:
-    try:
-        return str(json.loads((run / "config.json").read_text())["record_decisions"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
 
 
 def _progress(enabled: bool, total: int) -> Any:
@@ -288,7 +276,7 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
     from matplotlib.patches import Patch
 
     from sumo_ethics.analysis.explain import (CLASS_COLOURS, EGO_COLOUR, VALIDITY_COLOURS, VALIDITY_LABELS, _fmt,
-                                              draw_road, load_checked, recorded, road_of)
+                                              draw_road, load_checked, record_mode, recorded, road_of)
     from sumo_ethics.types import RoadUserClass
 
     run, out = Path(run), Path(out)
@@ -300,7 +288,7 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
 
     total = _total_steps(run)
     if total and len(all_steps) < total:
-        if _record_mode(run) == "all":
+        if record_mode(run) == "all":
             notes.append(f"{len(all_steps)} of {total} steps have a decision (the others had no planner "
                          f"decision, e.g. emergency braking)")
         else:
