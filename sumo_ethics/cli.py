@@ -65,7 +65,7 @@ def cli() -> None:
               help="Selection rule (default cost: the ethical cost decides unavoidable harms; validity: Origin's).")
 @click.option("--utility", type=click.Choice(["candidate_mean", "literal"]),
               help="Reading of J_mean in J_utility (default candidate_mean).")
-@click.option("--predictor", type=click.Choice(["map", "attention", "cslstm", "cv"]),
+@click.option("--predictor", type=click.Choice(["map", "map_cslstm", "attention", "cslstm", "cv"]),
               help="Neighbour prediction (default map: the attention LSTM reading lanes and signals too).")
 @click.option("--predictor-weights", type=click.Path(path_type=Path),
               help="Weights file for the LSTM predictor (default: the one shipped in the package).")
@@ -189,13 +189,17 @@ def _dataset_folder(path: Path) -> Path:
 
 @cli.command()
 @click.argument("dataset_dir", metavar="DATASET", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--model", type=click.Choice(["map", "attention", "cslstm"]), default="map", show_default=True)
+@click.option("--model", type=click.Choice(["map", "map_cslstm", "attention", "cslstm"]), default="map", show_default=True)
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Weights file to write (.pt).")
 @click.option("--max-minutes", type=float, default=14.0, show_default=True, help="CPU-time budget [min].")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--hazard-repeat", type=int, default=1, show_default=True,
               help="Use each hazard actor's training sample this many times per epoch.")
-def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int) -> None:
+@click.option("--nbr-frame", type=click.Choice(["agent", "target"]), default=None,
+              help="Neighbour encoding: once per agent in its own frame (default of the map models) or per "
+                   "target in the target's frame (default of cslstm/attention, as CS-LSTM).")
+def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
+          nbr_frame: str | None) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation)."""
     from sumo_ethics.predict import train_main
 
@@ -203,8 +207,10 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
         raise click.BadParameter("--max-minutes must be positive")
     if hazard_repeat < 1:
         raise click.BadParameter("--hazard-repeat must be at least 1")
+    if nbr_frame is None:
+        nbr_frame = "agent" if model.startswith("map") else "target"
     result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed,
-                        hazard_repeat=hazard_repeat)
+                        hazard_repeat=hazard_repeat, nbr_frame=nbr_frame)
     click.echo(f"weights written to {out}: {result}")
 
 

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from sumo_ethics.predict import features as F
-from sumo_ethics.predict.dataset import build_dataset, split_seeds
+from sumo_ethics.predict.dataset import build_dataset, rebuild_samples, split_seeds
 
 ROOT = Path(__file__).resolve().parents[1]
 URBAN = ROOT / "scenarios" / "urban" / "urban.sumocfg"
@@ -44,3 +44,12 @@ def test_build_dataset_from_sumo(tmp_path):
         assert z["nbr_ptr"][-1] == len(z["nbr_hist"])
         np.testing.assert_allclose(z["tgt_hist"][:, -1], 0.0, atol=1e-4)  # target frame
         assert set(np.unique(z["split"])) <= {0, 1, 2}
+        assert len(z["nbr_yaw"]) == len(z["nbr_hist"]) and np.all(np.abs(z["nbr_yaw"]) <= np.pi + 1e-6)
+        first = {k: z[k] for k in z.files}
+    # samples derived again from the recorded trajectories (after a layout change) equal the first ones
+    again = rebuild_samples(out, tmp_path / "ds2")
+    with np.load(again / "samples.npz") as z:
+        assert sorted(z.files) == sorted(first) and all(np.array_equal(z[k], first[k]) for k in z.files)
+    assert json.loads((again / "split.json").read_text())["split"] == meta["split"]
+    with pytest.raises(ValueError, match="out must differ"):
+        rebuild_samples(out, out)

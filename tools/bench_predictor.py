@@ -74,7 +74,7 @@ def main() -> None:
     from sumo_ethics.predict.predictor import LSTMPredictor
 
     obs = make_observation(args.agents)
-    source = lane_source(obs) if args.kind == "map" else None
+    source = lane_source(obs) if args.kind.startswith("map") else None
     pred = (LSTMPredictor.from_file(args.weights, kind=args.kind, map_source=source) if args.weights
             else LSTMPredictor.default(args.kind, map_source=source))
     for _ in range(10):

@@ -36,7 +36,8 @@ SEEDS = tuple(range(1, 8))
 SUITE_TRAIN = 100  # suite scenarios s0000..s0099 go into the dataset; s0100.. stay held out
 SUITE_HELDOUT = 40  # s0100..s0139 are the held-out suite scenarios of the evaluation
 GAME = ("cross", "square", "grid6", "corridor", "fkk_in", "ramp")  # eclipse-sumo tools/game configs
-TRAIN = {"map": {"hazard_repeat": 4}}  # per-model train_main options (others: defaults)
+#: per-model train_main options (others: defaults); the map models encode every agent once in its own frame
+TRAIN = {"map": {"hazard_repeat": 4, "nbr_frame": "agent"}, "map_cslstm": {"hazard_repeat": 4, "nbr_frame": "agent"}}
 
 
 def main() -> None:
@@ -97,7 +98,8 @@ def main() -> None:
         logging.info("held-out dataset: %.1f min", (time.time() - t0) / 60)
     if "evaluate" in stages:
         out_dir = Path(args.out_dir)
-        weights = {m: out_dir / f"{m}.pt" for m in ("cslstm", "attention", "map") if (out_dir / f"{m}.pt").is_file()}
+        weights = {m: out_dir / f"{m}.pt" for m in ("cslstm", "attention", "map_cslstm", "map")
+                   if (out_dir / f"{m}.pt").is_file()}
         df = evaluate_main(work, out_dir, weights=weights)
         print(df.to_string())
         if (heldout / "samples.npz").is_file():

@@ -24,7 +24,7 @@ from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior
 from sumo_ethics.sim.world import EgoCommand
 from sumo_ethics.types import Candidates, DecisionTrace, Observation, Prediction
 
-PREDICTORS = ("map", "attention", "cslstm", "cv")
+PREDICTORS = ("map", "map_cslstm", "attention", "cslstm", "cv")
 
 #: validity classes, best first (the selected candidate's class is logged as ``validity``)
 VALIDITY = ("safe", "no_overlap_on_road", "no_overlap", "feasible", "emergency")
@@ -104,14 +104,14 @@ def keep_heap_warm(pad: int = 64 << 20) -> None:
 
 
 def make_predictor(name: str, weights: str | None = None) -> Predictor:
-    """"cv", or an LSTM ("map", "attention", "cslstm") from ``weights`` or the shipped file; the
-    map-aware one reads lanes and signals from the running simulation (sim.lanes.SumoMapSource)."""
+    """"cv", or an LSTM ("map", "map_cslstm", "attention", "cslstm") from ``weights`` or the shipped
+    file; the map-aware ones read lanes and signals from the running simulation (sim.lanes.SumoMapSource)."""
     from sumo_ethics.predict import ConstantVelocityPredictor, LSTMPredictor
 
     if name == "cv":
         return ConstantVelocityPredictor()
     source = None
-    if name == "map":
+    if name in ("map", "map_cslstm"):
         from sumo_ethics.sim.lanes import SumoMapSource
 
         source = SumoMapSource()

@@ -44,15 +44,17 @@ def train_main(
     threads: int = 1,
     progress: bool = True,
     hazard_repeat: int = 1,
+    nbr_frame: str = "target",
 ) -> dict:
-    """Train ``model`` ("map", "attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
+    """Train ``model`` ("map", "map_cslstm", "attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
 
     max_minutes is a CPU-time budget (one thread); max_wall_minutes caps wall time (default 3x).
     """
     from sumo_ethics.predict.train import TrainConfig, train_model
 
     cfg = TrainConfig(epochs=epochs, mse_epochs=mse_epochs, max_minutes=max_minutes, max_train=max_train,
-                      seed=seed, threads=threads, max_wall_minutes=max_wall_minutes, hazard_repeat=hazard_repeat)
+                      seed=seed, threads=threads, max_wall_minutes=max_wall_minutes, hazard_repeat=hazard_repeat,
+                      nbr_frame=nbr_frame)
     return train_model(Path(dataset), model, Path(out), cfg, progress=progress)
 
 

@@ -243,7 +243,7 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
     min_valid = int(round(min_history / F.MODEL_DT)) + 1
     out: dict[str, list[np.ndarray]] = {key: [] for key in (
         "tgt_hist", "tgt_group", "tgt_cls", "tgt_speed", "fut", "time",
-        "nbr_hist", "nbr_group", "nbr_cell", "nbr_count",
+        "nbr_hist", "nbr_group", "nbr_cell", "nbr_yaw", "nbr_count",
         "map_pts", "map_valid", "map_scalar", "manoeuvre", "fut_valid")}
     for f in range(h - 1, nf - fsteps, step):
         here = np.flatnonzero(present[:, f])
@@ -279,6 +279,7 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
         out["nbr_hist"].append(feats["nbr_hist"])
         out["nbr_group"].append(feats["nbr_group"])
         out["nbr_cell"].append(feats["nbr_cell"])
+        out["nbr_yaw"].append(feats["nbr_yaw"])
         out["nbr_count"].append(np.bincount(feats["nbr_batch"], minlength=len(ta)))
         out["map_pts"].append(mf["map_pts"])
         out["map_valid"].append(mf["map_valid"])
@@ -399,11 +400,38 @@ def build_dataset(
         "runs": [{"run_id": s.run_id, "scenario": str(s.scenario), "seed": s.seed, "scale": s.scale} for s in specs],
         "feature_version": F.FEATURE_VERSION,
         "map_version": F.MAP_VERSION,
+        "anchor_every": anchor_every,
+        "suite_anchor_every": suite_anchor_every,
         "model_dt": F.MODEL_DT,
         "hist_steps": F.HIST_STEPS,
         "fut_steps": F.FUT_STEPS,
         "n_samples": {name: int((samples["split"] == i).sum()) for i, name in enumerate(("train", "val", "test"))},
     }
+    (out / "split.json").write_text(json.dumps(meta, indent=2))
+    return out
+
+
+def rebuild_samples(src: Path, out: Path, anchor_every: float = 2.0, suite_anchor_every: float = 0.4) -> Path:
+    """Derive ``out``/samples.npz again from ``src``'s recorded trajectories (no simulation),
+    after a change of the sample layout; lane graphs, split and trajectories are copied.
+    The anchor spacings are the dataset's own (split.json); the arguments serve datasets built
+    before they were recorded there (the CLI's defaults)."""
+    import shutil
+
+    src, out = Path(src), Path(out)
+    if out.resolve() == src.resolve():
+        raise ValueError("rebuild_samples writes a new dataset folder: out must differ from src")
+    out.mkdir(parents=True, exist_ok=True)
+    meta = json.loads((src / "split.json").read_text())
+    traj = pd.read_parquet(src / "trajectories.parquet")
+    with open(src / "lane_graphs.pkl", "rb") as fh:
+        graphs = pickle.load(fh)
+    samples = build_samples(traj, meta["split"], anchor_every=meta.get("anchor_every", anchor_every), graphs=graphs,
+                            suite_anchor_every=meta.get("suite_anchor_every", suite_anchor_every))
+    np.savez_compressed(out / "samples.npz", **samples)
+    for name in ("trajectories.parquet", "lane_graphs.pkl"):
+        shutil.copyfile(src / name, out / name)
+    meta["n_samples"] = {name: int((samples["split"] == i).sum()) for i, name in enumerate(("train", "val", "test"))}
     (out / "split.json").write_text(json.dumps(meta, indent=2))
     return out
 
@@ -426,8 +454,9 @@ def subset(samples: dict[str, np.ndarray], index: np.ndarray) -> dict[str, np.nd
     within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
     pair = starts + within
     out = {k: v[index] for k, v in samples.items() if not k.startswith("nbr_")}
-    for k in ("nbr_hist", "nbr_group", "nbr_cell"):
-        out[k] = samples[k][pair]
+    for k in ("nbr_hist", "nbr_group", "nbr_cell", "nbr_yaw"):
+        if k in samples:
+            out[k] = samples[k][pair]
     out["nbr_batch"] = np.repeat(np.arange(len(index)), counts)
     out["nbr_ptr"] = np.concatenate([[0], np.cumsum(counts)])
     return out

@@ -137,7 +137,7 @@ def evaluate(
         idx = np.sort(np.random.default_rng(seed).choice(idx, size=max_samples, replace=False))
     batch = subset(samples, idx)
     if weights is None:
-        weights = {k: default_weights(k) for k in ("cslstm", "attention", "map") if default_weights(k).is_file()}
+        weights = {k: default_weights(k) for k in ("cslstm", "attention", "map_cslstm", "map") if default_weights(k).is_file()}
     cal = samples if calibration_dataset is None else load_samples(calibration_dataset)
     cv_cal = calibrate_cv(cal)
     outputs = {"constant_velocity": cv_outputs(batch), "constant_velocity_calibrated": cv_outputs(batch, cv_cal)}
@@ -176,19 +176,20 @@ def evaluate(
 
 
 def improvement_summary(df: pd.DataFrame) -> str:
-    """ADE improvements of the learned models over constant velocity and CS-LSTM, per group (Markdown)."""
+    """ADE improvements per group (Markdown): the learned models over constant velocity, and each
+    attention model over its CS-LSTM counterpart (attention/cslstm, map/map_cslstm)."""
     lines = ["ADE reduction (positive = better):", ""]
     piv = df.pivot(index="group", columns="model", values="ade")
     for g in piv.index:
         r = piv.loc[g]
         parts = []
-        for m in ("map", "attention"):
+        for m in ("map", "map_cslstm", "attention"):
             if m in r and "constant_velocity" in r:
                 parts.append(f"{m} {100 * (1 - r[m] / r['constant_velocity']):+.1f}% vs constant velocity")
-            if m in r and "cslstm" in r:
-                parts.append(f"{m} {100 * (1 - r[m] / r['cslstm']):+.1f}% vs CS-LSTM")
-        if "map" in r and "attention" in r:
-            parts.append(f"map {100 * (1 - r['map'] / r['attention']):+.1f}% vs attention")
+        for m, ref, label in (("attention", "cslstm", "CS-LSTM"), ("map", "map_cslstm", "map_cslstm"),
+                              ("map", "attention", "attention"), ("map_cslstm", "cslstm", "CS-LSTM")):
+            if m in r and ref in r:
+                parts.append(f"{m} {100 * (1 - r[m] / r[ref]):+.1f}% vs {label}")
         if parts:
             lines.append(f"- {g}: " + ", ".join(parts))
     return "\n".join(lines)

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sumo_ethics.geometry import wrap_angle
 from sumo_ethics.types import RoadUserClass
 
 FEATURE_VERSION = 1
@@ -177,7 +178,9 @@ def build_features(
     ``tgt_hist`` (N, H, 2) target history in its own frame [m]; ``tgt_group`` (N,);
     ``nbr_hist`` (P, H, 2) neighbour histories in their target's frame [m];
     ``nbr_group`` (P,); ``nbr_batch`` (P,) target row of each neighbour;
-    ``nbr_cell`` (P,) grid cell = lon_index * GRID_LAT + lat_index; ``nbr_agent`` (P,).
+    ``nbr_cell`` (P,) grid cell = lon_index * GRID_LAT + lat_index; ``nbr_agent`` (P,);
+    ``nbr_yaw`` (P,) the neighbour's yaw in its target's frame [rad, wrapped] (read by models
+    that encode every agent once in its own frame, ``nbr_frame="agent"``).
     """
     hist = np.asarray(hist, dtype=float)
     m = hist.shape[0]
@@ -214,7 +217,13 @@ def build_features(
         "nbr_batch": ti.astype(np.int64),
         "nbr_cell": cells.astype(np.int64),
         "nbr_agent": ai.astype(np.int64),
+        "nbr_yaw": wrap_angle(np.asarray(yaw, dtype=float)[ai] - tyaw[ti]).astype(np.float32),
     }
+
+
+def own_frame(hist: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """(M, H, 2) histories, (M,) yaw -> (M, H, 2) each in its own frame (origin now, +x its heading)."""
+    return to_target_frame(hist, hist[:, -1], yaw)
 
 
 # ---------------------------------------------------------------------------------------------

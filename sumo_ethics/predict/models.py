@@ -45,8 +45,20 @@ encoded by a 2-layer MLP (-> 64); the query is a linear map of [target encoding,
 scalars]; scaled dot-product attention over the valid polylines (none valid: zero) gives a
 64-d context, concatenated with a 32-d embedding of the scalars (traffic light ahead, its
 distance and state, speed limit): ``[E, dyn, lane context, scalars]`` goes to the decoder.
+Map CS-LSTM (kind="map_cslstm"): the same lane context on CS-LSTM without the attention,
+the counterpart of "map" in the attention ablation.
+
+Neighbour encoding (``nbr_frame``). "target" (cslstm, attention, the first map model): each
+neighbour's history is encoded in its target's frame, once per (target, neighbour) pair, as
+CS-LSTM does; a 32-agent scene had 271 pairs. "agent" (the shipped map models): every agent's
+history is encoded once in its own frame (origin now, +x its heading, normalised by its own
+class scale) and placed into a target's grid with its pose there, ``act(H + W_pose [x, y,
+cos dyaw, sin dyaw])`` (x, y by the target's scale). Training still feeds per-pair rows and
+converts them (``agent_inputs``, needs ``nbr_yaw``); the run-time ``scene_forward`` encodes
+the M agents once and gives the same result (tests/test_predictor_fast.py).
+
 The cslstm/attention parameters are built exactly as before (same names, same order), so
-their shipped files and seeded initialisations are unchanged. Weight files of kind "map"
+their shipped files and seeded initialisations are unchanged. Weight files of the map kinds
 carry ``map_version`` (features.MAP_VERSION) and are refused with any other.
 """
 
@@ -63,15 +75,20 @@ from torch import nn
 from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
 
-KINDS = ("cslstm", "attention", "map")
+KINDS = ("cslstm", "attention", "map", "map_cslstm")
 #: kinds that read the map features (features.map_features) besides the histories
-MAP_KINDS = ("map",)
+MAP_KINDS = ("map", "map_cslstm")
+#: kinds with the cosine attention over the neighbours (the others pool the social grid only)
+ATTENTION_KINDS = ("attention", "map")
+#: how neighbour histories are encoded: "target" = in each target's frame (once per target and
+#: neighbour pair, as CS-LSTM), "agent" = once per agent in its own frame, placed by its pose
+NBR_FRAMES = ("target", "agent")
 FILE_FORMAT = "sumo-ethics-predictor"
 FILE_FORMAT_VERSION = 1
 
 
 class TrajectoryLSTM(nn.Module):
-    """CS-LSTM (kind="cslstm") or CS-LSTM + cosine attention (kind="attention")."""
+    """CS-LSTM (kind="cslstm"), + cosine attention ("attention"), + lanes ("map_cslstm", "map")."""
 
     def __init__(
         self,
@@ -90,11 +107,15 @@ class TrajectoryLSTM(nn.Module):
         residual: bool = True,
         residual_groups: tuple[int, ...] = (F.GROUP_VEHICLE, F.GROUP_CYCLIST),
         map_size: int = 64,
+        nbr_frame: str = "target",
     ) -> None:
         super().__init__()
         if kind not in KINDS:
             raise ValueError(f"unknown model kind {kind!r}, expected one of {KINDS}")
+        if nbr_frame not in NBR_FRAMES:
+            raise ValueError(f"unknown nbr_frame {nbr_frame!r}, expected one of {NBR_FRAMES}")
         self.kind = kind
+        self.nbr_frame = nbr_frame
         self.sigma_min = float(sigma_min)
         self.residual = bool(residual)
         self.residual_groups = tuple(int(g) for g in residual_groups) if residual else ()
@@ -111,11 +132,11 @@ class TrajectoryLSTM(nn.Module):
         self.conv_3x1 = nn.Conv2d(conv1, conv2, (3, 1))
         self.soc_maxpool = nn.MaxPool2d((2, 1), padding=(1, 0))
         self.soc_size = ((F.GRID_LON - 4) + 1) // 2 * conv2
-        if kind in ("attention", "map"):
+        if kind in ATTENTION_KINDS:
             self.att_proj = nn.Linear(enc, self.soc_size, bias=False)
             self.log_tau = nn.Parameter(torch.tensor(math.log(0.1)))
         self.map_size = 0
-        if kind == "map":
+        if kind in MAP_KINDS:
             # lane polylines: flattened points + kind one-hot -> 64; query from the target's
             # encoding and its signal/speed-limit scalars; scaled dot-product attention
             self.poly_enc = nn.Sequential(nn.Linear(F.MAP_POINTS * 2 + 3, map_size), nn.LeakyReLU(0.1),
@@ -131,6 +152,8 @@ class TrajectoryLSTM(nn.Module):
                 self.output.bias[:2].zero_()
         self.act = nn.LeakyReLU(0.1)
         self.register_buffer("pos_scale", torch.tensor(pos_scale, dtype=torch.float32))
+        if nbr_frame == "agent":  # neighbour pose in the target's frame (x, y normalised, cos, sin of yaw)
+            self.pose_emb = nn.Linear(4, enc)
 
     def scale(self, group: torch.Tensor) -> torch.Tensor:
         """(B,) class groups -> (B,) position scale [m]."""
@@ -154,10 +177,68 @@ class TrajectoryLSTM(nn.Module):
         map_pts: torch.Tensor | None = None,
         map_valid: torch.Tensor | None = None,
         map_scalar: torch.Tensor | None = None,
+        nbr_yaw: torch.Tensor | None = None,
     ) -> torch.Tensor:
         b = tgt_hist.shape[0]
-        hidden = self.encode(torch.cat([tgt_hist, nbr_hist]), torch.cat([tgt_group, nbr_group]))
-        tgt_enc, nbr_enc = hidden[:b], hidden[b:]
+        if self.nbr_frame == "agent":
+            if nbr_yaw is None:
+                raise ValueError("a model with nbr_frame='agent' needs nbr_yaw (samples built before it: "
+                                 "dataset.rebuild_samples)")
+            own, pose = self.agent_inputs(tgt_group, nbr_hist, nbr_group, nbr_batch, nbr_yaw)
+            hidden = self.encode(torch.cat([tgt_hist, own]), torch.cat([tgt_group, nbr_group]))
+            tgt_enc, nbr_enc = hidden[:b], self.place(hidden[b:], pose)
+        else:
+            hidden = self.encode(torch.cat([tgt_hist, nbr_hist]), torch.cat([tgt_group, nbr_group]))
+            tgt_enc, nbr_enc = hidden[:b], hidden[b:]
+        return self.head(tgt_hist, tgt_group, tgt_enc, nbr_enc, nbr_batch, nbr_cell, nbr_valid,
+                         map_pts, map_valid, map_scalar)
+
+    def scene_forward(
+        self,
+        agent_hist: torch.Tensor,
+        agent_group: torch.Tensor,
+        targets: torch.Tensor,
+        nbr_agent: torch.Tensor,
+        nbr_batch: torch.Tensor,
+        nbr_cell: torch.Tensor,
+        nbr_pose: torch.Tensor,
+        map_pts: torch.Tensor | None = None,
+        map_valid: torch.Tensor | None = None,
+        map_scalar: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Run-time path of ``nbr_frame="agent"`` models: every agent encoded once.
+
+        agent_hist (M, H, 2): each agent's history in its own frame, normalised by its own
+        group's scale; agent_group (M,); targets (B,) agent rows predicted; nbr_agent (P,)
+        agent row of each neighbour, nbr_batch (P,) its target row (into targets), nbr_cell
+        (P,); nbr_pose (P, 4): (x, y) of the neighbour in its target's frame / the target's
+        scale, cos and sin of its yaw there. -> (B, FUT_STEPS, 5), equal to :meth:`forward`."""
+        enc = self.encode(agent_hist, agent_group)
+        nbr_enc = self.place(enc[nbr_agent], nbr_pose)
+        return self.head(agent_hist[targets], agent_group[targets], enc[targets], nbr_enc, nbr_batch, nbr_cell,
+                         None, map_pts, map_valid, map_scalar)
+
+    def agent_inputs(self, tgt_group: torch.Tensor, nbr_hist: torch.Tensor, nbr_group: torch.Tensor,
+                     nbr_batch: torch.Tensor, nbr_yaw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Target-frame neighbour rows -> (P, H, 2) histories in their own frames (normalised by
+        their own scale) and (P, 4) poses (x, y normalised by the target's scale, cos, sin yaw)."""
+        nh = nbr_hist * self.pos_scale[tgt_group][nbr_batch][:, None, None]  # metres, target frame
+        c, s = torch.cos(nbr_yaw)[:, None], torch.sin(nbr_yaw)[:, None]
+        d = nh - nh[:, -1:, :]
+        own = torch.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], -1)
+        own = own / self.pos_scale[nbr_group][:, None, None]
+        pose = torch.cat([nbr_hist[:, -1], c, s], -1)
+        return own, pose
+
+    def place(self, enc: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
+        """(P, enc) own-frame encodings + (P, 4) poses -> (P, enc) neighbour features."""
+        return self.act(enc + self.pose_emb(pose))
+
+    def head(self, tgt_hist: torch.Tensor, tgt_group: torch.Tensor, tgt_enc: torch.Tensor, nbr_enc: torch.Tensor,
+             nbr_batch: torch.Tensor, nbr_cell: torch.Tensor, nbr_valid: torch.Tensor | None,
+             map_pts: torch.Tensor | None, map_valid: torch.Tensor | None, map_scalar: torch.Tensor | None) -> torch.Tensor:
+        """Social pooling (+ attention, + lane context) and decoding -> (B, FUT_STEPS, 5)."""
+        b = tgt_enc.shape[0]
         if nbr_valid is not None:
             keep = nbr_valid.to(torch.bool)
             nbr_enc, nbr_batch, nbr_cell = nbr_enc[keep], nbr_batch[keep], nbr_cell[keep]
@@ -168,14 +249,13 @@ class TrajectoryLSTM(nn.Module):
         soc = self.act(self.soc_conv(grid))
         soc = self.act(self.conv_3x1(soc))
         soc = self.soc_maxpool(soc).reshape(b, self.soc_size)
-        if self.kind in ("attention", "map"):
+        if self.kind in ATTENTION_KINDS:
             soc = soc + self.att_proj(self.attend(tgt_enc, nbr_enc, nbr_batch))
         parts = [soc, dyn]
-        if self.kind == "map":
+        if self.kind in MAP_KINDS:
             parts.append(self.map_context(tgt_enc, map_pts, map_valid, map_scalar))
         enc = torch.cat(parts, dim=-1)
-        h_dec, _ = self.decoder(enc[:, None, :].expand(b, self.fut_steps, enc.shape[-1]))
-        out = self.output(h_dec)
+        out = self.output(self.decode(enc))
         mu = out[..., :2]
         if self.residual:
             steps = torch.arange(1, self.fut_steps + 1, dtype=mu.dtype, device=mu.device)
@@ -185,6 +265,32 @@ class TrajectoryLSTM(nn.Module):
         sigma = Fn.softplus(out[..., 2:4]) + self.sigma_min
         rho = 0.95 * torch.tanh(out[..., 4:5])
         return torch.cat([mu, sigma, rho], dim=-1)
+
+    def decode(self, enc: torch.Tensor) -> torch.Tensor:
+        """(B, E) -> (B, FUT_STEPS, dec) decoder states; the same input every step.
+
+        Without autograd, ``nbr_frame="agent"`` models take the input projection once and run
+        the recurrence by hand (about 30 % faster for a few dozen targets; equal to nn.LSTM
+        within float rounding, see tests/test_predictor_fast.py). Older models keep nn.LSTM,
+        so their shipped outputs stay bit for bit."""
+        b = enc.shape[0]
+        if self.nbr_frame != "agent" or torch.is_grad_enabled():
+            h_dec, _ = self.decoder(enc[:, None, :].expand(b, self.fut_steps, enc.shape[-1]))
+            return h_dec
+        d = self.decoder
+        pre = torch.addmm(d.bias_ih_l0 + d.bias_hh_l0, enc, d.weight_ih_l0.t())
+        w_hh = d.weight_hh_l0.t()
+        n = d.hidden_size  # gate rows of nn.LSTM: input, forget, cell, output
+        h = enc.new_zeros(b, n)
+        c = enc.new_zeros(b, n)
+        out = []
+        for _ in range(self.fut_steps):
+            gates = torch.addmm(pre, h, w_hh)
+            sg = torch.sigmoid(gates)  # one call for the three sigmoid gates (the cell rows unused)
+            c = sg[:, n:2 * n] * c + sg[:, :n] * torch.tanh(gates[:, 2 * n:3 * n])
+            h = sg[:, 3 * n:] * torch.tanh(c)
+            out.append(h)
+        return torch.stack(out, 1)
 
     def map_context(self, tgt_enc: torch.Tensor, pts: torch.Tensor | None, valid: torch.Tensor | None,
                     scalar: torch.Tensor | None) -> torch.Tensor:
@@ -270,6 +376,7 @@ def model_config(model: TrajectoryLSTM) -> dict[str, Any]:
         "residual": model.residual,
         "residual_groups": list(model.residual_groups),
         **({"map_size": model.map_size - 32} if model.kind in MAP_KINDS else {}),
+        **({"nbr_frame": model.nbr_frame} if model.nbr_frame != "target" else {}),
     }
 
 
@@ -332,7 +439,7 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
         model = TrajectoryLSTM(kind=cfg["kind"], pos_scale=tuple(cfg["pos_scale"]), sigma_min=cfg.get("sigma_min", 1e-3),
                                residual=cfg.get("residual", False),
                                residual_groups=tuple(cfg.get("residual_groups", (0, 1, 2))),
-                               map_size=cfg.get("map_size", 64))
+                               map_size=cfg.get("map_size", 64), nbr_frame=cfg.get("nbr_frame", "target"))
         model.load_state_dict(blob["state_dict"])
     except Exception as exc:  # noqa: BLE001
         raise PredictorError(f"predictor weights file {path} does not match the model: {exc}") from None
@@ -358,4 +465,6 @@ def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE, with_m
         out["map_pts"] = torch.as_tensor(batch["map_pts"], dtype=torch.float32) / scale[:, None, None, None]
         out["map_valid"] = torch.as_tensor(batch["map_valid"], dtype=torch.bool)
         out["map_scalar"] = torch.as_tensor(batch["map_scalar"], dtype=torch.float32)
+    if "nbr_yaw" in batch:
+        out["nbr_yaw"] = torch.as_tensor(batch["nbr_yaw"], dtype=torch.float32)
     return out

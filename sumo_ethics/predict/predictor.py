@@ -124,16 +124,19 @@ class LSTMPredictor:
             extra = {"map_pts": torch.from_numpy(mf["map_pts"] / s[:, None, None, None]),
                      "map_valid": torch.from_numpy(mf["map_valid"]),
                      "map_scalar": torch.from_numpy(mf["map_scalar"])}
-        with torch.inference_mode():
-            out = self.model(
-                torch.from_numpy(feats["tgt_hist"] / s[:, None, None]),
-                torch.from_numpy(g),
-                torch.from_numpy(feats["nbr_hist"] / s[feats["nbr_batch"]][:, None, None]),
-                torch.from_numpy(feats["nbr_group"]),
-                torch.from_numpy(feats["nbr_batch"]),
-                torch.from_numpy(feats["nbr_cell"]),
-                **extra,
-            ).numpy().astype(float)
+        if getattr(self.model, "nbr_frame", "target") == "agent":
+            out = self._scene_outputs(hist, cls, yaw_all, feats, s, extra)
+        else:
+            with torch.inference_mode():
+                out = self.model(
+                    torch.from_numpy(feats["tgt_hist"] / s[:, None, None]),
+                    torch.from_numpy(g),
+                    torch.from_numpy(feats["nbr_hist"] / s[feats["nbr_batch"]][:, None, None]),
+                    torch.from_numpy(feats["nbr_group"]),
+                    torch.from_numpy(feats["nbr_batch"]),
+                    torch.from_numpy(feats["nbr_cell"]),
+                    **extra,
+                ).numpy().astype(float)
         mu = out[..., :2] * s[:, None, None]
         sx, sy, rho = out[..., 2] * s[:, None], out[..., 3] * s[:, None], out[..., 4]
         cov_t = np.empty(out.shape[:2] + (2, 2))
@@ -144,6 +147,23 @@ class LSTMPredictor:
         mean = xy[:, None, :] + (rot @ mu[..., None])[..., 0]
         cov = rot @ cov_t @ np.swapaxes(rot, -1, -2)
         return mean, cov
+
+    def _scene_outputs(self, hist: np.ndarray, cls: np.ndarray, yaw: np.ndarray, feats: dict, s: np.ndarray,
+                       extra: dict) -> np.ndarray:
+        """Outputs (N, FUT_STEPS, 5) of an ``nbr_frame="agent"`` model: every agent (targets
+        first, then the ego) is encoded once in its own frame (``scene_forward``)."""
+        n = len(feats["tgt_group"])
+        g_all = F.class_group(cls)
+        own = F.own_frame(hist, yaw) / self._scale[g_all][:, None, None]
+        nb = feats["nbr_batch"]
+        pose = np.concatenate([feats["nbr_hist"][:, -1] / s[nb][:, None], np.cos(feats["nbr_yaw"])[:, None],
+                               np.sin(feats["nbr_yaw"])[:, None]], -1)
+        with torch.inference_mode():
+            out = self.model.scene_forward(
+                torch.from_numpy(own.astype(np.float32)), torch.from_numpy(g_all), torch.arange(n),
+                torch.from_numpy(feats["nbr_agent"]), torch.from_numpy(nb), torch.from_numpy(feats["nbr_cell"]),
+                torch.from_numpy(pose.astype(np.float32)), **extra)
+        return out.numpy().astype(float)
 
     def predict(self, obs: Observation, horizon_steps: int, dt: float) -> Prediction:
         cur = obs.current

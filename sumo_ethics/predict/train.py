@@ -42,7 +42,8 @@ class TrainConfig:
     ("wall"); max_wall_minutes: hard wall-clock cap (default 3 x max_minutes);
     max_train/max_val: caps on sample counts (random subset); hazard_repeat: each training
     sample of a hazard actor (manoeuvre "hazard") is used this many times per epoch (they are
-    rare and the planner's risk depends on them most)."""
+    rare and the planner's risk depends on them most); nbr_frame: the model's neighbour
+    encoding (models.NBR_FRAMES)."""
 
     epochs: int = 40
     mse_epochs: int = 4
@@ -59,6 +60,7 @@ class TrainConfig:
     max_train: int | None = None
     max_val: int | None = 8000
     hazard_repeat: int = 1
+    nbr_frame: str = "target"
 
 
 def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -122,7 +124,7 @@ def train_model(
     val_idx = _split_index(samples, "val", config.max_val, rng)
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise ValueError(f"dataset {dataset} has no train or no validation samples")
-    model = TrajectoryLSTM(kind=kind)
+    model = TrajectoryLSTM(kind=kind, nbr_frame=config.nbr_frame)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     n_batches = math.ceil(len(train_idx) / config.batch_size)
     best, best_state, best_epoch, bad = math.inf, None, -1, 0

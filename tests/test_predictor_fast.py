@@ -1,0 +1,142 @@
+"""The map models' fast run-time path (nbr_frame="agent"): every agent encoded once in its
+own frame and placed by its pose, the decoder's input projection taken once. It must give
+what the training path gives on the same scene, be rotation and translation invariant, and
+leave the older models' code path untouched."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from sumo_ethics.predict import features as F  # noqa: E402
+from sumo_ethics.predict.models import TrajectoryLSTM, batch_to_tensors, load_model, save_model  # noqa: E402
+from sumo_ethics.predict.predictor import LSTMPredictor, straight_history  # noqa: E402
+from sumo_ethics.types import AgentStates, Observation, RoadUserClass  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))
+from bench_predictor import lane_source, make_observation  # noqa: E402
+
+
+def _model(kind: str, seed: int = 0) -> TrajectoryLSTM:
+    torch.manual_seed(seed)
+    m = TrajectoryLSTM(kind=kind, nbr_frame="agent").eval()
+    with torch.no_grad():  # the residual init zeroes the mean head: make the outputs depend on everything
+        m.output.weight.normal_(0.0, 0.1)
+    return m
+
+
+def test_neighbour_yaw_in_the_target_frame_by_hand():
+    # target 0 heads 170 deg; agent 1 is 10 m ahead of it heading -170 deg: 20 deg in the target's
+    # frame (-340 wrapped); agent 2 is 10 m behind heading 100 deg: -70 deg
+    yaw = np.radians([170.0, -170.0, 100.0])
+    head = np.array([np.cos(yaw[0]), np.sin(yaw[0])])
+    now = np.array([[0.0, 0.0], 10.0 * head, -10.0 * head])
+    hist = straight_history(now, yaw, np.array([5.0, 5.0, 5.0]))
+    f = F.build_features(hist, np.zeros(3, dtype=np.int64), yaw, targets=np.array([0]))
+    by_agent = dict(zip(f["nbr_agent"].tolist(), np.degrees(f["nbr_yaw"]).tolist()))
+    assert by_agent.keys() == {1, 2}
+    assert by_agent[1] == pytest.approx(20.0, abs=1e-4) and by_agent[2] == pytest.approx(-70.0, abs=1e-4)
+    # own frame: a straight history along its heading is (-5 m/s x t, 0) for every agent
+    own = F.own_frame(hist, yaw)
+    t = (np.arange(F.HIST_STEPS) - (F.HIST_STEPS - 1)) * F.MODEL_DT
+    np.testing.assert_allclose(own[..., 0], np.broadcast_to(5.0 * t, (3, F.HIST_STEPS)), atol=1e-9)
+    np.testing.assert_allclose(own[..., 1], 0.0, atol=1e-9)
+
+
+def _training_path_means(model: TrajectoryLSTM, obs: Observation, source) -> np.ndarray:
+    """World-frame means of ``obs``'s agents through model.forward, fed as a dataset sample batch."""
+    cur = obs.current
+    n = len(cur)
+    hist, _ = F.resample_history(obs.history, obs.valid, obs.dt)
+    hist = np.concatenate([hist, straight_history(obs.ego.xy, obs.ego.yaw, obs.ego.speed)])
+    cls = np.concatenate([cur.cls, obs.ego.cls]).astype(np.int64)
+    yaw = np.concatenate([cur.yaw, obs.ego.yaw])
+    feats = F.build_features(hist, cls, yaw, targets=np.arange(n))
+    graph, ctx = source(cur.ids, feats["tgt_group"] == F.GROUP_PEDESTRIAN)
+    x = batch_to_tensors(dict(feats, **F.map_features(graph, ctx, cur.xy, cur.yaw, cur.speed)), model.pos_scale,
+                         with_map=True)
+    with torch.enable_grad():  # the training path: nn.LSTM decoder, per-pair neighbour rows
+        out = model(**x).detach().numpy().astype(float)
+    mu = out[..., :2] * F.POS_SCALE[feats["tgt_group"]][:, None, None]
+    return cur.xy[:, None, :] + (F.rotation(cur.yaw)[:, None] @ mu[..., None])[..., 0]
+
+
+@pytest.mark.parametrize("kind", ["map", "map_cslstm"])
+def test_scene_path_equals_the_training_path(kind):
+    """32 agents with 271 neighbour pairs: encoding each agent once (run time) and each pair in
+    its target's frame (training) give the same means to float32 rounding (< 0.1 mm)."""
+    m = _model(kind)
+    obs = make_observation(32)
+    source = lane_source(obs)
+    fast, _ = LSTMPredictor(m, {"kind": kind}, map_source=source).model_outputs(obs)
+    slow = _training_path_means(m, obs, source)
+    assert np.abs(fast - slow).max() < 1e-4
+
+
+def test_fast_decoder_equals_nn_lstm_and_old_kinds_keep_nn_lstm():
+    m = _model("map")
+    enc = torch.randn(7, m.decoder.input_size)
+    with torch.inference_mode():
+        fast = m.decode(enc)
+    with torch.enable_grad():
+        ref = m.decode(enc).detach()
+    assert fast.shape == (7, F.FUT_STEPS, m.decoder.hidden_size)
+    assert (fast - ref).abs().max() < 1e-5
+    old = TrajectoryLSTM(kind="attention").eval()
+    enc = torch.randn(7, old.decoder.input_size)
+    with torch.inference_mode():
+        h, _ = old.decoder(enc[:, None, :].expand(7, F.FUT_STEPS, enc.shape[-1]))
+        assert torch.equal(old.decode(enc), h)
+
+
+def _rotated(obs: Observation, angle: float, shift: np.ndarray) -> Observation:
+    c, s = np.cos(angle), np.sin(angle)
+    r = np.array([[c, -s], [s, c]])
+
+    def states(a: AgentStates) -> AgentStates:
+        xy = a.xy @ r.T + shift
+        return AgentStates(a.ids, xy[:, 0], xy[:, 1], a.yaw + angle, a.speed, a.accel, a.length, a.width, a.mass, a.cls)
+
+    return Observation(time=obs.time, dt=obs.dt, history=obs.history @ r.T + shift, valid=obs.valid,
+                       current=states(obs.current), ego=states(obs.ego))
+
+
+def test_predictions_turn_and_move_with_the_scene():
+    """Turning the whole scene by 37 deg and moving it by (500, -300) m turns and moves every
+    predicted mean the same way (the histories alone, no map). The synthetic scene's pedestrians
+    are first moved 0.2 m away from the road: 3.0 m beside the cars they sit exactly on the edge
+    of their social grid, where float rounding of the turned scene decides whether a car is in it."""
+    m = _model("map")
+    obs = make_observation(32)
+    ped = np.asarray(obs.current.cls) == int(RoadUserClass.PEDESTRIAN)  # 3.0 m beside the cars -> 3.2 m
+    hist, y = obs.history.copy(), obs.current.y.copy()
+    hist[ped, :, 1] -= 0.2
+    y[ped] -= 0.2
+    cur = obs.current
+    obs = Observation(obs.time, obs.dt, hist, obs.valid, AgentStates(cur.ids, cur.x, y, cur.yaw, cur.speed, cur.accel,
+                                                                     cur.length, cur.width, cur.mass, cur.cls), obs.ego)
+    angle, shift = np.radians(37.0), np.array([500.0, -300.0])
+    a, _ = LSTMPredictor(m, {"kind": "map"}).model_outputs(obs)
+    b, _ = LSTMPredictor(m, {"kind": "map"}).model_outputs(_rotated(obs, angle, shift))
+    c, s = np.cos(angle), np.sin(angle)
+    np.testing.assert_allclose(b, a @ np.array([[c, -s], [s, c]]).T + shift, atol=2e-3)
+
+
+def test_agent_frame_model_needs_neighbour_yaw_and_keeps_its_frame_on_disk(tmp_path):
+    m = _model("map_cslstm")
+    obs = make_observation(8)
+    hist, _ = F.resample_history(obs.history, obs.valid, obs.dt)
+    f = F.build_features(hist, obs.current.cls, obs.current.yaw)
+    x = batch_to_tensors(f, m.pos_scale)
+    x.pop("nbr_yaw")
+    with pytest.raises(ValueError, match="needs nbr_yaw"):
+        m(**x)
+    loaded, header = load_model(save_model(m, tmp_path / "m.pt"), kind="map_cslstm")
+    assert loaded.nbr_frame == "agent" and header["config"]["nbr_frame"] == "agent"
+    assert not hasattr(loaded, "att_proj")  # the CS-LSTM counterpart has no attention
