@@ -4,7 +4,7 @@ scenarios that no predictor was trained or evaluated on.
     python tools/predictor_study.py [--first 140] [--count 20] [--workers 1] [--out runs/predictor_study] [--resume]
 
 Planners (the paper's planner, only the predictor or the priors changed): cv, cslstm,
-attention, map (the default), map_nopriors (map with braking_prior = lateral_prior = 0).
+attention, map_cslstm (map without attention), map (the default), map_nopriors (map with braking_prior = lateral_prior = 0).
 Scenarios s<first>..s<first+count-1> of scenarios/suite (tools/train_shipped.py trains on
 s0000-s0099 and evaluates prediction on s0100-s0139). Writes the suite's table1.md,
 paired.csv and results.csv to --out.
@@ -23,6 +23,7 @@ PLANNERS = (
     "cv=predictor=cv",
     "cslstm=predictor=cslstm",
     "attention=predictor=attention",
+    "map_cslstm=predictor=map_cslstm",
     "map=predictor=map",
     "map_nopriors=predictor=map;braking_prior=0;lateral_prior=0",
 )

@@ -110,6 +110,11 @@ def metrics(params: np.ndarray, fut: np.ndarray, valid: np.ndarray | None = None
     return out
 
 
+#: [m/s] below this a vehicle or cyclist counts as standing in the evaluation's groups <class>:standing
+#: and <class>:moving (a standing one either stays, where constant velocity is exact, or starts)
+STANDING_SPEED = 0.5
+
+
 def evaluate(
     dataset: Path,
     out: Path | None,
@@ -149,6 +154,10 @@ def evaluate(
     groups = batch["tgt_group"]
     selections: list[tuple[str, np.ndarray]] = [("all", np.ones(len(fut), dtype=bool))]
     selections += [(g, groups == i) for i, g in enumerate(F.GROUP_NAMES)]
+    standing = batch["tgt_speed"] < STANDING_SPEED
+    for i in (F.GROUP_VEHICLE, F.GROUP_CYCLIST):
+        selections += [(f"{F.GROUP_NAMES[i]}:standing", (groups == i) & standing),
+                       (f"{F.GROUP_NAMES[i]}:moving", (groups == i) & ~standing)]
     if "manoeuvre" in batch:
         selections += [(f"m:{m}", batch["manoeuvre"] == i) for i, m in enumerate(MANOEUVRES)]
     rows = []
@@ -165,7 +174,8 @@ def evaluate(
         df.to_csv(out / "prediction_eval.csv", index=False)
         what = "Test seeds only" if split == "test" else f"Split {split!r}"
         note = (f"{title + ': ' if title else ''}{what} of {dataset} ({len(idx)} samples). Groups m:<manoeuvre> are vehicles "
-                f"and cyclists by manoeuvre (dataset.manoeuvre_labels). in_1sigma / in_2sigma: share of true "
+                f"and cyclists by manoeuvre (dataset.manoeuvre_labels); <class>:standing are those slower than "
+                f"{STANDING_SPEED} m/s now, <class>:moving the others. in_1sigma / in_2sigma: share of true "
                 f"positions inside the predicted 1- and 2-sigma ellipses (a calibrated Gaussian: 0.393 / 0.865). "
                 f"constant_velocity_calibrated: growth rates [m/s] (lon, lat) "
                 f"fitted on the train seeds: vehicle {tuple(round(v, 3) for v in cv_cal.growth)}, "
