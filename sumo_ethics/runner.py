@@ -274,7 +274,7 @@ class Run:
         dist = np.hypot(o.x - e.x[0], o.y - e.y[0]) if len(o) else np.empty(0)
         row = {
             "step": self.step, "time": now.time, "x": float(e.x[0]), "y": float(e.y[0]), "yaw": float(e.yaw[0]),
-            "speed": float(e.speed[0]), "speed_cmd": float(decision.command.speed),
+            "speed": float(e.speed[0]), "speed_cmd": float(decision.command.speed), "speed_sumo": now.sumo_speed,
             "accel": (float(e.speed[0]) - float(before.ego.speed[0])) / dt, "s": s, "d": d,
             "lane": self.world.sumo_lane(), "n_neighbours": len(o), "n_vru": int(VULNERABLE[o.cls].sum()),
             "min_distance": float(dist.min()) if len(dist) else float("nan"),

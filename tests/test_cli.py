@@ -92,8 +92,9 @@ def test_run_bundled_scenario_prints_summary(tmp_path):
     assert summary["seed"] == 3 and summary["forced_sumo_options"]["collision.action"]["forced"] == "warn"
     assert set(summary["harm"]) == {"ego", "third_party", "vru", "total"}
     steps = pd.read_parquet(out / "steps.parquet")
-    # other drivers see the ego's true speed: SUMO reports what the controller commanded
-    assert (steps.speed - steps.speed_cmd).abs().max() < 1e-6
+    # the ego's speed is the commanded one, and SUMO reports it too (other drivers see it)
+    assert (steps.speed == steps.speed_cmd).all()
+    assert (steps.speed_sumo - steps.speed_cmd).abs().max() < 1e-6
     assert json.loads((out / "config.json").read_text())["resolved"]["end"] == 90.0
 
 

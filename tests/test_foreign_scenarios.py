@@ -35,12 +35,13 @@ def test_runs_on_shipped_scenario(tmp_path, name, ego, controller):
     assert len(steps) > 10
     dt = summary.data["step_length"]
     assert dt == pytest.approx(steps.time.diff().dropna().median())  # their own step length (0.1 or 0.2 s)
-    # SUMO reports the commanded speed while the ego is on a lane (at a few edge changes it
-    # re-derives it from the moved distance: millimetres per second off); off every lane (a tight
-    # turn cut by the smoothed path) it reports the previous step's speed
+    # the ego's speed is the commanded one; SUMO reports it too while the ego is on a lane (at a
+    # few edge changes it re-derives it from the moved distance: millimetres per second off); off
+    # every lane (a tight turn cut by the smoothed path) it reports the previous step's speed
+    assert (steps.speed == steps.speed_cmd).all()
     on_lane = steps.lane != ""
     assert (~on_lane).mean() < 0.05
-    assert (steps.speed - steps.speed_cmd)[on_lane].abs().max() < 0.05
+    assert (steps.speed_sumo - steps.speed_cmd)[on_lane].abs().max() < 0.05
     assert steps.accel.abs().max() <= 8.0 + 1e-6  # no teleports: within the ego's braking limit
     if ego is not None:
         assert summary.data["ego_id"] == ego

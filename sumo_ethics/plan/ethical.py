@@ -248,15 +248,17 @@ class EthicalPlanner:
         route = scene.route
         i = route.vertex_at(scene.s)
         v_limit = min(float(route.speed_limit[i]), veh.max_speed)
-        state = FrenetState(s=scene.s, d=scene.d, s_dot=float(scene.ego.speed[0]), s_ddot=self._accel,
-                            d_dot=self._lateral[0], d_ddot=self._lateral[1])
+        v = float(scene.ego.speed[0])
+        # the sampled candidates start at the ego's speed v (not at s_dot = v: see at_speed)
+        state = FrenetState.at_speed(route.path, scene.s, scene.d, v, s_ddot=self._accel, d_dot=self._lateral[0],
+                                     d_ddot=self._lateral[1])
         cand = sample(route.path, state, sc, v_max=v_limit, left=route.left, right=route.right,
                       margin=ego_width / 2.0)
-        brakes = brake_candidates(route.path, state, cand.x.shape[1], sc.dt,
+        brakes = brake_candidates(route.path, replace(state, s_dot=v), cand.x.shape[1], sc.dt,  # their speed is v - b t
                                   np.array([veh.comfort_decel, 0.5 * (veh.comfort_decel + veh.max_decel), veh.max_decel]))
         cand = concat(cand, brakes)
         # an ego above the limit (e.g. at takeover) must be allowed to slow down to it
-        feas = check(cand, route, veh, speed_limit_factor=max(1.0, (state.s_dot + 0.01) / max(v_limit, 0.1)))
+        feas = check(cand, route, veh, speed_limit_factor=max(1.0, (v + 0.01) / max(v_limit, 0.1)))
         w2 = time.perf_counter()
         # only physically feasible candidates can be chosen: risk and cost are for those alone
         keep = np.flatnonzero(feas.feasible)

@@ -34,9 +34,10 @@ STEPS_BASE = pa.schema([
     ("time", pa.float64()),        # s
     ("x", pa.float64()), ("y", pa.float64()),  # m, ego centre as SUMO placed it
     ("yaw", pa.float64()),         # rad
-    ("speed", pa.float64()),       # m/s, as SUMO reports it
+    ("speed", pa.float64()),       # m/s, the ego's speed the run uses: the commanded one (sim.world.SumoWorld.read)
     ("speed_cmd", pa.float64()),   # m/s, as commanded
-    ("accel", pa.float64()),       # m/s^2, from reported speeds
+    ("speed_sumo", pa.float64()),  # m/s, as SUMO reports it (0 at some junction entries of a moved ego)
+    ("accel", pa.float64()),       # m/s^2, change of ``speed`` over the step
     ("s", pa.float64()),           # m, arc length along the route
     ("d", pa.float64()),           # m, lateral offset from the route's lane centre (left +)
     ("lane", pa.string()),         # SUMO lane id ("" when off the network)

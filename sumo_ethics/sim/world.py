@@ -47,12 +47,15 @@ class TypeInfo:
 @dataclass(frozen=True)
 class Snapshot:
     """The scene at one instant: ego (1 agent) and neighbours within the sensing radius;
-    collisions: SUMO's collision reports of the step that led here (see :func:`sumo_collisions`)."""
+    collisions: SUMO's collision reports of the step that led here (see :func:`sumo_collisions`);
+    sumo_speed: the ego's speed as SUMO reports it [m/s] (``ego.speed`` is the commanded one
+    after a commanded step, see :meth:`SumoWorld.read`)."""
 
     time: float
     ego: AgentStates
     others: AgentStates
     collisions: tuple[tuple[str, str, str, str, float, float, str, str], ...] = ()
+    sumo_speed: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -79,6 +82,10 @@ class SumoWorld:
         #: lane -> the ego's route lanes it crosses without a junction (a bridge in a flat network)
         self._crossing: dict[str, frozenset[str]] = {}
         self._crossing_box = np.zeros(4)  # x0, y0, x1, y1 around those lanes
+        #: speed [m/s] the ego was placed with in the step just taken (None: SUMO drove it)
+        self._commanded: float | None = None
+        self._speed = 0.0  # the ego's speed at the last read [m/s]
+        self._dt = 0.0  # the step length [s]
 
     # ---- types -------------------------------------------------------------------------
     def type_info(self, type_id: str, person: bool = False) -> TypeInfo:
@@ -108,6 +115,7 @@ class SumoWorld:
             pts = np.concatenate([np.asarray(libsumo.lane.getShape(k))[:, :2] for k in self._crossing])
             self._crossing_box = np.r_[pts.min(axis=0) - 5.0, pts.max(axis=0) + 5.0]
         self.ego_length = v.getLength(ego)
+        self._dt = libsumo.simulation.getDeltaT()
         speed = v.getSpeed(ego)
         v.setSpeedMode(ego, 32)  # no safety checks: the controller decides
         v.setLaneChangeMode(ego, 0)
@@ -119,17 +127,34 @@ class SumoWorld:
 
     # ---- reading -----------------------------------------------------------------------
     def read(self) -> Snapshot | None:
-        """The scene now; None once the ego is no longer in the simulation."""
+        """The scene now; None once the ego is no longer in the simulation.
+
+        After a commanded step the ego's speed is the commanded one (the speed the planner placed
+        it with; its acceleration the change from the last read over the step), not SUMO's:
+        SUMO re-derives a moved vehicle's speed from the route distance, and where the move
+        crosses onto a lane its lane has no link to (a junction lane reached from the
+        neighbouring lane) it reports 0 m/s for a moving ego (A10KW, t = 362.6 s: -43.7 m/s^2,
+        and the planner then started from a standstill). SUMO's own value is kept in
+        ``Snapshot.sumo_speed``.
+        """
         res = libsumo.vehicle.getContextSubscriptionResults(self.ego_id)
         if self.ego_id not in res:
             res = self._read_off_network()
             if res is None:
                 return None
         ego, others = self._states([self.ego_id] + sorted(k for k in res if k != self.ego_id), res)
-        return Snapshot(libsumo.simulation.getTime(), ego, others, tuple(sumo_collisions()))
+        sumo_speed = float(ego.speed[0])
+        if self._commanded is not None:
+            speed = self._commanded
+            ego = AgentStates.trusted(ego.ids, ego.x, ego.y, ego.yaw, np.array([speed]),
+                                      np.array([(speed - self._speed) / self._dt]), ego.length, ego.width, ego.mass,
+                                      ego.cls, ego.type_id)
+        self._speed = float(ego.speed[0])
+        return Snapshot(libsumo.simulation.getTime(), ego, others, tuple(sumo_collisions()), sumo_speed)
 
     def step(self, cmd: EgoCommand | None = None) -> None:
         """Apply ``cmd`` (if any) and advance SUMO one step (then :meth:`read` the scene)."""
+        self._commanded = None
         if cmd is not None:
             self.apply(cmd)
         libsumo.simulationStep()
@@ -226,8 +251,10 @@ class SumoWorld:
         v.setSpeed(self.ego_id, speed)
         # matched onto its route, SUMO derives the speed from the route distance moved, and reported
         # 0 m/s for one step where an ego 2.4 m off its lane entered a junction (tools/game/cross):
-        # the planner then started from a standstill (-21 m/s^2). Tell SUMO the speed as well.
+        # the planner then started from a standstill (-21 m/s^2). Tell SUMO the speed as well (the
+        # other drivers see it in the next step); :meth:`read` returns it whatever SUMO reports.
         v.setPreviousSpeed(self.ego_id, speed)
+        self._commanded = speed
 
 
 def crossings_without_junction(route_edges) -> dict[str, frozenset[str]]:
