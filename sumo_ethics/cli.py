@@ -155,20 +155,37 @@ def explain(run_dir: Path, step: int | None, at_time: float | None, collision: i
 
 
 @cli.command()
-@click.argument("scenarios", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("scenarios", nargs=-1, type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Dataset folder.")
 @click.option("--seeds", default="1-7", show_default=True, help="Run seeds, e.g. 1-7 or 1,4,9 (split by seed).")
 @click.option("--sim-seconds", type=float, default=600.0, show_default=True, help="Simulated time per run [s].")
 @click.option("--workers", type=int, default=1, show_default=True, help="Parallel SUMO processes.")
 @click.option("--suite", "suite_dirs", multiple=True, type=click.Path(exists=True, file_okay=False, path_type=Path),
               help="A suite scenario folder to record with its hazards (repeat; split by scenario).")
+@click.option("--samples-from", type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="Derive the samples again from this dataset's recorded trajectories into --out, without "
+                   "simulating (after a change of the sample layout, e.g. for datasets older than nbr_yaw).")
 def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: float, workers: int,
-            suite_dirs: tuple[Path, ...]) -> None:
+            suite_dirs: tuple[Path, ...], samples_from: Path | None) -> None:
     """Record trajectories of vehicles, cyclists and pedestrians (with their lanes and signals) from SUMO runs
     into a prediction dataset."""
     from sumo_ethics.predict import dataset_main
     from sumo_ethics.sweep import parse_seeds
 
+    if samples_from is not None:
+        from sumo_ethics.predict.dataset import rebuild_samples
+
+        if scenarios or suite_dirs:
+            raise click.BadParameter("--samples-from takes no scenarios or --suite: it simulates nothing")
+        missing = [f for f in ("trajectories.parquet", "lane_graphs.pkl", "split.json") if not (samples_from / f).is_file()]
+        if missing:
+            raise click.BadParameter(f"{samples_from} has no {', '.join(missing)}: not a dataset folder")
+        if out.exists() and out.resolve() == samples_from.resolve():
+            raise click.BadParameter("--out must be a new folder, not the --samples-from dataset")
+        click.echo(f"dataset written to {rebuild_samples(samples_from, out)}")
+        return
+    if not scenarios and not suite_dirs:
+        raise click.BadParameter("give scenarios (.sumocfg), --suite folders or --samples-from")
     if not sim_seconds > 0 or workers < 1:
         raise click.BadParameter("--sim-seconds must be positive and --workers at least 1")
     path = dataset_main(scenarios, out, seeds=parse_seeds(seeds), sim_seconds=sim_seconds, workers=workers,
@@ -207,8 +224,6 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
         raise click.BadParameter("--max-minutes must be positive")
     if hazard_repeat < 1:
         raise click.BadParameter("--hazard-repeat must be at least 1")
-    if nbr_frame is None:
-        nbr_frame = "agent" if model.startswith("map") else "target"
     result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed,
                         hazard_repeat=hazard_repeat, nbr_frame=nbr_frame)
     click.echo(f"weights written to {out}: {result}")

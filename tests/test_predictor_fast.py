@@ -140,3 +140,62 @@ def test_agent_frame_model_needs_neighbour_yaw_and_keeps_its_frame_on_disk(tmp_p
     loaded, header = load_model(save_model(m, tmp_path / "m.pt"), kind="map_cslstm")
     assert loaded.nbr_frame == "agent" and header["config"]["nbr_frame"] == "agent"
     assert not hasattr(loaded, "att_proj")  # the CS-LSTM counterpart has no attention
+
+
+def _random_scene(seed: int, n: int = 20) -> Observation:
+    """n road users of every class within 25 m, random headings, curved 3 s histories (turn
+    rates up to 0.3 rad/s), and an ego heading somewhere else."""
+    rng = np.random.default_rng(seed)
+    yaw = rng.uniform(-np.pi, np.pi, n)
+    rate = rng.uniform(-0.3, 0.3, n)
+    cls = rng.choice([0, 1, 3, 4, 5], n).astype(np.int8)  # car, truck, motorcycle, bicycle, pedestrian
+    speed = np.where(cls == 5, rng.uniform(0.5, 2.0, n), rng.uniform(0.0, 14.0, n))
+    xy = rng.uniform(-25.0, 25.0, (n, 2))
+    t = (np.arange(31) - 30) * 0.1
+    heading = yaw[:, None] + rate[:, None] * t  # heading along the history, yaw now
+    step = np.stack([np.cos(heading), np.sin(heading)], -1) * speed[:, None, None] * 0.1
+    back = np.cumsum(step[:, ::-1], axis=1)[:, ::-1] - step  # position now minus position then
+    hist = xy[:, None, :] - back
+    z = np.zeros(n)
+    cur = AgentStates(tuple(f"a{i}" for i in range(n)), xy[:, 0], xy[:, 1], yaw, speed, z, z + 4.0, z + 1.8, z + 1500,
+                      cls)
+    ego = AgentStates(("ego",), np.array([3.0]), np.array([-2.0]), np.array([2.2]), np.array([8.0]), np.zeros(1),
+                      np.array([4.5]), np.array([1.8]), np.array([1500.0]), np.array([0], dtype=np.int8))
+    return Observation(time=0.0, dt=0.1, history=hist, valid=np.ones((n, 31), dtype=bool), current=cur, ego=ego)
+
+
+@pytest.mark.parametrize("kind", ["map", "map_cslstm"])
+def test_scene_path_equals_the_training_path_with_any_headings(kind):
+    """Random headings and curved histories of cars, trucks, motorcycles, bicycles and
+    pedestrians (so every neighbour has a yaw of its own in its target's frame): the two paths
+    still agree."""
+    m = _model(kind, seed=1)
+    for seed in range(3):
+        obs = _random_scene(seed)
+        feats = F.build_features(np.concatenate([F.resample_history(obs.history, obs.valid, obs.dt)[0],
+                                                 straight_history(obs.ego.xy, obs.ego.yaw, obs.ego.speed)]),
+                                 np.r_[obs.current.cls, obs.ego.cls], np.r_[obs.current.yaw, obs.ego.yaw],
+                                 targets=np.arange(len(obs.current)))
+        assert len(feats["nbr_yaw"]) > 20 and np.abs(feats["nbr_yaw"]).max() > 1.0
+
+        def no_map(ids, person):
+            return None, F.MapContext.empty(len(ids))
+
+        fast, _ = LSTMPredictor(m, {"kind": kind}, map_source=no_map).model_outputs(obs)
+        assert np.abs(fast - _training_path_means(m, obs, no_map)).max() < 1e-4
+
+
+def test_training_an_agent_frame_model_on_an_old_dataset_is_refused_in_one_line(tmp_path):
+    """A dataset built before nbr_yaw: `train --model map` says how to derive its samples again."""
+    import subprocess
+
+    old = tmp_path / "old"
+    old.mkdir()
+    np.savez(old / "samples.npz", split=np.array([0, 1], dtype=np.int8), nbr_ptr=np.array([0, 0, 0]))
+    (old / "split.json").write_text("{}")
+    p = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "train", str(old), "--model", "map", "--out",
+                        str(tmp_path / "m.pt")], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert p.returncode == 2
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and "has no nbr_yaw" in lines[0] and "--samples-from" in lines[0]
+    assert not (tmp_path / "m.pt").exists()

@@ -1,6 +1,7 @@
 """Median latency of one LSTMPredictor.predict call: 32 agents, 3 s history at 0.1 s, one core.
 
-    python tools/bench_predictor.py [--kind map|attention|cslstm] [--weights PATH] [--agents 32] [--repeats 200]
+    python tools/bench_predictor.py [--kind map|map_cslstm|attention|cslstm] [--weights PATH] [--agents 32] [--repeats 200]
+    python tools/bench_predictor.py --compare map attention old=/path/old_map.pt   # interleaved
 
 For the map-aware model (the default) the call includes building every agent's map features
 from a synthetic lane graph: a 4-lane road (lanes r_0..r_3, 600 m) whose lanes each branch into
@@ -64,31 +65,44 @@ def lane_source(obs):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--kind", default="map")
-    ap.add_argument("--weights", default=None)
+    ap.add_argument("--kind", default="map", help="a shipped model (map, map_cslstm, attention, cslstm)")
+    ap.add_argument("--weights", default=None, help="a weights file instead of the shipped one")
+    ap.add_argument("--compare", nargs="+", metavar="NAME=FILE|KIND",
+                    help="several models, timed in turn (round robin) so machine load hits them alike")
     ap.add_argument("--agents", type=int, default=32)
     ap.add_argument("--repeats", type=int, default=200)
     ap.add_argument("--horizon", type=int, default=20, help="output steps at 0.1 s")
     args = ap.parse_args()
     torch.set_num_threads(1)
+    from sumo_ethics.predict.models import MAP_KINDS
     from sumo_ethics.predict.predictor import LSTMPredictor
 
     obs = make_observation(args.agents)
-    source = lane_source(obs) if args.kind.startswith("map") else None
-    pred = (LSTMPredictor.from_file(args.weights, kind=args.kind, map_source=source) if args.weights
-            else LSTMPredictor.default(args.kind, map_source=source))
-    for _ in range(10):
-        pred.predict(obs, args.horizon, 0.1)
-    times, cpu = [], []
+    specs = args.compare or [f"{args.kind}={args.weights}" if args.weights else args.kind]
+    preds = {}
+    for spec in specs:
+        name, _, path = spec.partition("=")
+        pred = LSTMPredictor.from_file(path) if path else LSTMPredictor.default(name)
+        pred.map_source = lane_source(obs) if pred.kind in MAP_KINDS else None
+        pred.uses_map = pred.kind in MAP_KINDS
+        preds[name] = pred
+    for pred in preds.values():
+        for _ in range(10):
+            pred.predict(obs, args.horizon, 0.1)
+    wall = {k: [] for k in preds}
+    cpu = {k: [] for k in preds}
     for _ in range(args.repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        pred.predict(obs, args.horizon, 0.1)
-        times.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    ms, cms = np.array(times) * 1e3, np.array(cpu) * 1e3
-    print(f"{pred.kind}: {args.agents} agents, median {np.median(ms):.2f} ms wall (p90 {np.percentile(ms, 90):.2f}), "
-          f"median {np.median(cms):.2f} ms CPU, over {args.repeats} runs (torch threads {torch.get_num_threads()}; "
-          f"wall time is inflated when other processes share the core)")
+        for name, pred in preds.items():
+            t0, c0 = time.perf_counter(), time.process_time()
+            pred.predict(obs, args.horizon, 0.1)
+            wall[name].append(time.perf_counter() - t0)
+            cpu[name].append(time.process_time() - c0)
+    for name, pred in preds.items():
+        ms, cms = np.array(wall[name]) * 1e3, np.array(cpu[name]) * 1e3
+        frame = getattr(pred.model, "nbr_frame", "target")
+        print(f"{name} ({pred.kind}, neighbours encoded per {frame}): {args.agents} agents, median {np.median(ms):.2f} ms "
+              f"wall (p90 {np.percentile(ms, 90):.2f}), median {np.median(cms):.2f} ms CPU, over {args.repeats} runs")
+    print(f"(torch threads {torch.get_num_threads()}; wall time is inflated when other processes share the core)")
 
 
 if __name__ == "__main__":

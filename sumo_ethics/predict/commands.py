@@ -44,7 +44,7 @@ def train_main(
     threads: int = 1,
     progress: bool = True,
     hazard_repeat: int = 1,
-    nbr_frame: str = "target",
+    nbr_frame: str | None = None,
 ) -> dict:
     """Train ``model`` ("map", "map_cslstm", "attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
 

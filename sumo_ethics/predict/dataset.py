@@ -432,6 +432,8 @@ def rebuild_samples(src: Path, out: Path, anchor_every: float = 2.0, suite_ancho
     for name in ("trajectories.parquet", "lane_graphs.pkl"):
         shutil.copyfile(src / name, out / name)
     meta["n_samples"] = {name: int((samples["split"] == i).sum()) for i, name in enumerate(("train", "val", "test"))}
+    meta["anchor_every"] = meta.get("anchor_every", anchor_every)
+    meta["suite_anchor_every"] = meta.get("suite_anchor_every", suite_anchor_every)
     (out / "split.json").write_text(json.dumps(meta, indent=2))
     return out
 

@@ -148,6 +148,11 @@ def evaluate(
     outputs = {"constant_velocity": cv_outputs(batch), "constant_velocity_calibrated": cv_outputs(batch, cv_cal)}
     for name, path in weights.items():
         model, _ = load_model(Path(path))
+        if getattr(model, "nbr_frame", "target") == "agent" and "nbr_yaw" not in batch:
+            from sumo_ethics.predict import PredictorError
+
+            raise PredictorError(f"{name} ({path}) needs the samples' nbr_yaw, which dataset {dataset} lacks (built "
+                                 f"before it): 'sumo-ethics dataset --samples-from {dataset} --out NEW'")
         outputs[name] = lstm_outputs(model, batch)
     fut = batch["fut"].astype(float)
     valid = batch["fut_valid"] if "fut_valid" in batch else np.ones(fut.shape[:2], dtype=bool)

@@ -83,6 +83,11 @@ ATTENTION_KINDS = ("attention", "map")
 #: how neighbour histories are encoded: "target" = in each target's frame (once per target and
 #: neighbour pair, as CS-LSTM), "agent" = once per agent in its own frame, placed by its pose
 NBR_FRAMES = ("target", "agent")
+
+
+def default_nbr_frame(kind: str) -> str:
+    """The neighbour encoding a new model of ``kind`` gets: "agent" for the map kinds, else "target"."""
+    return "agent" if kind in MAP_KINDS else "target"
 FILE_FORMAT = "sumo-ethics-predictor"
 FILE_FORMAT_VERSION = 1
 

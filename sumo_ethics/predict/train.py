@@ -24,6 +24,7 @@ from sumo_ethics.predict.models import (
     batch_to_tensors,
     bivariate_nll,
     MAP_KINDS,
+    default_nbr_frame,
     masked_mse,
     save_model,
 )
@@ -43,7 +44,7 @@ class TrainConfig:
     max_train/max_val: caps on sample counts (random subset); hazard_repeat: each training
     sample of a hazard actor (manoeuvre "hazard") is used this many times per epoch (they are
     rare and the planner's risk depends on them most); nbr_frame: the model's neighbour
-    encoding (models.NBR_FRAMES)."""
+    encoding (models.NBR_FRAMES; None: "agent" for the map kinds, "target" for cslstm/attention)."""
 
     epochs: int = 40
     mse_epochs: int = 4
@@ -60,7 +61,7 @@ class TrainConfig:
     max_train: int | None = None
     max_val: int | None = 8000
     hazard_repeat: int = 1
-    nbr_frame: str = "target"
+    nbr_frame: str | None = None
 
 
 def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -117,6 +118,12 @@ def train_model(
     torch.use_deterministic_algorithms(True)
     rng = np.random.default_rng(config.seed)
     samples = load_samples(dataset)
+    nbr_frame = config.nbr_frame or default_nbr_frame(kind)
+    if nbr_frame == "agent" and "nbr_yaw" not in samples:
+        from sumo_ethics.predict import PredictorError
+
+        raise PredictorError(f"dataset {dataset} has no nbr_yaw (built before it): derive its samples again with "
+                             f"'sumo-ethics dataset --samples-from {dataset} --out NEW'")
     train_idx = _split_index(samples, "train", config.max_train, rng)
     if config.hazard_repeat > 1 and "manoeuvre" in samples:
         hz = train_idx[samples["manoeuvre"][train_idx] == 4]
@@ -124,7 +131,7 @@ def train_model(
     val_idx = _split_index(samples, "val", config.max_val, rng)
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise ValueError(f"dataset {dataset} has no train or no validation samples")
-    model = TrajectoryLSTM(kind=kind, nbr_frame=config.nbr_frame)
+    model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     n_batches = math.ceil(len(train_idx) / config.batch_size)
     best, best_state, best_epoch, bad = math.inf, None, -1, 0
