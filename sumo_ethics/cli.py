@@ -65,8 +65,9 @@ def cli() -> None:
               help="Selection rule (default cost: the ethical cost decides unavoidable harms; validity: Origin's).")
 @click.option("--utility", type=click.Choice(["candidate_mean", "literal"]),
               help="Reading of J_mean in J_utility (default candidate_mean).")
-@click.option("--predictor", type=click.Choice(["map", "map_cslstm", "attention", "cslstm", "cv"]),
-              help="Neighbour prediction (default map: the attention LSTM reading lanes and signals too).")
+@click.option("--predictor", type=click.Choice(["map_cslstm", "map", "attention", "cslstm", "cv"]),
+              help="Neighbour prediction (default map_cslstm: the CS-LSTM reading lanes and signals too; map: "
+                   "the same with the paper's attention).")
 @click.option("--predictor-weights", type=click.Path(path_type=Path),
               help="Weights file for the LSTM predictor (default: the one shipped in the package).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")
@@ -206,15 +207,16 @@ def _dataset_folder(path: Path) -> Path:
 
 @cli.command()
 @click.argument("dataset_dir", metavar="DATASET", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--model", type=click.Choice(["map", "map_cslstm", "attention", "cslstm"]), default="map", show_default=True)
+@click.option("--model", type=click.Choice(["map_cslstm", "map", "attention", "cslstm"]), default="map_cslstm",
+              show_default=True)
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Weights file to write (.pt).")
 @click.option("--max-minutes", type=float, default=14.0, show_default=True, help="CPU-time budget [min].")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--hazard-repeat", type=int, default=1, show_default=True,
               help="Use each hazard actor's training sample this many times per epoch.")
 @click.option("--nbr-frame", type=click.Choice(["agent", "target"]), default=None,
-              help="Neighbour encoding: once per agent in its own frame (default of the map models) or per "
-                   "target in the target's frame (default of cslstm/attention, as CS-LSTM).")
+              help="Neighbour encoding: once per agent in its own frame (default of map_cslstm) or per target "
+                   "in the target's frame (default of the others, as CS-LSTM).")
 def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
           nbr_frame: str | None) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation)."""

@@ -183,8 +183,8 @@ def _observation(n: int = 5) -> Observation:
 
 def test_default_shipped_model_loads_and_predicts():
     p = LSTMPredictor.default()
-    assert p.kind == "map" and p.uses_map
-    assert default_weights("map").stat().st_size < 5e6
+    assert p.kind == "map_cslstm" and p.uses_map and p.model.nbr_frame == "agent"
+    assert default_weights("map_cslstm").stat().st_size < 5e6 and default_weights("map").stat().st_size < 5e6
     obs = _observation()
     pred = p.predict(obs, 40, 0.1)  # no map source: histories only
     assert pred.mean.shape == (5, 40, 2) and pred.cov.shape == (5, 40, 2, 2)
@@ -256,5 +256,5 @@ def test_runs_with_the_default_map_predictor_are_byte_identical_for_one_seed(tmp
                            cwd=ROOT, timeout=300)
         assert p.returncode == 0, p.stderr
         outs.append(out)
-    assert '"predictor": "map"' in (outs[0] / "config.json").read_text()
+    assert '"predictor": "map_cslstm"' in (outs[0] / "config.json").read_text()
     assert (outs[0] / "steps.parquet").read_bytes() == (outs[1] / "steps.parquet").read_bytes()

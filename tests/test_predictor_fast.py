@@ -186,14 +186,14 @@ def test_scene_path_equals_the_training_path_with_any_headings(kind):
 
 
 def test_training_an_agent_frame_model_on_an_old_dataset_is_refused_in_one_line(tmp_path):
-    """A dataset built before nbr_yaw: `train --model map` says how to derive its samples again."""
+    """A dataset built before nbr_yaw: `train --model map_cslstm` says how to derive its samples again."""
     import subprocess
 
     old = tmp_path / "old"
     old.mkdir()
     np.savez(old / "samples.npz", split=np.array([0, 1], dtype=np.int8), nbr_ptr=np.array([0, 0, 0]))
     (old / "split.json").write_text("{}")
-    p = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "train", str(old), "--model", "map", "--out",
+    p = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "train", str(old), "--model", "map_cslstm", "--out",
                         str(tmp_path / "m.pt")], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert p.returncode == 2
     lines = p.stderr.strip().splitlines()

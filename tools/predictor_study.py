@@ -4,7 +4,8 @@ scenarios that no predictor was trained or evaluated on.
     python tools/predictor_study.py [--first 140] [--count 20] [--workers 1] [--out runs/predictor_study] [--resume]
 
 Planners (the paper's planner, only the predictor or the priors changed): cv, cslstm,
-attention, map_cslstm (map without attention), map (the default), map_nopriors (map with braking_prior = lateral_prior = 0).
+attention, map (attention + lanes), map_cslstm (CS-LSTM + lanes, the default) and
+map_cslstm_nopriors (map_cslstm with braking_prior = lateral_prior = 0).
 Scenarios s<first>..s<first+count-1> of scenarios/suite (tools/train_shipped.py trains on
 s0000-s0099 and evaluates prediction on s0100-s0139). Writes the suite's table1.md,
 paired.csv and results.csv to --out.
@@ -23,9 +24,9 @@ PLANNERS = (
     "cv=predictor=cv",
     "cslstm=predictor=cslstm",
     "attention=predictor=attention",
-    "map_cslstm=predictor=map_cslstm",
     "map=predictor=map",
-    "map_nopriors=predictor=map;braking_prior=0;lateral_prior=0",
+    "map_cslstm=predictor=map_cslstm",
+    "map_cslstm_nopriors=predictor=map_cslstm;braking_prior=0;lateral_prior=0",
 )
 
 
@@ -51,8 +52,8 @@ def main() -> None:
     meta = {"suite": f"scenarios/suite {names[0]}-{names[-1]}" if names else str(suite), "scenarios": len(names),
             "scenario_names": names, "workers": args.workers,
             "wall_s": time.perf_counter() - t0, "planners": {p.name: p.describe() for p in planners},
-            "reference": "map"}
-    write_outputs(rows, planners, out, "map", meta)
+            "reference": "map_cslstm"}
+    write_outputs(rows, planners, out, "map_cslstm", meta)
     print((out / "table1.md").read_text())
     print(json.dumps({"wall_s": round(meta["wall_s"], 1), "scenarios": len(specs)}))
 

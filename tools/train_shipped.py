@@ -36,8 +36,9 @@ SEEDS = tuple(range(1, 8))
 SUITE_TRAIN = 100  # suite scenarios s0000..s0099 go into the dataset; s0100.. stay held out
 SUITE_HELDOUT = 40  # s0100..s0139 are the held-out suite scenarios of the evaluation
 GAME = ("cross", "square", "grid6", "corridor", "fkk_in", "ramp")  # eclipse-sumo tools/game configs
-#: per-model train_main options (others: defaults); the map models encode every agent once in its own frame
-TRAIN = {"map": {"hazard_repeat": 4, "nbr_frame": "agent"}, "map_cslstm": {"hazard_repeat": 4, "nbr_frame": "agent"}}
+#: per-model train_main options (others: defaults); map_cslstm (the default) encodes every agent once in its
+#: own frame, map (attention) per target as CS-LSTM
+TRAIN = {"map": {"hazard_repeat": 4, "nbr_frame": "target"}, "map_cslstm": {"hazard_repeat": 4, "nbr_frame": "agent"}}
 
 
 def main() -> None:
@@ -50,7 +51,8 @@ def main() -> None:
     ap.add_argument("--out-dir", default=str(WEIGHTS), help="where weights and the evaluation go")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--model", default=None, help="(internal) train only this model")
-    ap.add_argument("--models", default="map", help="comma-separated models to train (map, attention, cslstm)")
+    ap.add_argument("--models", default="map_cslstm,map",
+                    help="comma-separated models to train (map_cslstm, map, attention, cslstm)")
     ap.add_argument("--no-suite", action="store_true", help="dataset without the suite's hazard runs")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")

@@ -50,7 +50,7 @@ the counterpart of "map" in the attention ablation.
 
 Neighbour encoding (``nbr_frame``). "target" (cslstm, attention, the first map model): each
 neighbour's history is encoded in its target's frame, once per (target, neighbour) pair, as
-CS-LSTM does; a 32-agent scene had 271 pairs. "agent" (the shipped map models): every agent's
+CS-LSTM does; a 32-agent scene had 271 pairs. "agent" (the shipped map_cslstm): every agent's
 history is encoded once in its own frame (origin now, +x its heading, normalised by its own
 class scale) and placed into a target's grid with its pose there, ``act(H + W_pose [x, y,
 cos dyaw, sin dyaw])`` (x, y by the target's scale). Training still feeds per-pair rows and
@@ -86,8 +86,10 @@ NBR_FRAMES = ("target", "agent")
 
 
 def default_nbr_frame(kind: str) -> str:
-    """The neighbour encoding a new model of ``kind`` gets: "agent" for the map kinds, else "target"."""
-    return "agent" if kind in MAP_KINDS else "target"
+    """The neighbour encoding a new model of ``kind`` gets: that of its shipped file ("agent" for
+    map_cslstm, "target" for the others; an agent-frame "map" trained with the same recipe was
+    worse, see README "Trajectory prediction")."""
+    return "agent" if kind == "map_cslstm" else "target"
 FILE_FORMAT = "sumo-ethics-predictor"
 FILE_FORMAT_VERSION = 1
 
