@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -28,10 +29,21 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys):
     weights = tmp_path / "w.pt"
     assert main(["train", str(data), "--model", "cslstm", "--out", str(weights), "--max-minutes", "0.05"]) == 0
     assert LSTMPredictor.from_file(weights, kind="cslstm").kind == "cslstm"
+    # the default model encodes every agent in its own frame: trains on the samples' nbr_yaw
+    weights = tmp_path / "mc.pt"
+    assert main(["train", str(data), "--out", str(weights), "--max-minutes", "0.05"]) == 0
+    assert LSTMPredictor.from_file(weights, kind="map_cslstm").model.nbr_frame == "agent"
     assert main(["evaluate-predictor", str(data), "--out", str(tmp_path / "eval")]) == 0
     table = pd.read_csv(tmp_path / "eval" / "prediction_eval.csv")
-    assert {"constant_velocity", "cslstm", "attention"} <= set(table["model"])
+    assert {"constant_velocity", "cslstm", "attention", "map", "map_cslstm"} <= set(table["model"])
     assert {"ade", "fde", "nll", "rmse_1s", "rmse_4s"} <= set(table.columns)
+    assert {"vehicle:standing", "vehicle:moving"} <= set(table["group"])
+    # samples derived again from the recorded trajectories, without simulating: the same arrays
+    assert main(["dataset", "--samples-from", str(data), "--out", str(tmp_path / "data2")]) == 0
+    with np.load(data / "samples.npz") as a, np.load(tmp_path / "data2" / "samples.npz") as b:
+        assert sorted(a.files) == sorted(b.files) and all(np.array_equal(a[k], b[k]) for k in a.files)
+    assert main(["dataset", "--samples-from", str(data), "--out", str(data)]) == 2
+    assert "must be a new folder" in capsys.readouterr().err
 
 
 def test_train_rejects_a_folder_that_is_no_dataset(tmp_path, capsys):

@@ -198,12 +198,12 @@ def improvement_summary(df: pd.DataFrame) -> str:
     for g in piv.index:
         r = piv.loc[g]
         parts = []
-        for m in ("map", "map_cslstm", "attention"):
-            if m in r and "constant_velocity" in r:
-                parts.append(f"{m} {100 * (1 - r[m] / r['constant_velocity']):+.1f}% vs constant velocity")
-        for m, ref, label in (("attention", "cslstm", "CS-LSTM"), ("map", "map_cslstm", "map_cslstm"),
-                              ("map", "attention", "attention"), ("map_cslstm", "cslstm", "CS-LSTM")):
-            if m in r and ref in r:
+        pairs = [(m, "constant_velocity", "constant velocity") for m in ("map", "map_cslstm", "attention")]
+        pairs += [("attention", "cslstm", "CS-LSTM"), ("map", "map_cslstm", "map_cslstm"),
+                  ("map_agent", "map_cslstm", "map_cslstm"), ("map", "attention", "attention"),
+                  ("map_cslstm", "cslstm", "CS-LSTM")]
+        for m, ref, label in pairs:
+            if m in r and ref in r and r[ref] > 0:  # a reference of exactly 0 m (all standing) has no ratio
                 parts.append(f"{m} {100 * (1 - r[m] / r[ref]):+.1f}% vs {label}")
         if parts:
             lines.append(f"- {g}: " + ", ".join(parts))
