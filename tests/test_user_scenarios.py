@@ -385,7 +385,7 @@ def test_no_phantom_collision_on_the_a10_motorway_bridge(tmp_path):
 
 
 @pytest.mark.sumo
-def test_detector_outputs_of_additional_files_go_into_the_run_folder(tmp_path, bridge_net):
+def test_detector_outputs_of_additional_files_go_into_the_run_folder(tmp_path, bridge_net, monkeypatch):
     scen = tmp_path / "scenario"
     scen.mkdir()
     (scen / "det.add.xml").write_text('<additional><edgeData id="dump" file="edges.xml" period="1"/>'
@@ -402,6 +402,11 @@ def test_detector_outputs_of_additional_files_go_into_the_run_folder(tmp_path, b
     copy = (out / "sumo-outputs" / "additional-files" / "0_det.add.xml").read_text()  # what SUMO loaded
     assert f'dest="{out / "sumo-outputs" / "tls.xml"}"' in copy
     assert s.data["outputs_not_redirected"] == {}
+    # a run folder given relative to the working directory (SUMO reads a relative output path in
+    # an additional file relative to that file, so the copy must name it absolutely)
+    monkeypatch.chdir(tmp_path)
+    run(RunConfig(cfg, Path("rel") / "run", ego_id="ego", end=BEGIN + 2, progress=False), controller=Scripted(10.0))
+    assert "<edge id=\"road\"" in (tmp_path / "rel" / "run" / "sumo-outputs" / "edges.xml").read_text()
     # a file that also names an input by a relative path is not rewritten: its outputs are listed
     from sumo_ethics.sim.scenario import read_scenario, redirected_additionals
 

@@ -332,7 +332,11 @@ def redirected_additionals(files: ScenarioFiles, folder: Path) -> tuple[str | No
     """Additional files whose detectors or dumps write files (``<edgeData file=...>``, ...):
     each is copied into ``folder`` with those outputs pointed into ``folder``. Returns the new
     ``additional-files`` value (None if nothing changed) and, per file that could not be
-    rewritten safely (it also names input files by relative path), the outputs left as they are."""
+    rewritten safely (it also names input files by relative path), the outputs left as they are.
+    The outputs are written as absolute paths: SUMO reads a relative one in an additional file
+    relative to that file, so ``--out runs/a`` once gave runs/a/sumo-outputs/additional-files/runs/a/...
+    (eclipse-sumo's A10KW could not start)."""
+    folder = Path(folder).resolve()
     paths: list[str] = []
     left: dict[str, list[str]] = {}
     changed = False
