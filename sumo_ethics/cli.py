@@ -158,7 +158,8 @@ def explain(run_dir: Path, step: int | None, at_time: float | None, collision: i
 @cli.command()
 @click.argument("scenarios", nargs=-1, type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Dataset folder.")
-@click.option("--seeds", default="1-7", show_default=True, help="Run seeds, e.g. 1-7 or 1,4,9 (split by seed).")
+@click.option("--seeds", default="1-7", show_default=True,
+              help="Run seeds, e.g. 1-7 or 1,4,9 (split by seed into train/validation/test: at least 3).")
 @click.option("--sim-seconds", type=float, default=600.0, show_default=True, help="Simulated time per run [s].")
 @click.option("--workers", type=int, default=1, show_default=True, help="Parallel SUMO processes.")
 @click.option("--suite", "suite_dirs", multiple=True, type=click.Path(exists=True, file_okay=False, path_type=Path),
@@ -183,10 +184,15 @@ def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: flo
             raise click.BadParameter(f"{samples_from} has no {', '.join(missing)}: not a dataset folder")
         if out.exists() and out.resolve() == samples_from.resolve():
             raise click.BadParameter("--out must be a new folder, not the --samples-from dataset")
+        if out.exists() and any(out.iterdir()):
+            raise click.BadParameter(f"--out {out} is not empty: give a new folder (nothing is overwritten)")
         click.echo(f"dataset written to {rebuild_samples(samples_from, out)}")
         return
     if not scenarios and not suite_dirs:
         raise click.BadParameter("give scenarios (.sumocfg), --suite folders or --samples-from")
+    if scenarios and len(set(parse_seeds(seeds))) < 3:
+        raise click.BadParameter(f"--seeds {seeds}: the split is by seed (train, validation, test), so it needs "
+                                 "at least 3 seeds, e.g. --seeds 1-3")
     if not sim_seconds > 0 or workers < 1:
         raise click.BadParameter("--sim-seconds must be positive and --workers at least 1")
     path = dataset_main(scenarios, out, seeds=parse_seeds(seeds), sim_seconds=sim_seconds, workers=workers,
@@ -228,14 +234,17 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
         raise click.BadParameter("--hazard-repeat must be at least 1")
     result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed,
                         hazard_repeat=hazard_repeat, nbr_frame=nbr_frame)
-    click.echo(f"weights written to {out}: {result}")
+    click.echo(f"weights written to {out}: {result['kind']}, best epoch {result['best_epoch']} "
+               f"(validation NLL {result['best_val_nll']:.3f}), stopped by {result['stopped']} after "
+               f"{result['cpu_minutes']:.1f} CPU-minutes; the training log is {Path(out).with_suffix('.json')}")
 
 
 @cli.command("evaluate-predictor")
 @click.argument("dataset_dir", metavar="DATASET", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(path_type=Path), default=Path("prediction_eval"), show_default=True)
 @click.option("--model", "models", multiple=True, metavar="NAME=FILE",
-              help="A weights file to evaluate under NAME (repeat; default: the shipped map, attention, cslstm).")
+              help="A weights file to evaluate under NAME (repeat; default: the shipped map_cslstm, map, "
+                   "attention and cslstm; constant velocity is always evaluated).")
 @click.option("--split", type=click.Choice(["test", "val", "train", "all"]), default="test", show_default=True,
               help="Samples evaluated: a split of the seeds/scenarios, or all (a dataset never trained on).")
 def evaluate_predictor(dataset_dir: Path, out: Path, models: tuple[str, ...], split: str) -> None:

@@ -49,3 +49,35 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys):
 def test_train_rejects_a_folder_that_is_no_dataset(tmp_path, capsys):
     assert main(["train", str(tmp_path), "--out", str(tmp_path / "w.pt")]) == 2
     assert "is not a prediction dataset" in capsys.readouterr().err
+
+
+def test_dataset_refuses_too_few_seeds_before_touching_disk(tmp_path, capsys):
+    out = tmp_path / "data"
+    assert main(["dataset", str(SCENARIOS / "urban" / "urban.sumocfg"), "--seeds", "1-2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "at least 3 seeds" in err[0]
+    assert not out.exists()
+
+
+def test_samples_from_never_overwrites_a_folder(tmp_path, capsys):
+    src = tmp_path / "old"
+    src.mkdir()
+    for name in ("trajectories.parquet", "lane_graphs.pkl", "split.json"):
+        (src / name).write_text("x")
+    out = tmp_path / "new"
+    out.mkdir()
+    (out / "samples.npz").write_text("keep me")
+    assert main(["dataset", "--samples-from", str(src), "--out", str(out)]) == 2
+    assert "is not empty" in capsys.readouterr().err
+    assert (out / "samples.npz").read_text() == "keep me"
+
+
+def test_weights_file_with_the_constant_velocity_predictor_is_refused(tmp_path, capsys):
+    from sumo_ethics.predict.predictor import default_weights
+
+    out = tmp_path / "run"
+    assert main(["run", str(SCENARIOS / "urban" / "urban.sumocfg"), "--predictor", "cv", "--predictor-weights",
+                 str(default_weights("map")), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'cv' (constant velocity) has none" in err[0]
+    assert not (out / "steps.parquet").exists()

@@ -85,6 +85,9 @@ class PlannerConfig:
                 raise ConfigError(f"{name} must be a cost >= 0, got {value!r}")
         if self.predictor not in PREDICTORS:
             raise ConfigError(f"unknown predictor '{self.predictor}'; known: {', '.join(PREDICTORS)}")
+        if self.predictor == "cv" and self.predictor_weights:
+            raise ConfigError("predictor_weights is a weights file for an LSTM predictor; predictor 'cv' "
+                              "(constant velocity) has none")
         if not (isinstance(self.max_risk, (int, float)) and 0.0 < self.max_risk <= 1.0):
             raise ConfigError(f"max_risk must be in (0, 1], got {self.max_risk!r}")
         if not (isinstance(self.lateral_prior, (int, float)) and 0.0 <= self.lateral_prior < 1e3):
