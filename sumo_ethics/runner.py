@@ -193,6 +193,7 @@ class Run:
         route = world.takeover()
         self.meta.update(step_length=dt, ego_limits=asdict(cfg.ego), route_edges=list(edges), route_length=route.length,
                          takeover_time=session.sim_time(), controller=self.controller.name,
+                         predictor=getattr(self.controller, "predictor_info", None),
                          takeover_wall=wallclock.perf_counter() - self.t_start)
         world.step()  # subscription results arrive with the next step
         snap = world.read()

@@ -257,4 +257,6 @@ def test_runs_with_the_default_map_predictor_are_byte_identical_for_one_seed(tmp
         assert p.returncode == 0, p.stderr
         outs.append(out)
     assert '"predictor": "map_cslstm"' in (outs[0] / "config.json").read_text()
+    used = __import__("json").loads((outs[0] / "summary.json").read_text())["predictor"]
+    assert used["kind"] == "map_cslstm" and used["weights"] == str(default_weights("map_cslstm"))
     assert (outs[0] / "steps.parquet").read_bytes() == (outs[1] / "steps.parquet").read_bytes()

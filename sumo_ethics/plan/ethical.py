@@ -229,6 +229,12 @@ class EthicalPlanner:
         self._sampling: SamplingConfig | None = None
 
     @property
+    def predictor_info(self) -> dict:
+        """What predicted the neighbours (summary.json ``predictor``): kind and weights file."""
+        path = getattr(self.predictor, "path", None)
+        return {"kind": getattr(self.predictor, "kind", self.cfg.predictor), "weights": str(path) if path else None}
+
+    @property
     def needs_rules(self) -> bool:
         """Whether the runner must name the rule breakers (only the responsibility term uses them)."""
         return self.cfg.cost.weights.responsibility > 0.0
