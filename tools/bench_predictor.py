@@ -74,7 +74,6 @@ def main() -> None:
     ap.add_argument("--horizon", type=int, default=20, help="output steps at 0.1 s")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    from sumo_ethics.predict.models import MAP_KINDS
     from sumo_ethics.predict.predictor import LSTMPredictor
 
     obs = make_observation(args.agents)
@@ -83,8 +82,7 @@ def main() -> None:
     for spec in specs:
         name, _, path = spec.partition("=")
         pred = LSTMPredictor.from_file(path) if path else LSTMPredictor.default(name)
-        pred.map_source = lane_source(obs) if pred.kind in MAP_KINDS else None
-        pred.uses_map = pred.kind in MAP_KINDS
+        pred.map_source = lane_source(obs) if pred.uses_map else None
         preds[name] = pred
     for pred in preds.values():
         for _ in range(10):

@@ -100,8 +100,9 @@ def main() -> None:
         logging.info("held-out dataset: %.1f min", (time.time() - t0) / 60)
     if "evaluate" in stages:
         out_dir = Path(args.out_dir)
-        weights = {m: out_dir / f"{m}.pt" for m in ("cslstm", "attention", "map_cslstm", "map")
-                   if (out_dir / f"{m}.pt").is_file()}
+        from sumo_ethics.predict.models import KINDS
+
+        weights = {m: out_dir / f"{m}.pt" for m in KINDS if (out_dir / f"{m}.pt").is_file()}
         df = evaluate_main(work, out_dir, weights=weights)
         print(df.to_string())
         if (heldout / "samples.npz").is_file():

@@ -405,10 +405,25 @@ def build_dataset(
         "model_dt": F.MODEL_DT,
         "hist_steps": F.HIST_STEPS,
         "fut_steps": F.FUT_STEPS,
-        "n_samples": {name: int((samples["split"] == i).sum()) for i, name in enumerate(("train", "val", "test"))},
+        "n_samples": split_counts(samples),
     }
     (out / "split.json").write_text(json.dumps(meta, indent=2))
     return out
+
+
+def split_counts(samples: dict[str, np.ndarray]) -> dict[str, int]:
+    """Number of samples in each split (train, val, test)."""
+    return {name: int((samples["split"] == i).sum()) for i, name in enumerate(("train", "val", "test"))}
+
+
+def require_nbr_yaw(samples: dict[str, np.ndarray], dataset: Path, who: str = "") -> None:
+    """PredictorError unless the samples carry ``nbr_yaw`` (agent-frame models need it;
+    datasets built before it lack it). ``who``: the model asking, for the message."""
+    if "nbr_yaw" not in samples:
+        from sumo_ethics.predict import PredictorError
+
+        raise PredictorError(f"{who + ': ' if who else ''}dataset {dataset} has no nbr_yaw (built before it): derive "
+                             f"its samples again with 'sumo-ethics dataset --samples-from {dataset} --out NEW'")
 
 
 def rebuild_samples(src: Path, out: Path, anchor_every: float = 2.0, suite_anchor_every: float = 0.4) -> Path:
@@ -426,14 +441,14 @@ def rebuild_samples(src: Path, out: Path, anchor_every: float = 2.0, suite_ancho
     traj = pd.read_parquet(src / "trajectories.parquet")
     with open(src / "lane_graphs.pkl", "rb") as fh:
         graphs = pickle.load(fh)
-    samples = build_samples(traj, meta["split"], anchor_every=meta.get("anchor_every", anchor_every), graphs=graphs,
-                            suite_anchor_every=meta.get("suite_anchor_every", suite_anchor_every))
+    meta.setdefault("anchor_every", anchor_every)
+    meta.setdefault("suite_anchor_every", suite_anchor_every)
+    samples = build_samples(traj, meta["split"], anchor_every=meta["anchor_every"], graphs=graphs,
+                            suite_anchor_every=meta["suite_anchor_every"])
     np.savez_compressed(out / "samples.npz", **samples)
     for name in ("trajectories.parquet", "lane_graphs.pkl"):
         shutil.copyfile(src / name, out / name)
-    meta["n_samples"] = {name: int((samples["split"] == i).sum()) for i, name in enumerate(("train", "val", "test"))}
-    meta["anchor_every"] = meta.get("anchor_every", anchor_every)
-    meta["suite_anchor_every"] = meta.get("suite_anchor_every", suite_anchor_every)
+    meta["n_samples"] = split_counts(samples)
     (out / "split.json").write_text(json.dumps(meta, indent=2))
     return out
 

@@ -16,7 +16,7 @@ import pandas as pd
 
 from sumo_ethics.predict import features as F
 from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor
-from sumo_ethics.predict.dataset import load_samples, subset
+from sumo_ethics.predict.dataset import load_samples, require_nbr_yaw, subset
 
 HORIZONS_S = (1.0, 2.0, 3.0, 4.0)
 
@@ -130,7 +130,7 @@ def evaluate(
     scenarios never trained on); written to ``out`` if given. The calibrated constant velocity
     is fitted on the train split of ``calibration_dataset`` (default: ``dataset``)."""
     from sumo_ethics.predict.dataset import MANOEUVRES
-    from sumo_ethics.predict.models import load_model
+    from sumo_ethics.predict.models import KINDS, load_model
     from sumo_ethics.predict.predictor import default_weights
 
     samples = load_samples(dataset)
@@ -142,17 +142,14 @@ def evaluate(
         idx = np.sort(np.random.default_rng(seed).choice(idx, size=max_samples, replace=False))
     batch = subset(samples, idx)
     if weights is None:
-        weights = {k: default_weights(k) for k in ("cslstm", "attention", "map_cslstm", "map") if default_weights(k).is_file()}
+        weights = {k: default_weights(k) for k in KINDS if default_weights(k).is_file()}
     cal = samples if calibration_dataset is None else load_samples(calibration_dataset)
     cv_cal = calibrate_cv(cal)
     outputs = {"constant_velocity": cv_outputs(batch), "constant_velocity_calibrated": cv_outputs(batch, cv_cal)}
     for name, path in weights.items():
         model, _ = load_model(Path(path))
-        if getattr(model, "nbr_frame", "target") == "agent" and "nbr_yaw" not in batch:
-            from sumo_ethics.predict import PredictorError
-
-            raise PredictorError(f"{name} ({path}) needs the samples' nbr_yaw, which dataset {dataset} lacks (built "
-                                 f"before it): 'sumo-ethics dataset --samples-from {dataset} --out NEW'")
+        if model.nbr_frame == "agent":
+            require_nbr_yaw(batch, dataset, who=f"{name} ({path})")
         outputs[name] = lstm_outputs(model, batch)
     fut = batch["fut"].astype(float)
     valid = batch["fut_valid"] if "fut_valid" in batch else np.ones(fut.shape[:2], dtype=bool)

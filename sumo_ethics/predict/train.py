@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from sumo_ethics.predict import features as F
-from sumo_ethics.predict.dataset import load_samples, subset
+from sumo_ethics.predict.dataset import load_samples, require_nbr_yaw, subset
 from sumo_ethics.predict.models import (
     TrajectoryLSTM,
     batch_to_tensors,
@@ -119,11 +119,8 @@ def train_model(
     rng = np.random.default_rng(config.seed)
     samples = load_samples(dataset)
     nbr_frame = config.nbr_frame or default_nbr_frame(kind)
-    if nbr_frame == "agent" and "nbr_yaw" not in samples:
-        from sumo_ethics.predict import PredictorError
-
-        raise PredictorError(f"dataset {dataset} has no nbr_yaw (built before it): derive its samples again with "
-                             f"'sumo-ethics dataset --samples-from {dataset} --out NEW'")
+    if nbr_frame == "agent":
+        require_nbr_yaw(samples, dataset)
     train_idx = _split_index(samples, "train", config.max_train, rng)
     if config.hazard_repeat > 1 and "manoeuvre" in samples:
         hz = train_idx[samples["manoeuvre"][train_idx] == 4]
