@@ -180,10 +180,18 @@ class Observation:
 
 @dataclass(frozen=True)
 class Prediction:
-    """Per-agent Gaussian trajectories over the horizon.
+    """Per-agent Gaussian trajectories over the horizon, optionally several modes per agent.
 
     mean: (N, T, 2) [m]; cov: (N, T, 2, 2) [m^2]; yaw: (N, T) heading [rad];
     dt: horizon step [s]; step t is at time now + (t + 1) * dt.
+
+    Multi-modal predictions: ``mean``/``cov``/``yaw`` are each agent's most likely mode;
+    ``alternatives`` holds the other modes (each a single-mode Prediction of the same agents and
+    steps, ordered by falling weight per agent) and ``weight`` (N, 1 + len(alternatives)) the
+    probability of each mode, the first column that of the main one; rows sum to 1. A
+    single-mode prediction has no alternatives and ``weight`` None (= 1). Consumers that read
+    only mean/cov/yaw see the most likely future; the risk integrates every mode
+    (:meth:`by_mode`).
     """
 
     ids: tuple[str, ...]
@@ -191,10 +199,49 @@ class Prediction:
     mean: np.ndarray
     cov: np.ndarray
     yaw: np.ndarray
+    alternatives: tuple["Prediction", ...] = ()
+    weight: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         for name in ("mean", "cov", "yaw"):
             object.__setattr__(self, name, _frozen_array(getattr(self, name)))
+        alts = tuple(self.alternatives)
+        object.__setattr__(self, "alternatives", alts)
+        n = len(self.ids)
+        if self.weight is None:
+            if alts:
+                raise ValueError("a Prediction with alternative modes needs their weights")
+            return
+        w = _frozen_array(np.asarray(self.weight, dtype=float))
+        if w.shape != (n, 1 + len(alts)):
+            raise ValueError(f"Prediction.weight must have shape ({n}, {1 + len(alts)}), got {w.shape}")
+        for a in alts:
+            if a.alternatives or tuple(a.ids) != tuple(self.ids) or a.mean.shape != self.mean.shape:
+                raise ValueError("alternative modes must be single-mode predictions of the same agents and steps")
+        object.__setattr__(self, "weight", w)
+
+    @property
+    def n_modes(self) -> int:
+        return 1 + len(self.alternatives)
+
+    def single(self) -> "Prediction":
+        """The most likely mode alone."""
+        return Prediction(self.ids, self.dt, self.mean, self.cov, self.yaw) if self.alternatives or self.weight is not None else self
+
+    def by_mode(self) -> tuple[tuple["Prediction", np.ndarray], ...]:
+        """((single-mode prediction, (N,) weight), ...) over the modes, the most likely first."""
+        n = len(self.ids)
+        w = np.ones((n, 1)) if self.weight is None else self.weight
+        return tuple((m, w[:, i]) for i, m in enumerate((self.single(),) + self.alternatives))
+
+    def map_modes(self, fn) -> "Prediction":
+        """``fn`` (single-mode Prediction -> single-mode Prediction) applied to every mode, weights kept."""
+        if not self.alternatives:
+            out = fn(self.single())
+            return out if self.weight is None else Prediction(out.ids, out.dt, out.mean, out.cov, out.yaw, (), self.weight)
+        main = fn(self.single())
+        return Prediction(main.ids, main.dt, main.mean, main.cov, main.yaw, tuple(fn(a) for a in self.alternatives),
+                          self.weight)
 
 
 @dataclass(frozen=True)
