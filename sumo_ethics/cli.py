@@ -223,8 +223,10 @@ def _dataset_folder(path: Path) -> Path:
 @click.option("--nbr-frame", type=click.Choice(["agent", "target"]), default=None,
               help="Neighbour encoding: once per agent in its own frame (default of map_cslstm) or per target "
                    "in the target's frame (default of the others, as CS-LSTM).")
+@click.option("--modes", type=click.IntRange(1, 8), default=1, show_default=True,
+              help="Gaussian trajectory modes per agent (1: a single Gaussian).")
 def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
-          nbr_frame: str | None) -> None:
+          nbr_frame: str | None, modes: int) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation)."""
     from sumo_ethics.predict import train_main
 
@@ -233,7 +235,7 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
     if hazard_repeat < 1:
         raise click.BadParameter("--hazard-repeat must be at least 1")
     result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed,
-                        hazard_repeat=hazard_repeat, nbr_frame=nbr_frame)
+                        hazard_repeat=hazard_repeat, nbr_frame=nbr_frame, modes=modes)
     click.echo(f"weights written to {out}: {result['kind']}, best epoch {result['best_epoch']} "
                f"(validation NLL {result['best_val_nll']:.3f}), stopped by {result['stopped']} after "
                f"{result['cpu_minutes']:.1f} CPU-minutes; the training log is {Path(out).with_suffix('.json')}")

@@ -33,10 +33,17 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys):
     weights = tmp_path / "mc.pt"
     assert main(["train", str(data), "--out", str(weights), "--max-minutes", "0.05"]) == 0
     assert LSTMPredictor.from_file(weights, kind="map_cslstm").model.nbr_frame == "agent"
+    # a two-mode model trains (winner-takes-all warm-up, then the mixture NLL) and is evaluated
+    modes2 = tmp_path / "m2.pt"
+    assert main(["train", str(data), "--out", str(modes2), "--max-minutes", "0.05", "--modes", "2"]) == 0
+    assert LSTMPredictor.from_file(modes2).model.modes == 2
     assert main(["evaluate-predictor", str(data), "--out", str(tmp_path / "eval")]) == 0
     table = pd.read_csv(tmp_path / "eval" / "prediction_eval.csv")
     assert {"constant_velocity", "cslstm", "attention", "map", "map_cslstm"} <= set(table["model"])
-    assert {"ade", "fde", "nll", "rmse_1s", "rmse_4s"} <= set(table.columns)
+    assert {"ade", "min_ade", "fde", "nll", "rmse_1s", "rmse_4s"} <= set(table.columns)
+    assert main(["evaluate-predictor", str(data), "--out", str(tmp_path / "eval2"), "--model", f"two={modes2}"]) == 0
+    two = pd.read_csv(tmp_path / "eval2" / "prediction_eval.csv").set_index(["model", "group"])
+    assert np.isfinite(two.loc[("two", "all"), "nll"]) and two.loc[("two", "all"), "min_ade"] <= two.loc[("two", "all"), "ade"]
     assert {"vehicle:standing", "vehicle:moving"} <= set(table["group"])
     # samples derived again from the recorded trajectories, without simulating: the same arrays
     assert main(["dataset", "--samples-from", str(data), "--out", str(tmp_path / "data2")]) == 0

@@ -45,6 +45,7 @@ def train_main(
     progress: bool = True,
     hazard_repeat: int = 1,
     nbr_frame: str | None = None,
+    modes: int = 1,
 ) -> dict:
     """Train ``model`` ("map", "map_cslstm", "attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
 
@@ -54,7 +55,7 @@ def train_main(
 
     cfg = TrainConfig(epochs=epochs, mse_epochs=mse_epochs, max_minutes=max_minutes, max_train=max_train,
                       seed=seed, threads=threads, max_wall_minutes=max_wall_minutes, hazard_repeat=hazard_repeat,
-                      nbr_frame=nbr_frame)
+                      nbr_frame=nbr_frame, modes=modes)
     return train_model(Path(dataset), model, Path(out), cfg, progress=progress)
 
 

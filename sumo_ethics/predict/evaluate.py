@@ -52,21 +52,25 @@ def calibrate_cv(samples: dict[str, np.ndarray], split_code: int = 0, sigma0: fl
     return ConstantVelocityPredictor(sigma0=sigma0, growth=r[0], growth_cyclist=r[1], growth_pedestrian=r[2])
 
 
-def lstm_outputs(model, batch: dict[str, np.ndarray], batch_size: int = 1024) -> np.ndarray:
-    """(S, FUT_STEPS, 5) model Gaussians in the target frame [m]."""
+def lstm_outputs(model, batch: dict[str, np.ndarray], batch_size: int = 1024) -> tuple[np.ndarray, np.ndarray]:
+    """Model Gaussians in the target frame [m]: (S, M, FUT_STEPS, 5) every mode, the most likely
+    first, and (S, M) mode weights (M = 1, weight 1, for a single-mode model)."""
     import torch
 
     from sumo_ethics.predict.models import MAP_KINDS, batch_to_tensors
 
-    outs = []
+    outs, weights = [], []
     with torch.inference_mode():
         for start in range(0, len(batch["tgt_speed"]), batch_size):
             b = subset(batch, np.arange(start, min(start + batch_size, len(batch["tgt_speed"]))))
             x = batch_to_tensors(b, model.pos_scale, with_map=model.kind in MAP_KINDS)
-            s = model.scale(x["tgt_group"])[:, None, None]
-            o = model(**x)
-            outs.append(torch.cat([o[..., :4] * s, o[..., 4:]], -1).numpy().astype(float))
-    return np.concatenate(outs)
+            s = model.scale(x["tgt_group"])[:, None, None, None]
+            o, log_w = model(**x, all_modes=True)
+            o = torch.cat([o[..., :4] * s, o[..., 4:]], -1).numpy().astype(float)
+            order = np.argsort(-log_w.numpy(), axis=1, kind="stable")
+            outs.append(np.take_along_axis(o, order[:, :, None, None], 1))
+            weights.append(np.take_along_axis(np.exp(log_w.numpy().astype(float)), order, 1))
+    return np.concatenate(outs), np.concatenate(weights)
 
 
 def nll_points(params: np.ndarray, fut: np.ndarray) -> np.ndarray:
@@ -88,11 +92,28 @@ def mahalanobis2(params: np.ndarray, fut: np.ndarray) -> np.ndarray:
 ELLIPSE_MASS = {1: 1.0 - np.exp(-0.5), 2: 1.0 - np.exp(-2.0)}
 
 
-def metrics(params: np.ndarray, fut: np.ndarray, valid: np.ndarray | None = None) -> dict[str, float]:
+def mixture_nll_points(params: np.ndarray, weight: np.ndarray, fut: np.ndarray) -> np.ndarray:
+    """(S, T) per-point NLL under each point's mixture of the modes' Gaussians: params (S, M, T, 5),
+    weight (S, M), fut (S, T, 2). Equals :func:`nll_points` for one mode of weight 1."""
+    logp = np.log(np.maximum(weight, 1e-300))[:, :, None] - nll_points(params, fut[:, None])  # (S, M, T)
+    top = logp.max(axis=1)
+    return -(top + np.log(np.exp(logp - top[:, None]).sum(axis=1)))
+
+
+def metrics(params: np.ndarray, fut: np.ndarray, valid: np.ndarray | None = None,
+            weight: np.ndarray | None = None) -> dict[str, float]:
     """RMSE at 1-4 s, ADE, FDE [m], NLL per point [nats] and the share of true points inside the
     predicted 1- and 2-sigma ellipses (in_1sigma, in_2sigma; a calibrated Gaussian gives 0.393
     and 0.865). ``valid`` (S, T) restricts every term to observed future points (FDE: each
-    sample's last observed one; the RMSE at a horizon: the samples observed then)."""
+    sample's last observed one; the RMSE at a horizon: the samples observed then).
+
+    params (S, T, 5), or (S, M, T, 5) with ``weight`` (S, M) for M modes, the most likely first:
+    the displacement errors and the ellipses are those of the most likely mode, the NLL that of
+    the mixture; min_ade is the ADE of each sample's closest mode (= ade for one mode)."""
+    if weight is None:
+        params, weight = params[:, None], np.ones((len(params), 1))
+    modes = params
+    params = modes[:, 0]
     err = np.linalg.norm(params[..., :2] - fut, axis=-1)  # (S, T)
     valid = np.ones(err.shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
     out: dict[str, float] = {"n": float(len(fut))}
@@ -101,9 +122,12 @@ def metrics(params: np.ndarray, fut: np.ndarray, valid: np.ndarray | None = None
         v = valid[:, k]
         out[f"rmse_{h:g}s"] = float(np.sqrt(np.mean(err[v, k] ** 2))) if v.any() else float("nan")
     out["ade"] = float(err[valid].mean())
+    err_m = np.linalg.norm(modes[..., :2] - fut[:, None], axis=-1)  # (S, M, T)
+    per_mode = (err_m * valid[:, None]).sum(-1) / np.maximum(valid.sum(-1), 1)[:, None]
+    out["min_ade"] = float((per_mode.min(axis=1) * valid.sum(-1)).sum() / valid.sum())
     last = valid.sum(axis=1) - 1
     out["fde"] = float(err[np.arange(len(err)), last].mean())
-    out["nll"] = float(nll_points(params, fut)[valid].mean())
+    out["nll"] = float(mixture_nll_points(modes, weight, fut)[valid].mean())
     m2 = mahalanobis2(params, fut)[valid]
     out["in_1sigma"] = float((m2 <= 1.0).mean())
     out["in_2sigma"] = float((m2 <= 4.0).mean())
@@ -145,7 +169,8 @@ def evaluate(
         weights = {k: default_weights(k) for k in KINDS if default_weights(k).is_file()}
     cal = samples if calibration_dataset is None else load_samples(calibration_dataset)
     cv_cal = calibrate_cv(cal)
-    outputs = {"constant_velocity": cv_outputs(batch), "constant_velocity_calibrated": cv_outputs(batch, cv_cal)}
+    outputs: dict[str, tuple[np.ndarray, np.ndarray | None]] = {
+        "constant_velocity": (cv_outputs(batch), None), "constant_velocity_calibrated": (cv_outputs(batch, cv_cal), None)}
     for name, path in weights.items():
         model, _ = load_model(Path(path))
         if model.nbr_frame == "agent":
@@ -163,11 +188,12 @@ def evaluate(
     if "manoeuvre" in batch:
         selections += [(f"m:{m}", batch["manoeuvre"] == i) for i, m in enumerate(MANOEUVRES)]
     rows = []
-    for name, params in outputs.items():
+    for name, (params, weight) in outputs.items():
         for gname, sel in selections:
             if not sel.any():
                 continue
-            rows.append({"model": name, "group": gname, **metrics(params[sel], fut[sel], valid[sel])})
+            rows.append({"model": name, "group": gname,
+                         **metrics(params[sel], fut[sel], valid[sel], None if weight is None else weight[sel])})
     df = pd.DataFrame(rows)
     df["n"] = df["n"].astype(int)
     if out is not None:
@@ -179,6 +205,8 @@ def evaluate(
                 f"and cyclists by manoeuvre (dataset.manoeuvre_labels); <class>:standing are those slower than "
                 f"{STANDING_SPEED} m/s now, <class>:moving the others. in_1sigma / in_2sigma: share of true "
                 f"positions inside the predicted 1- and 2-sigma ellipses (a calibrated Gaussian: 0.393 / 0.865). "
+                f"Multi-modal models: ade, fde, rmse and the ellipses are those of the most likely mode, nll that "
+                f"of the mixture, min_ade that of each sample's closest mode (= ade for one mode). "
                 f"constant_velocity_calibrated: growth rates [m/s] (lon, lat) "
                 f"fitted on the train seeds: vehicle {tuple(round(v, 3) for v in cv_cal.growth)}, "
                 f"cyclist {tuple(round(v, 3) for v in cv_cal.growth_cyclist)}, "

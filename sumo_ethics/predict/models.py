@@ -48,6 +48,14 @@ distance and state, speed limit): ``[E, dyn, lane context, scalars]`` goes to th
 Map CS-LSTM (kind="map_cslstm"): the same lane context on CS-LSTM without the attention,
 the counterpart of "map" in the attention ablation.
 
+Modes (``modes`` = M > 1, the shipped "map_cslstm" has M = 3): the output layer gives M
+Gaussians per step and a linear head on the decoder's input gives M mode probabilities
+(log-softmax). ``model(...)`` returns the most likely mode, ``model(..., all_modes=True)``
+((B, M, FUT_STEPS, 5), (B, M) log weights); every mode is residual to constant velocity.
+Trained with the winner-takes-all MSE of the closest mode (+ cross-entropy of the weights)
+as warm-up, then the mixture NLL of whole trajectories (:func:`mixture_nll`). A standing car
+can then be "stays" and "pulls away" at once instead of one Gaussian averaging the two.
+
 Neighbour encoding (``nbr_frame``). "target" (cslstm, attention, the first map model): each
 neighbour's history is encoded in its target's frame, once per (target, neighbour) pair, as
 CS-LSTM does; a 32-agent scene had 271 pairs. "agent" (the shipped map_cslstm): every agent's
@@ -115,14 +123,18 @@ class TrajectoryLSTM(nn.Module):
         residual_groups: tuple[int, ...] = (F.GROUP_VEHICLE, F.GROUP_CYCLIST),
         map_size: int = 64,
         nbr_frame: str = "target",
+        modes: int = 1,
     ) -> None:
         super().__init__()
         if kind not in KINDS:
             raise ValueError(f"unknown model kind {kind!r}, expected one of {KINDS}")
         if nbr_frame not in NBR_FRAMES:
             raise ValueError(f"unknown nbr_frame {nbr_frame!r}, expected one of {NBR_FRAMES}")
+        if not (isinstance(modes, int) and 1 <= modes <= 8):
+            raise ValueError(f"modes must be an integer from 1 to 8, got {modes!r}")
         self.kind = kind
         self.nbr_frame = nbr_frame
+        self.modes = modes
         self.sigma_min = float(sigma_min)
         self.residual = bool(residual)
         self.residual_groups = tuple(int(g) for g in residual_groups) if residual else ()
@@ -152,11 +164,13 @@ class TrajectoryLSTM(nn.Module):
             self.scalar_emb = nn.Linear(F.MAP_SCALARS, 32)
             self.map_size = map_size + 32
         self.decoder = nn.LSTM(self.soc_size + dyn + self.map_size, dec, batch_first=True)
-        self.output = nn.Linear(dec, 5)
-        if self.residual:  # start exactly at constant velocity
-            with torch.no_grad():
+        self.output = nn.Linear(dec, 5 * modes)
+        if self.residual:  # start exactly at constant velocity (mode 0; the other modes start
+            with torch.no_grad():  # near it, their random output weights break the symmetry)
                 self.output.weight[:2].zero_()
                 self.output.bias[:2].zero_()
+        if modes > 1:  # mode probabilities from the decoder's input
+            self.mode_head = nn.Linear(self.soc_size + dyn + self.map_size, modes)
         self.act = nn.LeakyReLU(0.1)
         self.register_buffer("pos_scale", torch.tensor(pos_scale, dtype=torch.float32))
         if nbr_frame == "agent":  # neighbour pose in the target's frame (x, y normalised, cos, sin of yaw)
@@ -185,7 +199,8 @@ class TrajectoryLSTM(nn.Module):
         map_valid: torch.Tensor | None = None,
         map_scalar: torch.Tensor | None = None,
         nbr_yaw: torch.Tensor | None = None,
-    ) -> torch.Tensor:
+        all_modes: bool = False,
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         b = tgt_hist.shape[0]
         if self.nbr_frame == "agent":
             if nbr_yaw is None:
@@ -198,7 +213,7 @@ class TrajectoryLSTM(nn.Module):
             hidden = self.encode(torch.cat([tgt_hist, nbr_hist]), torch.cat([tgt_group, nbr_group]))
             tgt_enc, nbr_enc = hidden[:b], hidden[b:]
         return self.head(tgt_hist, tgt_group, tgt_enc, nbr_enc, nbr_batch, nbr_cell, nbr_valid,
-                         map_pts, map_valid, map_scalar)
+                         map_pts, map_valid, map_scalar, all_modes)
 
     def scene_forward(
         self,
@@ -212,18 +227,19 @@ class TrajectoryLSTM(nn.Module):
         map_pts: torch.Tensor | None = None,
         map_valid: torch.Tensor | None = None,
         map_scalar: torch.Tensor | None = None,
-    ) -> torch.Tensor:
+        all_modes: bool = False,
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """Run-time path of ``nbr_frame="agent"`` models: every agent encoded once.
 
         agent_hist (M, H, 2): each agent's history in its own frame, normalised by its own
         group's scale; agent_group (M,); targets (B,) agent rows predicted; nbr_agent (P,)
         agent row of each neighbour, nbr_batch (P,) its target row (into targets), nbr_cell
         (P,); nbr_pose (P, 4): (x, y) of the neighbour in its target's frame / the target's
-        scale, cos and sin of its yaw there. -> (B, FUT_STEPS, 5), equal to :meth:`forward`."""
+        scale, cos and sin of its yaw there. -> as :meth:`forward` (and equal to it)."""
         enc = self.encode(agent_hist, agent_group)
         nbr_enc = self.place(enc[nbr_agent], nbr_pose)
         return self.head(agent_hist[targets], agent_group[targets], enc[targets], nbr_enc, nbr_batch, nbr_cell,
-                         None, map_pts, map_valid, map_scalar)
+                         None, map_pts, map_valid, map_scalar, all_modes)
 
     def agent_inputs(self, tgt_group: torch.Tensor, nbr_hist: torch.Tensor, nbr_group: torch.Tensor,
                      nbr_batch: torch.Tensor, nbr_yaw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -243,8 +259,10 @@ class TrajectoryLSTM(nn.Module):
 
     def head(self, tgt_hist: torch.Tensor, tgt_group: torch.Tensor, tgt_enc: torch.Tensor, nbr_enc: torch.Tensor,
              nbr_batch: torch.Tensor, nbr_cell: torch.Tensor, nbr_valid: torch.Tensor | None,
-             map_pts: torch.Tensor | None, map_valid: torch.Tensor | None, map_scalar: torch.Tensor | None) -> torch.Tensor:
-        """Social pooling (+ attention, + lane context) and decoding -> (B, FUT_STEPS, 5)."""
+             map_pts: torch.Tensor | None, map_valid: torch.Tensor | None, map_scalar: torch.Tensor | None,
+             all_modes: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """Social pooling (+ attention, + lane context) and decoding -> (B, FUT_STEPS, 5), the most
+        likely mode; with ``all_modes``: ((B, M, FUT_STEPS, 5) every mode, (B, M) log weights)."""
         b = tgt_enc.shape[0]
         if nbr_valid is not None:
             keep = nbr_valid.to(torch.bool)
@@ -263,15 +281,24 @@ class TrajectoryLSTM(nn.Module):
             parts.append(self.map_context(tgt_enc, map_pts, map_valid, map_scalar))
         enc = torch.cat(parts, dim=-1)
         out = self.output(self.decode(enc))
+        if self.modes > 1:
+            out = out.view(b, self.fut_steps, self.modes, 5).transpose(1, 2)  # (B, M, T, 5)
         mu = out[..., :2]
         if self.residual:
             steps = torch.arange(1, self.fut_steps + 1, dtype=mu.dtype, device=mu.device)
             v_last = tgt_hist[:, -1] - tgt_hist[:, -2]  # displacement over the last model step
             v_last = v_last * self.residual_mask[tgt_group][:, None]
-            mu = mu + steps[None, :, None] * v_last[:, None, :]
+            cv = steps[None, :, None] * v_last[:, None, :]
+            mu = mu + (cv[:, None] if self.modes > 1 else cv)
         sigma = Fn.softplus(out[..., 2:4]) + self.sigma_min
         rho = 0.95 * torch.tanh(out[..., 4:5])
-        return torch.cat([mu, sigma, rho], dim=-1)
+        params = torch.cat([mu, sigma, rho], dim=-1)
+        if self.modes == 1:
+            return (params[:, None], params.new_zeros(b, 1)) if all_modes else params
+        log_w = torch.log_softmax(self.mode_head(enc), -1)
+        if all_modes:
+            return params, log_w
+        return params[torch.arange(b), log_w.argmax(-1)]
 
     def decode(self, enc: torch.Tensor) -> torch.Tensor:
         """(B, E) -> (B, FUT_STEPS, dec) decoder states; the same input every step.
@@ -364,6 +391,31 @@ def bivariate_nll_terms(params: torch.Tensor, target: torch.Tensor) -> torch.Ten
     return 0.5 * z / one_m + torch.log(sx) + torch.log(sy) + 0.5 * torch.log(one_m) + math.log(2.0 * math.pi)
 
 
+def mixture_nll(params: torch.Tensor, log_w: torch.Tensor, target: torch.Tensor,
+                mask: torch.Tensor | None = None) -> torch.Tensor:
+    """NLL of whole future trajectories under a mixture of M Gaussian trajectory modes, per point.
+
+    params (B, M, T, 5), log_w (B, M) log mode probabilities, target (B, T, 2), mask (B, T):
+    ``-sum_b log sum_m w_bm prod_t N(y_bt | mode m) / (number of masked-in points)``. With
+    M = 1 this is :func:`bivariate_nll`'s mean exactly (the mode's log weight is 0)."""
+    terms = bivariate_nll_terms(params, target[:, None])  # (B, M, T)
+    m = torch.ones(terms.shape[0], terms.shape[2], dtype=terms.dtype) if mask is None else mask.to(terms.dtype)
+    traj = (terms * m[:, None, :]).sum(-1)  # (B, M)
+    return -torch.logsumexp(log_w - traj, -1).sum() / m.sum().clamp_min(1.0)
+
+
+def winner_mse(params: torch.Tensor, log_w: torch.Tensor, target: torch.Tensor,
+               mask: torch.Tensor | None = None) -> torch.Tensor:
+    """Warm-up loss of a multi-modal model: the mean squared distance of the closest mode only
+    (winner takes all, so the modes spread out) + the cross-entropy of the mode weights towards
+    that mode. params (B, M, T, 5), log_w (B, M), target (B, T, 2), mask (B, T)."""
+    d = ((params[..., :2] - target[:, None]) ** 2).sum(-1)  # (B, M, T)
+    m = torch.ones(d.shape[0], d.shape[2], dtype=d.dtype) if mask is None else mask.to(d.dtype)
+    per_mode = (d * m[:, None, :]).sum(-1) / m.sum(-1, keepdim=True).clamp_min(1.0)  # (B, M)
+    best = per_mode.argmin(-1)
+    return per_mode.gather(1, best[:, None]).mean() + Fn.nll_loss(log_w, best)
+
+
 def masked_mse(params: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
     """Mean squared distance of the predicted means (warm-up loss)."""
     d = ((params[..., :2] - target) ** 2).sum(-1)
@@ -384,6 +436,7 @@ def model_config(model: TrajectoryLSTM) -> dict[str, Any]:
         "residual_groups": list(model.residual_groups),
         **({"map_size": model.map_size - 32} if model.kind in MAP_KINDS else {}),
         **({"nbr_frame": model.nbr_frame} if model.nbr_frame != "target" else {}),
+        **({"modes": model.modes} if model.modes > 1 else {}),
     }
 
 
@@ -446,7 +499,8 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
         model = TrajectoryLSTM(kind=cfg["kind"], pos_scale=tuple(cfg["pos_scale"]), sigma_min=cfg.get("sigma_min", 1e-3),
                                residual=cfg.get("residual", False),
                                residual_groups=tuple(cfg.get("residual_groups", (0, 1, 2))),
-                               map_size=cfg.get("map_size", 64), nbr_frame=cfg.get("nbr_frame", "target"))
+                               map_size=cfg.get("map_size", 64), nbr_frame=cfg.get("nbr_frame", "target"),
+                               modes=cfg.get("modes", 1))
         model.load_state_dict(blob["state_dict"])
     except Exception as exc:  # noqa: BLE001
         raise PredictorError(f"predictor weights file {path} does not match the model: {exc}") from None

@@ -90,7 +90,15 @@ class LSTMPredictor:
 
     # ------------------------------------------------------------------ run-time
     def model_outputs(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
-        """World-frame (N, FUT_STEPS, 2) means and (N, FUT_STEPS, 2, 2) covariances at 0.2 s steps."""
+        """World-frame (N, FUT_STEPS, 2) means and (N, FUT_STEPS, 2, 2) covariances at 0.2 s steps
+        of each agent's most likely mode."""
+        mean, cov, _ = self.mode_outputs(obs)
+        return mean[:, 0], cov[:, 0]
+
+    def mode_outputs(self, obs: Observation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World-frame (N, M, FUT_STEPS, 2) means, (N, M, FUT_STEPS, 2, 2) covariances at 0.2 s
+        steps and (N, M) weights of the model's M modes, per agent by falling weight (M = 1 and
+        weight 1 for a single-mode model)."""
         cur = obs.current
         n = len(cur)
         xy, yaw = cur.xy, np.asarray(cur.yaw, dtype=float)
@@ -125,33 +133,37 @@ class LSTMPredictor:
                      "map_valid": torch.from_numpy(mf["map_valid"]),
                      "map_scalar": torch.from_numpy(mf["map_scalar"])}
         if getattr(self.model, "nbr_frame", "target") == "agent":
-            out = self._scene_outputs(hist, cls, yaw_all, feats, s, extra)
+            out, log_w = self._scene_outputs(hist, cls, yaw_all, feats, s, extra)
         else:
             with torch.inference_mode():
-                out = self.model(
+                out, log_w = self.model(
                     torch.from_numpy(feats["tgt_hist"] / s[:, None, None]),
                     torch.from_numpy(g),
                     torch.from_numpy(feats["nbr_hist"] / s[feats["nbr_batch"]][:, None, None]),
                     torch.from_numpy(feats["nbr_group"]),
                     torch.from_numpy(feats["nbr_batch"]),
                     torch.from_numpy(feats["nbr_cell"]),
-                    **extra,
-                ).numpy().astype(float)
-        mu = out[..., :2] * s[:, None, None]
-        sx, sy, rho = out[..., 2] * s[:, None], out[..., 3] * s[:, None], out[..., 4]
-        cov_t = np.empty(out.shape[:2] + (2, 2))
+                    **extra, all_modes=True,
+                )
+        out, log_w = out.numpy().astype(float), log_w.numpy().astype(float)
+        order = np.argsort(-log_w, axis=1, kind="stable")  # most likely mode first
+        w = np.take_along_axis(np.exp(log_w), order, 1)
+        out = np.take_along_axis(out, order[:, :, None, None], 1)
+        mu = out[..., :2] * s[:, None, None, None]
+        sx, sy, rho = out[..., 2] * s[:, None, None], out[..., 3] * s[:, None, None], out[..., 4]
+        cov_t = np.empty(out.shape[:3] + (2, 2))
         cov_t[..., 0, 0] = sx * sx
         cov_t[..., 1, 1] = sy * sy
         cov_t[..., 0, 1] = cov_t[..., 1, 0] = rho * sx * sy
-        rot = F.rotation(yaw)[:, None]  # (N, 1, 2, 2)
-        mean = xy[:, None, :] + (rot @ mu[..., None])[..., 0]
+        rot = F.rotation(yaw)[:, None, None]  # (N, 1, 1, 2, 2)
+        mean = xy[:, None, None, :] + (rot @ mu[..., None])[..., 0]
         cov = rot @ cov_t @ np.swapaxes(rot, -1, -2)
-        return mean, cov
+        return mean, cov, w / w.sum(axis=1, keepdims=True)
 
     def _scene_outputs(self, hist: np.ndarray, cls: np.ndarray, yaw: np.ndarray, feats: dict, s: np.ndarray,
-                       extra: dict) -> np.ndarray:
-        """Outputs (N, FUT_STEPS, 5) of an ``nbr_frame="agent"`` model: every agent (targets
-        first, then the ego) is encoded once in its own frame (``scene_forward``)."""
+                       extra: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """Outputs ((N, M, FUT_STEPS, 5), (N, M) log weights) of an ``nbr_frame="agent"`` model: every
+        agent (targets first, then the ego) is encoded once in its own frame (``scene_forward``)."""
         n = len(feats["tgt_group"])
         g_all = F.class_group(cls)
         own = F.own_frame(hist, yaw) / self._scale[g_all][:, None, None]
@@ -162,8 +174,8 @@ class LSTMPredictor:
             out = self.model.scene_forward(
                 torch.from_numpy(own.astype(np.float32)), torch.from_numpy(g_all), torch.arange(n),
                 torch.from_numpy(feats["nbr_agent"]), torch.from_numpy(nb), torch.from_numpy(feats["nbr_cell"]),
-                torch.from_numpy(pose.astype(np.float32)), **extra)
-        return out.numpy().astype(float)
+                torch.from_numpy(pose.astype(np.float32)), **extra, all_modes=True)
+        return out
 
     def predict(self, obs: Observation, horizon_steps: int, dt: float) -> Prediction:
         cur = obs.current
@@ -171,10 +183,18 @@ class LSTMPredictor:
         t = (np.arange(horizon_steps) + 1) * float(dt)
         if n == 0:
             return Prediction((), float(dt), np.zeros((0, horizon_steps, 2)), np.zeros((0, horizon_steps, 2, 2)), np.zeros((0, horizon_steps)))
-        mean_m, cov_m = self.model_outputs(obs)
-        mean, cov = resample_outputs(cur.xy, mean_m, cov_m, t, self.sigma0)
-        yaw = path_yaw(cur.xy, np.asarray(cur.yaw, dtype=float), mean, float(dt))
-        return Prediction(ids=cur.ids, dt=float(dt), mean=mean, cov=cov, yaw=yaw)
+        mean_m, cov_m, w = self.mode_outputs(obs)
+        k = w.shape[1]  # the modes stacked mode-major as N * k rows, resampled at once
+        xy = np.tile(cur.xy, (k, 1))
+        mean, cov = resample_outputs(xy, np.concatenate(mean_m.swapaxes(0, 1)), np.concatenate(cov_m.swapaxes(0, 1)),
+                                     t, self.sigma0)
+        yaw = path_yaw(xy, np.tile(np.asarray(cur.yaw, dtype=float), k), mean, float(dt))
+        modes = [Prediction(ids=cur.ids, dt=float(dt), mean=mean[m * n:(m + 1) * n], cov=cov[m * n:(m + 1) * n],
+                            yaw=yaw[m * n:(m + 1) * n]) for m in range(k)]
+        if k == 1:
+            return modes[0]
+        main = modes[0]
+        return Prediction(main.ids, main.dt, main.mean, main.cov, main.yaw, tuple(modes[1:]), w)
 
 
 def resample_outputs(xy: np.ndarray, mean_m: np.ndarray, cov_m: np.ndarray, t: np.ndarray, sigma0: float = 0.1) -> tuple[np.ndarray, np.ndarray]:

@@ -26,7 +26,9 @@ from sumo_ethics.predict.models import (
     MAP_KINDS,
     default_nbr_frame,
     masked_mse,
+    mixture_nll,
     save_model,
+    winner_mse,
 )
 
 SPLITS = {"train": 0, "val": 1, "test": 2}
@@ -44,7 +46,9 @@ class TrainConfig:
     max_train/max_val: caps on sample counts (random subset); hazard_repeat: each training
     sample of a hazard actor (manoeuvre "hazard") is used this many times per epoch (they are
     rare and the planner's risk depends on them most); nbr_frame: the model's neighbour
-    encoding (models.NBR_FRAMES; None: "agent" for the map kinds, "target" for cslstm/attention)."""
+    encoding (models.NBR_FRAMES; None: models.default_nbr_frame); modes: Gaussian trajectory modes
+    per target (1: a single Gaussian as before; > 1: winner-takes-all MSE warm-up, then the mixture
+    NLL, see models.mixture_nll)."""
 
     epochs: int = 40
     mse_epochs: int = 4
@@ -62,6 +66,7 @@ class TrainConfig:
     max_val: int | None = 8000
     hazard_repeat: int = 1
     nbr_frame: str | None = None
+    modes: int = 1
 
 
 def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -77,13 +82,17 @@ def _loss(model: TrajectoryLSTM, samples: dict[str, np.ndarray], index: np.ndarr
     scale = model.scale(x["tgt_group"])
     y = torch.as_tensor(batch["fut"], dtype=torch.float32) / scale[:, None, None]
     mask = torch.as_tensor(batch["fut_valid"]) if "fut_valid" in batch else None
+    if model.modes > 1:
+        params, log_w = model(**x, all_modes=True)
+        return mixture_nll(params, log_w, y, mask) if use_nll else winner_mse(params, log_w, y, mask)
     out = model(**x)
     return bivariate_nll(out, y, mask) if use_nll else masked_mse(out, y, mask)
 
 
 @torch.no_grad()
 def validate(model: TrajectoryLSTM, samples: dict[str, np.ndarray], index: np.ndarray, batch_size: int = 512) -> dict[str, float]:
-    """Validation NLL (normalised units) and ADE [m] over ``index``."""
+    """Validation NLL (normalised units; the mixture NLL of whole trajectories per point for a
+    multi-modal model) and ADE [m] of the (most likely) mode over ``index``."""
     model.eval()
     nll_sum, ade_sum, n = 0.0, 0.0, 0
     for start in range(0, len(index), batch_size):
@@ -93,8 +102,14 @@ def validate(model: TrajectoryLSTM, samples: dict[str, np.ndarray], index: np.nd
         scale = model.scale(x["tgt_group"])
         fut = torch.as_tensor(batch["fut"], dtype=torch.float32)
         mask = torch.as_tensor(batch["fut_valid"]) if "fut_valid" in batch else torch.ones(fut.shape[:2], dtype=torch.bool)
-        out = model(**x)
-        nll_sum += float(bivariate_nll(out, fut / scale[:, None, None], mask)) * len(idx)
+        if model.modes > 1:
+            params, log_w = model(**x, all_modes=True)
+            out = params[torch.arange(len(idx)), log_w.argmax(-1)]
+            nll = mixture_nll(params, log_w, fut / scale[:, None, None], mask)
+        else:
+            out = model(**x)
+            nll = bivariate_nll(out, fut / scale[:, None, None], mask)
+        nll_sum += float(nll) * len(idx)
         err = (out[..., :2] * scale[:, None, None] - fut).norm(dim=-1)
         ade_sum += float((err * mask).sum() / mask.sum().clamp_min(1)) * len(idx)
         n += len(idx)
@@ -128,7 +143,7 @@ def train_model(
     val_idx = _split_index(samples, "val", config.max_val, rng)
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise ValueError(f"dataset {dataset} has no train or no validation samples")
-    model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame)
+    model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     n_batches = math.ceil(len(train_idx) / config.batch_size)
     best, best_state, best_epoch, bad = math.inf, None, -1, 0

@@ -1,0 +1,139 @@
+"""Multi-modal predictors (``modes`` > 1): the mixture losses worked out by hand, the most likely
+mode first everywhere, the run-time prediction carrying every mode with its weight, and the
+evaluation's mixture NLL."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from sumo_ethics.predict.evaluate import metrics, mixture_nll_points, nll_points  # noqa: E402
+from sumo_ethics.predict.models import (  # noqa: E402
+    TrajectoryLSTM,
+    bivariate_nll,
+    load_model,
+    mixture_nll,
+    save_model,
+    winner_mse,
+)
+from sumo_ethics.predict.predictor import LSTMPredictor  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))
+from bench_predictor import lane_source, make_observation  # noqa: E402
+
+LOG_2PI = math.log(2.0 * math.pi)
+
+
+def _gauss(mx: float, my: float, s: float = 1.0) -> list[float]:
+    return [mx, my, s, s, 0.0]
+
+
+def test_mixture_nll_by_hand():
+    # one step; mode 0 (weight 0.75) sits on the truth, mode 1 (0.25) 2 m beside it, sigma 1 m:
+    # NLL = -log(0.75 N(0) + 0.25 N(2)) = log(2 pi) - log(0.75 + 0.25 exp(-2))
+    params = torch.tensor([[[_gauss(0.0, 0.0)], [_gauss(2.0, 0.0)]]])  # (B=1, M=2, T=1, 5)
+    log_w = torch.log(torch.tensor([[0.75, 0.25]]))
+    y = torch.zeros(1, 1, 2)
+    want = LOG_2PI - math.log(0.75 + 0.25 * math.exp(-2.0))
+    assert float(mixture_nll(params, log_w, y)) == pytest.approx(want, abs=1e-6)
+    # two steps: the modes are whole trajectories, the product over steps is inside the sum:
+    # mode 0 misses by 1 m at step 2 only, mode 1 by 1 m at step 1 only -> both exp(-1/2) N(0)^2
+    params = torch.tensor([[[_gauss(0.0, 0.0), _gauss(1.0, 0.0)], [_gauss(0.0, 1.0), _gauss(0.0, 0.0)]]])
+    y = torch.zeros(1, 2, 2)
+    want2 = -(math.log(0.75 * math.exp(-0.5) + 0.25 * math.exp(-0.5)) - 2 * LOG_2PI) / 2  # per point
+    assert float(mixture_nll(params, log_w, y)) == pytest.approx(want2, abs=1e-6)
+    # a masked step counts for nothing: only step 1, where mode 0 is exact and mode 1 1 m off
+    mask = torch.tensor([[True, False]])
+    want3 = LOG_2PI - math.log(0.75 + 0.25 * math.exp(-0.5))
+    assert float(mixture_nll(params, log_w, y, mask)) == pytest.approx(want3, abs=1e-6)
+
+
+def test_one_mode_mixture_nll_is_the_gaussian_nll():
+    g = torch.Generator().manual_seed(3)
+    params = torch.cat([torch.randn(4, 1, 6, 2, generator=g), torch.rand(4, 1, 6, 2, generator=g) + 0.5,
+                        0.5 * torch.rand(4, 1, 6, 1, generator=g)], -1)
+    y = torch.randn(4, 6, 2, generator=g)
+    mask = torch.rand(4, 6, generator=g) > 0.3
+    a = mixture_nll(params, torch.zeros(4, 1), y, mask)
+    b = bivariate_nll(params[:, 0], y, mask)
+    assert float(a) == pytest.approx(float(b), rel=1e-6)
+    # and the numpy twin of the evaluation, per point
+    p_np, y_np = params.numpy().astype(float), y.numpy().astype(float)
+    np.testing.assert_allclose(mixture_nll_points(p_np, np.ones((4, 1)), y_np), nll_points(p_np[:, 0], y_np), rtol=1e-12)
+
+
+def test_winner_takes_all_warm_up_by_hand():
+    # the truth lies on mode 1 (weight 0.2): its squared error 0 counts, plus -log 0.2
+    params = torch.tensor([[[_gauss(3.0, 4.0)] * 2, [_gauss(0.0, 0.0)] * 2]])  # mode 0 is 5 m off
+    log_w = torch.log(torch.tensor([[0.8, 0.2]]))
+    assert float(winner_mse(params, log_w, torch.zeros(1, 2, 2))) == pytest.approx(-math.log(0.2), abs=1e-6)
+    # the truth 1 m from mode 0 and 4 m from mode 1: mode 0 wins, 1 m^2 + -log 0.8
+    y = torch.tensor([[[3.0, 3.0], [3.0, 3.0]]])
+    assert float(winner_mse(params, log_w, y)) == pytest.approx(1.0 - math.log(0.8), abs=1e-6)
+
+
+def _model(modes: int, seed: int = 0) -> TrajectoryLSTM:
+    torch.manual_seed(seed)
+    m = TrajectoryLSTM(kind="map_cslstm", nbr_frame="agent", modes=modes).eval()
+    with torch.no_grad():  # make the means and the weights depend on the inputs
+        m.output.weight.normal_(0.0, 0.1)
+        if modes > 1:
+            m.mode_head.weight.normal_(0.0, 0.3)
+    return m
+
+
+def test_forward_gives_the_most_likely_mode_and_modes_survive_the_file(tmp_path):
+    m = _model(3)
+    obs = make_observation(12)
+    pred = LSTMPredictor(m, {"kind": "map_cslstm"}, map_source=lane_source(obs))
+    mean, cov, w = pred.mode_outputs(obs)
+    assert mean.shape == (12, 3, 20, 2) and cov.shape == (12, 3, 20, 2, 2) and w.shape == (12, 3)
+    np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=1e-9)
+    assert np.all(np.diff(w, axis=1) <= 0.0)  # most likely first
+    assert not np.allclose(w, 1.0 / 3.0, atol=1e-3)  # the weights depend on the scene
+    main, _ = pred.model_outputs(obs)
+    np.testing.assert_array_equal(main, mean[:, 0])
+    path = save_model(m, tmp_path / "m3.pt")
+    m2, header = load_model(path)
+    assert m2.modes == 3 and header["config"]["modes"] == 3
+    mean2, _, w2 = LSTMPredictor(m2, header, map_source=lane_source(obs)).mode_outputs(obs)
+    np.testing.assert_array_equal(mean2, mean)
+    np.testing.assert_array_equal(w2, w)
+    # a one-mode model's file has no "modes" entry (older files read as one mode)
+    assert "modes" not in load_model(save_model(_model(1), tmp_path / "m1.pt"))[1]["config"]
+
+
+def test_prediction_carries_every_mode_with_its_weight():
+    m = _model(3, seed=1)
+    obs = make_observation(8)
+    lp = LSTMPredictor(m, {"kind": "map_cslstm"}, map_source=lane_source(obs))
+    p = lp.predict(obs, horizon_steps=40, dt=0.1)
+    assert p.n_modes == 3 and p.weight.shape == (8, 3)
+    mean, _, w = lp.mode_outputs(obs)
+    np.testing.assert_array_equal(p.weight, w)
+    # at 0.2 s (horizon step 1 of 0.1 s) every mode lies halfway between now and its first model step
+    for k, (mode, _) in enumerate(p.by_mode()):
+        np.testing.assert_allclose(mode.mean[:, 1], mean[:, k, 0], atol=1e-9)
+        np.testing.assert_allclose(mode.mean[:, 0], 0.5 * (obs.current.xy + mean[:, k, 0]), atol=1e-9)
+    # a one-mode model still gives a plain prediction
+    q = LSTMPredictor(_model(1), {"kind": "map_cslstm"}, map_source=lane_source(obs)).predict(obs, 40, 0.1)
+    assert q.n_modes == 1 and q.weight is None and q.alternatives == ()
+
+
+def test_evaluation_metrics_of_a_mixture_by_hand():
+    # one sample standing at (0, 0) for the 20 steps; mode 0 (0.6) at (1, 0), mode 1 (0.4) at
+    # (0, 0), sigma 1 m, at every step
+    params = np.array([[[_gauss(1.0, 0.0)] * 20, [_gauss(0.0, 0.0)] * 20]])
+    w = np.array([[0.6, 0.4]])
+    out = metrics(params, np.zeros((1, 20, 2)), np.ones((1, 20), bool), w)
+    assert out["ade"] == pytest.approx(1.0)  # the most likely mode
+    assert out["min_ade"] == pytest.approx(0.0)  # the closest mode
+    assert out["nll"] == pytest.approx(LOG_2PI - math.log(0.6 * math.exp(-0.5) + 0.4), abs=1e-12)
+    assert out["in_1sigma"] == 1.0  # (1 m from mode 0 with sigma 1: on its 1-sigma ellipse)
