@@ -137,7 +137,8 @@ def test_two_crossing_modes_are_an_expectation_over_the_modes():
     # per step: marginal p, and p x harm = the expected risk of the step
     wd0, wd1 = w0[None, :, None], w1[None, :, None]
     np.testing.assert_allclose(r.p, wd0 * a.p + wd1 * b.p, rtol=1e-12, atol=0)
-    np.testing.assert_allclose(r.p * r.ego_harm, wd0 * a.p * a.ego_harm + wd1 * b.p * b.ego_harm, rtol=1e-12, atol=1e-15)
+    expected = wd0 * a.p * a.ego_harm + wd1 * b.p * b.ego_harm
+    np.testing.assert_allclose(r.p * r.ego_harm, expected, rtol=1e-12, atol=1e-15)
     # unique, sorted entries: both modes meet candidate 0 at some common steps
     key = (r.sparse.k * 2 + r.sparse.n) * T + r.sparse.t
     assert (np.diff(key) > 0).all()
