@@ -239,6 +239,9 @@ def draw_agents(ax: Any, d: RecordedDecision, predictions: bool = True) -> list[
                 e1, e2 = _ellipse(m[t], d.pred_cov[i, t], 1.0), _ellipse(m[t], d.pred_cov[i, t], 2.0)
                 ax.fill(e1[:, 0], e1[:, 1], color=colour, alpha=0.22, lw=0, zorder=3)
                 ax.plot(e2[:, 0], e2[:, 1], color=colour, alpha=0.5, lw=0.6, ls="--", zorder=3)
+            if d.pred_alt_mean is not None:  # the other modes of a multi-modal prediction: dotted mean paths
+                for alt in d.pred_alt_mean[:, i]:
+                    ax.plot(np.r_[x, alt[:, 0]], np.r_[y, alt[:, 1]], color=colour, lw=1.0, ls=":", zorder=4)
     ex, ey, eyaw, _, el, ew = d.ego[:6]
     ax.add_patch(Patch(_box(ex, ey, eyaw, el, ew), closed=True, fc=EGO_COLOUR, ec="white", lw=1.0, zorder=6))
     return seen

@@ -11,6 +11,10 @@ elsewhere it cannot contribute to any risk and the dense harm arrays hold 0. Eve
 step is kept sparse (typically a few % of K x N x T); the dense (K, N, T) arrays are built on
 first access. Leaving the road is a risk to the ego with probability 1: ``boundary_harm`` is
 the angle-free harm at the speed of leaving.
+
+A multi-modal prediction (several futures per agent, with weights) is integrated mode by mode:
+each mode is assessed as above and its max-over-t risk weighted by the mode's probability
+(an expectation over the modes); see :func:`assess_risk`.
 """
 
 from __future__ import annotations
@@ -31,13 +35,15 @@ __all__ = ["RiskTerms", "assess_risk", "boundary_harm"]
 class RiskTerms:
     """Risk of K candidates against N predicted agents over T steps.
 
-    ego_risk, other_risk: (K, N) max_t p * harm for the ego and for agent n; ego_harm_max,
-    other_harm_max: (K, N) max harm over the steps with p > 0 (0 if none), the harms Maximin looks
-    at; vulnerable: (N,) bool, agent n is a VRU; boundary_harm: (K,) ego harm of leaving the road
-    (0 if the candidate stays on it); rule_breaker: (N,) bool, agent n broke a traffic rule
-    (responsibility principle; all False when unknown). sparse: the (k, n, t) entries with p > 0 and
-    ego_harm_at, other_harm_at: (M,) the harms there. The dense (K, N, T) views ``p``,
-    ``ego_harm``, ``other_harm`` (0 where p = 0) are built on first access.
+    ego_risk, other_risk: (K, N) max_t p * harm for the ego and for agent n (with several
+    modes: sum_m w[n, m] max_t p_m * harm_m); ego_harm_max, other_harm_max: (K, N) max harm over
+    the steps (and modes) with p > 0 (0 if none), the harms Maximin looks at; vulnerable: (N,)
+    bool, agent n is a VRU; boundary_harm: (K,) ego harm of leaving the road (0 if the
+    candidate stays on it); rule_breaker: (N,) bool, agent n broke a traffic rule
+    (responsibility principle; all False when unknown). sparse: the (k, n, t) entries with p > 0,
+    one per (k, n, t), sorted (with modes: p = sum_m w[n, m] p_m) and ego_harm_at, other_harm_at:
+    (M,) the harms there (with modes: the expected harm given a collision there). The dense
+    (K, N, T) views ``p``, ``ego_harm``, ``other_harm`` (0 where p = 0) are built on first access.
     """
 
     ego_risk: np.ndarray
@@ -150,6 +156,80 @@ def _group_max(values: np.ndarray, sp: SparseProbability, shape: tuple[int, int]
     return out
 
 
+def _entries(cand: Candidates, pred: Prediction, agents: AgentStates, ego_mass: float, ego_cls: int,
+             ego_length: float, ego_width: float, coeffs: HarmCoefficients,
+             prob_cfg: ProbabilityConfig) -> tuple[SparseProbability, np.ndarray, np.ndarray]:
+    """The paper's per-step terms of one mode: the sparse P entries and the ego's and the
+    agent's harm there, (M,) each. ``pred`` is read as single-mode (mean/cov/yaw); its rows
+    and those of ``agents`` correspond one to one (ids are not checked: rows may repeat agents)."""
+    T = cand.x.shape[1]
+    sp = sparse_collision_probability(cand, pred, agents.length, agents.width, ego_length, ego_width, prob_cfg)
+    ie = sp.k * T + sp.t  # flat (k, t); take() is much faster than 2-D fancy indexing
+    tp = pred.mean.shape[1]
+    ia = sp.n * tp + sp.t  # flat (n, t)
+    speed_o = _agent_speed(pred, agents)
+    mean = np.asarray(pred.mean, dtype=float).reshape(-1, 2)
+    ego = Party(
+        x=cand.x.ravel().take(ie), y=cand.y.ravel().take(ie), yaw=cand.yaw.ravel().take(ie),
+        speed=np.abs(cand.speed.ravel().take(ie)), mass=np.asarray(float(ego_mass)), cls=np.asarray(int(ego_cls)),
+    )
+    other = Party(
+        x=mean[:, 0].take(ia), y=mean[:, 1].take(ia), yaw=pred.yaw.ravel().take(ia), speed=speed_o.ravel().take(ia),
+        mass=agents.mass.take(sp.n), cls=agents.cls.take(sp.n),
+    )
+    crash = crash_outcome(ego, other, coeffs)
+    return sp, np.asarray(crash.harm_a, dtype=float), np.asarray(crash.harm_b, dtype=float)
+
+
+def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates, args: tuple,
+                     p_min: float) -> tuple[SparseProbability, np.ndarray, np.ndarray, tuple[np.ndarray, ...]]:
+    """Every mode of ``pred`` (weight not None) through :func:`_entries`, combined by the weights.
+
+    Returns the combined sparse entries (unique per (k, n, t), p = sum_m w[n, m] p_m), the
+    p-weighted harms there, and (ego_risk, other_risk, ego_harm_max, other_harm_max) (K, N);
+    see :func:`assess_risk`. An entry of mode m counts only where w[n, m] p_m >= ``p_min``.
+    One call per mode, not the modes stacked as extra agent rows: the float32 integration of an
+    entry can differ in the last bits with the entries computed alongside it, and separate calls
+    make each mode's terms exactly those of a single-mode prediction of it (at equal cost: the
+    work grows with the gated entries).
+    """
+    K, T = cand.x.shape
+    N = len(agents)
+    zeros = np.zeros((K, N))
+    ego_risk, other_risk, ego_hmax, other_hmax = zeros, zeros, zeros, zeros
+    parts = []
+    for mode, w in pred.by_mode():
+        sp, h_e, h_o = _entries(cand, mode, agents, *args)
+        wp = w.take(sp.n) * sp.p  # (E,) the mode's share of the marginal probability
+        keep = np.flatnonzero(wp >= p_min)  # a negligible mode at (k, n, t) counts nowhere (see assess_risk)
+        k, n, t, p, wp, h_e, h_o = (a.take(keep) for a in (sp.k, sp.n, sp.t, sp.p, wp, h_e, h_o))
+        kept = SparseProbability(k, n, t, p, (K, N, T))  # still sorted by (k, n, t)
+        ego_risk = ego_risk + w * _group_max(p * h_e, kept, (K, N))
+        other_risk = other_risk + w * _group_max(p * h_o, kept, (K, N))
+        ego_hmax = np.maximum(ego_hmax, _group_max(h_e, kept, (K, N)))
+        other_hmax = np.maximum(other_hmax, _group_max(h_o, kept, (K, N)))
+        parts.append(((k * N + n) * T + t, wp, h_e, h_o))
+    terms = (ego_risk, other_risk, ego_hmax, other_hmax)
+
+    # one entry per (k, n, t): the modes' shares summed (the stable sort keeps the mode order)
+    key, wp, h_e, h_o = (np.concatenate(a) for a in zip(*parts))
+    order = np.argsort(key, kind="stable")
+    key, wp, h_e, h_o = key.take(order), wp.take(order), h_e.take(order), h_o.take(order)
+    if key.size == 0:
+        empty = np.zeros(0, dtype=np.intp)
+        return SparseProbability(empty, empty, empty, np.zeros(0), (K, N, T)), np.zeros(0), np.zeros(0), terms
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    single = np.diff(np.r_[starts, key.size]) == 1
+    p_c = np.add.reduceat(wp, starts)
+
+    def harm_at(h: np.ndarray) -> np.ndarray:  # E[harm | collision at (k, n, t)]; one mode: its harm as is
+        return np.where(single, h.take(starts), np.add.reduceat(wp * h, starts) / p_c)
+
+    first = key.take(starts)
+    out = SparseProbability(first // (N * T), (first // T) % N, first % T, p_c, (K, N, T))
+    return out, harm_at(h_e), harm_at(h_o), terms
+
+
 def assess_risk(
     cand: Candidates,
     pred: Prediction,
@@ -168,32 +248,37 @@ def assess_risk(
     agents: the same N agents now, in the order of ``pred.ids`` (their true size, mass and class
     are used); ego_mass [kg], ego_cls: RoadUserClass int, ego_length, ego_width: true size [m];
     off_road: see :func:`boundary_harm`; rule_breaker: (N,) bool, see :class:`RiskTerms`. N = 0 gives (K, 0, T) / (K, 0) arrays.
+
+    Modes: a single-mode ``pred`` (``weight`` None) gives the paper's terms. With modes m of
+    weights w[n, m] (:meth:`Prediction.by_mode`), each mode is one hypothesis of agent n's future
+    and is assessed exactly as a single-mode prediction (p_m, harms at its own mean, yaw and
+    speed), then integrated by its weight: ego_risk[k, n] = sum_m w[n, m] max_t p_m harm_ego_m
+    (other_risk likewise), p = sum_m w[n, m] p_m (marginal collision probability) and
+    ego_harm_max / other_harm_max = the largest harm over every mode's entries. A mode's entry
+    counts only where its share w[n, m] p_m reaches ``prob_cfg.p_min`` (as a single mode's does
+    where p_m does), so a negligible-weight mode can neither add risk nor a Maximin harm, and every
+    combined entry has p >= p_min. The per-step entries stay unique per (k, n, t): ``ego_harm_at``
+    / ``other_harm_at`` hold the expected harm given a collision there, sum_m w p_m h_m / p (one
+    mode's harm as is), so dense p x harm is the expected per-step risk (its max over t can fall
+    below ego_risk, which takes the max within each mode).
     """
     if tuple(agents.ids) != tuple(pred.ids):
         raise ValueError("agents and pred must list the same agents in the same order")
-    K, T = cand.x.shape
+    K = cand.x.shape[0]
     N = len(agents)
-    sp = sparse_collision_probability(cand, pred, agents.length, agents.width, ego_length, ego_width, prob_cfg)
-    ie = sp.k * T + sp.t  # flat (k, t); take() is much faster than 2-D fancy indexing
-    tp = pred.mean.shape[1]
-    ia = sp.n * tp + sp.t  # flat (n, t)
-    speed_o = _agent_speed(pred, agents)
-    mean = np.asarray(pred.mean, dtype=float).reshape(-1, 2)
-    ego = Party(
-        x=cand.x.ravel().take(ie), y=cand.y.ravel().take(ie), yaw=cand.yaw.ravel().take(ie),
-        speed=np.abs(cand.speed.ravel().take(ie)), mass=np.asarray(float(ego_mass)), cls=np.asarray(int(ego_cls)),
-    )
-    other = Party(
-        x=mean[:, 0].take(ia), y=mean[:, 1].take(ia), yaw=pred.yaw.ravel().take(ia), speed=speed_o.ravel().take(ia),
-        mass=agents.mass.take(sp.n), cls=agents.cls.take(sp.n),
-    )
-    crash = crash_outcome(ego, other, coeffs)
-    h_e, h_o = np.asarray(crash.harm_a, dtype=float), np.asarray(crash.harm_b, dtype=float)
+    args = (ego_mass, ego_cls, ego_length, ego_width, coeffs, prob_cfg)
+    if pred.weight is None:
+        sp, h_e, h_o = _entries(cand, pred, agents, *args)
+        ego_risk, other_risk = _group_max(sp.p * h_e, sp, (K, N)), _group_max(sp.p * h_o, sp, (K, N))
+        ego_harm_max, other_harm_max = _group_max(h_e, sp, (K, N)), _group_max(h_o, sp, (K, N))
+    else:
+        sp, h_e, h_o, (ego_risk, other_risk, ego_harm_max, other_harm_max) = _integrate_modes(
+            cand, pred, agents, args, prob_cfg.p_min)
     return RiskTerms(
-        ego_risk=_group_max(sp.p * h_e, sp, (K, N)),
-        other_risk=_group_max(sp.p * h_o, sp, (K, N)),
-        ego_harm_max=_group_max(h_e, sp, (K, N)),
-        other_harm_max=_group_max(h_o, sp, (K, N)),
+        ego_risk=ego_risk,
+        other_risk=other_risk,
+        ego_harm_max=ego_harm_max,
+        other_harm_max=other_harm_max,
         vulnerable=VULNERABLE[np.asarray(agents.cls, dtype=np.intp)],
         boundary_harm=boundary_harm(cand, off_road, coeffs),
         sparse=sp,

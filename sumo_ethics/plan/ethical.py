@@ -2,6 +2,11 @@
 
 predict (neighbours) -> sample (Frenet candidates) -> check (feasibility) -> assess risk
 (P(collision) x harm) -> score (named cost terms) -> select (validity class, then lowest J_risk).
+
+A multi-modal prediction (several futures per agent, with weights) goes whole through the
+braking and lateral priors (each mode alike) and the risk (every mode by its weight,
+:func:`~sumo_ethics.ethics.risk.assess_risk`); the envelope test (:func:`first_overlap`) and
+the recorded prediction's mean and covariance use the most likely mode.
 """
 
 from __future__ import annotations
@@ -129,10 +134,17 @@ def first_overlap(cand: Candidates, pred: Prediction, risk: RiskTerms, length: n
     """(K,) int: the first step at which the ego box meets an agent's box at its predicted mean
     (T if never). length, width: (N,) the agents' boxes [m] (pass them with safety margins).
 
+    Multi-modal ``pred``: only the most likely mode's mean path counts (``pred.mean``, i.e.
+    ``pred.single()``). The envelope is a near-hard constraint (PlannerConfig.envelope), so
+    avoiding every mode's path would let an unlikely "pulls away" mode block a lane as firmly
+    as the likely one; the other modes act through the risk terms, by their weights.
+
     brake [m/s^2]: if given, the ego box at each step is stretched forward by its stopping
     distance v^2 / (2 brake), so a candidate also "meets" a road user it could no longer stop
     for (a candidate that ends its horizon too close behind a slower leader is not safe).
-    Only (k, n, t) with a non-zero collision probability can overlap, so only those are tested.
+    Only (k, n, t) with a non-zero collision probability can overlap, so only those are tested
+    (``risk.sparse``: with modes, the union of every mode's entries, a superset of the main mode's
+    except where its weighted probability w p falls below ``p_min``).
     """
     K, T = cand.x.shape
     sp = risk.sparse
@@ -250,6 +262,7 @@ class EthicalPlanner:
         obs = scene.history
         agents = scene.others
         pred = self.predictor.predict(obs, horizon_steps, sc.dt)
+        # the priors treat every mode of a multi-modal prediction alike (they map over the modes)
         if self.cfg.lateral_prior > 0.0:  # first: a car braking to a stand also stops moving sideways
             pred = apply_lateral_prior(pred, obs.current, horizon=self.cfg.lateral_prior)
         if self.cfg.braking_prior > 0.0:

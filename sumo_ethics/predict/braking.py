@@ -10,6 +10,9 @@ predicted path at the constant-deceleration distance
 with v [m/s] and a [m/s^2] the agent's current speed and acceleration. The path (its
 shape), the covariance and the headings are kept; only how far along the path the agent
 gets is shortened. Agents braking more gently than ``threshold`` are left as predicted.
+
+Both priors apply to every mode of a multi-modal prediction alike (``Prediction.map_modes``:
+alternatives and weights are kept).
 """
 
 from __future__ import annotations
@@ -34,7 +37,10 @@ def stopping_progress(speed: np.ndarray, accel: np.ndarray, t: np.ndarray) -> np
 def apply_braking_prior(pred: Prediction, current: AgentStates, threshold: float = HARD_BRAKING) -> Prediction:
     """``pred`` with every agent whose accel <= -threshold kept within its stopping distance.
 
-    pred.mean: (N, T, 2) [m], agents in the order of ``current`` (same ids)."""
+    pred.mean: (N, T, 2) [m], agents in the order of ``current`` (same ids). Every mode of a
+    multi-modal ``pred`` is capped alike; alternatives and weights are kept."""
+    if pred.weight is not None:
+        return pred.map_modes(lambda mode: apply_braking_prior(mode, current, threshold))
     braking = np.flatnonzero(np.asarray(current.accel) <= -threshold)
     if len(braking) == 0 or pred.mean.shape[1] == 0:
         return pred
@@ -69,8 +75,11 @@ def apply_lateral_prior(pred: Prediction, current: AgentStates, horizon: float =
     predicts less lateral motion that way, so that the agent keeps its lateral speed for
     ``horizon`` s and then keeps that offset. Apply it before the braking prior, which then
     also stops the sideways motion of a car braking to a stand. Agents turning, standing or
-    aligned with their path are left as predicted; covariances and headings are kept.
+    aligned with their path are left as predicted; covariances and headings are kept. Every
+    mode of a multi-modal ``pred`` is treated alike (its own path); alternatives and weights are kept.
     """
+    if pred.weight is not None:
+        return pred.map_modes(lambda mode: apply_lateral_prior(mode, current, horizon, min_speed, max_bend))
     n, T = pred.mean.shape[:2]
     if n == 0 or T < 2:
         return pred

@@ -13,8 +13,11 @@ time, so float32 keeps millimetres):
 ``ego``                (8,) float64     x, y, yaw, speed, length, width, mass, class of the ego
 ``agent_ids``          (N,) str         the neighbours' SUMO ids
 ``agents``             (N, 7)           x, y, yaw, speed, length, width (m, rad, m/s), class
-``pred_mean``          (N, T, 2)        predicted centres [m]
-``pred_cov``           (N, T, 3)        covariance xx, xy, yy [m^2]
+``pred_mean``          (N, T, 2)        predicted centres [m] (multi-modal: the most likely mode)
+``pred_cov``           (N, T, 3)        covariance xx, xy, yy [m^2] (the same mode)
+``pred_weight``        (N, M)           only for a multi-modal prediction: each mode's weight,
+                                        the first column that of pred_mean's mode
+``pred_alt_mean``      (M-1, N, T, 2)   only for a multi-modal prediction: the other modes' centres
 ``cand_xy``            (K, S, 2) f16    every scored candidate's centres: the next step, every
                                         ``stride``-th step and the horizon's end
                                         (float16: within 3 cm up to 64 m from the ego, 6 cm to 128 m)
@@ -87,6 +90,10 @@ def encode(trace: DecisionTrace, step: int, time: float, dt: float) -> dict[str,
     rows = [trace.chosen] + [int(np.flatnonzero(trace.validity == v)[np.argmin(trace.selection[trace.validity == v])])
                              for v in np.unique(trace.validity) if v != trace.validity[trace.chosen]]
     cov = p.cov
+    modes = {}
+    if p.alternatives:  # absent for a single-mode prediction: those files stay byte for byte as before
+        modes = {"pred_weight": np.asarray(p.weight, dtype=f32),
+                 "pred_alt_mean": np.stack([a.mean - np.array([ox, oy]) for a in p.alternatives]).astype(f32)}
     return {
         "meta": np.array([step, time, trace.chosen, dt, p.mean.shape[1] if len(a) else T, stride], dtype=np.float64),
         "ego": np.array([ox, oy, e.yaw[0], e.speed[0], e.length[0], e.width[0], e.mass[0], e.cls[0]], dtype=np.float64),
@@ -95,6 +102,7 @@ def encode(trace: DecisionTrace, step: int, time: float, dt: float) -> dict[str,
         if len(a) else np.zeros((0, 7), f32),
         "pred_mean": (p.mean - np.array([ox, oy])).astype(f32),
         "pred_cov": np.stack([cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]], axis=-1).astype(f32),
+        **modes,
         "cand_xy": np.stack([c.x[:, idx] - ox, c.y[:, idx] - oy], axis=-1).astype(np.float16),
         "cand_t": ((idx + 1) * c.dt).astype(f32),
         "selection": np.asarray(trace.selection, dtype=f32),
@@ -202,7 +210,9 @@ class RecordedDecision:
     agents: (N, 7) x, y, yaw, speed, length, width, class; pred_mean: (N, T, 2); pred_cov:
     (N, T, 2, 2); cand_xy: (K, S, 2); cand_t: (S,); selection, j_risk, risk: (K,);
     validity: (K,) int8; eligible: (K,) bool; first_hit: (K,); terms: name -> (K,), NaN but for
-    the chosen candidate and the best one of every other validity class (the ones kept).
+    the chosen candidate and the best one of every other validity class (the ones kept);
+    pred_weight: (N, M) mode weights and pred_alt_mean: (M-1, N, T, 2) the other modes' centres,
+    None for a single-mode prediction (pred_mean / pred_cov are then the most likely mode).
     """
 
     step: int
@@ -223,6 +233,8 @@ class RecordedDecision:
     eligible: np.ndarray
     first_hit: np.ndarray
     terms: dict[str, np.ndarray]
+    pred_weight: np.ndarray | None = None
+    pred_alt_mean: np.ndarray | None = None
 
     @property
     def n_candidates(self) -> int:
@@ -246,7 +258,9 @@ def load(run: Path, step: int) -> RecordedDecision:
         cand_xy=d["cand_xy"].astype(np.float64) + origin, cand_t=d["cand_t"].astype(np.float64),
         selection=d["selection"], j_risk=d["j_risk"], risk=d["risk"], validity=d["validity"],
         eligible=d["eligible"], first_hit=d["first_hit"],
-        terms=_terms(d, len(d["j_risk"])))
+        terms=_terms(d, len(d["j_risk"])),
+        pred_weight=d["pred_weight"].astype(np.float64) if "pred_weight" in d else None,
+        pred_alt_mean=d["pred_alt_mean"].astype(np.float64) + origin if "pred_alt_mean" in d else None)
 
 
 def _terms(d: dict[str, np.ndarray], k: int) -> dict[str, np.ndarray]:
