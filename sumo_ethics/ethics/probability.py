@@ -198,8 +198,11 @@ def _bvnu_high(h: np.ndarray, k: np.ndarray, r: np.ndarray) -> np.ndarray:
             0.0,
         )
         b = np.sqrt(bs)
-        tail = np.exp(-np.minimum(hkl, 200.0) / 2.0) * math.sqrt(_TWO_PI) * ndtr(-b / a) * b
-        b0 = b0 - np.where(hkl > -100.0, tail * (1.0 - c * bs * (1.0 - d * bs) / 3.0), 0.0)
+        # the tail is used only where hkl > -100; elsewhere it may overflow (inf * 0): discarded
+        with np.errstate(over="ignore", invalid="ignore"):
+            tail = np.exp(-np.minimum(hkl, 200.0) / 2.0) * math.sqrt(_TWO_PI) * ndtr(-b / a) * b
+            tail = tail * (1.0 - c * bs * (1.0 - d * bs) / 3.0)
+        b0 = b0 - np.where(hkl > -100.0, tail, 0.0)
         ah = a / 2.0
         xs = (ah[:, None] * (1.0 + x)) ** 2  # (S, n)
         asr_i = -(bs[:, None] / xs + hkl[:, None]) / 2.0
