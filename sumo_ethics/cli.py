@@ -223,10 +223,11 @@ def _dataset_folder(path: Path) -> Path:
 @click.option("--nbr-frame", type=click.Choice(["agent", "target"]), default=None,
               help="Neighbour encoding: once per agent in its own frame (default of map_cslstm) or per target "
                    "in the target's frame (default of the others, as CS-LSTM).")
-@click.option("--modes", type=click.IntRange(1, 8), default=1, show_default=True,
-              help="Gaussian trajectory modes per agent (1: a single Gaussian).")
+@click.option("--modes", type=click.IntRange(1, 8), default=None,
+              help="Gaussian trajectory modes per agent (1: a single Gaussian; default: 3 for map_cslstm, "
+                   "1 for the others, as shipped).")
 def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
-          nbr_frame: str | None, modes: int) -> None:
+          nbr_frame: str | None, modes: int | None) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation)."""
     from sumo_ethics.predict import train_main
 

@@ -260,3 +260,40 @@ def test_runs_with_the_default_map_predictor_are_byte_identical_for_one_seed(tmp
     used = __import__("json").loads((outs[0] / "summary.json").read_text())["predictor"]
     assert used["kind"] == "map_cslstm" and used["weights"] == str(default_weights("map_cslstm"))
     assert (outs[0] / "steps.parquet").read_bytes() == (outs[1] / "steps.parquet").read_bytes()
+
+
+def _queue_at_light(state: int) -> tuple[Observation, object]:
+    """Four cars standing for 3 s in a queue 5, 12, 19 and 26 m before a stop line (x = 0) whose
+    light shows ``state`` (features.TLS_CODES: 1 green, 3 red), and the map source of that lane."""
+    x0 = np.array([-5.0, -12.0, -19.0, -26.0])
+    n = len(x0)
+    hist = np.stack([np.repeat(x0[:, None], 31, 1), np.zeros((n, 31))], -1)
+    z = np.zeros(n)
+    cur = AgentStates(tuple(f"v{i}" for i in range(n)), x0, z, z, z, z, z + 4.5, z + 1.8, z + 1500,
+                      np.full(n, int(RoadUserClass.CAR), dtype=np.int8))
+    ego = AgentStates(("ego",), np.array([-60.0]), np.zeros(1), np.zeros(1), np.array([10.0]), np.zeros(1),
+                      np.array([4.5]), np.array([1.8]), np.array([1500.0]), np.array([0], dtype=np.int8))
+    obs = Observation(time=0.0, dt=0.1, history=hist, valid=np.ones((n, 31), dtype=bool), current=cur, ego=ego)
+    graph = F.LaneGraph.build(["r_0"], [np.array([[-200.0, 0.0], [200.0, 0.0]])], [13.9], [()])
+
+    def source(ids, person):
+        k = len(ids)
+        return graph, F.MapContext(np.zeros(k, dtype=np.int64), x0 + 200.0, -x0, np.full(k, state, dtype=np.int64))
+
+    return obs, source
+
+
+def test_shipped_default_keeps_a_queue_at_a_red_light_standing_as_its_most_likely_mode():
+    # the single-Gaussian model this replaced moved the first car 0.83 m in 4 s at red (the
+    # average of "stays" and "pulls away"); with modes, "stays" is a mode of its own
+    obs, source = _queue_at_light(3)
+    p = LSTMPredictor.default(map_source=source)
+    assert p.model.modes == 3
+    mean, _, w = p.mode_outputs(obs)
+    moved = mean[:, :, -1, 0] - obs.current.x[:, None]  # (4 cars, 3 modes) along the lane after 4 s
+    assert np.all(w[:, 0] > 0.8) and np.all(np.abs(moved[:, 0]) < 0.1)  # most likely: stays (< 10 cm)
+    assert np.all(moved[:, 1:] > 0.3)  # the other modes pull away
+    # at green the first car is likelier to go than at red
+    obs_g, source_g = _queue_at_light(1)
+    _, _, w_g = LSTMPredictor.default(map_source=source_g).mode_outputs(obs_g)
+    assert 1.0 - w_g[0, 0] > 1.0 - w[0, 0]

@@ -32,7 +32,8 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys):
     # the default model encodes every agent in its own frame: trains on the samples' nbr_yaw
     weights = tmp_path / "mc.pt"
     assert main(["train", str(data), "--out", str(weights), "--max-minutes", "0.05"]) == 0
-    assert LSTMPredictor.from_file(weights, kind="map_cslstm").model.nbr_frame == "agent"
+    default = LSTMPredictor.from_file(weights, kind="map_cslstm").model
+    assert default.nbr_frame == "agent" and default.modes == 3  # as shipped
     # a two-mode model trains (winner-takes-all warm-up, then the mixture NLL) and is evaluated
     modes2 = tmp_path / "m2.pt"
     assert main(["train", str(data), "--out", str(modes2), "--max-minutes", "0.05", "--modes", "2"]) == 0

@@ -37,8 +37,9 @@ SUITE_TRAIN = 100  # suite scenarios s0000..s0099 go into the dataset; s0100.. s
 SUITE_HELDOUT = 40  # s0100..s0139 are the held-out suite scenarios of the evaluation
 GAME = ("cross", "square", "grid6", "corridor", "fkk_in", "ramp")  # eclipse-sumo tools/game configs
 #: per-model train_main options (others: defaults); map_cslstm (the default) encodes every agent once in its
-#: own frame, map (attention) per target as CS-LSTM
-TRAIN = {"map": {"hazard_repeat": 4, "nbr_frame": "target"}, "map_cslstm": {"hazard_repeat": 4, "nbr_frame": "agent"}}
+#: own frame with 3 trajectory modes, map (attention) per target as CS-LSTM with one
+TRAIN = {"map": {"hazard_repeat": 4, "nbr_frame": "target", "modes": 1},
+         "map_cslstm": {"hazard_repeat": 4, "nbr_frame": "agent", "modes": 3}}
 
 
 def main() -> None:

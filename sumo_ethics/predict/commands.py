@@ -45,7 +45,7 @@ def train_main(
     progress: bool = True,
     hazard_repeat: int = 1,
     nbr_frame: str | None = None,
-    modes: int = 1,
+    modes: int | None = None,
 ) -> dict:
     """Train ``model`` ("map", "map_cslstm", "attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
 

@@ -98,6 +98,15 @@ def default_nbr_frame(kind: str) -> str:
     map_cslstm, "target" for the others; an agent-frame "map" trained with the same recipe was
     worse, see README "Trajectory prediction")."""
     return "agent" if kind == "map_cslstm" else "target"
+
+
+def default_modes(kind: str) -> int:
+    """The number of trajectory modes a new model of ``kind`` gets: that of its shipped file (3 for
+    map_cslstm, whose single-Gaussian version averaged "stays" and "pulls away"; 1 for the others,
+    kept as they were for the ablation)."""
+    return 3 if kind == "map_cslstm" else 1
+
+
 FILE_FORMAT = "sumo-ethics-predictor"
 FILE_FORMAT_VERSION = 1
 

@@ -24,6 +24,7 @@ from sumo_ethics.predict.models import (
     batch_to_tensors,
     bivariate_nll,
     MAP_KINDS,
+    default_modes,
     default_nbr_frame,
     masked_mse,
     mixture_nll,
@@ -48,7 +49,7 @@ class TrainConfig:
     rare and the planner's risk depends on them most); nbr_frame: the model's neighbour
     encoding (models.NBR_FRAMES; None: models.default_nbr_frame); modes: Gaussian trajectory modes
     per target (1: a single Gaussian as before; > 1: winner-takes-all MSE warm-up, then the mixture
-    NLL, see models.mixture_nll)."""
+    NLL, see models.mixture_nll; None: models.default_modes)."""
 
     epochs: int = 40
     mse_epochs: int = 4
@@ -66,7 +67,7 @@ class TrainConfig:
     max_val: int | None = 8000
     hazard_repeat: int = 1
     nbr_frame: str | None = None
-    modes: int = 1
+    modes: int | None = None
 
 
 def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -143,7 +144,7 @@ def train_model(
     val_idx = _split_index(samples, "val", config.max_val, rng)
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise ValueError(f"dataset {dataset} has no train or no validation samples")
-    model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes)
+    model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes or default_modes(kind))
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     n_batches = math.ceil(len(train_idx) / config.batch_size)
     best, best_state, best_epoch, bad = math.inf, None, -1, 0
