@@ -369,6 +369,8 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
             classes = sorted(set(seen) & in_view, key=lambda s: list(CLASS_COLOURS).index(s))
             handles += [Patch(fc=EGO_COLOUR, label="ego")] + [Patch(fc=CLASS_COLOURS[c], label=c) for c in classes]
             handles.append(Patch(fc="0.5", alpha=0.35, ec="0.3", ls="--", label="predicted 1 sigma (2 sigma dashed), each s"))
+            if d.pred_alt_mean is not None:
+                handles.append(Line2D([], [], color="0.3", lw=1.0, ls=":", label="less likely modes (mean paths)"))
             fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 7), fontsize=8.5,
                        frameon=False)
         else:
