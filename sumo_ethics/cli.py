@@ -184,9 +184,10 @@ def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: flo
             raise click.BadParameter(f"{samples_from} has no {', '.join(missing)}: not a dataset folder")
         if out.exists() and out.resolve() == samples_from.resolve():
             raise click.BadParameter("--out must be a new folder, not the --samples-from dataset")
-        if out.exists() and any(out.iterdir()):
-            raise click.BadParameter(f"--out {out} is not empty: give a new folder (nothing is overwritten)")
-        click.echo(f"dataset written to {rebuild_samples(samples_from, out)}")
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise click.BadParameter(f"--out {out} is not an empty folder: give a new one (nothing is overwritten)")
+    if samples_from is not None:
+        _dataset_written(rebuild_samples(samples_from, out))
         return
     if not scenarios and not suite_dirs:
         raise click.BadParameter("give scenarios (.sumocfg), --suite folders or --samples-from")
@@ -195,9 +196,20 @@ def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: flo
                                  "at least 3 seeds, e.g. --seeds 1-3")
     if not sim_seconds > 0 or workers < 1:
         raise click.BadParameter("--sim-seconds must be positive and --workers at least 1")
-    path = dataset_main(scenarios, out, seeds=parse_seeds(seeds), sim_seconds=sim_seconds, workers=workers,
-                        suite=suite_dirs)
-    click.echo(f"dataset written to {path}")
+    if scenarios and sim_seconds < 10.0:
+        raise click.BadParameter(f"--sim-seconds {sim_seconds:g}: a sample needs 3 s of history and 4 s ahead "
+                                 "of agents already on the road, so simulate at least 10 s")
+    _dataset_written(dataset_main(scenarios, out, seeds=parse_seeds(seeds), sim_seconds=sim_seconds,
+                                  workers=workers, suite=suite_dirs))
+
+
+def _dataset_written(path: Path) -> None:
+    """The one line ``dataset`` ends with: where, and how many samples per split."""
+    import json
+
+    n = json.loads((Path(path) / "split.json").read_text()).get("n_samples", {})
+    counts = ", ".join(f"{k} {v}" for k, v in n.items())
+    click.echo(f"dataset written to {path}: {sum(n.values())} samples ({counts})")
 
 
 def _dataset_folder(path: Path) -> Path:

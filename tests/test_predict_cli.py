@@ -76,8 +76,23 @@ def test_samples_from_never_overwrites_a_folder(tmp_path, capsys):
     out.mkdir()
     (out / "samples.npz").write_text("keep me")
     assert main(["dataset", "--samples-from", str(src), "--out", str(out)]) == 2
-    assert "is not empty" in capsys.readouterr().err
+    assert "is not an empty folder" in capsys.readouterr().err
     assert (out / "samples.npz").read_text() == "keep me"
+
+
+def test_dataset_never_overwrites_a_dataset_and_refuses_too_short_runs(tmp_path, capsys):
+    # a folder holding a dataset is refused before anything is simulated; nothing is touched
+    out = tmp_path / "data"
+    out.mkdir()
+    (out / "samples.npz").write_text("keep me")
+    cfg = str(SCENARIOS / "urban" / "urban.sumocfg")
+    assert main(["dataset", cfg, "--seeds", "1-3", "--sim-seconds", "60", "--out", str(out)]) == 2
+    assert "is not an empty folder" in capsys.readouterr().err
+    assert (out / "samples.npz").read_text() == "keep me"
+    # 2 s of simulation cannot give a sample (3 s of history + 4 s ahead): refused in one line
+    short = tmp_path / "short"
+    assert main(["dataset", cfg, "--seeds", "1-3", "--sim-seconds", "2", "--out", str(short)]) == 2
+    assert "at least 10 s" in capsys.readouterr().err and not short.exists()
 
 
 def test_weights_file_with_the_constant_velocity_predictor_is_refused(tmp_path, capsys):

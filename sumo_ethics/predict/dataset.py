@@ -313,6 +313,11 @@ def build_samples(traj: pd.DataFrame, split: dict[str, list[int]], anchor_every:
         s["seed"] = np.full(n, seed, dtype=np.int32)
         s["split"] = np.full(n, split_of.get(seed, 0), dtype=np.int8)
         parts.append(s)
+    if not parts:
+        from sumo_ethics.errors import ConfigError
+
+        raise ConfigError("the runs gave no prediction samples: a sample needs 3 s of an agent's history and "
+                          "up to 4 s of its future, so simulate longer (--sim-seconds) or busier scenarios")
     out = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     out["nbr_ptr"] = np.concatenate([[0], np.cumsum(out.pop("nbr_count"))]).astype(np.int64)
     return out
@@ -373,7 +378,6 @@ def build_dataset(
     so every split sees every scale when it has enough seeds. Returns ``out``.
     """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     seeds = sorted(set(int(s) for s in seeds))
     split = split_seeds(seeds, val_fraction, test_fraction) if seeds else {"train": [], "val": [], "test": []}
     specs = []
@@ -388,10 +392,12 @@ def build_dataset(
         for i in range(len(suite)):
             name = "test" if i % 10 == 9 else "val" if i % 10 == 8 else "train"
             split[name].append(SUITE_SEED0 + len(specs) + i)
+    # the samples first: a run too short for any sample stops here, before anything is written
+    samples = build_samples(traj, split, anchor_every=anchor_every, graphs=graphs, suite_anchor_every=suite_anchor_every)
+    out.mkdir(parents=True, exist_ok=True)
     traj.to_parquet(out / "trajectories.parquet", index=False)
     with open(out / "lane_graphs.pkl", "wb") as fh:
         pickle.dump(graphs, fh)
-    samples = build_samples(traj, split, anchor_every=anchor_every, graphs=graphs, suite_anchor_every=suite_anchor_every)
     np.savez_compressed(out / "samples.npz", **samples)
     meta = {
         "split": split,
