@@ -239,9 +239,16 @@ def draw_agents(ax: Any, d: RecordedDecision, predictions: bool = True) -> list[
                 e1, e2 = _ellipse(m[t], d.pred_cov[i, t], 1.0), _ellipse(m[t], d.pred_cov[i, t], 2.0)
                 ax.fill(e1[:, 0], e1[:, 1], color=colour, alpha=0.22, lw=0, zorder=3)
                 ax.plot(e2[:, 0], e2[:, 1], color=colour, alpha=0.5, lw=0.6, ls="--", zorder=3)
-            if d.pred_alt_mean is not None:  # the other modes of a multi-modal prediction: dotted mean paths
-                for alt in d.pred_alt_mean[:, i]:
-                    ax.plot(np.r_[x, alt[:, 0]], np.r_[y, alt[:, 1]], color=colour, lw=1.0, ls=":", zorder=4)
+            if d.pred_alt_mean is not None:  # the other modes of a multi-modal prediction: dotted mean paths,
+                w = d.pred_weight[i]  # as wide as they are likely; where the main mode is not nearly sure,
+                for alt, wk in zip(d.pred_alt_mean[:, i], w[1:]):  # every mode of 5 % or more is labelled
+                    ax.plot(np.r_[x, alt[:, 0]], np.r_[y, alt[:, 1]], color=colour, lw=0.5 + 2.0 * wk, ls=":", zorder=4)
+                if w[0] < 0.95:
+                    ends = [m[-1]] + list(d.pred_alt_mean[:, i, -1])
+                    for end, wk in zip(ends, w):
+                        if wk >= 0.05:
+                            ax.text(end[0], end[1], f"{wk:.0%}", fontsize=7, color=colour, zorder=8, clip_on=True,
+                                    ha="center", va="bottom")
     ex, ey, eyaw, _, el, ew = d.ego[:6]
     ax.add_patch(Patch(_box(ex, ey, eyaw, el, ew), closed=True, fc=EGO_COLOUR, ec="white", lw=1.0, zorder=6))
     return seen
@@ -370,7 +377,8 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
             handles += [Patch(fc=EGO_COLOUR, label="ego")] + [Patch(fc=CLASS_COLOURS[c], label=c) for c in classes]
             handles.append(Patch(fc="0.5", alpha=0.35, ec="0.3", ls="--", label="predicted 1 sigma (2 sigma dashed), each s"))
             if d.pred_alt_mean is not None:
-                handles.append(Line2D([], [], color="0.3", lw=1.0, ls=":", label="less likely modes (mean paths)"))
+                handles.append(Line2D([], [], color="0.3", lw=1.2, ls=":",
+                                      label="other modes' mean paths (width, %: probability)"))
             fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 7), fontsize=8.5,
                        frameon=False)
         else:
