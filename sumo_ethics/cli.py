@@ -240,7 +240,8 @@ def _dataset_folder(path: Path) -> Path:
                    "1 for the others, as shipped).")
 def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
           nbr_frame: str | None, modes: int | None) -> None:
-    """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation)."""
+    """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation; with several modes the
+    warm-up is winner-takes-all and the NLL that of the mixture)."""
     from sumo_ethics.predict import train_main
 
     if not max_minutes > 0:

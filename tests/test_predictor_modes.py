@@ -137,3 +137,15 @@ def test_evaluation_metrics_of_a_mixture_by_hand():
     assert out["min_ade"] == pytest.approx(0.0)  # the closest mode
     assert out["nll"] == pytest.approx(LOG_2PI - math.log(0.6 * math.exp(-0.5) + 0.4), abs=1e-12)
     assert out["in_1sigma"] == 1.0  # (1 m from mode 0 with sigma 1: on its 1-sigma ellipse)
+
+
+def test_improvement_summary_names_models_given_by_the_user():
+    import pandas as pd
+
+    from sumo_ethics.predict.evaluate import improvement_summary
+
+    df = pd.DataFrame({"model": ["constant_velocity", "constant_velocity_calibrated", "mine"],
+                       "group": ["vehicle"] * 3, "ade": [2.0, 2.0, 1.5]})
+    text = improvement_summary(df)
+    # 1 - 1.5 / 2.0 = 25 % below constant velocity; the calibrated CV is a reference, not a model
+    assert "- vehicle: mine +25.0% vs constant velocity" in text and "calibrated +" not in text

@@ -98,7 +98,7 @@ def main() -> None:
     for name, pred in preds.items():
         ms, cms = np.array(wall[name]) * 1e3, np.array(cpu[name]) * 1e3
         frame = getattr(pred.model, "nbr_frame", "target")
-        print(f"{name} ({pred.kind}, neighbours encoded per {frame}): {args.agents} agents, median {np.median(ms):.2f} ms "
+        print(f"{name} ({pred.kind}, {pred.model.modes} mode(s), neighbours encoded per {frame}): {args.agents} agents, median {np.median(ms):.2f} ms "
               f"wall (p90 {np.percentile(ms, 90):.2f}), median {np.median(cms):.2f} ms CPU, over {args.repeats} runs")
     print(f"(torch threads {torch.get_num_threads()}; wall time is inflated when other processes share the core)")
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -242,9 +243,12 @@ class EthicalPlanner:
 
     @property
     def predictor_info(self) -> dict:
-        """What predicted the neighbours (summary.json ``predictor``): kind and weights file."""
+        """What predicted the neighbours (summary.json ``predictor``): kind, weights file (absolute path) and
+        number of trajectory modes."""
         path = getattr(self.predictor, "path", None)
-        return {"kind": getattr(self.predictor, "kind", self.cfg.predictor), "weights": str(path) if path else None}
+        model = getattr(self.predictor, "model", None)
+        return {"kind": getattr(self.predictor, "kind", self.cfg.predictor),
+                "weights": str(Path(path).resolve()) if path else None, "modes": int(getattr(model, "modes", 1))}
 
     @property
     def needs_rules(self) -> bool:

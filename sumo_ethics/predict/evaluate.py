@@ -216,14 +216,15 @@ def evaluate(
 
 
 def improvement_summary(df: pd.DataFrame) -> str:
-    """ADE improvements per group (Markdown): the learned models over constant velocity, and each
+    """ADE improvements per group (Markdown): every learned model over constant velocity, and each
     attention model over its CS-LSTM counterpart (attention/cslstm, map/map_cslstm)."""
     lines = ["ADE reduction (positive = better):", ""]
     piv = df.pivot(index="group", columns="model", values="ade")
     for g in piv.index:
         r = piv.loc[g]
         parts = []
-        pairs = [(m, "constant_velocity", "constant velocity") for m in ("map", "map_cslstm", "attention")]
+        learned = [m for m in piv.columns if not m.startswith("constant_velocity")]  # shipped or named by --model
+        pairs = [(m, "constant_velocity", "constant velocity") for m in learned]
         pairs += [("attention", "cslstm", "CS-LSTM"), ("map", "map_cslstm", "map_cslstm"),
                   ("map_agent", "map_cslstm", "map_cslstm"), ("map", "attention", "attention"),
                   ("map_cslstm", "cslstm", "CS-LSTM")]

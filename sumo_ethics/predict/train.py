@@ -10,7 +10,7 @@ import json
 import logging
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -144,7 +144,8 @@ def train_model(
     val_idx = _split_index(samples, "val", config.max_val, rng)
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise ValueError(f"dataset {dataset} has no train or no validation samples")
-    model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes or default_modes(kind))
+    config = replace(config, nbr_frame=nbr_frame, modes=config.modes or default_modes(kind))  # as trained, in the log
+    model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     n_batches = math.ceil(len(train_idx) / config.batch_size)
     best, best_state, best_epoch, bad = math.inf, None, -1, 0
