@@ -15,9 +15,9 @@ time, so float32 keeps millimetres):
 ``agents``             (N, 7)           x, y, yaw, speed, length, width (m, rad, m/s), class
 ``pred_mean``          (N, T, 2)        predicted centres [m] (multi-modal: the most likely mode)
 ``pred_cov``           (N, T, 3)        covariance xx, xy, yy [m^2] (the same mode)
-``pred_weight``        (N, M)           only for a multi-modal prediction: each mode's weight,
+``pred_weight``        (N, Q)           only for a multi-modal prediction (Q modes): each mode's weight,
                                         the first column that of pred_mean's mode
-``pred_alt_mean``      (M-1, N, T, 2)   only for a multi-modal prediction: the other modes' centres
+``pred_alt_mean``      (Q-1, N, T, 2)   only for a multi-modal prediction: the other modes' centres
 ``cand_xy``            (K, S, 2) f16    every scored candidate's centres: the next step, every
                                         ``stride``-th step and the horizon's end
                                         (float16: within 3 cm up to 64 m from the ego, 6 cm to 128 m)
