@@ -226,7 +226,7 @@ class Prediction:
 
     def single(self) -> "Prediction":
         """The most likely mode alone."""
-        return Prediction(self.ids, self.dt, self.mean, self.cov, self.yaw) if self.alternatives or self.weight is not None else self
+        return self if self.weight is None else Prediction(self.ids, self.dt, self.mean, self.cov, self.yaw)
 
     def by_mode(self) -> tuple[tuple["Prediction", np.ndarray], ...]:
         """((single-mode prediction, (N,) weight), ...) over the modes, the most likely first."""
@@ -236,10 +236,9 @@ class Prediction:
 
     def map_modes(self, fn) -> "Prediction":
         """``fn`` (single-mode Prediction -> single-mode Prediction) applied to every mode, weights kept."""
-        if not self.alternatives:
-            out = fn(self.single())
-            return out if self.weight is None else Prediction(out.ids, out.dt, out.mean, out.cov, out.yaw, (), self.weight)
         main = fn(self.single())
+        if self.weight is None:
+            return main
         return Prediction(main.ids, main.dt, main.mean, main.cov, main.yaw, tuple(fn(a) for a in self.alternatives),
                           self.weight)
 

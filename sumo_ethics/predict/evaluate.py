@@ -57,7 +57,7 @@ def lstm_outputs(model, batch: dict[str, np.ndarray], batch_size: int = 1024) ->
     first, and (S, M) mode weights (M = 1, weight 1, for a single-mode model)."""
     import torch
 
-    from sumo_ethics.predict.models import MAP_KINDS, batch_to_tensors
+    from sumo_ethics.predict.models import MAP_KINDS, batch_to_tensors, rank_modes
 
     outs, weights = [], []
     with torch.inference_mode():
@@ -65,11 +65,9 @@ def lstm_outputs(model, batch: dict[str, np.ndarray], batch_size: int = 1024) ->
             b = subset(batch, np.arange(start, min(start + batch_size, len(batch["tgt_speed"]))))
             x = batch_to_tensors(b, model.pos_scale, with_map=model.kind in MAP_KINDS)
             s = model.scale(x["tgt_group"])[:, None, None, None]
-            o, log_w = model(**x, all_modes=True)
-            o = torch.cat([o[..., :4] * s, o[..., 4:]], -1).numpy().astype(float)
-            order = np.argsort(-log_w.numpy(), axis=1, kind="stable")
-            outs.append(np.take_along_axis(o, order[:, :, None, None], 1))
-            weights.append(np.take_along_axis(np.exp(log_w.numpy().astype(float)), order, 1))
+            o, log_w = rank_modes(*model(**x, all_modes=True))
+            outs.append(torch.cat([o[..., :4] * s, o[..., 4:]], -1).numpy().astype(float))
+            weights.append(np.exp(log_w.numpy().astype(float)))
     return np.concatenate(outs), np.concatenate(weights)
 
 
@@ -220,14 +218,14 @@ def improvement_summary(df: pd.DataFrame) -> str:
     attention model over its CS-LSTM counterpart (attention/cslstm, map/map_cslstm)."""
     lines = ["ADE reduction (positive = better):", ""]
     piv = df.pivot(index="group", columns="model", values="ade")
+    learned = [m for m in piv.columns if not m.startswith("constant_velocity")]  # shipped or named by --model
+    pairs = [(m, "constant_velocity", "constant velocity") for m in learned]
+    pairs += [("attention", "cslstm", "CS-LSTM"), ("map", "map_cslstm", "map_cslstm"),
+              ("map_agent", "map_cslstm", "map_cslstm"), ("map", "attention", "attention"),
+              ("map_cslstm", "cslstm", "CS-LSTM")]
     for g in piv.index:
         r = piv.loc[g]
         parts = []
-        learned = [m for m in piv.columns if not m.startswith("constant_velocity")]  # shipped or named by --model
-        pairs = [(m, "constant_velocity", "constant velocity") for m in learned]
-        pairs += [("attention", "cslstm", "CS-LSTM"), ("map", "map_cslstm", "map_cslstm"),
-                  ("map_agent", "map_cslstm", "map_cslstm"), ("map", "attention", "attention"),
-                  ("map_cslstm", "cslstm", "CS-LSTM")]
         for m, ref, label in pairs:
             if m in r and ref in r and r[ref] > 0:  # a reference of exactly 0 m (all standing) has no ratio
                 parts.append(f"{m} {100 * (1 - r[m] / r[ref]):+.1f}% vs {label}")

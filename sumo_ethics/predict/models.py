@@ -400,6 +400,13 @@ def bivariate_nll_terms(params: torch.Tensor, target: torch.Tensor) -> torch.Ten
     return 0.5 * z / one_m + torch.log(sx) + torch.log(sy) + 0.5 * torch.log(one_m) + math.log(2.0 * math.pi)
 
 
+def rank_modes(params: torch.Tensor, log_w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``model(..., all_modes=True)``'s output with each target's modes by falling weight (the
+    most likely first, ties in model order): params (B, M, T, 5), log_w (B, M)."""
+    order = torch.sort(log_w, dim=-1, descending=True, stable=True).indices
+    return params.gather(1, order[:, :, None, None].expand_as(params)), log_w.gather(1, order)
+
+
 def mixture_nll(params: torch.Tensor, log_w: torch.Tensor, target: torch.Tensor,
                 mask: torch.Tensor | None = None) -> torch.Tensor:
     """NLL of whole future trajectories under a mixture of M Gaussian trajectory modes, per point.

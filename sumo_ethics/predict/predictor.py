@@ -32,7 +32,7 @@ import torch
 
 from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
-from sumo_ethics.predict.models import KINDS, MAP_KINDS, load_model
+from sumo_ethics.predict.models import KINDS, MAP_KINDS, load_model, rank_modes
 from sumo_ethics.types import AgentStates, Observation, Prediction
 
 #: (ids, is_person (N,)) -> (LaneGraph | None, MapContext) of those agents, e.g. sim.lanes.SumoMapSource
@@ -145,10 +145,8 @@ class LSTMPredictor:
                     torch.from_numpy(feats["nbr_cell"]),
                     **extra, all_modes=True,
                 )
-        out, log_w = out.numpy().astype(float), log_w.numpy().astype(float)
-        order = np.argsort(-log_w, axis=1, kind="stable")  # most likely mode first
-        w = np.take_along_axis(np.exp(log_w), order, 1)
-        out = np.take_along_axis(out, order[:, :, None, None], 1)
+        out, log_w = rank_modes(out, log_w)  # most likely mode first
+        out, w = out.numpy().astype(float), np.exp(log_w.numpy().astype(float))
         mu = out[..., :2] * s[:, None, None, None]
         sx, sy, rho = out[..., 2] * s[:, None, None], out[..., 3] * s[:, None, None], out[..., 4]
         cov_t = np.empty(out.shape[:3] + (2, 2))

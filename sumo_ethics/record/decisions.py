@@ -211,7 +211,7 @@ class RecordedDecision:
     (N, T, 2, 2); cand_xy: (K, S, 2); cand_t: (S,); selection, j_risk, risk: (K,);
     validity: (K,) int8; eligible: (K,) bool; first_hit: (K,); terms: name -> (K,), NaN but for
     the chosen candidate and the best one of every other validity class (the ones kept);
-    pred_weight: (N, M) mode weights and pred_alt_mean: (M-1, N, T, 2) the other modes' centres,
+    pred_weight: (N, Q) mode weights and pred_alt_mean: (Q-1, N, T, 2) the other modes' centres,
     None for a single-mode prediction (pred_mean / pred_cov are then the most likely mode).
     """
 
