@@ -149,3 +149,83 @@ def test_improvement_summary_names_models_given_by_the_user():
     text = improvement_summary(df)
     # 1 - 1.5 / 2.0 = 25 % below constant velocity; the calibrated CV is a reference, not a model
     assert "- vehicle: mine +25.0% vs constant velocity" in text and "calibrated +" not in text
+
+
+def test_winner_takes_all_skips_modes_a_target_may_not_have():
+    # the truth lies on mode 1, but mode 1 has weight 0 (log -inf, e.g. a pedestrian with one
+    # mode): mode 0, 5 m off at both steps, wins: 25 m^2 and -log 1 = 0
+    params = torch.tensor([[[_gauss(3.0, 4.0)] * 2, [_gauss(0.0, 0.0)] * 2]])
+    log_w = torch.tensor([[0.0, -math.inf]])
+    assert float(winner_mse(params, log_w, torch.zeros(1, 2, 2))) == pytest.approx(25.0, abs=1e-5)
+
+
+def _options_model(seed: int = 0, **kw) -> TrajectoryLSTM:
+    torch.manual_seed(seed)
+    m = TrajectoryLSTM(kind="map_cslstm", nbr_frame="agent", modes=3, **kw).eval()
+    with torch.no_grad():
+        m.output.weight.normal_(0.0, 0.3)
+        m.output.bias.normal_(0.0, 0.3)
+        m.mode_head.weight.normal_(0.0, 0.3)
+    return m
+
+
+def _forward_all(m: TrajectoryLSTM, groups: list[int]):
+    g = torch.Generator().manual_seed(5)
+    b = len(groups)
+    hist = torch.cumsum(0.2 * torch.randn(b, 16, 2, generator=g), 1)
+    empty = torch.zeros(0, dtype=torch.long)
+    out, log_w = m(hist, torch.tensor(groups), torch.zeros(0, 16, 2), empty, empty, empty, nbr_yaw=torch.zeros(0),
+                   all_modes=True)
+    return hist, out, log_w
+
+
+def test_constant_velocity_mode_and_one_mode_pedestrians():
+    from sumo_ethics.predict import features as F
+
+    groups = [F.GROUP_VEHICLE, F.GROUP_CYCLIST, F.GROUP_PEDESTRIAN, F.GROUP_VEHICLE]
+    m = _options_model(cv_mode=True, single_mode_groups=(F.GROUP_PEDESTRIAN,))
+    hist, out, log_w = _forward_all(m, groups)
+    # the last mode of a vehicle or cyclist is the last 0.2 s displacement repeated: k * v at step k
+    v = hist[:, -1] - hist[:, -2]
+    k = torch.arange(1, 21, dtype=torch.float32)[:, None]
+    for i in (0, 1, 3):
+        torch.testing.assert_close(out[i, 2, :, :2], k * v[i], rtol=0, atol=1e-6)
+    # a pedestrian decodes absolute positions: its constant-velocity mode stands still (and it
+    # has weight 0 anyway); the free modes are not constant velocity
+    assert float(out[2, 2, :, :2].detach().abs().max()) == 0.0
+    assert float((out[0, 0, :, :2] - k * v[0]).detach().abs().max()) > 1e-3
+    # the pedestrian has mode 0 only, with weight 1; the others keep learned weights
+    assert log_w[2].tolist() == [0.0, -math.inf, -math.inf]
+    assert torch.isfinite(log_w[[0, 1, 3]]).all()
+    torch.testing.assert_close(log_w[[0, 1, 3]].exp().sum(-1), torch.ones(3))
+    # the losses stay finite and so do their gradients
+    m.train()
+    _, out, log_w = _forward_all(m, groups)
+    y = torch.zeros(4, 20, 2)
+    loss = mixture_nll(out, log_w, y) + winner_mse(out, log_w, y)
+    loss.backward()
+    assert torch.isfinite(loss) and all(torch.isfinite(p.grad).all() for p in m.parameters() if p.grad is not None)
+
+
+def test_model_options_survive_the_file_and_reach_the_prediction(tmp_path):
+    from sumo_ethics.predict import features as F
+
+    m = _options_model(seed=2, dec=64, cv_mode=True, single_mode_groups=(F.GROUP_PEDESTRIAN,))
+    m2, header = load_model(save_model(m, tmp_path / "opt.pt"))
+    assert (m2.dec_size, m2.cv_mode, m2.single_mode_groups) == (64, True, (F.GROUP_PEDESTRIAN,))
+    assert header["config"]["dec"] == 64
+    obs = make_observation(16)  # its first two agents are pedestrians
+    p = LSTMPredictor(m2, header, map_source=lane_source(obs)).predict(obs, 20, 0.1)
+    np.testing.assert_array_equal(p.weight[:2], [[1.0, 0.0, 0.0]] * 2)
+    assert np.all(p.weight[2:, 0] < 1.0)
+    # the default options leave the file's config as before
+    cfg = load_model(save_model(_model(3), tmp_path / "plain.pt"))[1]["config"]
+    assert not {"dec", "cv_mode", "single_mode_groups"} & set(cfg)
+
+
+def test_min_ade_ignores_modes_of_weight_zero():
+    # mode 1 sits on the truth but has weight 0: the closest mode that counts is mode 0, 1 m off
+    params = np.array([[[_gauss(1.0, 0.0)] * 20, [_gauss(0.0, 0.0)] * 20]])
+    out = metrics(params, np.zeros((1, 20, 2)), np.ones((1, 20), bool), np.array([[1.0, 0.0]]))
+    assert out["min_ade"] == pytest.approx(1.0) and out["ade"] == pytest.approx(1.0)
+    assert out["nll"] == pytest.approx(LOG_2PI + 0.5, abs=1e-12)

@@ -46,6 +46,9 @@ def train_main(
     hazard_repeat: int = 1,
     nbr_frame: str | None = None,
     modes: int | None = None,
+    dec: int = 128,
+    cv_mode: bool = False,
+    single_mode_groups: tuple[int, ...] = (),
 ) -> dict:
     """Train ``model`` ("map", "map_cslstm", "attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
 
@@ -55,7 +58,8 @@ def train_main(
 
     cfg = TrainConfig(epochs=epochs, mse_epochs=mse_epochs, max_minutes=max_minutes, max_train=max_train,
                       seed=seed, threads=threads, max_wall_minutes=max_wall_minutes, hazard_repeat=hazard_repeat,
-                      nbr_frame=nbr_frame, modes=modes)
+                      nbr_frame=nbr_frame, modes=modes, dec=dec, cv_mode=cv_mode,
+                      single_mode_groups=tuple(single_mode_groups))
     return train_model(Path(dataset), model, Path(out), cfg, progress=progress)
 
 

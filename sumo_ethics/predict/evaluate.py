@@ -107,7 +107,7 @@ def metrics(params: np.ndarray, fut: np.ndarray, valid: np.ndarray | None = None
 
     params (S, T, 5), or (S, M, T, 5) with ``weight`` (S, M) for M modes, the most likely first:
     the displacement errors and the ellipses are those of the most likely mode, the NLL that of
-    the mixture; min_ade is the ADE of each sample's closest mode (= ade for one mode)."""
+    the mixture; min_ade is the ADE of each sample's closest mode of non-zero weight (= ade for one mode)."""
     if weight is None:
         params, weight = params[:, None], np.ones((len(params), 1))
     modes = params
@@ -122,6 +122,7 @@ def metrics(params: np.ndarray, fut: np.ndarray, valid: np.ndarray | None = None
     out["ade"] = float(err[valid].mean())
     err_m = np.linalg.norm(modes[..., :2] - fut[:, None], axis=-1)  # (S, M, T)
     per_mode = (err_m * valid[:, None]).sum(-1) / np.maximum(valid.sum(-1), 1)[:, None]
+    per_mode = np.where(weight > 0, per_mode, np.inf)  # a mode of weight 0 is no prediction
     out["min_ade"] = float((per_mode.min(axis=1) * valid.sum(-1)).sum() / valid.sum())
     last = valid.sum(axis=1) - 1
     out["fde"] = float(err[np.arange(len(err)), last].mean())

@@ -133,6 +133,8 @@ class TrajectoryLSTM(nn.Module):
         map_size: int = 64,
         nbr_frame: str = "target",
         modes: int = 1,
+        cv_mode: bool = False,
+        single_mode_groups: tuple[int, ...] = (),
     ) -> None:
         super().__init__()
         if kind not in KINDS:
@@ -141,9 +143,22 @@ class TrajectoryLSTM(nn.Module):
             raise ValueError(f"unknown nbr_frame {nbr_frame!r}, expected one of {NBR_FRAMES}")
         if not (isinstance(modes, int) and 1 <= modes <= 8):
             raise ValueError(f"modes must be an integer from 1 to 8, got {modes!r}")
+        if (cv_mode or single_mode_groups) and modes < 2:
+            raise ValueError("cv_mode and single_mode_groups need modes >= 2")
+        if cv_mode and not residual:
+            raise ValueError("cv_mode needs residual decoding (its mean is the constant-velocity rollout)")
         self.kind = kind
         self.nbr_frame = nbr_frame
         self.modes = modes
+        self.cv_mode = bool(cv_mode)
+        self.single_mode_groups = tuple(int(g) for g in single_mode_groups)
+        fixed = torch.full((n_groups, modes), -math.inf)
+        fixed[:, 0] = 0.0
+        single = torch.zeros(n_groups, dtype=torch.bool)
+        single[list(self.single_mode_groups)] = True
+        self.register_buffer("single_mode_mask", single, persistent=False)
+        self.register_buffer("single_mode_log_w", fixed, persistent=False)
+        self.dec_size = dec
         self.sigma_min = float(sigma_min)
         self.residual = bool(residual)
         self.residual_groups = tuple(int(g) for g in residual_groups) if residual else ()
@@ -293,6 +308,8 @@ class TrajectoryLSTM(nn.Module):
         if self.modes > 1:
             out = out.view(b, self.fut_steps, self.modes, 5).transpose(1, 2)  # (B, M, T, 5)
         mu = out[..., :2]
+        if self.cv_mode:  # the last mode's mean is the constant-velocity rollout itself
+            mu = torch.cat([mu[:, :-1], torch.zeros_like(mu[:, -1:])], 1)
         if self.residual:
             steps = torch.arange(1, self.fut_steps + 1, dtype=mu.dtype, device=mu.device)
             v_last = tgt_hist[:, -1] - tgt_hist[:, -2]  # displacement over the last model step
@@ -305,6 +322,8 @@ class TrajectoryLSTM(nn.Module):
         if self.modes == 1:
             return (params[:, None], params.new_zeros(b, 1)) if all_modes else params
         log_w = torch.log_softmax(self.mode_head(enc), -1)
+        if self.single_mode_groups:  # these groups get mode 0 with weight 1 (the others weight 0)
+            log_w = torch.where(self.single_mode_mask[tgt_group][:, None], self.single_mode_log_w[tgt_group], log_w)
         if all_modes:
             return params, log_w
         return params[torch.arange(b), log_w.argmax(-1)]
@@ -428,7 +447,7 @@ def winner_mse(params: torch.Tensor, log_w: torch.Tensor, target: torch.Tensor,
     d = ((params[..., :2] - target[:, None]) ** 2).sum(-1)  # (B, M, T)
     m = torch.ones(d.shape[0], d.shape[2], dtype=d.dtype) if mask is None else mask.to(d.dtype)
     per_mode = (d * m[:, None, :]).sum(-1) / m.sum(-1, keepdim=True).clamp_min(1.0)  # (B, M)
-    best = per_mode.argmin(-1)
+    best = per_mode.masked_fill(torch.isinf(log_w), math.inf).argmin(-1)  # among the modes a target may have
     return per_mode.gather(1, best[:, None]).mean() + Fn.nll_loss(log_w, best)
 
 
@@ -453,6 +472,9 @@ def model_config(model: TrajectoryLSTM) -> dict[str, Any]:
         **({"map_size": model.map_size - 32} if model.kind in MAP_KINDS else {}),
         **({"nbr_frame": model.nbr_frame} if model.nbr_frame != "target" else {}),
         **({"modes": model.modes} if model.modes > 1 else {}),
+        **({"dec": model.dec_size} if model.dec_size != 128 else {}),
+        **({"cv_mode": True} if model.cv_mode else {}),
+        **({"single_mode_groups": list(model.single_mode_groups)} if model.single_mode_groups else {}),
     }
 
 
@@ -516,7 +538,8 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
                                residual=cfg.get("residual", False),
                                residual_groups=tuple(cfg.get("residual_groups", (0, 1, 2))),
                                map_size=cfg.get("map_size", 64), nbr_frame=cfg.get("nbr_frame", "target"),
-                               modes=cfg.get("modes", 1))
+                               modes=cfg.get("modes", 1), dec=cfg.get("dec", 128), cv_mode=cfg.get("cv_mode", False),
+                               single_mode_groups=tuple(cfg.get("single_mode_groups", ())))
         model.load_state_dict(blob["state_dict"])
     except Exception as exc:  # noqa: BLE001
         raise PredictorError(f"predictor weights file {path} does not match the model: {exc}") from None

@@ -49,7 +49,9 @@ class TrainConfig:
     rare and the planner's risk depends on them most); nbr_frame: the model's neighbour
     encoding (models.NBR_FRAMES; None: models.default_nbr_frame); modes: Gaussian trajectory modes
     per target (1: a single Gaussian as before; > 1: winner-takes-all MSE warm-up, then the mixture
-    NLL, see models.mixture_nll; None: models.default_modes)."""
+    NLL, see models.mixture_nll; None: models.default_modes); dec: decoder LSTM size; cv_mode: the
+    last mode's mean is the constant-velocity rollout; single_mode_groups: class groups
+    (features.GROUP_*) that get mode 0 only (weight 1)."""
 
     epochs: int = 40
     mse_epochs: int = 4
@@ -68,6 +70,9 @@ class TrainConfig:
     hazard_repeat: int = 1
     nbr_frame: str | None = None
     modes: int | None = None
+    dec: int = 128
+    cv_mode: bool = False
+    single_mode_groups: tuple[int, ...] = ()
 
 
 def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -145,7 +150,8 @@ def train_model(
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise ValueError(f"dataset {dataset} has no train or no validation samples")
     config = replace(config, nbr_frame=nbr_frame, modes=config.modes or default_modes(kind))  # as trained, in the log
-    model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes)
+    model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes, dec=config.dec, cv_mode=config.cv_mode,
+                           single_mode_groups=tuple(config.single_mode_groups))
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     n_batches = math.ceil(len(train_idx) / config.batch_size)
     best, best_state, best_epoch, bad = math.inf, None, -1, 0
