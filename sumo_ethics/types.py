@@ -234,6 +234,14 @@ class Prediction:
         w = np.ones((n, 1)) if self.weight is None else self.weight
         return tuple((m, w[:, i]) for i, m in enumerate((self.single(),) + self.alternatives))
 
+    def take(self, index: np.ndarray | list[int]) -> "Prediction":
+        """The agents at integer positions ``index``, every mode and weight kept."""
+        idx = np.asarray(index, dtype=int)
+        sub = self.map_modes(lambda m: Prediction(tuple(m.ids[i] for i in idx), m.dt, m.mean[idx], m.cov[idx], m.yaw[idx]))
+        if self.weight is None:
+            return sub
+        return Prediction(sub.ids, sub.dt, sub.mean, sub.cov, sub.yaw, sub.alternatives, self.weight[idx])
+
     def map_modes(self, fn) -> "Prediction":
         """``fn`` (single-mode Prediction -> single-mode Prediction) applied to every mode, weights kept."""
         main = fn(self.single())

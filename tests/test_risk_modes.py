@@ -153,6 +153,22 @@ def test_a_negligible_mode_counts_nowhere():
     assert not r.ego_risk.any() and not r.other_risk.any() and not r.ego_harm_max.any() and not r.other_harm_max.any()
 
 
+def test_a_mode_of_weight_zero_for_one_agent_is_skipped_for_it_only():
+    # a1 is a one-mode pedestrian (its walking mode has weight 0); a0 keeps stays 0.7 / pulls away 0.3
+    w = np.array([[0.7, 0.3], [1.0, 0.0]])
+    r = risk(with_modes(STAYS, (MOVES,), w))
+    m = risk(MOVES)
+    # only a0's pulling away counts: 0.3 times its single-mode risk, nothing for a1
+    np.testing.assert_allclose(r.ego_risk[:, 0], 0.3 * m.ego_risk[:, 0], rtol=1e-12)
+    np.testing.assert_allclose(r.other_risk[:, 0], 0.3 * m.other_risk[:, 0], rtol=1e-12)
+    np.testing.assert_array_equal(r.ego_harm_max[:, 0], m.ego_harm_max[:, 0])
+    assert not r.ego_risk[:, 1].any() and not r.other_harm_max[:, 1].any() and (r.sparse.n == 0).all()
+    # a0's entries are those of its mode, with p weighted by 0.3
+    a0 = m.sparse.n == 0
+    np.testing.assert_array_equal(r.sparse.t, m.sparse.t[a0])
+    np.testing.assert_allclose(r.sparse.p, 0.3 * m.sparse.p[a0], rtol=1e-12)
+
+
 # ------------------------------------------------------------------ the priors keep the modes
 def _braking(accel: float) -> AgentStates:
     return AgentStates(ids=("b",), x=np.zeros(1), y=np.zeros(1), yaw=np.zeros(1), speed=np.full(1, 10.0),

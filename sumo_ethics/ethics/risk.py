@@ -199,7 +199,14 @@ def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates, ar
     ego_risk, other_risk, ego_hmax, other_hmax = zeros, zeros, zeros, zeros
     parts = []
     for mode, w in pred.by_mode():
-        sp, h_e, h_o = _entries(cand, mode, agents, *args)
+        rows = np.flatnonzero(w >= p_min)  # w p_m < p_min where w is: such an agent's mode counts nowhere
+        if rows.size == 0:
+            continue
+        if rows.size == N:
+            sp, h_e, h_o = _entries(cand, mode, agents, *args)
+        else:  # assessed for the agents it can count for only (e.g. a one-mode pedestrian's weight-0 modes)
+            sp, h_e, h_o = _entries(cand, mode.take(rows), agents.take(rows), *args)
+            sp = SparseProbability(sp.k, rows.take(sp.n), sp.t, sp.p, (K, N, T))  # rows rise: still sorted
         wp = w.take(sp.n) * sp.p  # (E,) the mode's share of the marginal probability
         keep = np.flatnonzero(wp >= p_min)  # a negligible mode at (k, n, t) counts nowhere (see assess_risk)
         k, n, t, p, wp, h_e, h_o = (a.take(keep) for a in (sp.k, sp.n, sp.t, sp.p, wp, h_e, h_o))
