@@ -238,18 +238,33 @@ def _dataset_folder(path: Path) -> Path:
 @click.option("--modes", type=click.IntRange(1, 8), default=None,
               help="Gaussian trajectory modes per agent (1: a single Gaussian; default: 3 for map_cslstm, "
                    "1 for the others, as shipped).")
+@click.option("--decoder-size", type=click.IntRange(8, 512), default=None,
+              help="Decoder LSTM states (default: 64 for map_cslstm, 128 for the others, as shipped).")
+@click.option("--cv-mode/--no-cv-mode", default=None,
+              help="Make the last mode's mean the constant-velocity rollout, its weight and spread learned "
+                   "(default: on for map_cslstm with several modes, as shipped).")
+@click.option("--one-mode-pedestrians/--all-modes-pedestrians", default=None,
+              help="Give pedestrians the first mode only, with weight 1 (default: on for map_cslstm with several "
+                   "modes, as shipped).")
 def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
-          nbr_frame: str | None, modes: int | None) -> None:
+          nbr_frame: str | None, modes: int | None, decoder_size: int | None, cv_mode: bool | None,
+          one_mode_pedestrians: bool | None) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation; with several modes the
     warm-up is winner-takes-all and the NLL that of the mixture)."""
     from sumo_ethics.predict import train_main
+    from sumo_ethics.predict.features import GROUP_PEDESTRIAN
+    from sumo_ethics.predict.models import default_modes
 
     if not max_minutes > 0:
         raise click.BadParameter("--max-minutes must be positive")
     if hazard_repeat < 1:
         raise click.BadParameter("--hazard-repeat must be at least 1")
+    if (cv_mode or one_mode_pedestrians) and (modes or default_modes(model)) < 2:
+        raise click.BadParameter("--cv-mode and --one-mode-pedestrians need --modes 2 or more")
+    single = None if one_mode_pedestrians is None else ((GROUP_PEDESTRIAN,) if one_mode_pedestrians else ())
     result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed,
-                        hazard_repeat=hazard_repeat, nbr_frame=nbr_frame, modes=modes)
+                        hazard_repeat=hazard_repeat, nbr_frame=nbr_frame, modes=modes, dec=decoder_size,
+                        cv_mode=cv_mode, single_mode_groups=single)
     click.echo(f"weights written to {out}: {result['kind']}, best epoch {result['best_epoch']} "
                f"(validation NLL {result['best_val_nll']:.3f}), stopped by {result['stopped']} after "
                f"{result['cpu_minutes']:.1f} CPU-minutes; the training log is {Path(out).with_suffix('.json')}")

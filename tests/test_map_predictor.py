@@ -291,8 +291,9 @@ def test_shipped_default_keeps_a_queue_at_a_red_light_standing_as_its_most_likel
     assert p.model.modes == 3
     mean, _, w = p.mode_outputs(obs)
     moved = mean[:, :, -1, 0] - obs.current.x[:, None]  # (4 cars, 3 modes) along the lane after 4 s
-    assert np.all(w[:, 0] > 0.8) and np.all(np.abs(moved[:, 0]) < 0.1)  # most likely: stays (< 10 cm)
-    assert np.all(moved[:, 1:] > 0.3)  # the other modes pull away
+    assert np.all(w[:, 0] > 0.75) and np.all(np.abs(moved[:, 0]) < 0.1)  # most likely: stays (< 10 cm)
+    assert w[0, 0] > 0.9  # the first car, right at the red light, the most surely
+    assert np.all(moved[:, 1:] > 0.1)  # the other modes pull away
     # at green the first car is likelier to go than at red
     obs_g, source_g = _queue_at_light(1)
     _, _, w_g = LSTMPredictor.default(map_source=source_g).mode_outputs(obs_g)

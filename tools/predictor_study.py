@@ -4,9 +4,11 @@ scenarios that no predictor was trained or evaluated on.
     python tools/predictor_study.py [--first 140] [--count 20] [--workers 1] [--out runs/predictor_study] [--resume]
 
 Planners (the paper's planner, only the predictor or the priors changed): cv, cslstm,
-attention, map (attention + lanes), map_cslstm (CS-LSTM + lanes, 3 trajectory modes, the
-default), map_cslstm_1mode (the one-mode map_cslstm it replaced, weights/map_cslstm_1mode.pt)
-and map_cslstm_nopriors (map_cslstm with braking_prior = lateral_prior = 0).
+attention, map (attention + lanes), map_cslstm (CS-LSTM + lanes, 3 trajectory modes, the last of
+them constant velocity, pedestrians with one mode: the default), map_cslstm_v2 (the 3 free modes it
+replaced, weights/map_cslstm_v2.pt), map_cslstm_1mode (the one-mode map_cslstm before that,
+weights/map_cslstm_1mode.pt) and map_cslstm_nopriors (map_cslstm with braking_prior =
+lateral_prior = 0).
 Scenarios s<first>..s<first+count-1> of scenarios/suite (tools/train_shipped.py trains on
 s0000-s0099 and evaluates prediction on s0100-s0139). Writes the suite's table1.md,
 paired.csv and results.csv to --out.
@@ -21,14 +23,15 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-ONE_MODE = ROOT / "sumo_ethics" / "predict" / "weights" / "map_cslstm_1mode.pt"
+WEIGHTS = ROOT / "sumo_ethics" / "predict" / "weights"
 PLANNERS = (
     "cv=predictor=cv",
     "cslstm=predictor=cslstm",
     "attention=predictor=attention",
     "map=predictor=map",
     "map_cslstm=predictor=map_cslstm",
-    f"map_cslstm_1mode=predictor=map_cslstm;predictor_weights={ONE_MODE}",
+    f"map_cslstm_v2=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v2.pt'}",
+    f"map_cslstm_1mode=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_1mode.pt'}",
     "map_cslstm_nopriors=predictor=map_cslstm;braking_prior=0;lateral_prior=0",
 )
 

@@ -107,6 +107,17 @@ def default_modes(kind: str) -> int:
     return 3 if kind == "map_cslstm" else 1
 
 
+def default_options(kind: str, modes: int) -> dict[str, Any]:
+    """Decoder size, constant-velocity mode and one-mode class groups of a new model of ``kind``
+    with ``modes`` modes: those of its shipped file (map_cslstm: a 64-state decoder, the last mode
+    constant velocity, pedestrians with one mode; the others as they were, for the ablation). The
+    mode options need modes > 1."""
+    if kind != "map_cslstm":
+        return {"dec": 128, "cv_mode": False, "single_mode_groups": ()}
+    multi = modes > 1
+    return {"dec": 64, "cv_mode": multi, "single_mode_groups": (F.GROUP_PEDESTRIAN,) if multi else ()}
+
+
 FILE_FORMAT = "sumo-ethics-predictor"
 FILE_FORMAT_VERSION = 1
 

@@ -25,6 +25,7 @@ from sumo_ethics.predict.models import (
     bivariate_nll,
     MAP_KINDS,
     default_modes,
+    default_options,
     default_nbr_frame,
     masked_mse,
     mixture_nll,
@@ -51,7 +52,7 @@ class TrainConfig:
     per target (1: a single Gaussian as before; > 1: winner-takes-all MSE warm-up, then the mixture
     NLL, see models.mixture_nll; None: models.default_modes); dec: decoder LSTM size; cv_mode: the
     last mode's mean is the constant-velocity rollout; single_mode_groups: class groups
-    (features.GROUP_*) that get mode 0 only (weight 1)."""
+    (features.GROUP_*) that get mode 0 only (weight 1); each None: models.default_options."""
 
     epochs: int = 40
     mse_epochs: int = 4
@@ -70,9 +71,9 @@ class TrainConfig:
     hazard_repeat: int = 1
     nbr_frame: str | None = None
     modes: int | None = None
-    dec: int = 128
-    cv_mode: bool = False
-    single_mode_groups: tuple[int, ...] = ()
+    dec: int | None = None
+    cv_mode: bool | None = None
+    single_mode_groups: tuple[int, ...] | None = None
 
 
 def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -149,7 +150,9 @@ def train_model(
     val_idx = _split_index(samples, "val", config.max_val, rng)
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise ValueError(f"dataset {dataset} has no train or no validation samples")
-    config = replace(config, nbr_frame=nbr_frame, modes=config.modes or default_modes(kind))  # as trained, in the log
+    modes = config.modes or default_modes(kind)
+    options = {k: v if getattr(config, k) is None else getattr(config, k) for k, v in default_options(kind, modes).items()}
+    config = replace(config, nbr_frame=nbr_frame, modes=modes, **options)  # as trained, in the log
     model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes, dec=config.dec, cv_mode=config.cv_mode,
                            single_mode_groups=tuple(config.single_mode_groups))
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
