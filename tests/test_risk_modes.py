@@ -167,6 +167,24 @@ def test_a_mode_of_weight_zero_for_one_agent_is_skipped_for_it_only():
     a0 = m.sparse.n == 0
     np.testing.assert_array_equal(r.sparse.t, m.sparse.t[a0])
     np.testing.assert_allclose(r.sparse.p, 0.3 * m.sparse.p[a0], rtol=1e-12)
+    # the other way round: a0's mode is skipped, a1 (row 1) keeps 0.6 of its walking mode, so the
+    # entries assessed for a1 alone must come back as agent 1's, sorted by (k, n, t)
+    r = risk(with_modes(STAYS, (MOVES,), np.array([[1.0, 0.0], [0.4, 0.6]])))
+    a1 = m.sparse.n == 1
+    assert r.sparse.p.size > 0 and (r.sparse.n == 1).all()
+    np.testing.assert_array_equal(r.sparse.k, m.sparse.k[a1])
+    np.testing.assert_array_equal(r.sparse.t, m.sparse.t[a1])
+    np.testing.assert_allclose(r.sparse.p, 0.6 * m.sparse.p[a1], rtol=1e-12)
+    np.testing.assert_allclose(r.ego_risk[:, 1], 0.6 * m.ego_risk[:, 1], rtol=1e-12)
+    assert not r.ego_risk[:, 0].any()
+
+
+def test_no_agents_with_several_modes():
+    empty = AgentStates.empty()
+    none = Prediction((), DT, np.zeros((0, T, 2)), np.zeros((0, T, 2, 2)), np.zeros((0, T)))
+    two = with_modes(none, (none,), np.zeros((0, 2)))
+    r = assess_risk(candidates(), two, empty, EGO_M, RoadUserClass.CAR, EGO_L, EGO_W)
+    assert r.ego_risk.shape == (2, 0) and r.sparse.p.size == 0
 
 
 # ------------------------------------------------------------------ the priors keep the modes
@@ -263,9 +281,14 @@ def test_planner_runs_on_two_modes_and_the_priors_keep_them(tmp_path):
 
     from sumo_ethics.analysis.explain import draw_agents
 
-    fig, ax = plt.subplots()
-    assert draw_agents(ax, d) == ["car"]
-    plt.close(fig)
+    from dataclasses import replace
+
+    # the other mode is drawn dotted; a mode of weight 0 (a one-mode pedestrian's) is not drawn
+    for weight, dotted in (([[0.6, 0.4]], 1), ([[1.0, 0.0]], 0)):
+        fig, ax = plt.subplots()
+        assert draw_agents(ax, replace(d, pred_weight=np.array(weight))) == ["car"]
+        assert sum(line.get_linestyle() == ":" for line in ax.get_lines()) == dotted
+        plt.close(fig)
 
 
 def test_single_mode_recording_has_no_mode_arrays(tmp_path):

@@ -242,6 +242,8 @@ def draw_agents(ax: Any, d: RecordedDecision, predictions: bool = True) -> list[
             if d.pred_alt_mean is not None:  # the other modes of a multi-modal prediction: dotted mean paths,
                 w = d.pred_weight[i]  # as wide as they are likely; where the main mode is not nearly sure,
                 for alt, wk in zip(d.pred_alt_mean[:, i], w[1:]):  # every mode of 5 % or more is labelled
+                    if wk <= 0.0:  # no prediction (a one-mode pedestrian's other modes)
+                        continue
                     ax.plot(np.r_[x, alt[:, 0]], np.r_[y, alt[:, 1]], color=colour, lw=0.5 + 2.0 * wk, ls=":", zorder=4)
                 if w[0] < 0.95:
                     ends = [m[-1]] + list(d.pred_alt_mean[:, i, -1])

@@ -219,10 +219,11 @@ def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates, ar
     terms = (ego_risk, other_risk, ego_hmax, other_hmax)
 
     # one entry per (k, n, t): the modes' shares summed (the stable sort keeps the mode order)
-    key, wp, h_e, h_o = (np.concatenate(a) for a in zip(*parts))
-    order = np.argsort(key, kind="stable")
-    key, wp, h_e, h_o = key.take(order), wp.take(order), h_e.take(order), h_o.take(order)
-    if key.size == 0:
+    if parts:
+        key, wp, h_e, h_o = (np.concatenate(a) for a in zip(*parts))
+        order = np.argsort(key, kind="stable")
+        key, wp, h_e, h_o = key.take(order), wp.take(order), h_e.take(order), h_o.take(order)
+    if not parts or key.size == 0:  # (no agent at all skips every mode)
         empty = np.zeros(0, dtype=np.intp)
         return SparseProbability(empty, empty, empty, np.zeros(0), (K, N, T)), np.zeros(0), np.zeros(0), terms
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])

@@ -57,7 +57,8 @@ as warm-up, then the mixture NLL of whole trajectories (:func:`mixture_nll`). A 
 can then be "stays" and "pulls away" at once instead of one Gaussian averaging the two.
 Options (``default_options``, all on for the shipped map_cslstm): ``cv_mode``, the last mode's
 mean is the constant-velocity rollout itself (a standing agent stays), only its spread and
-weight learned; ``single_mode_groups``, class groups (pedestrians) that get mode 0 with weight 1
+weight learned (for the groups decoded in absolute positions, pedestrians, it is "stands
+still"; the shipped model gives them one mode anyway); ``single_mode_groups``, class groups (pedestrians) that get mode 0 with weight 1
 and the others weight 0; ``dec``, the decoder's size (64 instead of 128).
 
 Neighbour encoding (``nbr_frame``). "target" (cslstm, attention, the first map model): each
