@@ -13,9 +13,11 @@ default, feature version 1 + map version 1) and/or the ablation's "attention", "
 (their shipped files were trained on the version-1 dataset without map columns or suite
 runs: ``--stages dataset --no-suite`` and then ``--models attention,cslstm`` rebuild them).
 
-Wall time of the shipped map model on this shared 2-core machine (one worker, one thread):
-dataset 19.0 min, training 22.2 min (20 CPU-minute budget, best epoch 6 of 9), held-out
-dataset 6.7 min, evaluation about 2 min: about 50 min in all.
+Wall time on this shared 2-core machine (one worker, one thread): dataset 19.0 min; training
+of the shipped map_cslstm 23.1 min (20 CPU-minute budget, best epoch 9 of 10, the last, cut by
+the budget), of map 22.2 min (best epoch 6 of 9); held-out dataset 6.7 min; evaluation of the
+eight models about 8 min on the test split and 2 min on the held-out one: about 80 min in all
+for both map models, one after the other (``--parallel`` trains them at once).
 
     python tools/train_shipped.py --work /tmp/pred --stages dataset,train,heldout,evaluate --workers 1
 """
