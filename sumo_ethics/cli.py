@@ -261,7 +261,8 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
     if hazard_repeat < 1:
         raise click.BadParameter("--hazard-repeat must be at least 1")
     if (cv_mode or one_mode_pedestrians) and (modes or default_modes(model)) < 2:
-        raise click.BadParameter("--cv-mode and --one-mode-pedestrians need --modes 2 or more")
+        raise click.BadParameter(f"--cv-mode and --one-mode-pedestrians need --modes 2 or more ({model} has "
+                                 f"{default_modes(model)} mode(s) unless --modes says otherwise)")
     single = None if one_mode_pedestrians is None else ((GROUP_PEDESTRIAN,) if one_mode_pedestrians else ())
     result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed,
                         hazard_repeat=hazard_repeat, nbr_frame=nbr_frame, modes=modes, dec=decoder_size,

@@ -289,6 +289,13 @@ def test_planner_runs_on_two_modes_and_the_priors_keep_them(tmp_path):
         assert draw_agents(ax, replace(d, pred_weight=np.array(weight))) == ["car"]
         assert sum(line.get_linestyle() == ":" for line in ax.get_lines()) == dotted
         plt.close(fig)
+    # probability labels at the paths' ends: the two ends are 0.45 m apart, so only the likelier
+    # mode is labelled; 10 m apart, both are
+    for shift, labels in ((0.0, ["60%"]), (10.0, ["60%", "40%"])):
+        fig, ax = plt.subplots()
+        draw_agents(ax, replace(d, pred_alt_mean=d.pred_alt_mean + np.array([0.0, shift])))
+        assert [t.get_text() for t in ax.texts] == labels
+        plt.close(fig)
 
 
 def test_single_mode_recording_has_no_mode_arrays(tmp_path):

@@ -8,8 +8,8 @@ their hazards (anchors every 0.4 s, split by scenario). Writes the weights to
 sumo_ethics/predict/weights/<model>.pt (+ .json training logs); "heldout" records a second
 dataset of scenarios never trained on (GAME configs of eclipse-sumo's tools/game, 3 seeds x
 300 s, and suite scenarios s0100-s0139); "evaluate" writes prediction_eval.{csv,md} (test
-seeds/scenarios) and heldout/prediction_eval.{csv,md} (the held-out dataset) there. ``--models`` picks what is trained: "map" (the shipped
-default, feature version 1 + map version 1) and/or the ablation's "attention", "cslstm"
+seeds/scenarios) and heldout/prediction_eval.{csv,md} (the held-out dataset) there. ``--models`` picks what is trained: "map_cslstm" (the shipped
+default) and "map" (both feature version 1 + map version 1; the default of --models) and/or the ablation's "attention", "cslstm"
 (their shipped files were trained on the version-1 dataset without map columns or suite
 runs: ``--stages dataset --no-suite`` and then ``--models attention,cslstm`` rebuild them).
 

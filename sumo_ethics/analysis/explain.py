@@ -218,11 +218,18 @@ def draw_road(ax: Any, road: Any) -> None:
         ax.add_collection(LineCollection(list(road.stop_lines), colors="white", linewidths=2.5, zorder=0.6))
 
 
+#: [m] the least distance between two mode-probability labels in a figure
+LABEL_GAP = 2.0
+
+
 def draw_agents(ax: Any, d: RecordedDecision, predictions: bool = True) -> list[str]:
     """Boxes (true size) and predictions of every road user and the ego; the classes drawn."""
     from matplotlib.patches import Polygon as Patch
 
+    from matplotlib.patheffects import withStroke
+
     seen = []
+    labelled: list[np.ndarray] = []  # where mode probabilities are written [m]
     for i, row in enumerate(d.agents):
         x, y, yaw, _, length, width, cls = row
         label = RoadUserClass(int(cls)).label
@@ -248,9 +255,12 @@ def draw_agents(ax: Any, d: RecordedDecision, predictions: bool = True) -> list[
                 if w[0] < 0.95:
                     ends = [m[-1]] + list(d.pred_alt_mean[:, i, -1])
                     for end, wk in zip(ends, w):
-                        if wk >= 0.05:
+                        # a label needs LABEL_GAP m of its own (paths ending together would print over
+                        # each other: the first, most likely, is kept); a white rim keeps it readable on a box
+                        if wk >= 0.05 and all(np.hypot(*(end - q)) >= LABEL_GAP for q in labelled):
+                            labelled.append(np.asarray(end))
                             ax.text(end[0], end[1], f"{wk:.0%}", fontsize=7, color=colour, zorder=8, clip_on=True,
-                                    ha="center", va="bottom")
+                                    ha="center", va="bottom", path_effects=[withStroke(linewidth=2.0, foreground="white")])
     ex, ey, eyaw, _, el, ew = d.ego[:6]
     ax.add_patch(Patch(_box(ex, ey, eyaw, el, ew), closed=True, fc=EGO_COLOUR, ec="white", lw=1.0, zorder=6))
     return seen
