@@ -225,7 +225,6 @@ LABEL_GAP = 2.0
 def draw_agents(ax: Any, d: RecordedDecision, predictions: bool = True) -> list[str]:
     """Boxes (true size) and predictions of every road user and the ego; the classes drawn."""
     from matplotlib.patches import Polygon as Patch
-
     from matplotlib.patheffects import withStroke
 
     seen = []

@@ -205,7 +205,7 @@ def evaluate(
                 f"{STANDING_SPEED} m/s now, <class>:moving the others. in_1sigma / in_2sigma: share of true "
                 f"positions inside the predicted 1- and 2-sigma ellipses (a calibrated Gaussian: 0.393 / 0.865). "
                 f"Multi-modal models: ade, fde, rmse and the ellipses are those of the most likely mode, nll that "
-                f"of the mixture, min_ade that of each sample's closest mode (= ade for one mode). "
+                f"of the mixture, min_ade that of each sample's closest mode of non-zero weight (= ade for one mode). "
                 f"constant_velocity_calibrated: growth rates [m/s] (lon, lat) "
                 f"fitted on the train seeds: vehicle {tuple(round(v, 3) for v in cv_cal.growth)}, "
                 f"cyclist {tuple(round(v, 3) for v in cv_cal.growth_cyclist)}, "

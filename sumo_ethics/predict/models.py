@@ -168,13 +168,12 @@ class TrajectoryLSTM(nn.Module):
         self.modes = modes
         self.cv_mode = bool(cv_mode)
         self.single_mode_groups = tuple(int(g) for g in single_mode_groups)
-        fixed = torch.full((n_groups, modes), -math.inf)
-        fixed[:, 0] = 0.0
         single = torch.zeros(n_groups, dtype=torch.bool)
         single[list(self.single_mode_groups)] = True
         self.register_buffer("single_mode_mask", single, persistent=False)
-        self.register_buffer("single_mode_log_w", fixed, persistent=False)
-        self.dec_size = dec
+        one_mode = torch.full((modes,), -math.inf)  # log weights: mode 0 sure, the others impossible
+        one_mode[0] = 0.0
+        self.register_buffer("one_mode_log_w", one_mode, persistent=False)
         self.sigma_min = float(sigma_min)
         self.residual = bool(residual)
         self.residual_groups = tuple(int(g) for g in residual_groups) if residual else ()
@@ -215,6 +214,11 @@ class TrajectoryLSTM(nn.Module):
         self.register_buffer("pos_scale", torch.tensor(pos_scale, dtype=torch.float32))
         if nbr_frame == "agent":  # neighbour pose in the target's frame (x, y normalised, cos, sin of yaw)
             self.pose_emb = nn.Linear(4, enc)
+
+    @property
+    def dec_size(self) -> int:
+        """States of the decoder LSTM."""
+        return self.decoder.hidden_size
 
     def scale(self, group: torch.Tensor) -> torch.Tensor:
         """(B,) class groups -> (B,) position scale [m]."""
@@ -339,7 +343,7 @@ class TrajectoryLSTM(nn.Module):
             return (params[:, None], params.new_zeros(b, 1)) if all_modes else params
         log_w = torch.log_softmax(self.mode_head(enc), -1)
         if self.single_mode_groups:  # these groups get mode 0 with weight 1 (the others weight 0)
-            log_w = torch.where(self.single_mode_mask[tgt_group][:, None], self.single_mode_log_w[tgt_group], log_w)
+            log_w = torch.where(self.single_mode_mask[tgt_group][:, None], self.one_mode_log_w, log_w)
         if all_modes:
             return params, log_w
         return params[torch.arange(b), log_w.argmax(-1)]
