@@ -14,7 +14,10 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from sumo_ethics.predict import features as F  # noqa: E402
-from sumo_ethics.predict.models import TrajectoryLSTM, batch_to_tensors, load_model, save_model  # noqa: E402
+from sumo_ethics.predict.models import (  # noqa: E402
+    TrajectoryLSTM, batch_to_tensors, load_model, lstm_recurrence, save_model,
+)
+from sumo_ethics.predict.models import _recurrence  # noqa: E402
 from sumo_ethics.predict.predictor import LSTMPredictor, straight_history  # noqa: E402
 from sumo_ethics.types import AgentStates, Observation, RoadUserClass  # noqa: E402
 
@@ -93,6 +96,35 @@ def test_fast_decoder_equals_nn_lstm_and_old_kinds_keep_nn_lstm():
     with torch.inference_mode():
         h, _ = old.decoder(enc[:, None, :].expand(7, F.FUT_STEPS, enc.shape[-1]))
         assert torch.equal(old.decode(enc), h)
+
+
+def test_compiled_recurrence_is_the_python_loop_bit_for_bit():
+    torch.manual_seed(1)
+    pre, w_hh = torch.randn(9, 4 * 16), torch.randn(16, 4 * 16) * 0.3
+    with torch.inference_mode():
+        compiled, plain = _recurrence()(pre, w_hh, F.FUT_STEPS), lstm_recurrence(pre, w_hh, F.FUT_STEPS)
+    assert compiled.shape == (9, F.FUT_STEPS, 16)
+    assert torch.equal(compiled, plain)
+    # one step by hand: zero states, so c1 = i * g and h1 = o * tanh(c1) with the gates of ``pre``
+    i, g, o = torch.sigmoid(pre[:, :16]), torch.tanh(pre[:, 32:48]), torch.sigmoid(pre[:, 48:])
+    assert torch.allclose(compiled[:, 0], o * torch.tanh(i * g), atol=1e-6)
+
+
+@pytest.mark.parametrize("targets", [1, 5, 32])
+def test_social_grid_as_matrix_products_equals_the_convolutions(targets):
+    """The run-time social pooling (strided windows x weights) against Conv2d, Conv2d, MaxPool2d
+    of the training path, on sparse grids as scenes give them (most cells empty)."""
+    m = _model("map_cslstm", seed=3)
+    gen = torch.Generator().manual_seed(targets)
+    occupied = (torch.rand(targets, F.N_CELLS, 1, generator=gen) < 0.3).float()
+    grid = (torch.randn(targets, F.N_CELLS, m.enc_size, generator=gen) * occupied).reshape(targets, -1)
+    with torch.inference_mode():
+        fast = m.social_fast(grid)
+        image = grid.view(targets, F.GRID_LON, F.GRID_LAT, m.enc_size).permute(0, 3, 1, 2)
+        ref = m.soc_maxpool(m.act(m.conv_3x1(m.act(m.soc_conv(image))))).reshape(targets, m.soc_size)
+    assert fast.shape == (targets, m.soc_size) == (targets, 80)
+    assert (fast - ref).abs().max() < 1e-5 * max(1.0, float(ref.abs().max()))
+    assert not torch.equal(fast[0], torch.zeros_like(fast[0]))
 
 
 def _rotated(obs: Observation, angle: float, shift: np.ndarray) -> Observation:
