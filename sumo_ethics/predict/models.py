@@ -77,7 +77,6 @@ carry ``map_version`` (features.MAP_VERSION) and are refused with any other.
 
 from __future__ import annotations
 
-import functools
 import math
 from pathlib import Path
 from typing import Any
@@ -139,13 +138,6 @@ def lstm_recurrence(pre: torch.Tensor, w_hh: torch.Tensor, steps: int) -> torch.
         h = sg[:, 3 * n:] * torch.tanh(c)
         out.append(h)
     return torch.stack(out, 1)
-
-
-@functools.cache
-def _recurrence():
-    """:func:`lstm_recurrence` compiled by TorchScript on first use (the same operations, bit for
-    bit; the interpreter's per-operation cost is a third of Python's)."""
-    return torch.jit.script(lstm_recurrence)
 
 
 FILE_FORMAT = "sumo-ethics-predictor"
@@ -398,9 +390,8 @@ class TrajectoryLSTM(nn.Module):
         """(B, E) -> (B, FUT_STEPS, dec) decoder states; the same input every step.
 
         Without autograd, ``nbr_frame="agent"`` models take the input projection once and run
-        the recurrence by hand, compiled by TorchScript (:func:`lstm_recurrence`; 2x faster than
-        nn.LSTM for a few dozen targets, equal to it within float rounding, see
-        tests/test_predictor_fast.py). Older models keep nn.LSTM, so their shipped outputs stay
+        the recurrence by hand (:func:`lstm_recurrence`; about 30 % faster than nn.LSTM for a few
+        dozen targets, equal to it within float rounding, see tests/test_predictor_fast.py). Older models keep nn.LSTM, so their shipped outputs stay
         bit for bit."""
         b = enc.shape[0]
         if self.nbr_frame != "agent" or torch.is_grad_enabled():
@@ -408,7 +399,7 @@ class TrajectoryLSTM(nn.Module):
             return h_dec
         d = self.decoder
         pre = torch.addmm(d.bias_ih_l0 + d.bias_hh_l0, enc, d.weight_ih_l0.t())
-        return _recurrence()(pre, d.weight_hh_l0.t(), self.fut_steps)
+        return lstm_recurrence(pre, d.weight_hh_l0.t(), self.fut_steps)
 
     def map_context(self, tgt_enc: torch.Tensor, pts: torch.Tensor | None, valid: torch.Tensor | None,
                     scalar: torch.Tensor | None) -> torch.Tensor:
