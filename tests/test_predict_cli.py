@@ -84,6 +84,21 @@ def test_dataset_refuses_too_few_seeds_before_touching_disk(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_dataset_refuses_a_scenario_sumo_cannot_start_before_simulating_any(tmp_path, capsys):
+    """A config with an option plain sumo lacks (eclipse-sumo's tools/game/bs3d.sumocfg has the
+    gui-only osg-view): one line with SUMO's reason and exit 2, before the good scenario is run."""
+    bad = tmp_path / "gui.sumocfg"
+    urban = SCENARIOS / "urban"
+    net = (urban / "../../networks/urban/urban.net.xml").resolve()
+    bad.write_text(f"""<configuration><input><net-file value="{net}"/></input>
+<gui_only><osg-view value="true"/></gui_only></configuration>""")
+    out = tmp_path / "data"
+    assert main(["dataset", str(urban / "urban.sumocfg"), str(bad), "--seeds", "1-3", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "gui.sumocfg" in err[0] and "osg-view" in err[0]
+    assert not out.exists()
+
+
 def test_samples_from_never_overwrites_a_folder(tmp_path, capsys):
     src = tmp_path / "old"
     src.mkdir()

@@ -149,6 +149,50 @@ def split_seeds(seeds: list[int], val_fraction: float = 0.15, test_fraction: flo
     return {"train": s[: len(s) - n_test - n_val], "val": s[len(s) - n_test - n_val: len(s) - n_test], "test": s[len(s) - n_test:]}
 
 
+def _probe(scenario: Path) -> str | None:
+    """Start and close SUMO on ``scenario`` (worker process): None, or why it cannot start."""
+    import tempfile
+
+    from sumo_ethics.errors import SumoEthicsError
+    from sumo_ethics.sim import session
+    from sumo_ethics.sim.scenario import read_scenario
+
+    try:
+        files = read_scenario(scenario)
+        with tempfile.TemporaryDirectory() as tmp:
+            session.start(files, seed=1, error_log=Path(tmp) / "errors.log")
+            session.close()
+    except SumoEthicsError as exc:
+        return str(exc)
+    return None
+
+
+def check_scenarios(scenarios: list[Path], workers: int = 1) -> None:
+    """Load every scenario once in SUMO before any run is simulated: one that cannot start (a
+    malformed config, an option plain sumo lacks, e.g. a gui-only ``osg-view``) raises ConfigError
+    with SUMO's reason, so nothing is simulated in vain."""
+    from sumo_ethics.errors import ConfigError
+
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(processes=max(1, workers), maxtasksperchild=1) as pool:
+        for scenario, problem in zip(scenarios, pool.imap(_probe, scenarios)):
+            if problem:
+                raise ConfigError(f"dataset: {problem}")
+
+
+def _simulate_safely(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
+    """:func:`_simulate`, its failures as SimulationError (libsumo's exceptions cannot be pickled
+    back to the parent process)."""
+    from sumo_ethics.errors import SimulationError, SumoEthicsError
+
+    try:
+        return _simulate(spec)
+    except SumoEthicsError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - any failure of the run, named with its scenario and seed
+        raise SimulationError(f"dataset: {spec.scenario.name} seed {spec.seed}: {type(exc).__name__}: {exc}") from None
+
+
 def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame, dict[str, F.LaneGraph]]:
     """Run every spec in a fresh spawned process (libsumo: one simulation per process).
 
@@ -157,7 +201,7 @@ def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame,
     frames = []
     graphs: dict[str, F.LaneGraph] = {}
     with ctx.Pool(processes=max(1, workers), maxtasksperchild=1) as pool:
-        for i, (df, graph) in enumerate(pool.imap(_simulate, specs)):
+        for i, (df, graph) in enumerate(pool.imap(_simulate_safely, specs)):
             log.info("run %d/%d: %s seed %d scale %.2f -> %d rows", i + 1, len(specs), specs[i].scenario.name, specs[i].seed, specs[i].scale, len(df))
             frames.append(df)
             graphs.setdefault(str(specs[i].scenario), graph)
@@ -332,8 +376,15 @@ def _simulate_suite(args: tuple[int, Path]) -> tuple[pd.DataFrame, F.LaneGraph |
     """One suite scenario with its hazards (worker process) -> trajectory rows, lane graph."""
     from sumo_ethics.suite.traffic import record_scenario
 
+    from sumo_ethics.errors import SimulationError, SumoEthicsError
+
     run_id, scenario = args
-    df, graph = record_scenario(scenario)
+    try:
+        df, graph = record_scenario(scenario)
+    except SumoEthicsError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - as _simulate_safely: libsumo's exceptions cannot be pickled
+        raise SimulationError(f"dataset: suite scenario {scenario.name}: {type(exc).__name__}: {exc}") from None
     if len(df):
         df.insert(0, "run_id", np.int32(run_id))
         df.insert(1, "seed", np.int32(SUITE_SEED0 + run_id))
@@ -384,6 +435,8 @@ def build_dataset(
     for scenario in scenarios:
         for i, seed in enumerate(seeds):
             specs.append(RunSpec(len(specs), Path(scenario).resolve(), seed, float(scales[i % len(scales)]), sim_seconds))
+    if specs:
+        check_scenarios(sorted({s.scenario for s in specs}, key=str), workers=workers)
     traj, graphs = simulate_runs(specs, workers=workers) if specs else (pd.DataFrame(), {})
     if suite:
         frames, suite_graphs = simulate_suite(list(suite), len(specs), workers=workers)
@@ -457,6 +510,19 @@ def rebuild_samples(src: Path, out: Path, anchor_every: float = 2.0, suite_ancho
     meta["n_samples"] = split_counts(samples)
     (out / "split.json").write_text(json.dumps(meta, indent=2))
     return out
+
+
+def run_scenarios(dataset: Path) -> dict[int, str]:
+    """run_id -> scenario name of a dataset folder (its split.json): the .sumocfg's stem for the
+    simulated scenarios, "suite" for every suite run (numbered after them); {} without split.json."""
+    meta_path = Path(dataset) / "split.json"
+    if not meta_path.is_file():
+        return {}
+    meta = json.loads(meta_path.read_text())
+    names = {int(r["run_id"]): Path(r["scenario"]).stem for r in meta.get("runs", [])}
+    first = len(meta.get("runs", []))
+    names.update({first + i: "suite" for i in range(len(meta.get("suite", [])))})
+    return names
 
 
 def load_samples(path: Path) -> dict[str, np.ndarray]:
