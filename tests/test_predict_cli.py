@@ -55,6 +55,16 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys):
     two = pd.read_csv(tmp_path / "eval2" / "prediction_eval.csv").set_index(["model", "group"])
     assert np.isfinite(two.loc[("two", "all"), "nll"]) and two.loc[("two", "all"), "min_ade"] <= two.loc[("two", "all"), "ade"]
     assert {"vehicle:standing", "vehicle:moving"} <= set(table["group"])
+    # every sample (a dataset never trained on): also a table per scenario and class; one scenario
+    # here, so its rows are the classes' rows of the main table
+    assert main(["evaluate-predictor", str(data), "--out", str(tmp_path / "eval3"), "--split", "all"]) == 0
+    full = pd.read_csv(tmp_path / "eval3" / "prediction_eval.csv").set_index(["model", "group"])
+    by = pd.read_csv(tmp_path / "eval3" / "prediction_eval_by_scenario.csv")
+    assert set(by["scenario"]) == {"urban"} and {"vehicle", "pedestrian"} <= set(by["group"])
+    for _, row in by.iterrows():
+        assert row["n"] == full.loc[(row["model"], row["group"]), "n"]
+        assert row["ade"] == pytest.approx(full.loc[(row["model"], row["group"]), "ade"], rel=1e-12)
+    assert "| urban | vehicle |" in (tmp_path / "eval3" / "prediction_eval_by_scenario.md").read_text()
     # samples derived again from the recorded trajectories, without simulating: the same arrays
     assert main(["dataset", "--samples-from", str(data), "--out", str(tmp_path / "data2")]) == 0
     with np.load(data / "samples.npz") as a, np.load(tmp_path / "data2" / "samples.npz") as b:

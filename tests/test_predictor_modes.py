@@ -229,3 +229,26 @@ def test_min_ade_ignores_modes_of_weight_zero():
     out = metrics(params, np.zeros((1, 20, 2)), np.ones((1, 20), bool), np.array([[1.0, 0.0]]))
     assert out["min_ade"] == pytest.approx(1.0) and out["ade"] == pytest.approx(1.0)
     assert out["nll"] == pytest.approx(LOG_2PI + 0.5, abs=1e-12)
+
+
+def test_selection_score_by_hand():
+    """Mean over (table, class) of ADE / constant velocity's ADE, classes under min_samples left out."""
+    import pandas as pd
+
+    from sumo_ethics.predict.evaluate import selection_scores
+
+    def table(rows):
+        return pd.DataFrame([{"model": m, "group": g, "ade": a, "n": n} for m, g, a, n in rows])
+
+    val = table([("constant_velocity", "vehicle", 1.0, 900), ("constant_velocity", "cyclist", 0.4, 600),
+                 ("constant_velocity", "pedestrian", 0.2, 100), ("constant_velocity_calibrated", "vehicle", 1.0, 900),
+                 ("a", "vehicle", 0.6, 900), ("a", "cyclist", 0.3, 600), ("a", "pedestrian", 0.01, 100),
+                 ("b", "vehicle", 0.7, 900), ("b", "cyclist", 0.2, 600), ("b", "pedestrian", 0.3, 100),
+                 ("a", "all", 0.0, 1600)])
+    sel = table([("constant_velocity", "vehicle", 0.5, 700), ("a", "vehicle", 0.6, 700), ("b", "vehicle", 0.4, 700)])
+    out = selection_scores({"val": val, "sel": sel})
+    # a: (0.6 + 0.75 + 1.2) / 3 = 0.85; b: (0.7 + 0.5 + 0.8) / 3 = 0.6667 (pedestrians: 100 < 500 samples)
+    assert list(out.index) == ["b", "a"]
+    assert list(out.columns) == ["val:vehicle", "val:cyclist", "sel:vehicle", "score"]
+    assert out.loc["a", "score"] == pytest.approx(0.85)
+    assert out.loc["b", "score"] == pytest.approx(2.0 / 3.0)

@@ -1,15 +1,25 @@
 """Rebuild the shipped predictor weights: dataset -> train -> evaluate.
 
     python tools/train_shipped.py [--work DIR] [--stages dataset,heldout,train,evaluate] [--models map]
+    python tools/train_shipped.py --work DIR --stages selection,select --candidate mine=mine.pt
 
 Data: the bundled scenarios (scenarios/{urban,rural,highway,urban_grid}, seeds 1-7, 600 s,
 anchors every 2 s, split by seed) and the first SUITE_TRAIN suite scenarios recorded with
 their hazards (anchors every 0.4 s, split by scenario). Writes the weights to
-sumo_ethics/predict/weights/<model>.pt (+ .json training logs); "heldout" records a second
-dataset of scenarios never trained on (GAME configs of eclipse-sumo's tools/game, 3 seeds x
-300 s, and suite scenarios s0100-s0139); "evaluate" writes prediction_eval.{csv,md} (test
-seeds/scenarios) and heldout/prediction_eval.{csv,md} (the held-out dataset) there. ``--models`` picks what is trained: "map_cslstm" (the shipped
-default) and "map" (both feature version 1 + map version 1; the default of --models) and/or the ablation's "attention", "cslstm"
+sumo_ethics/predict/weights/<model>.pt (+ .json training logs).
+
+Stages:
+- "heldout" records a second dataset of scenarios never trained on (GAME configs of
+  eclipse-sumo's tools/game, 3 seeds x 300 s, and suite scenarios s0100-s0139);
+- "evaluate" writes prediction_eval.{csv,md} (test seeds/scenarios) and
+  heldout/prediction_eval{,_by_scenario}.{csv,md} (the held-out dataset) there;
+- "selection" records the selection dataset (SELECT_GAME x seeds 1-3 x 300 s and suite
+  s0140-s0159: never trained on, and not in the held-out table), 4.2 min;
+- "select" scores the shipped file and each --candidate by the rule of docs/predictor_seeds.md
+  ("How a shipped file is chosen") into DIR_selection/selection_scores.csv.
+
+``--models`` picks what is trained: "map_cslstm" (the shipped default) and "map" (both feature
+version 1 + map version 1; the default of --models) and/or the ablation's "attention", "cslstm"
 (their shipped files were trained on the version-1 dataset without map columns or suite
 runs: ``--stages dataset --no-suite`` and then ``--models attention,cslstm`` rebuild them).
 
@@ -38,6 +48,10 @@ SEEDS = tuple(range(1, 8))
 SUITE_TRAIN = 100  # suite scenarios s0000..s0099 go into the dataset; s0100.. stay held out
 SUITE_HELDOUT = 40  # s0100..s0139 are the held-out suite scenarios of the evaluation
 GAME = ("cross", "square", "grid6", "corridor", "fkk_in", "ramp")  # eclipse-sumo tools/game configs
+#: the selection dataset (docs/predictor_seeds.md, "How a shipped file is chosen"): never trained on and
+#: kept apart from the reported held-out scenarios: these tools/game configs and suite s0140..s0159
+SELECT_GAME = ("fokr_bs_demo", "A10KW", "bs3d")
+SUITE_SELECT = 20
 #: per-model train_main options (others: defaults); map_cslstm (the default) encodes every agent once in its
 #: own frame with 3 trajectory modes (models.default_options: a 64-state decoder, the last mode constant
 #: velocity, pedestrians with one mode); seed 2 of seeds 0-2 had the best validation NLL (docs/predictor_seeds.md);
@@ -62,6 +76,8 @@ def main() -> None:
     ap.add_argument("--models", default="map_cslstm,map",
                     help="comma-separated models to train (map_cslstm, map, attention, cslstm)")
     ap.add_argument("--no-suite", action="store_true", help="dataset without the suite's hazard runs")
+    ap.add_argument("--candidate", action="append", default=[], metavar="NAME=FILE",
+                    help="stage select: a weights file to score beside the shipped map_cslstm (repeatable)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     sys.path.insert(0, str(ROOT))
@@ -106,6 +122,29 @@ def main() -> None:
         dataset_main([g for g in game if g.exists()], heldout, seeds=(1, 2, 3), sim_seconds=300.0,
                      workers=args.workers, suite=suite)
         logging.info("held-out dataset: %.1f min", (time.time() - t0) / 60)
+    selection = Path(str(work) + "_selection")
+    if "selection" in stages:
+        import sumo
+
+        game = [Path(sumo.SUMO_HOME) / "tools" / "game" / f"{g}.sumocfg" for g in SELECT_GAME]
+        first = SUITE_TRAIN + SUITE_HELDOUT
+        suite = sorted((ROOT / "scenarios" / "suite").glob("s[0-9]*"))[first:first + SUITE_SELECT]
+        t0 = time.time()
+        dataset_main([g for g in game if g.exists()], selection, seeds=(1, 2, 3), sim_seconds=300.0,
+                     workers=args.workers, suite=suite)
+        logging.info("selection dataset: %.1f min", (time.time() - t0) / 60)
+    if "select" in stages:
+        from sumo_ethics.predict.evaluate import evaluate, selection_scores
+
+        weights = {"map_cslstm (shipped)": Path(args.out_dir) / "map_cslstm.pt"}
+        weights.update(dict(c.split("=", 1) for c in args.candidate))
+        tables = {"val": evaluate(work, None, weights=weights, max_samples=None, split="val"),
+                  "selection": evaluate(selection, None, weights=weights, max_samples=None, split="all")}
+        scores = selection_scores(tables)
+        vehicle = tables["val"][tables["val"]["group"] == "vehicle"].set_index("model")["nll"]
+        scores.insert(len(scores.columns) - 1, "val:vehicle NLL", vehicle.reindex(scores.index))
+        scores.to_csv(selection / "selection_scores.csv")
+        print(scores.round(4).to_string())
     if "evaluate" in stages:
         out_dir = Path(args.out_dir)
         from sumo_ethics.predict.models import KINDS

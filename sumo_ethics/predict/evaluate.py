@@ -16,7 +16,7 @@ import pandas as pd
 
 from sumo_ethics.predict import features as F
 from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor
-from sumo_ethics.predict.dataset import load_samples, require_nbr_yaw, subset
+from sumo_ethics.predict.dataset import load_samples, require_nbr_yaw, run_scenarios, subset
 
 HORIZONS_S = (1.0, 2.0, 3.0, 4.0)
 
@@ -211,7 +211,56 @@ def evaluate(
                 f"cyclist {tuple(round(v, 3) for v in cv_cal.growth_cyclist)}, "
                 f"pedestrian {tuple(round(v, 3) for v in cv_cal.growth_pedestrian)}.")
         (out / "prediction_eval.md").write_text(to_markdown(df) + "\n\n" + note + "\n\n" + improvement_summary(df) + "\n")
+        names = run_scenarios(dataset) if split == "all" else {}
+        if names:
+            by = by_scenario(outputs, batch, np.array([names.get(int(r), "?") for r in batch["run_id"]]))
+            by.to_csv(out / "prediction_eval_by_scenario.csv", index=False)
+            wide = by.pivot_table(index=["scenario", "group", "n"], columns="model", values="ade", sort=False).reset_index()
+            (out / "prediction_eval_by_scenario.md").write_text(
+                to_markdown(wide) + f"\n\nADE [m] of the most likely mode per scenario and class ({dataset}; every "
+                f"suite scenario together as 'suite'), the same samples as prediction_eval.md.\n")
     return df
+
+
+def by_scenario(outputs: dict[str, tuple[np.ndarray, np.ndarray | None]], batch: dict[str, np.ndarray],
+                scenario: np.ndarray) -> pd.DataFrame:
+    """Rows (model, scenario, group, n, ade, fde, nll) per class group and scenario: outputs as in
+    :func:`evaluate`, scenario (S,) the name of each sample's scenario."""
+    fut = batch["fut"].astype(float)
+    valid = batch["fut_valid"] if "fut_valid" in batch else np.ones(fut.shape[:2], dtype=bool)
+    rows = []
+    for name, (params, weight) in outputs.items():
+        for scen in sorted(set(scenario.tolist())):
+            for i, g in enumerate(F.GROUP_NAMES):
+                sel = (scenario == scen) & (batch["tgt_group"] == i)
+                if sel.any():
+                    m = metrics(params[sel], fut[sel], valid[sel], None if weight is None else weight[sel])
+                    rows.append({"model": name, "scenario": scen, "group": g, "n": int(sel.sum()),
+                                 "ade": m["ade"], "fde": m["fde"], "nll": m["nll"]})
+    return pd.DataFrame(rows)
+
+
+#: classes a selection score averages over (docs/predictor_seeds.md, "How a shipped file is chosen")
+SELECTION_CLASSES = ("vehicle", "cyclist", "pedestrian")
+
+
+def selection_scores(tables: dict[str, pd.DataFrame], min_samples: int = 500,
+                     reference: str = "constant_velocity") -> pd.DataFrame:
+    """Score of every learned model over several evaluation tables (:func:`evaluate` outputs, one
+    per selection dataset): for each table and class with at least ``min_samples`` samples, its
+    ADE divided by the ``reference`` model's; the score is the mean of these ratios (lower is
+    better). Rows: models by score; columns ``<table>:<class>`` ratios and ``score``."""
+    ratios: dict[str, pd.Series] = {}
+    for name, df in tables.items():
+        rows = df[df["group"].isin(SELECTION_CLASSES) & (df["n"] >= min_samples)]
+        ade = rows.pivot(index="model", columns="group", values="ade")
+        for cls in SELECTION_CLASSES:
+            if cls in ade.columns and reference in ade.index and ade.loc[reference, cls] > 0:
+                ratios[f"{name}:{cls}"] = ade[cls] / ade.loc[reference, cls]
+    out = pd.DataFrame(ratios)
+    out = out[[not m.startswith(reference) for m in out.index]]
+    out["score"] = out.mean(axis=1)
+    return out.sort_values("score")
 
 
 def improvement_summary(df: pd.DataFrame) -> str:
