@@ -14,7 +14,7 @@ Stages:
 - "evaluate" writes prediction_eval.{csv,md} (test seeds/scenarios) and
   heldout/prediction_eval{,_by_scenario}.{csv,md} (the held-out dataset) there;
 - "selection" records the selection dataset (SELECT_GAME x seeds 1-3 x 300 s and suite
-  s0140-s0159: never trained on, and not in the held-out table), 4.2 min;
+  s0176-s0195: never trained on, not in the held-out table nor in the predictor study);
 - "select" scores the shipped file and each --candidate by the rule of docs/predictor_seeds.md
   ("How a shipped file is chosen") into DIR_selection/selection_scores.csv.
 
@@ -49,9 +49,10 @@ SUITE_TRAIN = 100  # suite scenarios s0000..s0099 go into the dataset; s0100.. s
 SUITE_HELDOUT = 40  # s0100..s0139 are the held-out suite scenarios of the evaluation
 GAME = ("cross", "square", "grid6", "corridor", "fkk_in", "ramp")  # eclipse-sumo tools/game configs
 #: the selection dataset (docs/predictor_seeds.md, "How a shipped file is chosen"): never trained on and
-#: kept apart from the reported held-out scenarios: these tools/game configs and suite s0140..s0159
+#: kept apart from the reported held-out scenarios and the predictor study's suite s0140..s0175: these
+#: tools/game configs and suite s0176..s0195
 SELECT_GAME = ("fokr_bs_demo", "A10KW")  # bs3d cannot start in plain sumo (its gui-only osg-view)
-SUITE_SELECT = 20
+SUITE_SELECT_FIRST, SUITE_SELECT = 176, 20
 #: per-model train_main options (others: defaults); map_cslstm (the default) encodes every agent once in its
 #: own frame with 3 trajectory modes (models.default_options: a 64-state decoder, the last mode constant
 #: velocity, pedestrians with one mode); seed 2 of seeds 0-2 had the best validation NLL (docs/predictor_seeds.md);
@@ -127,8 +128,7 @@ def main() -> None:
         import sumo
 
         game = [Path(sumo.SUMO_HOME) / "tools" / "game" / f"{g}.sumocfg" for g in SELECT_GAME]
-        first = SUITE_TRAIN + SUITE_HELDOUT
-        suite = sorted((ROOT / "scenarios" / "suite").glob("s[0-9]*"))[first:first + SUITE_SELECT]
+        suite = sorted((ROOT / "scenarios" / "suite").glob("s[0-9]*"))[SUITE_SELECT_FIRST:SUITE_SELECT_FIRST + SUITE_SELECT]
         t0 = time.time()
         dataset_main([g for g in game if g.exists()], selection, seeds=(1, 2, 3), sim_seconds=300.0,
                      workers=args.workers, suite=suite)
