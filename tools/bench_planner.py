@@ -4,7 +4,10 @@ K = 1020 candidates (4 horizons x 15 end speeds x 17 offsets) against N = 20 pre
 over a 4 s horizon at 0.1 s (T = 40): prediction, sampling, feasibility, collision
 probability, harm, risk, every cost term, mean-path overlap and selection.
 
-    OPENBLAS_NUM_THREADS=1 python tools/bench_planner.py [--predictor cv|attention] [--repeats 200]
+    OPENBLAS_NUM_THREADS=1 python tools/bench_planner.py [--predictor cv|map_cslstm|attention|...] [--repeats 200]
+
+The map-aware predictors (map_cslstm, map) read the scene's three lanes from a synthetic lane
+graph (:func:`lane_source`) instead of SUMO, no traffic lights.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ import numpy as np  # noqa: E402
 from sumo_ethics.config import EgoVehicle  # noqa: E402
 from sumo_ethics.geometry import Polyline  # noqa: E402
 from sumo_ethics.plan.controller import Scene  # noqa: E402
-from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig  # noqa: E402
+from sumo_ethics.plan.ethical import PREDICTORS, EthicalPlanner, PlannerConfig  # noqa: E402
 from sumo_ethics.plan.history import History  # noqa: E402
 from sumo_ethics.sim.route import RoutePath  # noqa: E402
 from sumo_ethics.types import AgentStates, RoadUserClass  # noqa: E402
@@ -56,9 +59,27 @@ def scene(n_agents: int, seed: int = 0) -> Scene:
                  vehicle=EgoVehicle(), history=obs)
 
 
+def lane_source(sc: Scene):
+    """Map source of :func:`scene`'s road for the map-aware predictors: lanes e_0..e_2 at y = 0,
+    3.2, 6.4 m from x = -100 to 1100 m; each vehicle on the nearest, pedestrians on none."""
+    from sumo_ethics.predict import features as F
+
+    ys = (0.0, 3.2, 6.4)
+    graph = F.LaneGraph.build([f"e_{i}" for i in range(3)], [np.array([[-100.0, y], [1100.0, y]]) for y in ys],
+                              np.full(3, 13.89), [(), (), ()])
+    cur = sc.others
+
+    def source(agent_ids, person):
+        lane = np.where(person, -1, np.argmin(np.abs(cur.y[:, None] - np.array(ys)), axis=1))
+        n = len(agent_ids)
+        return graph, F.MapContext(lane, cur.x + 100.0, np.full(n, np.inf), np.zeros(n, dtype=np.int64))
+
+    return source
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--predictor", default="cv", choices=["cv", "attention", "cslstm"])
+    ap.add_argument("--predictor", default="cv", choices=PREDICTORS)
     ap.add_argument("--agents", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=200)
     a = ap.parse_args()
@@ -70,6 +91,8 @@ def main() -> None:
         pass
     sc = scene(a.agents)
     planner = EthicalPlanner(PlannerConfig(predictor=a.predictor))
+    if getattr(planner.predictor, "map_source", None) is not None:
+        planner.predictor.map_source = lane_source(sc)  # no SUMO here (see the module docstring)
     for _ in range(10):
         d = planner.act(sc)
     times, parts = [], {}
