@@ -6,8 +6,9 @@ Only a candidate's ``valid`` steps are checked.
 
 Curvature judges what the ego adds to the road, not the road itself. Junction shapes built
 from OpenStreetMap are often tighter than a car's turning circle (eclipse-sumo's bs3d network
-has a right turn of about 2.4 m radius); a limit applied to the road's own bend left the ego
-no moving candidate there, so it braked and stood in the junction for the rest of the run.
+has a right turn of about 2 m radius, 2.4 m on the smoothed reference path); a limit applied to
+the road's own bend left the ego no moving candidate there, so it braked and stood in the
+junction for the rest of the run.
 So where the road bends tighter than ``max_curvature`` a step's curvature may follow it, in the
 road's direction, up to the road's own curvature at that step plus :data:`ROAD_CURVATURE_TOL`;
 elsewhere the limit holds as before. The lateral acceleration limit still applies, so the ego
