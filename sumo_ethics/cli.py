@@ -103,6 +103,7 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
         click.echo(f"note: --step-length {step_length:g} s: above {scenario_files.MAX_TRUSTED_STEP:g} s the planner's "
                    f"speed changes per step exceed its acceleration limits", err=True)
 
+    from sumo_ethics import notes
     from sumo_ethics.runner import make_controller, run as run_scenario
     from sumo_ethics.settings import load_toml, planner_config
 
@@ -130,6 +131,8 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
                   f"{d['decisions']['bytes'] / 1e6:.1f} MB) in {summary.out / 'decisions'}: sumo-ethics explain / replay")
     for snap in d.get("snapshots", []):
         con.print(f"  collision snapshot: {summary.out / snap}")
+    for line in notes.lines(d):  # tight bends, a lonely standstill
+        con.print(f"  {line}", markup=False)
     con.print(f"  outputs in {summary.out}")
 
 

@@ -25,13 +25,16 @@ from sumo_ethics.collision import CollisionBook, is_booked
 from sumo_ethics.interrupt import sigterm_as_interrupt, sigterm_deferred
 from sumo_ethics.config import RunConfig
 from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEthicsError, Terminated
+from sumo_ethics.notes import RunNotes
 from sumo_ethics.plan.controller import Controller, Scene
+from sumo_ethics.plan.feasibility import ROAD_CURVATURE_TOL
 from sumo_ethics.plan.history import History
 from sumo_ethics.record.recorder import RunRecorder
 from sumo_ethics.record.decisions import FOLDER as DECISIONS, SNAPSHOTS
 from sumo_ethics.record.writer import PARTIAL, write_json
 from sumo_ethics.sim import preflight, scenario as scenario_files, session
 from sumo_ethics.sim.ego import start_ego
+from sumo_ethics.sim.route import tight_bends
 from sumo_ethics.sim.rules import RuleMonitor
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld
 from sumo_ethics.types import VULNERABLE, RunStatus
@@ -130,6 +133,7 @@ class Run:
         self.created_out = False
         self.replaced: Path | None = None  # an earlier run's outputs moved aside by --overwrite
         self.meta: dict[str, Any] = {}
+        self.notes: RunNotes | None = None  # tight bends and a lonely standstill (sumo_ethics.notes)
         self.step = 0
         self.t_start = wallclock.perf_counter()
 
@@ -191,6 +195,8 @@ class Run:
         self.cfg = cfg = replace(self.cfg, ego=ego)
         self.world = world = SumoWorld(ego_id, cfg.sensing_radius)
         route = world.takeover()
+        self.notes = notes = RunNotes(tight_bends(route, cfg.ego.max_curvature), cfg.ego.max_curvature,
+                                      ROAD_CURVATURE_TOL)
         self.meta.update(step_length=dt, ego_limits=asdict(cfg.ego), route_edges=list(edges), route_length=route.length,
                          takeover_time=session.sim_time(), controller=self.controller.name,
                          predictor=getattr(self.controller, "predictor_info", None),
@@ -252,6 +258,7 @@ class Run:
                 timing["record_ms"] = 1e3 * (wallclock.perf_counter() - w4)
                 # flushes a chunk every CHUNK_SECONDS of simulated time; keeps the decision by mode
                 self.rec.step(row, timing, decision.trace, t, ego_hit)
+                notes.step(row["time"], s, row["speed"], row["n_neighbours"], row["stop_s"], row["lane"])
                 snap = new
                 if progress is not None and self.step % 50 == 0:
                     progress[0].update(progress[1], completed=min(snap.time, end))
@@ -351,6 +358,7 @@ class Run:
             "sim_time": float(last["time"]) if last is not None else None,
             "wall_time": wall,
             **{k: v for k, v in self.meta.items() if k != "last_time"},
+            **(self.notes.summary(self.status is RunStatus.COMPLETED) if self.notes is not None else {}),
             "versions": {"sumo_ethics": __version__, "sumo": self.meta.get("sumo_version", "unknown"),
                          "python": platform.python_version(), "numpy": np.__version__},
         }

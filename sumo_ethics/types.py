@@ -259,6 +259,11 @@ class Candidates:
     [m/s^2]; curvature: (K, T) [1/m]; s, d: (K, T) Frenet arc length and lateral offset [m];
     horizon: (K,) horizon of each candidate [s] (past it the candidate keeps its end speed and
     lateral offset: what the ego would do next); valid: (K, T) bool, False only for padding.
+    road_curvature: (K, T) [1/m] or None: the reference path's own curvature at each step's s,
+    computed like ``curvature`` (``plan.sampling.sample``), so a candidate on the path (d = 0)
+    has road_curvature == curvature and ``curvature - road_curvature`` is what a candidate adds
+    to the road (turning relative to it, or keeping an offset on the inside of a bend). None:
+    not known (``plan.feasibility.check`` then applies the vehicle's limit as on a straight road).
     """
 
     dt: float
@@ -272,10 +277,13 @@ class Candidates:
     d: np.ndarray
     horizon: np.ndarray
     valid: np.ndarray
+    road_curvature: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         for name in ("x", "y", "yaw", "speed", "accel", "curvature", "s", "d", "horizon", "valid"):
             object.__setattr__(self, name, _frozen_array(getattr(self, name)))
+        if self.road_curvature is not None:
+            object.__setattr__(self, "road_curvature", _frozen_array(self.road_curvature))
 
     def __len__(self) -> int:
         return int(self.x.shape[0])
@@ -284,7 +292,8 @@ class Candidates:
         """The candidates at integer positions ``index`` (K',)."""
         idx = np.asarray(index, dtype=int)
         return Candidates(self.dt, self.x[idx], self.y[idx], self.yaw[idx], self.speed[idx], self.accel[idx],
-                          self.curvature[idx], self.s[idx], self.d[idx], self.horizon[idx], self.valid[idx])
+                          self.curvature[idx], self.s[idx], self.d[idx], self.horizon[idx], self.valid[idx],
+                          None if self.road_curvature is None else self.road_curvature[idx])
 
 
 @dataclass(frozen=True)

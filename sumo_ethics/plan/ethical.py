@@ -167,7 +167,8 @@ def first_overlap(cand: Candidates, pred: Prediction, risk: RiskTerms, length: n
 def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: np.ndarray) -> Candidates:
     """Straight-line braking at constant decelerations ``decels`` (B,) [m/s^2] from the first
     step, keeping the lateral offset: the quartic profiles take a second to build up braking
-    (they start from the current acceleration), these do not."""
+    (they start from the current acceleration), these do not. They head along the path (yaw =
+    reference heading), so all their curvature is the road's (road_curvature = curvature)."""
     t = dt * np.arange(1, n_steps + 1)[None, :]  # (1, T)
     b = np.asarray(decels, dtype=float)[:, None]  # (B, 1)
     v0 = max(state.s_dot, 0.0)
@@ -180,14 +181,20 @@ def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: 
     x, y, _ = path.to_xy(s, d)
     yaw = reference_heading(path, s)
     shape = s.shape
-    return Candidates(dt=dt, x=x, y=y, yaw=yaw, speed=v, accel=a, curvature=path.curvature_at(s), s=s, d=d,
-                      horizon=np.full(shape[0], n_steps * dt), valid=np.ones(shape, dtype=bool))
+    k = path.curvature_at(s)
+    return Candidates(dt=dt, x=x, y=y, yaw=yaw, speed=v, accel=a, curvature=k, s=s, d=d,
+                      horizon=np.full(shape[0], n_steps * dt), valid=np.ones(shape, dtype=bool), road_curvature=k)
 
 
 def concat(a: Candidates, b: Candidates) -> Candidates:
-    """Candidates a followed by b (same dt and T)."""
+    """Candidates a followed by b (same dt and T). road_curvature: None if neither knows it, else
+    0 (a straight road: the strict limit) for the side that does not."""
+    road = None
+    if a.road_curvature is not None or b.road_curvature is not None:
+        road = np.concatenate([np.zeros_like(c.curvature) if c.road_curvature is None else c.road_curvature
+                               for c in (a, b)])
     return Candidates(a.dt, *(np.concatenate([getattr(a, f), getattr(b, f)]) for f in (
-        "x", "y", "yaw", "speed", "accel", "curvature", "s", "d", "horizon", "valid")))
+        "x", "y", "yaw", "speed", "accel", "curvature", "s", "d", "horizon", "valid")), road_curvature=road)
 
 
 def select(classes: list[np.ndarray], total: np.ndarray, first_hit: np.ndarray | None = None, steps: int = 0,

@@ -290,7 +290,12 @@ def sample(path: Polyline, start: FrenetState, cfg: SamplingConfig, v_max: float
     analytic time derivative (neglecting d kappa_r / ds), s_ddot where the speed is ~0;
     curvature = central difference of yaw over the distance travelled between the neighbouring
     steps (start pose before step 0, one-sided at the last step), 0 where that distance is
-    under 1 mm. horizon: (K,) T of each candidate [s]; valid: all True.
+    under 1 mm; road_curvature = the reference path's own curvature along the candidate: the same
+    difference of reference_heading(s) alone over the distance along the path (trapezoidal in
+    |s_dot|), so a candidate on the path (d = 0, no lateral motion) has road_curvature ==
+    curvature exactly; beside the path the candidate's curvature differs from it by what it adds
+    (a parallel curve on the inside of a bend is tighter than the path).
+    horizon: (K,) T of each candidate [s]; valid: all True.
     """
     v_max = float(v_max)
     if not math.isfinite(v_max) or v_max < 0:
@@ -375,8 +380,8 @@ def sample(path: Polyline, start: FrenetState, cfg: SamplingConfig, v_max: float
     # Full-size work is done in place: the outputs share one fresh block, the temporaries live
     # in a per-thread scratch block reused between calls (fresh 300 kB temporaries cost page
     # faults that dominated the run time).
-    out = np.empty((8,) + shape)
-    x, y, yaw, speed, accel, curvature, s_out, d = out
+    out = np.empty((9,) + shape)
+    x, y, yaw, speed, accel, curvature, s_out, d, road = out
     d_dot, d_ddot, one, along, tmp = _scratch((5,) + shape)
     de = d_end[..., None]  # (nH, nV, nD, 1)
     np.multiply(de, b0, out=d)
@@ -424,7 +429,8 @@ def sample(path: Polyline, start: FrenetState, cfg: SamplingConfig, v_max: float
             full = np.concatenate([np.full((int(rows.sum()), 1), dth0), yk[rows]], axis=-1)
             yk[rows] = np.take_along_axis(full, idx, axis=-1)
     yaw += href  # unwrapped heading
-    yaw0 = float(reference_heading(path, np.asarray(start.s))) + dth0
+    href0 = float(reference_heading(path, np.asarray(start.s)))
+    yaw0 = href0 + dth0
     # curvature: central difference of yaw over the distance travelled (trapezoidal in |speed|)
     step, dyaw = one, along  # reuse scratch
     step[..., 0] = speed[..., 0] + v_start
@@ -440,6 +446,28 @@ def sample(path: Polyline, start: FrenetState, cfg: SamplingConfig, v_max: float
     moved = den > _MIN_TRAVEL
     np.divide(curvature, den, out=curvature, where=moved)
     np.copyto(curvature, 0.0, where=~moved)
+    # the road's own curvature along the candidate: the same central difference of the path's
+    # heading over the distance the path covers (trapezoidal in |s_dot|). It depends on s only, so
+    # it is computed on (nH, nV, 1, T); on the path (d = 0, d_dot = 0) speed == |s_dot| and the
+    # two agree bit for bit
+    sd_abs = np.abs(sd)
+    rstep = np.empty_like(sd_abs)
+    rstep[..., 0] = sd_abs[..., 0] + abs(start.s_dot)
+    np.add(sd_abs[..., 1:], sd_abs[..., :-1], out=rstep[..., 1:])
+    rstep *= 0.5 * dt
+    rden = np.empty_like(rstep)
+    np.add(rstep[..., :-1], rstep[..., 1:], out=rden[..., :-1])
+    rden[..., -1] = rstep[..., -1]
+    dref = np.empty_like(href)
+    dref[..., 0] = href[..., 0] - href0
+    np.subtract(href[..., 1:], href[..., :-1], out=dref[..., 1:])
+    kref = np.empty_like(href)
+    np.add(dref[..., :-1], dref[..., 1:], out=kref[..., :-1])
+    kref[..., -1] = dref[..., -1]
+    rmoved = rden > _MIN_TRAVEL
+    np.divide(kref, rden, out=kref, where=rmoved)
+    np.copyto(kref, 0.0, where=~rmoved)
+    np.copyto(road, np.broadcast_to(kref, shape))
     np.multiply(yaw, 1.0 / (2.0 * np.pi), out=tmp)  # wrap into [-pi, pi]
     np.rint(tmp, out=tmp)
     tmp *= 2.0 * np.pi
@@ -460,7 +488,7 @@ def sample(path: Polyline, start: FrenetState, cfg: SamplingConfig, v_max: float
     return Candidates(
         dt=dt, x=flat(x), y=flat(y), yaw=flat(yaw), speed=flat(speed), accel=flat(accel),
         curvature=flat(curvature),
-        s=flat(s_out), d=flat(d), horizon=horizon, valid=np.ones((K, nT), dtype=bool),
+        s=flat(s_out), d=flat(d), horizon=horizon, valid=np.ones((K, nT), dtype=bool), road_curvature=flat(road),
     )
 
 

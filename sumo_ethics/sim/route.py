@@ -50,6 +50,44 @@ class RoutePath:
         return min(max(int(np.searchsorted(self.path.s, s, side="right")) - 1, 0), len(self.path.s) - 1)
 
 
+@dataclass(frozen=True)
+class TightBend:
+    """A stretch of the reference path bending tighter than a curvature limit.
+
+    s_start, s_end: arc lengths [m] of its first and last path vertex beyond the limit;
+    s: arc length [m] of its tightest vertex, curvature there [1/m] (signed, left turn positive),
+    lane: the SUMO lane of that vertex, x, y: its position [m].
+    """
+
+    s_start: float
+    s_end: float
+    s: float
+    curvature: float
+    lane: str
+    x: float
+    y: float
+
+
+def tight_bends(route: RoutePath, limit: float) -> list[TightBend]:
+    """The stretches of ``route`` whose curvature (``Polyline.curvature_at`` at the path's
+    vertices) exceeds ``limit`` [1/m] in magnitude, in order along the route; runs of
+    consecutive vertices beyond the limit form one bend. Pure numpy, no simulator calls."""
+    path = route.path
+    k = path.curvature_at(path.s)
+    over = np.abs(k) > limit
+    if not over.any():
+        return []
+    edges = np.diff(np.r_[0, over.astype(np.int8), 0])
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    bends = []
+    for i0, i1 in zip(starts, ends):  # one iteration per bend (a few per route)
+        j = i0 + int(np.argmax(np.abs(k[i0:i1 + 1])))
+        bends.append(TightBend(s_start=float(path.s[i0]), s_end=float(path.s[i1]), s=float(path.s[j]),
+                               curvature=float(k[j]), lane=str(route.lane_of_vertex[j]),
+                               x=float(path.xy[j, 0]), y=float(path.xy[j, 1])))
+    return bends
+
+
 def lane_allows(lane: str, vclass: str) -> bool:
     allowed = libsumo.lane.getAllowed(lane)
     if allowed:
