@@ -34,19 +34,19 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys):
     assert main(["train", str(data), "--out", str(weights), "--max-minutes", "0.05"]) == 0
     default = LSTMPredictor.from_file(weights, kind="map_cslstm").model
     assert default.nbr_frame == "agent" and default.modes == 3  # as shipped
-    assert (default.dec_size, default.cv_mode, default.single_mode_groups) == (64, True, (2,))  # pedestrians: one mode
+    assert (default.dec_size, default.cv_mode, default.single_mode_groups) == (64, False, (2,))  # pedestrians: one mode
     # a two-mode model trains (winner-takes-all warm-up, then the mixture NLL) and is evaluated
     modes2 = tmp_path / "m2.pt"
     assert main(["train", str(data), "--out", str(modes2), "--max-minutes", "0.05", "--modes", "2"]) == 0
     assert LSTMPredictor.from_file(modes2).model.modes == 2
-    # the options can be switched off (and are kept in the training log as trained)
+    # the options can be switched (and are kept in the training log as trained)
     plain = tmp_path / "plain.pt"
     assert main(["train", str(data), "--out", str(plain), "--max-minutes", "0.05", "--decoder-size", "32",
-                 "--no-cv-mode", "--all-modes-pedestrians"]) == 0
+                 "--cv-mode", "--all-modes-pedestrians"]) == 0
     m = LSTMPredictor.from_file(plain).model
-    assert (m.modes, m.dec_size, m.cv_mode, m.single_mode_groups) == (3, 32, False, ())
+    assert (m.modes, m.dec_size, m.cv_mode, m.single_mode_groups) == (3, 32, True, ())
     cfg = json.loads(plain.with_suffix(".json").read_text())["config"]
-    assert (cfg["dec"], cfg["cv_mode"], cfg["single_mode_groups"]) == (32, False, [])
+    assert (cfg["dec"], cfg["cv_mode"], cfg["single_mode_groups"]) == (32, True, [])
     assert main(["evaluate-predictor", str(data), "--out", str(tmp_path / "eval")]) == 0
     table = pd.read_csv(tmp_path / "eval" / "prediction_eval.csv")
     assert {"constant_velocity", "cslstm", "attention", "map", "map_cslstm"} <= set(table["model"])

@@ -4,9 +4,10 @@ scenarios that no predictor was trained or evaluated on.
     python tools/predictor_study.py [--first 140] [--count 20] [--workers 1] [--out runs/predictor_study] [--resume]
 
 Planners (the paper's planner, only the predictor or the priors changed): cv, cslstm,
-attention, map (attention + lanes), map_cslstm (CS-LSTM + lanes, 3 trajectory modes, the last of
-them constant velocity, pedestrians with one mode: the default), map_cslstm_v2 (the 3 free modes it
-replaced, weights/map_cslstm_v2.pt), map_cslstm_1mode (the one-mode map_cslstm before that,
+attention, map (attention + lanes), map_cslstm (CS-LSTM + lanes, 3 trajectory modes, pedestrians
+with one mode: the default), map_cslstm_v3 (the same with the last mode constant velocity, the
+default before, weights/map_cslstm_v3.pt), map_cslstm_v2 (3 free modes, a 128-state decoder, the
+default before that), map_cslstm_1mode (the one-mode map_cslstm before that,
 weights/map_cslstm_1mode.pt) and map_cslstm_nopriors (map_cslstm with braking_prior =
 lateral_prior = 0).
 Scenarios s<first>..s<first+count-1> of scenarios/suite (tools/train_shipped.py trains on
@@ -30,6 +31,7 @@ PLANNERS = (
     "attention=predictor=attention",
     "map=predictor=map",
     "map_cslstm=predictor=map_cslstm",
+    f"map_cslstm_v3=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v3.pt'}",
     f"map_cslstm_v2=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v2.pt'}",
     f"map_cslstm_1mode=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_1mode.pt'}",
     "map_cslstm_nopriors=predictor=map_cslstm;braking_prior=0;lateral_prior=0",

@@ -24,9 +24,9 @@ version 1 + map version 1; the default of --models) and/or the ablation's "atten
 runs: ``--stages dataset --no-suite`` and then ``--models attention,cslstm`` rebuild them).
 
 Wall time on this shared 2-core machine (one worker, one thread): dataset 19.0 min; training
-of the shipped map_cslstm 23.1 min (20 CPU-minute budget, best epoch 9 of 10, the last, cut by
-the budget), of map 22.2 min (best epoch 6 of 9); held-out dataset 6.7 min; evaluation of the
-eight models about 8 min on the test split and 2 min on the held-out one: about 80 min in all
+of the shipped map_cslstm 30.1 min at a load of about 3 (20.0 CPU-minutes, best epoch 10 of 11,
+the last, cut by the budget), of map 22.2 min (best epoch 6 of 9); held-out dataset 6.7 min;
+evaluation of the nine models about 10 min on the test split and 2 min on the held-out one: about 80 min in all
 for both map models, one after the other (``--parallel`` trains them at once).
 
     python tools/train_shipped.py --work /tmp/pred --stages dataset,train,heldout,evaluate --workers 1
@@ -54,12 +54,13 @@ GAME = ("cross", "square", "grid6", "corridor", "fkk_in", "ramp")  # eclipse-sum
 SELECT_GAME = ("fokr_bs_demo", "A10KW")  # bs3d cannot start in plain sumo (its gui-only osg-view)
 SUITE_SELECT_FIRST, SUITE_SELECT = 176, 20
 #: per-model train_main options (others: defaults); map_cslstm (the default) encodes every agent once in its
-#: own frame with 3 trajectory modes (models.default_options: a 64-state decoder, the last mode constant
-#: velocity, pedestrians with one mode); seed 2 of seeds 0-2 had the best validation NLL (docs/predictor_seeds.md);
+#: own frame with 3 trajectory modes (models.default_options: a 64-state decoder, pedestrians with one mode);
+#: seed 2 without the constant-velocity mode is the file the selection rule chose (docs/predictor_seeds.md);
 #: map (attention) per target as CS-LSTM with one mode
-#: earlier defaults kept in the weights folder, evaluated beside the shipped models: map_cslstm_v2 (3 free
-#: modes, a 128-state decoder, seed 0) and map_cslstm_1mode (one mode)
-PREVIOUS = ("map_cslstm_v2", "map_cslstm_1mode")
+#: earlier defaults kept in the weights folder, evaluated beside the shipped models: map_cslstm_v3 (the same
+#: with the last mode constant velocity), map_cslstm_v2 (3 free modes, a 128-state decoder, seed 0) and
+#: map_cslstm_1mode (one mode)
+PREVIOUS = ("map_cslstm_v3", "map_cslstm_v2", "map_cslstm_1mode")
 TRAIN = {"map": {"hazard_repeat": 4, "nbr_frame": "target", "modes": 1},
          "map_cslstm": {"hazard_repeat": 4, "nbr_frame": "agent", "modes": 3, "seed": 2}}
 

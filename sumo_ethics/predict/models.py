@@ -55,11 +55,13 @@ Gaussians per step and a linear head on the decoder's input gives M mode probabi
 Trained with the winner-takes-all MSE of the closest mode (+ cross-entropy of the weights)
 as warm-up, then the mixture NLL of whole trajectories (:func:`mixture_nll`). A standing car
 can then be "stays" and "pulls away" at once instead of one Gaussian averaging the two.
-Options (``default_options``, all on for the shipped map_cslstm): ``cv_mode``, the last mode's
-mean is the constant-velocity rollout itself (a standing agent stays), only its spread and
+Options (``default_options``; the shipped map_cslstm has the last two): ``cv_mode``, the last
+mode's mean is the constant-velocity rollout itself (a standing agent stays), only its spread and
 weight learned (for the groups decoded in absolute positions, pedestrians, it is "stands
-still"; the shipped model gives them one mode anyway); ``single_mode_groups``, class groups (pedestrians) that get mode 0 with weight 1
-and the others weight 0; ``dec``, the decoder's size (64 instead of 128).
+still"); ``single_mode_groups``, class groups (pedestrians) that get mode 0 with weight 1 and
+the others weight 0; ``dec``, the decoder's size (64 instead of 128). The previous default
+(weights/map_cslstm_v3.pt) had ``cv_mode`` too; the selection rule of docs/predictor_seeds.md
+chose the file without it.
 
 Neighbour encoding (``nbr_frame``). "target" (cslstm, attention, the first map model): each
 neighbour's history is encoded in its target's frame, once per (target, neighbour) pair, as
@@ -114,13 +116,13 @@ def default_modes(kind: str) -> int:
 
 def default_options(kind: str, modes: int) -> dict[str, Any]:
     """Decoder size, constant-velocity mode and one-mode class groups of a new model of ``kind``
-    with ``modes`` modes: those of its shipped file (map_cslstm: a 64-state decoder, the last mode
-    constant velocity, pedestrians with one mode; the others as they were, for the ablation). The
-    mode options need modes > 1."""
+    with ``modes`` modes: those of its shipped file (map_cslstm: a 64-state decoder, no
+    constant-velocity mode, pedestrians with one mode; the others as they were, for the
+    ablation). The mode options need modes > 1."""
     if kind != "map_cslstm":
         return {"dec": 128, "cv_mode": False, "single_mode_groups": ()}
     multi = modes > 1
-    return {"dec": 64, "cv_mode": multi, "single_mode_groups": (F.GROUP_PEDESTRIAN,) if multi else ()}
+    return {"dec": 64, "cv_mode": False, "single_mode_groups": (F.GROUP_PEDESTRIAN,) if multi else ()}
 
 
 def lstm_recurrence(pre: torch.Tensor, w_hh: torch.Tensor, steps: int) -> torch.Tensor:
