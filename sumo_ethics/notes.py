@@ -69,8 +69,8 @@ class RunNotes:
                              "turn": "left" if t.curvature > 0 else "right", "lane": t.lane,
                              "s": round(t.s, 1), "x": round(t.x, 2), "y": round(t.y, 2)},
                 "max_speed_in_bends": round(self.bend_speed, 2),
-                "note": (f"the route bends tighter than the ego's max_curvature ({self.limit:g} 1/m): the ego "
-                         f"followed the road's own geometry there, tighter than that limit (the ethical planner "
+                "note": (f"the route bends tighter than the ego's max_curvature ({self.limit:g} 1/m); the ego "
+                         f"passed {passed} of these bends, following the road's own geometry there (the planner "
                          f"allows at most {self.tolerance:g} 1/m beyond the road and still limits the lateral "
                          f"acceleration)"),
             }

@@ -109,6 +109,19 @@ def test_dataset_refuses_a_scenario_sumo_cannot_start_before_simulating_any(tmp_
     assert not out.exists()
 
 
+def test_dataset_reports_a_scenario_that_crashes_sumo_in_one_line(tmp_path, capsys):
+    """A malformed network makes SUMO itself crash (segfault) while loading: the check before the
+    runs reports it in one line, exit 2, instead of waiting forever for the dead worker."""
+    (tmp_path / "b.net.xml").write_text("<net>broken")
+    cfg = tmp_path / "b.sumocfg"
+    cfg.write_text('<configuration><input><net-file value="b.net.xml"/></input></configuration>')
+    out = tmp_path / "data"
+    assert main(["dataset", str(cfg), "--seeds", "1-3", "--sim-seconds", "20", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "crashed while loading" in err[0] and "b.sumocfg" in err[0]
+    assert not out.exists()
+
+
 def test_samples_from_never_overwrites_a_folder(tmp_path, capsys):
     src = tmp_path / "old"
     src.mkdir()

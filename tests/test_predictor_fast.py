@@ -121,6 +121,8 @@ def test_social_grid_as_matrix_products_equals_the_convolutions(targets):
         image = grid.view(targets, F.GRID_LON, F.GRID_LAT, m.enc_size).permute(0, 3, 1, 2)
         ref = m.soc_maxpool(m.act(m.conv_3x1(m.act(m.soc_conv(image))))).reshape(targets, m.soc_size)
     assert fast.shape == (targets, m.soc_size) == (targets, 80)
+    with torch.inference_mode():  # no targets: an empty result, as the convolutions give
+        assert m.social_fast(grid[:0]).shape == (0, 80)
     assert (fast - ref).abs().max() < 1e-5 * max(1.0, float(ref.abs().max()))
     assert not torch.equal(fast[0], torch.zeros_like(fast[0]))
 

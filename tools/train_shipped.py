@@ -138,6 +138,9 @@ def main() -> None:
         from sumo_ethics.predict.evaluate import evaluate, selection_scores
 
         weights = {"map_cslstm (shipped)": Path(args.out_dir) / "map_cslstm.pt"}
+        bad = [c for c in args.candidate if "=" not in c or not Path(c.split("=", 1)[1]).is_file()]
+        if bad:
+            raise SystemExit(f"--candidate {bad[0]!r}: give NAME=FILE with an existing weights file")
         weights.update(dict(c.split("=", 1) for c in args.candidate))
         tables = {"val": evaluate(work, None, weights=weights, max_samples=None, split="val"),
                   "selection": evaluate(selection, None, weights=weights, max_samples=None, split="all")}

@@ -164,20 +164,29 @@ def _probe(scenario: Path) -> str | None:
             session.close()
     except SumoEthicsError as exc:
         return str(exc)
+    except Exception as exc:  # noqa: BLE001 - libsumo's own exceptions cannot be pickled back: their text
+        return f"SUMO could not start {Path(scenario).name}: {type(exc).__name__}: {exc}"
     return None
 
 
-def check_scenarios(scenarios: list[Path], workers: int = 1) -> None:
+def check_scenarios(scenarios: list[Path]) -> None:
     """Load every scenario once in SUMO before any run is simulated: one that cannot start (a
     malformed config, an option plain sumo lacks, e.g. a gui-only ``osg-view``) raises ConfigError
-    with SUMO's reason, so nothing is simulated in vain."""
+    with SUMO's reason, so nothing is simulated in vain; one that crashes SUMO, too."""
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
     from sumo_ethics.errors import ConfigError
 
     ctx = mp.get_context("spawn")
-    with ctx.Pool(processes=max(1, workers), maxtasksperchild=1) as pool:
-        for scenario, problem in zip(scenarios, pool.imap(_probe, scenarios)):
-            if problem:
-                raise ConfigError(f"dataset: {problem}")
+    for scenario in scenarios:  # a fresh process each: SUMO may crash outright on a broken file
+        with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
+            try:
+                problem = pool.submit(_probe, scenario).result()
+            except BrokenProcessPool:
+                problem = f"SUMO crashed while loading {scenario} (a malformed network or route file?)"
+        if problem:
+            raise ConfigError(f"dataset: {problem}")
 
 
 def _simulate_safely(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
@@ -436,7 +445,7 @@ def build_dataset(
         for i, seed in enumerate(seeds):
             specs.append(RunSpec(len(specs), Path(scenario).resolve(), seed, float(scales[i % len(scales)]), sim_seconds))
     if specs:
-        check_scenarios(sorted({s.scenario for s in specs}, key=str), workers=workers)
+        check_scenarios(sorted({s.scenario for s in specs}, key=str))
     traj, graphs = simulate_runs(specs, workers=workers) if specs else (pd.DataFrame(), {})
     if suite:
         frames, suite_graphs = simulate_suite(list(suite), len(specs), workers=workers)

@@ -379,11 +379,12 @@ class TrajectoryLSTM(nn.Module):
         row = F.GRID_LAT * e  # one lon row of the grid: 3 cells x enc channels
         w1 = self.soc_conv.weight.permute(0, 2, 3, 1).reshape(self.soc_conv.out_channels, -1)  # (o, kh kw c)
         win = grid.unfold(1, 3 * row, row).reshape(-1, 3 * row)  # (B * 11, 3 rows)
-        soc = self.act(torch.addmm(self.soc_conv.bias, win, w1.t())).view(b, -1)  # (B, 11 x 64)
-        w2 = self.conv_3x1.weight.permute(0, 2, 3, 1).reshape(self.conv_3x1.out_channels, -1)
-        c1 = self.soc_conv.out_channels
+        c1, c2 = self.soc_conv.out_channels, self.conv_3x1.out_channels
+        rows1, rows2 = F.GRID_LON - 2, F.GRID_LON - 4  # output rows of the 3x3 and the 3x1 convolution
+        soc = self.act(torch.addmm(self.soc_conv.bias, win, w1.t())).reshape(b, rows1 * c1)  # (B, 11 x 64)
+        w2 = self.conv_3x1.weight.permute(0, 2, 3, 1).reshape(c2, -1)
         win = soc.unfold(1, 3 * c1, c1).reshape(-1, 3 * c1)  # (B * 9, 3 rows)
-        soc = self.act(torch.addmm(self.conv_3x1.bias, win, w2.t())).view(b, -1, self.conv_3x1.out_channels)
+        soc = self.act(torch.addmm(self.conv_3x1.bias, win, w2.t())).reshape(b, rows2, c2)
         # MaxPool2d((2, 1), padding=(1, 0)) over the 9 rows: row 0 alone, then the pairs (1, 2), (3, 4), ...
         pooled = torch.cat([soc[:, :1], torch.maximum(soc[:, 1::2], soc[:, 2::2])], 1)  # (B, 5, 16)
         return pooled.transpose(1, 2).reshape(b, self.soc_size)
