@@ -65,6 +65,24 @@ TRAIN = {"map": {"hazard_repeat": 4, "nbr_frame": "target", "modes": 1},
          "map_cslstm": {"hazard_repeat": 4, "nbr_frame": "agent", "modes": 3, "seed": 2}}
 
 
+def record_never_trained(game: tuple[str, ...], first: int, count: int, out: Path, workers: int, what: str) -> None:
+    """A dataset of scenarios never trained on: the tools/game configs ``game`` (seeds 1-3 x 300 s)
+    and suite scenarios ``first``..``first + count - 1``, written to ``out``. A game config missing
+    from the installed SUMO stops it (scores of datasets with other scenarios do not compare)."""
+    import sumo
+
+    from sumo_ethics.predict.commands import dataset_main
+
+    configs = [Path(sumo.SUMO_HOME) / "tools" / "game" / f"{g}.sumocfg" for g in game]
+    missing = [c.name for c in configs if not c.exists()]
+    if missing:
+        raise SystemExit(f"{what} dataset: {', '.join(missing)} not in this SUMO's tools/game")
+    suite = sorted((ROOT / "scenarios" / "suite").glob("s[0-9]*"))[first:first + count]
+    t0 = time.time()
+    dataset_main(configs, out, seeds=(1, 2, 3), sim_seconds=300.0, workers=workers, suite=suite)
+    logging.info("%s dataset: %.1f min", what, (time.time() - t0) / 60)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--work", default="/tmp/sumo_ethics_predict_data")
@@ -116,24 +134,10 @@ def main() -> None:
     if "heldout" in stages:
         # never trained on: eclipse-sumo's tools/game scenarios (vehicles only) and the suite
         # scenarios after the first SUITE_TRAIN (all their hazard kinds, pedestrians included)
-        import sumo
-
-        game = [Path(sumo.SUMO_HOME) / "tools" / "game" / f"{g}.sumocfg" for g in GAME]
-        suite = sorted((ROOT / "scenarios" / "suite").glob("s[0-9]*"))[SUITE_TRAIN:SUITE_TRAIN + SUITE_HELDOUT]
-        t0 = time.time()
-        dataset_main([g for g in game if g.exists()], heldout, seeds=(1, 2, 3), sim_seconds=300.0,
-                     workers=args.workers, suite=suite)
-        logging.info("held-out dataset: %.1f min", (time.time() - t0) / 60)
+        record_never_trained(GAME, SUITE_TRAIN, SUITE_HELDOUT, heldout, args.workers, "held-out")
     selection = Path(str(work) + "_selection")
     if "selection" in stages:
-        import sumo
-
-        game = [Path(sumo.SUMO_HOME) / "tools" / "game" / f"{g}.sumocfg" for g in SELECT_GAME]
-        suite = sorted((ROOT / "scenarios" / "suite").glob("s[0-9]*"))[SUITE_SELECT_FIRST:SUITE_SELECT_FIRST + SUITE_SELECT]
-        t0 = time.time()
-        dataset_main([g for g in game if g.exists()], selection, seeds=(1, 2, 3), sim_seconds=300.0,
-                     workers=args.workers, suite=suite)
-        logging.info("selection dataset: %.1f min", (time.time() - t0) / 60)
+        record_never_trained(SELECT_GAME, SUITE_SELECT_FIRST, SUITE_SELECT, selection, args.workers, "selection")
     if "select" in stages:
         from sumo_ethics.predict.evaluate import evaluate, selection_scores
 
