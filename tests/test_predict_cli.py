@@ -122,6 +122,23 @@ def test_dataset_reports_a_scenario_that_crashes_sumo_in_one_line(tmp_path, caps
     assert not out.exists()
 
 
+def test_dataset_writes_nothing_next_to_the_scenario(tmp_path):
+    """The scenario's own outputs (an output option, a detector dump in an additional file, as
+    eclipse-sumo's tools/game configs have) go to a scratch folder, not next to the scenario."""
+    urban = SCENARIOS / "urban"
+    net = (urban / "../../networks/urban/urban.net.xml").resolve()
+    scen = tmp_path / "scen"
+    scen.mkdir()
+    (scen / "dump.add.xml").write_text('<add><edgeData id="d" file="dump.xml"/></add>')
+    (scen / "s.sumocfg").write_text(f"""<configuration><input><net-file value="{net}"/>
+<route-files value="{(urban / 'urban.rou.xml').resolve()}"/><additional-files value="dump.add.xml"/></input>
+<output><tripinfo-output value="trips.xml"/></output></configuration>""")
+    before = sorted(p.name for p in scen.iterdir())
+    assert main(["dataset", str(scen / "s.sumocfg"), "--seeds", "1-3", "--sim-seconds", "30",
+                 "--out", str(tmp_path / "data")]) == 0
+    assert sorted(p.name for p in scen.iterdir()) == before == ["dump.add.xml", "s.sumocfg"]
+
+
 def test_samples_from_never_overwrites_a_folder(tmp_path, capsys):
     src = tmp_path / "old"
     src.mkdir()

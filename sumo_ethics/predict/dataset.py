@@ -52,10 +52,32 @@ class RunSpec:
     sim_seconds: float
 
 
+def _redirected_outputs(scenario: Path, folder: Path) -> list[str]:
+    """SUMO options that point the scenario's own outputs (its output options and the files its
+    additionals' detectors and dumps write) into ``folder``, as ``run`` does: a dataset never
+    writes next to the scenario (eclipse-sumo's tools/game configs write netstate.xml and
+    tlsstate.xml into the installed package) and parallel runs never share a file. The dataset
+    reads nothing from them; the simulation is the same."""
+    from sumo_ethics.sim.scenario import read_scenario, redirected_additionals, redirected_outputs
+
+    files = read_scenario(scenario)
+    args: list[str] = []
+    for key, value in redirected_outputs(files, folder).items():
+        Path(value.split()[0]).parent.mkdir(parents=True, exist_ok=True)
+        args += [f"--{key}", value]
+    additional, _ = redirected_additionals(files, folder)
+    if additional is not None:
+        args += ["--additional-files", additional]
+    return args
+
+
 def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
     """One SUMO run through libsumo -> trajectory rows and the network's lane graph (runs
     inside a worker process). Map context (lane, lane_pos, tls_dist, tls_state; see
     :mod:`sumo_ethics.sim.lanes`) is read at the model rate only (other rows: lane -1)."""
+    import shutil
+    import tempfile
+
     import libsumo as ls
 
     from sumo_ethics.sim.lanes import agent_context, lane_graph
@@ -65,7 +87,13 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
         "--step-length", f"{SIM_DT}", "--lanechange.duration", "2",
         "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true",
     ]
-    ls.start(cmd)
+    scratch = Path(tempfile.mkdtemp(prefix="sumo_ethics_dataset_"))
+    cmd += _redirected_outputs(spec.scenario, scratch)
+    try:
+        ls.start(cmd)
+    except BaseException:
+        shutil.rmtree(scratch, ignore_errors=True)
+        raise
     vars_ = (ls.VAR_POSITION, ls.VAR_ANGLE, ls.VAR_SPEED)
     type_info: dict[str, tuple[float, float, int]] = {}
     agent_type: dict[str, tuple[float, float, int]] = {}
@@ -115,6 +143,7 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
                     rows_v.append(r[ls.VAR_SPEED])
     finally:
         ls.close()
+        shutil.rmtree(scratch, ignore_errors=True)
     ids = np.array(rows_id, dtype=object)
     tinfo = np.array([agent_type[a] for a in rows_id]).reshape(-1, 3)
     length, width, cls = tinfo[:, 0], tinfo[:, 1], tinfo[:, 2].astype(np.int8)
@@ -155,12 +184,16 @@ def _probe(scenario: Path) -> str | None:
 
     from sumo_ethics.errors import SumoEthicsError
     from sumo_ethics.sim import session
-    from sumo_ethics.sim.scenario import read_scenario
+    from sumo_ethics.sim.scenario import read_scenario, redirected_additionals, redirected_outputs
 
     try:
         files = read_scenario(scenario)
         with tempfile.TemporaryDirectory() as tmp:
-            session.start(files, seed=1, error_log=Path(tmp) / "errors.log")
+            outputs = redirected_outputs(files, Path(tmp))  # its outputs (written at close) go to tmp too
+            additional, _ = redirected_additionals(files, Path(tmp))
+            if additional is not None:
+                outputs["additional-files"] = additional
+            session.start(files, seed=1, error_log=Path(tmp) / "errors.log", outputs=outputs)
             session.close()
     except SumoEthicsError as exc:
         return str(exc)
