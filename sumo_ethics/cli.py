@@ -296,7 +296,9 @@ def evaluate_predictor(dataset_dir: Path, out: Path, models: tuple[str, ...], sp
         weights[name] = Path(path)
     table = evaluate_main(_dataset_folder(dataset_dir), out, weights=weights or None, split=split)
     click.echo(table.to_string(index=False))
-    click.echo(f"written to {out}/prediction_eval.csv and .md")
+    extra = " (and prediction_eval_by_scenario.csv and .md)" if (Path(out) / "prediction_eval_by_scenario.csv").is_file() \
+        and split == "all" else ""
+    click.echo(f"written to {out}/prediction_eval.csv and .md{extra}")
 
 
 @cli.command()
