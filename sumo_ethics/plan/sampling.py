@@ -262,6 +262,26 @@ def _bound_at(bound: float | np.ndarray | None, path: Polyline, s: np.ndarray, d
 
 
 # --------------------------------------------------------------------------- sampling
+def _heading_curvature(heading: np.ndarray, heading0: float, speed: np.ndarray, speed0: float, dt: float,
+                       out: np.ndarray, step: np.ndarray, dh: np.ndarray, den: np.ndarray) -> None:
+    """Curvature [1/m] of a path sampled every ``dt`` [s], written into ``out`` (..., T): the central
+    difference of ``heading`` [rad] over the distance travelled (trapezoidal in ``speed`` [m/s]),
+    one-sided at the last step, from ``heading0`` and ``speed0`` before step 0; 0 where that
+    distance is under _MIN_TRAVEL. step, dh, den: scratch arrays of the same shape (overwritten)."""
+    step[..., 0] = speed[..., 0] + speed0
+    np.add(speed[..., 1:], speed[..., :-1], out=step[..., 1:])
+    step *= 0.5 * dt  # distance travelled into each step [m]
+    dh[..., 0] = heading[..., 0] - heading0
+    np.subtract(heading[..., 1:], heading[..., :-1], out=dh[..., 1:])  # heading change into each step
+    np.add(dh[..., :-1], dh[..., 1:], out=out[..., :-1])
+    out[..., -1] = dh[..., -1]
+    np.add(step[..., :-1], step[..., 1:], out=den[..., :-1])
+    den[..., -1] = step[..., -1]
+    moved = den > _MIN_TRAVEL
+    np.divide(out, den, out=out, where=moved)
+    np.copyto(out, 0.0, where=~moved)
+
+
 def sample(path: Polyline, start: FrenetState, cfg: SamplingConfig, v_max: float,
            left: float | np.ndarray | None = None, right: float | np.ndarray | None = None,
            margin: float = 0.0) -> Candidates:
@@ -432,41 +452,14 @@ def sample(path: Polyline, start: FrenetState, cfg: SamplingConfig, v_max: float
     href0 = float(reference_heading(path, np.asarray(start.s)))
     yaw0 = href0 + dth0
     # curvature: central difference of yaw over the distance travelled (trapezoidal in |speed|)
-    step, dyaw = one, along  # reuse scratch
-    step[..., 0] = speed[..., 0] + v_start
-    np.add(speed[..., 1:], speed[..., :-1], out=step[..., 1:])
-    step *= 0.5 * dt  # distance travelled into each step [m]
-    dyaw[..., 0] = yaw[..., 0] - yaw0
-    np.subtract(yaw[..., 1:], yaw[..., :-1], out=dyaw[..., 1:])  # heading change into each step
-    np.add(dyaw[..., :-1], dyaw[..., 1:], out=curvature[..., :-1])
-    curvature[..., -1] = dyaw[..., -1]
-    den = tmp
-    np.add(step[..., :-1], step[..., 1:], out=den[..., :-1])
-    den[..., -1] = step[..., -1]
-    moved = den > _MIN_TRAVEL
-    np.divide(curvature, den, out=curvature, where=moved)
-    np.copyto(curvature, 0.0, where=~moved)
+    _heading_curvature(yaw, yaw0, speed, v_start, dt, curvature, one, along, tmp)  # scratch reused
     # the road's own curvature along the candidate: the same central difference of the path's
     # heading over the distance the path covers (trapezoidal in |s_dot|). It depends on s only, so
     # it is computed on (nH, nV, 1, T); on the path (d = 0, d_dot = 0) speed == |s_dot| and the
     # two agree bit for bit
     sd_abs = np.abs(sd)
-    rstep = np.empty_like(sd_abs)
-    rstep[..., 0] = sd_abs[..., 0] + abs(start.s_dot)
-    np.add(sd_abs[..., 1:], sd_abs[..., :-1], out=rstep[..., 1:])
-    rstep *= 0.5 * dt
-    rden = np.empty_like(rstep)
-    np.add(rstep[..., :-1], rstep[..., 1:], out=rden[..., :-1])
-    rden[..., -1] = rstep[..., -1]
-    dref = np.empty_like(href)
-    dref[..., 0] = href[..., 0] - href0
-    np.subtract(href[..., 1:], href[..., :-1], out=dref[..., 1:])
     kref = np.empty_like(href)
-    np.add(dref[..., :-1], dref[..., 1:], out=kref[..., :-1])
-    kref[..., -1] = dref[..., -1]
-    rmoved = rden > _MIN_TRAVEL
-    np.divide(kref, rden, out=kref, where=rmoved)
-    np.copyto(kref, 0.0, where=~rmoved)
+    _heading_curvature(href, href0, sd_abs, abs(start.s_dot), dt, kref, *(np.empty_like(sd_abs) for _ in range(3)))
     np.copyto(road, np.broadcast_to(kref, shape))
     np.multiply(yaw, 1.0 / (2.0 * np.pi), out=tmp)  # wrap into [-pi, pi]
     np.rint(tmp, out=tmp)
