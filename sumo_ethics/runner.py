@@ -161,12 +161,9 @@ class Run:
         # every check that needs no SUMO has passed: only now is the run folder touched
         self.created_out, self.replaced = prepare_out(cfg.out, cfg.overwrite)
         # the scenario's own outputs (tripinfo, log, ...) go into the run folder, never next to it
-        outputs = scenario_files.redirected_outputs(files, cfg.out / "sumo-outputs")
         if not (cfg.out / "sumo-outputs").exists():
             self.written.append("sumo-outputs")
-        additional, left = scenario_files.redirected_additionals(files, cfg.out / "sumo-outputs")
-        if additional is not None:  # copies of the additional files whose detectors write files
-            outputs["additional-files"] = additional
+        outputs, left = scenario_files.redirected(files, cfg.out / "sumo-outputs")
         self.meta.update(scenario=str(files.config), ego_id=ego_id, **plan.record(),
                          forced_sumo_options=session.forced_option_report(files), redirected_outputs=outputs,
                          outputs_not_redirected=left, sumo_args=list(cfg.sumo_args))

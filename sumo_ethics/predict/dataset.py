@@ -28,8 +28,10 @@ import json
 import logging
 import multiprocessing as mp
 import pickle
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 import pandas as pd
@@ -52,25 +54,6 @@ class RunSpec:
     sim_seconds: float
 
 
-def _redirected_outputs(scenario: Path, folder: Path) -> list[str]:
-    """SUMO options that point the scenario's own outputs (its output options and the files its
-    additionals' detectors and dumps write) into ``folder``, as ``run`` does: a dataset never
-    writes next to the scenario (eclipse-sumo's tools/game configs write netstate.xml and
-    tlsstate.xml into the installed package) and parallel runs never share a file. The dataset
-    reads nothing from them; the simulation is the same."""
-    from sumo_ethics.sim.scenario import read_scenario, redirected_additionals, redirected_outputs
-
-    files = read_scenario(scenario)
-    args: list[str] = []
-    for key, value in redirected_outputs(files, folder).items():
-        Path(value.split()[0]).parent.mkdir(parents=True, exist_ok=True)
-        args += [f"--{key}", value]
-    additional, _ = redirected_additionals(files, folder)
-    if additional is not None:
-        args += ["--additional-files", additional]
-    return args
-
-
 def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
     """One SUMO run through libsumo -> trajectory rows and the network's lane graph (runs
     inside a worker process). Map context (lane, lane_pos, tls_dist, tls_state; see
@@ -81,14 +64,19 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
     import libsumo as ls
 
     from sumo_ethics.sim.lanes import agent_context, lane_graph
+    from sumo_ethics.sim.scenario import read_scenario, redirected
+    from sumo_ethics.sim.session import output_args
 
     cmd = [
         "sumo", "-c", str(spec.scenario), "--seed", str(spec.seed), "--scale", f"{spec.scale:g}",
         "--step-length", f"{SIM_DT}", "--lanechange.duration", "2",
         "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true",
     ]
+    # the scenario's own outputs (output options, dumps of its additional files) go to a scratch
+    # folder, as run does: never next to the scenario (eclipse-sumo's tools/game configs would write
+    # netstate.xml and tlsstate.xml into the installed package), never shared by parallel runs
     scratch = Path(tempfile.mkdtemp(prefix="sumo_ethics_dataset_"))
-    cmd += _redirected_outputs(spec.scenario, scratch)
+    cmd += output_args(redirected(read_scenario(spec.scenario), scratch)[0])
     try:
         ls.start(cmd)
     except BaseException:
@@ -184,16 +172,12 @@ def _probe(scenario: Path) -> str | None:
 
     from sumo_ethics.errors import SumoEthicsError
     from sumo_ethics.sim import session
-    from sumo_ethics.sim.scenario import read_scenario, redirected_additionals, redirected_outputs
+    from sumo_ethics.sim.scenario import read_scenario, redirected
 
     try:
         files = read_scenario(scenario)
-        with tempfile.TemporaryDirectory() as tmp:
-            outputs = redirected_outputs(files, Path(tmp))  # its outputs (written at close) go to tmp too
-            additional, _ = redirected_additionals(files, Path(tmp))
-            if additional is not None:
-                outputs["additional-files"] = additional
-            session.start(files, seed=1, error_log=Path(tmp) / "errors.log", outputs=outputs)
+        with tempfile.TemporaryDirectory() as tmp:  # its outputs (written at close) go there too
+            session.start(files, seed=1, error_log=Path(tmp) / "errors.log", outputs=redirected(files, Path(tmp))[0])
             session.close()
     except SumoEthicsError as exc:
         return str(exc)
@@ -222,17 +206,24 @@ def check_scenarios(scenarios: list[Path]) -> None:
             raise ConfigError(f"dataset: {problem}")
 
 
-def _simulate_safely(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
-    """:func:`_simulate`, its failures as SimulationError (libsumo's exceptions cannot be pickled
-    back to the parent process)."""
+@contextmanager
+def _failures_named(what: str) -> Iterator[None]:
+    """Inside a worker process: any failure but the project's own errors becomes a SimulationError
+    naming ``what`` (libsumo's exceptions cannot be pickled back to the parent process)."""
     from sumo_ethics.errors import SimulationError, SumoEthicsError
 
     try:
-        return _simulate(spec)
+        yield
     except SumoEthicsError:
         raise
-    except Exception as exc:  # noqa: BLE001 - any failure of the run, named with its scenario and seed
-        raise SimulationError(f"dataset: {spec.scenario.name} seed {spec.seed}: {type(exc).__name__}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - any failure of the run, named
+        raise SimulationError(f"dataset: {what}: {type(exc).__name__}: {exc}") from None
+
+
+def _simulate_safely(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
+    """:func:`_simulate`, its failures as SimulationError naming scenario and seed."""
+    with _failures_named(f"{spec.scenario.name} seed {spec.seed}"):
+        return _simulate(spec)
 
 
 def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame, dict[str, F.LaneGraph]]:
@@ -418,15 +409,9 @@ def _simulate_suite(args: tuple[int, Path]) -> tuple[pd.DataFrame, F.LaneGraph |
     """One suite scenario with its hazards (worker process) -> trajectory rows, lane graph."""
     from sumo_ethics.suite.traffic import record_scenario
 
-    from sumo_ethics.errors import SimulationError, SumoEthicsError
-
     run_id, scenario = args
-    try:
+    with _failures_named(f"suite scenario {scenario.name}"):
         df, graph = record_scenario(scenario)
-    except SumoEthicsError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - as _simulate_safely: libsumo's exceptions cannot be pickled
-        raise SimulationError(f"dataset: suite scenario {scenario.name}: {type(exc).__name__}: {exc}") from None
     if len(df):
         df.insert(0, "run_id", np.int32(run_id))
         df.insert(1, "seed", np.int32(SUITE_SEED0 + run_id))

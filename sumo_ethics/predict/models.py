@@ -394,8 +394,8 @@ class TrajectoryLSTM(nn.Module):
 
         Without autograd, ``nbr_frame="agent"`` models take the input projection once and run
         the recurrence by hand (:func:`lstm_recurrence`; about 30 % faster than nn.LSTM for a few
-        dozen targets, equal to it within float rounding, see tests/test_predictor_fast.py). Older models keep nn.LSTM, so their shipped outputs stay
-        bit for bit."""
+        dozen targets, equal to it within float rounding, see tests/test_predictor_fast.py).
+        Older models keep nn.LSTM, so their shipped outputs stay bit for bit."""
         b = enc.shape[0]
         if self.nbr_frame != "agent" or torch.is_grad_enabled():
             h_dec, _ = self.decoder(enc[:, None, :].expand(b, self.fut_steps, enc.shape[-1]))

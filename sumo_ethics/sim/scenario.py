@@ -319,6 +319,17 @@ def redirected_outputs(files: ScenarioFiles, folder: Path) -> dict[str, str]:
     return out
 
 
+def redirected(files: ScenarioFiles, folder: Path) -> tuple[dict[str, str], dict[str, list[str]]]:
+    """Everything that points the scenario's own outputs into ``folder``: the options of
+    :func:`redirected_outputs` plus, under ``additional-files``, the copies of
+    :func:`redirected_additionals` (if any); and the additional files' outputs left as they are."""
+    outputs = redirected_outputs(files, folder)
+    additional, left = redirected_additionals(files, folder)
+    if additional is not None:  # copies of the additional files whose detectors write files
+        outputs["additional-files"] = additional
+    return outputs, left
+
+
 #: elements of additional files that write a file, and the attribute naming it
 _ADDITIONAL_OUTPUTS = {tag: "file" for tag in (
     "e1Detector", "inductionLoop", "instantInductionLoop", "e2Detector", "laneAreaDetector", "e3Detector",

@@ -45,7 +45,7 @@ def start(files: ScenarioFiles, seed: int, error_log: Path, extra: tuple[str, ..
     """Start SUMO in this process (libsumo: one simulation per process).
 
     step_length [s]: overrides the scenario's; outputs: option -> file, the scenario's own
-    output options redirected (see ``scenario.redirected_outputs``); extra: more options
+    output options redirected (see ``scenario.redirected``); extra: more options
     (``--sumo-arg``), last so they win. A start failure raises SimulationError with SUMO's
     own reason: SUMO prints config errors to stderr before its error log exists, so stderr
     is captured while it starts (passed on if SUMO started; else its reason is in the error).
@@ -56,10 +56,7 @@ def start(files: ScenarioFiles, seed: int, error_log: Path, extra: tuple[str, ..
         cmd += [f"--{key}", value]
     if step_length is not None:
         cmd += ["--step-length", f"{step_length:g}"]
-    for key, value in (outputs or {}).items():
-        if key != "additional-files":
-            Path(value.split()[0]).parent.mkdir(parents=True, exist_ok=True)
-        cmd += [f"--{key}", value]
+    cmd += output_args(outputs or {})
     cmd += list(extra)
     with tempfile.TemporaryFile() as captured:
         try:
@@ -74,6 +71,17 @@ def start(files: ScenarioFiles, seed: int, error_log: Path, extra: tuple[str, ..
         if rest:  # a start that went through: pass on whatever SUMO printed
             sys.stderr.buffer.write(rest)
             sys.stderr.flush()
+
+
+def output_args(outputs: dict[str, str]) -> list[str]:
+    """SUMO options for ``outputs`` (option -> value, e.g. ``scenario.redirected``), the folder of
+    each output file created (``additional-files`` names inputs: left alone)."""
+    args: list[str] = []
+    for key, value in outputs.items():
+        if key != "additional-files":
+            Path(value.split()[0]).parent.mkdir(parents=True, exist_ok=True)
+        args += [f"--{key}", value]
+    return args
 
 
 @contextmanager
