@@ -250,9 +250,12 @@ def _dataset_folder(path: Path) -> Path:
 @click.option("--one-mode-pedestrians/--all-modes-pedestrians", default=None,
               help="Give pedestrians the first mode only, with weight 1 (default: on for map_cslstm with several "
                    "modes, as shipped).")
+@click.option("--stay-mode-pedestrians/--no-stay-mode-pedestrians", default=None,
+              help="Give pedestrians two modes: the first and one that stays where it is, both weights and the "
+                   "spread learned (instead of one mode).")
 def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
           nbr_frame: str | None, modes: int | None, decoder_size: int | None, cv_mode: bool | None,
-          one_mode_pedestrians: bool | None) -> None:
+          one_mode_pedestrians: bool | None, stay_mode_pedestrians: bool | None) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation; with several modes the
     warm-up is winner-takes-all and the NLL that of the mixture)."""
     from sumo_ethics.predict import train_main
@@ -263,13 +266,16 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
         raise click.BadParameter("--max-minutes must be positive")
     if hazard_repeat < 1:
         raise click.BadParameter("--hazard-repeat must be at least 1")
-    if (cv_mode or one_mode_pedestrians) and (modes or default_modes(model)) < 2:
-        raise click.BadParameter(f"--cv-mode and --one-mode-pedestrians need --modes 2 or more ({model} has "
-                                 f"{default_modes(model)} mode(s) unless --modes says otherwise)")
+    if (cv_mode or one_mode_pedestrians or stay_mode_pedestrians) and (modes or default_modes(model)) < 2:
+        raise click.BadParameter(f"--cv-mode, --one-mode-pedestrians and --stay-mode-pedestrians need --modes 2 or "
+                                 f"more ({model} has {default_modes(model)} mode(s) unless --modes says otherwise)")
+    if one_mode_pedestrians and stay_mode_pedestrians:
+        raise click.BadParameter("--one-mode-pedestrians and --stay-mode-pedestrians exclude each other")
     single = None if one_mode_pedestrians is None else ((GROUP_PEDESTRIAN,) if one_mode_pedestrians else ())
+    stay = None if stay_mode_pedestrians is None else ((GROUP_PEDESTRIAN,) if stay_mode_pedestrians else ())
     result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed,
                         hazard_repeat=hazard_repeat, nbr_frame=nbr_frame, modes=modes, dec=decoder_size,
-                        cv_mode=cv_mode, single_mode_groups=single)
+                        cv_mode=cv_mode, single_mode_groups=single, stay_mode_groups=stay)
     click.echo(f"weights written to {out}: {result['kind']}, best epoch {result['best_epoch']} "
                f"(validation NLL {result['best_val_nll']:.3f}), stopped by {result['stopped']} after "
                f"{result['cpu_minutes']:.1f} CPU-minutes; the training log is {Path(out).with_suffix('.json')}")

@@ -207,6 +207,38 @@ def test_constant_velocity_mode_and_one_mode_pedestrians():
     assert torch.isfinite(loss) and all(torch.isfinite(p.grad).all() for p in m.parameters() if p.grad is not None)
 
 
+def test_stay_mode_pedestrians():
+    """A stay group gets mode 0 and a last mode whose mean is exactly where it stands, both weights
+    learned; the middle mode has weight 0. Other groups keep all modes as without the option."""
+    from sumo_ethics.predict import features as F
+
+    groups = [F.GROUP_VEHICLE, F.GROUP_PEDESTRIAN, F.GROUP_CYCLIST, F.GROUP_PEDESTRIAN]
+    m = _options_model(stay_mode_groups=(F.GROUP_PEDESTRIAN,))
+    _, out, log_w = _forward_all(m, groups)
+    plain = _options_model()  # the same weights without the option
+    _, out0, log_w0 = _forward_all(plain, groups)
+    for i in (1, 3):
+        assert float(out[i, 2, :, :2].detach().abs().max()) == 0.0  # stays: mean 0 at every step
+        assert float(out[i, 2, :, 2:4].detach().min()) > 0.0  # a learned spread
+        assert log_w[i, 1].item() == -math.inf and torch.isfinite(log_w[i, [0, 2]]).all()
+        # mode 0 and the stay mode share the weight the plain model gives modes 0 and 2
+        w0 = log_w0[i, [0, 2]].exp()
+        torch.testing.assert_close(log_w[i, [0, 2]].exp(), w0 / w0.sum())
+        torch.testing.assert_close(out[i, :2], out0[i, :2])  # mode 0's mean (and mode 1) untouched
+    # vehicles and cyclists: bit for bit the model without the option
+    assert torch.equal(out[[0, 2]], out0[[0, 2]]) and torch.equal(log_w[[0, 2]], log_w0[[0, 2]])
+    # a standing pedestrian whose truth is to stay: the mixture NLL and the warm-up stay finite,
+    # and the warm-up picks the stay mode for it (mode 0's mean is elsewhere)
+    m.train()
+    _, out, log_w = _forward_all(m, groups)
+    y = torch.zeros(4, 20, 2)
+    loss = mixture_nll(out, log_w, y) + winner_mse(out, log_w, y)
+    loss.backward()
+    assert torch.isfinite(loss) and all(torch.isfinite(p.grad).all() for p in m.parameters() if p.grad is not None)
+    with pytest.raises(ValueError, match="both"):
+        TrajectoryLSTM(kind="map_cslstm", modes=3, single_mode_groups=(2,), stay_mode_groups=(2,))
+
+
 def test_model_options_survive_the_file_and_reach_the_prediction(tmp_path):
     from sumo_ethics.predict import features as F
 
@@ -220,7 +252,12 @@ def test_model_options_survive_the_file_and_reach_the_prediction(tmp_path):
     assert np.all(p.weight[2:, 0] < 1.0)
     # the default options leave the file's config as before
     cfg = load_model(save_model(_model(3), tmp_path / "plain.pt"))[1]["config"]
-    assert not {"dec", "cv_mode", "single_mode_groups"} & set(cfg)
+    assert not {"dec", "cv_mode", "single_mode_groups", "stay_mode_groups"} & set(cfg)
+    # a stay group survives the file and reaches the prediction: the pedestrians' middle mode weight 0
+    m3, header = load_model(save_model(_options_model(stay_mode_groups=(F.GROUP_PEDESTRIAN,)), tmp_path / "stay.pt"))
+    assert m3.stay_mode_groups == (F.GROUP_PEDESTRIAN,)
+    p = LSTMPredictor(m3, header, map_source=lane_source(obs)).predict(obs, 20, 0.1)
+    assert np.all((p.weight[:2] == 0.0).sum(1) == 1) and np.all(p.weight[2:] > 0.0)  # modes by falling weight
 
 
 def test_min_ade_ignores_modes_of_weight_zero():

@@ -120,9 +120,10 @@ def default_options(kind: str, modes: int) -> dict[str, Any]:
     constant-velocity mode, pedestrians with one mode; the others as they were, for the
     ablation). The mode options need modes > 1."""
     if kind != "map_cslstm":
-        return {"dec": 128, "cv_mode": False, "single_mode_groups": ()}
+        return {"dec": 128, "cv_mode": False, "single_mode_groups": (), "stay_mode_groups": ()}
     multi = modes > 1
-    return {"dec": 64, "cv_mode": False, "single_mode_groups": (F.GROUP_PEDESTRIAN,) if multi else ()}
+    return {"dec": 64, "cv_mode": False, "single_mode_groups": (F.GROUP_PEDESTRIAN,) if multi else (),
+            "stay_mode_groups": ()}
 
 
 def lstm_recurrence(pre: torch.Tensor, w_hh: torch.Tensor, steps: int) -> torch.Tensor:
@@ -170,6 +171,7 @@ class TrajectoryLSTM(nn.Module):
         modes: int = 1,
         cv_mode: bool = False,
         single_mode_groups: tuple[int, ...] = (),
+        stay_mode_groups: tuple[int, ...] = (),
     ) -> None:
         super().__init__()
         if kind not in KINDS:
@@ -178,8 +180,10 @@ class TrajectoryLSTM(nn.Module):
             raise ValueError(f"unknown nbr_frame {nbr_frame!r}, expected one of {NBR_FRAMES}")
         if not (isinstance(modes, int) and 1 <= modes <= 8):
             raise ValueError(f"modes must be an integer from 1 to 8, got {modes!r}")
-        if (cv_mode or single_mode_groups) and modes < 2:
-            raise ValueError("cv_mode and single_mode_groups need modes >= 2")
+        if (cv_mode or single_mode_groups or stay_mode_groups) and modes < 2:
+            raise ValueError("cv_mode, single_mode_groups and stay_mode_groups need modes >= 2")
+        if set(single_mode_groups) & set(stay_mode_groups):
+            raise ValueError("a class group cannot be in both single_mode_groups and stay_mode_groups")
         if cv_mode and not residual:
             raise ValueError("cv_mode needs residual decoding (its mean is the constant-velocity rollout)")
         self.kind = kind
@@ -193,6 +197,13 @@ class TrajectoryLSTM(nn.Module):
         one_mode = torch.full((modes,), -math.inf)  # log weights: mode 0 sure, the others impossible
         one_mode[0] = 0.0
         self.register_buffer("one_mode_log_w", one_mode, persistent=False)
+        self.stay_mode_groups = tuple(int(g) for g in stay_mode_groups)
+        stay = torch.zeros(n_groups, dtype=torch.bool)
+        stay[list(self.stay_mode_groups)] = True
+        self.register_buffer("stay_mode_mask", stay, persistent=False)
+        barred = torch.ones(modes, dtype=torch.bool)  # modes a stay group may not have: all but the first and last
+        barred[[0, -1]] = False
+        self.register_buffer("stay_barred", barred, persistent=False)
         self.sigma_min = float(sigma_min)
         self.residual = bool(residual)
         self.residual_groups = tuple(int(g) for g in residual_groups) if residual else ()
@@ -358,12 +369,18 @@ class TrajectoryLSTM(nn.Module):
             v_last = v_last * self.residual_mask[tgt_group][:, None]
             cv = steps[None, :, None] * v_last[:, None, :]
             mu = mu + (cv[:, None] if self.modes > 1 else cv)
+        if self.stay_mode_groups:  # their last mode's mean: stays where it is, whatever the decoding
+            stays = self.stay_mode_mask[tgt_group][:, None, None]
+            mu = torch.cat([mu[:, :-1], torch.where(stays, torch.zeros_like(mu[:, -1]), mu[:, -1])[:, None]], 1)
         sigma = Fn.softplus(out[..., 2:4]) + self.sigma_min
         rho = 0.95 * torch.tanh(out[..., 4:5])
         params = torch.cat([mu, sigma, rho], dim=-1)
         if self.modes == 1:
             return (params[:, None], params.new_zeros(b, 1)) if all_modes else params
-        log_w = torch.log_softmax(self.mode_head(enc), -1)
+        logits = self.mode_head(enc)
+        if self.stay_mode_groups:  # these groups get the first and the stay mode (the others weight 0)
+            logits = logits.masked_fill(self.stay_mode_mask[tgt_group][:, None] & self.stay_barred, -math.inf)
+        log_w = torch.log_softmax(logits, -1)
         if self.single_mode_groups:  # these groups get mode 0 with weight 1 (the others weight 0)
             log_w = torch.where(self.single_mode_mask[tgt_group][:, None], self.one_mode_log_w, log_w)
         if all_modes:
@@ -525,6 +542,7 @@ def model_config(model: TrajectoryLSTM) -> dict[str, Any]:
         **({"dec": model.dec_size} if model.dec_size != 128 else {}),
         **({"cv_mode": True} if model.cv_mode else {}),
         **({"single_mode_groups": list(model.single_mode_groups)} if model.single_mode_groups else {}),
+        **({"stay_mode_groups": list(model.stay_mode_groups)} if model.stay_mode_groups else {}),
     }
 
 
@@ -589,7 +607,8 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
                                residual_groups=tuple(cfg.get("residual_groups", (0, 1, 2))),
                                map_size=cfg.get("map_size", 64), nbr_frame=cfg.get("nbr_frame", "target"),
                                modes=cfg.get("modes", 1), dec=cfg.get("dec", 128), cv_mode=cfg.get("cv_mode", False),
-                               single_mode_groups=tuple(cfg.get("single_mode_groups", ())))
+                               single_mode_groups=tuple(cfg.get("single_mode_groups", ())),
+                               stay_mode_groups=tuple(cfg.get("stay_mode_groups", ())))
         model.load_state_dict(blob["state_dict"])
     except Exception as exc:  # noqa: BLE001
         raise PredictorError(f"predictor weights file {path} does not match the model: {exc}") from None

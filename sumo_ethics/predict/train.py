@@ -52,7 +52,9 @@ class TrainConfig:
     per target (1: a single Gaussian as before; > 1: winner-takes-all MSE warm-up, then the mixture
     NLL, see models.mixture_nll; None: models.default_modes); dec: decoder LSTM size; cv_mode: the
     last mode's mean is the constant-velocity rollout; single_mode_groups: class groups
-    (features.GROUP_*) that get mode 0 only (weight 1); each None: models.default_options."""
+    (features.GROUP_*) that get mode 0 only (weight 1); stay_mode_groups: class groups that get
+    mode 0 and a last mode that stays where it is (models.TrajectoryLSTM); each None:
+    models.default_options."""
 
     epochs: int = 40
     mse_epochs: int = 4
@@ -74,6 +76,7 @@ class TrainConfig:
     dec: int | None = None
     cv_mode: bool | None = None
     single_mode_groups: tuple[int, ...] | None = None
+    stay_mode_groups: tuple[int, ...] | None = None
 
 
 def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -152,9 +155,13 @@ def train_model(
         raise ValueError(f"dataset {dataset} has no train or no validation samples")
     modes = config.modes or default_modes(kind)
     options = {k: v if getattr(config, k) is None else getattr(config, k) for k, v in default_options(kind, modes).items()}
+    for given, default in (("stay_mode_groups", "single_mode_groups"), ("single_mode_groups", "stay_mode_groups")):
+        if getattr(config, given) is not None and getattr(config, default) is None:  # a group asked for one way
+            options[default] = tuple(g for g in options[default] if g not in options[given])  # leaves the other
     config = replace(config, nbr_frame=nbr_frame, modes=modes, **options)  # as trained, in the log
     model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes, dec=config.dec, cv_mode=config.cv_mode,
-                           single_mode_groups=tuple(config.single_mode_groups))
+                           single_mode_groups=tuple(config.single_mode_groups),
+                           stay_mode_groups=tuple(config.stay_mode_groups))
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     n_batches = math.ceil(len(train_idx) / config.batch_size)
     best, best_state, best_epoch, bad = math.inf, None, -1, 0
