@@ -59,7 +59,10 @@ Options (``default_options``; the shipped map_cslstm has the last two): ``cv_mod
 mode's mean is the constant-velocity rollout itself (a standing agent stays), only its spread and
 weight learned (for the groups decoded in absolute positions, pedestrians, it is "stands
 still"); ``single_mode_groups``, class groups (pedestrians) that get mode 0 with weight 1 and
-the others weight 0; ``dec``, the decoder's size (64 instead of 128). The previous default
+the others weight 0; ``stay_mode_groups``, class groups that get mode 0 and a last mode whose
+mean is exactly where the agent is now ("stays"), both weights and that mode's spread learned,
+the others weight 0 (one Gaussian averages a standing pedestrian's "stays" and "walks off");
+``dec``, the decoder's size (64 instead of 128). The previous default
 (weights/map_cslstm_v3.pt) had ``cv_mode`` too; the selection rule of docs/predictor_seeds.md
 chose the file without it.
 
