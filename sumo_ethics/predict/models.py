@@ -59,9 +59,11 @@ Options (``default_options``; the shipped map_cslstm has the last two): ``cv_mod
 mode's mean is the constant-velocity rollout itself (a standing agent stays), only its spread and
 weight learned (for the groups decoded in absolute positions, pedestrians, it is "stands
 still"); ``single_mode_groups``, class groups (pedestrians) that get mode 0 with weight 1 and
-the others weight 0; ``stay_mode_groups``, class groups that get mode 0 and a last mode whose
-mean is exactly where the agent is now ("stays"), both weights and that mode's spread learned,
-the others weight 0 (one Gaussian averages a standing pedestrian's "stays" and "walks off");
+the others weight 0; ``stay_mode_groups``, class groups that get mode 0 and a last mode that
+stays exactly where the agent is now (mean 0, spread ``sigma_min``, no correlation), both
+weights learned, the others weight 0 (one Gaussian averages a standing pedestrian's "stays" and
+"walks off"; with a learned spread the stay mode grew wide enough to cover the walkers and mode
+0 collapsed onto the standing ones);
 ``dec``, the decoder's size (64 instead of 128). The previous default
 (weights/map_cslstm_v3.pt) had ``cv_mode`` too; the selection rule of docs/predictor_seeds.md
 chose the file without it.
@@ -207,6 +209,8 @@ class TrajectoryLSTM(nn.Module):
         barred = torch.ones(modes, dtype=torch.bool)  # modes a stay group may not have: all but the first and last
         barred[[0, -1]] = False
         self.register_buffer("stay_barred", barred, persistent=False)
+        stay_params = torch.tensor([0.0, 0.0, float(sigma_min), float(sigma_min), 0.0])  # mean 0, sigma_min, rho 0
+        self.register_buffer("stay_params", stay_params, persistent=False)
         self.sigma_min = float(sigma_min)
         self.residual = bool(residual)
         self.residual_groups = tuple(int(g) for g in residual_groups) if residual else ()
@@ -372,12 +376,12 @@ class TrajectoryLSTM(nn.Module):
             v_last = v_last * self.residual_mask[tgt_group][:, None]
             cv = steps[None, :, None] * v_last[:, None, :]
             mu = mu + (cv[:, None] if self.modes > 1 else cv)
-        if self.stay_mode_groups:  # their last mode's mean: stays where it is, whatever the decoding
-            stays = self.stay_mode_mask[tgt_group][:, None, None]
-            mu = torch.cat([mu[:, :-1], torch.where(stays, torch.zeros_like(mu[:, -1]), mu[:, -1])[:, None]], 1)
         sigma = Fn.softplus(out[..., 2:4]) + self.sigma_min
         rho = 0.95 * torch.tanh(out[..., 4:5])
         params = torch.cat([mu, sigma, rho], dim=-1)
+        if self.stay_mode_groups:  # their last mode stays where it is, spread sigma_min, whatever the decoding
+            stays = self.stay_mode_mask[tgt_group][:, None, None]
+            params = torch.cat([params[:, :-1], torch.where(stays, self.stay_params, params[:, -1])[:, None]], 1)
         if self.modes == 1:
             return (params[:, None], params.new_zeros(b, 1)) if all_modes else params
         logits = self.mode_head(enc)
