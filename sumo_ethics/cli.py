@@ -251,8 +251,8 @@ def _dataset_folder(path: Path) -> Path:
               help="Give pedestrians the first mode only, with weight 1 (default: on for map_cslstm with several "
                    "modes, as shipped).")
 @click.option("--stay-mode-pedestrians/--no-stay-mode-pedestrians", default=None,
-              help="Give pedestrians two modes: the first and one that stays where it is, both weights and the "
-                   "spread learned (instead of one mode).")
+              help="Give pedestrians two modes: the first and one that stays where it is (mean 0, spread "
+                   "sigma_min), only the two weights learned (instead of one mode).")
 def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
           nbr_frame: str | None, modes: int | None, decoder_size: int | None, cv_mode: bool | None,
           one_mode_pedestrians: bool | None, stay_mode_pedestrians: bool | None) -> None:

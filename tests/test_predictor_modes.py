@@ -232,9 +232,14 @@ def test_stay_mode_pedestrians():
     m.train()
     _, out, log_w = _forward_all(m, groups)
     y = torch.zeros(4, 20, 2)
+    per_mode = ((out[..., :2] - y[:, None]) ** 2).sum(-1).mean(-1).masked_fill(torch.isinf(log_w), math.inf)
+    assert per_mode.argmin(-1)[[1, 3]].tolist() == [2, 2]
     loss = mixture_nll(out, log_w, y) + winner_mse(out, log_w, y)
     loss.backward()
     assert torch.isfinite(loss) and all(torch.isfinite(p.grad).all() for p in m.parameters() if p.grad is not None)
+    # a residual-decoded group can stay too: its stay mode is 0, not the constant-velocity rollout
+    hist, out, _ = _forward_all(_options_model(stay_mode_groups=(F.GROUP_VEHICLE,)), groups)
+    assert float(out[0, 2, :, :2].detach().abs().max()) == 0.0 and float((hist[0, -1] - hist[0, -2]).abs().max()) > 0
     with pytest.raises(ValueError, match="both"):
         TrajectoryLSTM(kind="map_cslstm", modes=3, single_mode_groups=(2,), stay_mode_groups=(2,))
 
@@ -258,6 +263,12 @@ def test_model_options_survive_the_file_and_reach_the_prediction(tmp_path):
     assert m3.stay_mode_groups == (F.GROUP_PEDESTRIAN,)
     p = LSTMPredictor(m3, header, map_source=lane_source(obs)).predict(obs, 20, 0.1)
     assert np.all((p.weight[:2] == 0.0).sum(1) == 1) and np.all(p.weight[2:] > 0.0)  # modes by falling weight
+    # in the world frame the stay mode sits on the pedestrian now, spread 0.01 x 2 m (pedestrian scale)
+    mean, cov, w = LSTMPredictor(m3, header, map_source=lane_source(obs)).mode_outputs(obs)
+    for i in (0, 1):
+        k = int(np.flatnonzero(np.all(np.abs(mean[i, :, :, :] - obs.current.xy[i]) < 1e-9, axis=(1, 2)))[0])
+        assert w[i, k] > 0.0
+        np.testing.assert_allclose(cov[i, k], np.broadcast_to(np.eye(2) * 0.02**2, cov[i, k].shape), atol=1e-12)
 
 
 def test_min_ade_ignores_modes_of_weight_zero():
