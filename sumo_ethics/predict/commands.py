@@ -50,6 +50,7 @@ def train_main(
     cv_mode: bool | None = None,
     single_mode_groups: tuple[int, ...] | None = None,
     stay_mode_groups: tuple[int, ...] | None = None,
+    residual_groups: tuple[int, ...] | None = None,
 ) -> dict:
     """Train ``model`` ("map", "map_cslstm", "attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
 
@@ -61,7 +62,8 @@ def train_main(
                       seed=seed, threads=threads, max_wall_minutes=max_wall_minutes, hazard_repeat=hazard_repeat,
                       nbr_frame=nbr_frame, modes=modes, dec=dec, cv_mode=cv_mode,
                       single_mode_groups=None if single_mode_groups is None else tuple(single_mode_groups),
-                      stay_mode_groups=None if stay_mode_groups is None else tuple(stay_mode_groups))
+                      stay_mode_groups=None if stay_mode_groups is None else tuple(stay_mode_groups),
+                      residual_groups=None if residual_groups is None else tuple(residual_groups))
     return train_model(Path(dataset), model, Path(out), cfg, progress=progress)
 
 

@@ -124,11 +124,13 @@ def default_options(kind: str, modes: int) -> dict[str, Any]:
     with ``modes`` modes: those of its shipped file (map_cslstm: a 64-state decoder, no
     constant-velocity mode, pedestrians with one mode; the others as they were, for the
     ablation). The mode options need modes > 1."""
+    residual = (F.GROUP_VEHICLE, F.GROUP_CYCLIST)
     if kind != "map_cslstm":
-        return {"dec": 128, "cv_mode": False, "single_mode_groups": (), "stay_mode_groups": ()}
+        return {"dec": 128, "cv_mode": False, "single_mode_groups": (), "stay_mode_groups": (),
+                "residual_groups": residual}
     multi = modes > 1
     return {"dec": 64, "cv_mode": False, "single_mode_groups": (F.GROUP_PEDESTRIAN,) if multi else (),
-            "stay_mode_groups": ()}
+            "stay_mode_groups": (), "residual_groups": residual}
 
 
 def lstm_recurrence(pre: torch.Tensor, w_hh: torch.Tensor, steps: int) -> torch.Tensor:

@@ -53,7 +53,8 @@ class TrainConfig:
     NLL, see models.mixture_nll; None: models.default_modes); dec: decoder LSTM size; cv_mode: the
     last mode's mean is the constant-velocity rollout; single_mode_groups: class groups
     (features.GROUP_*) that get mode 0 only (weight 1); stay_mode_groups: class groups that get
-    mode 0 and a last mode that stays where it is (models.TrajectoryLSTM); each None:
+    mode 0 and a last mode that stays where it is (models.TrajectoryLSTM); residual_groups: class
+    groups decoded as corrections to the constant-velocity rollout; each None:
     models.default_options."""
 
     epochs: int = 40
@@ -77,6 +78,7 @@ class TrainConfig:
     cv_mode: bool | None = None
     single_mode_groups: tuple[int, ...] | None = None
     stay_mode_groups: tuple[int, ...] | None = None
+    residual_groups: tuple[int, ...] | None = None
 
 
 def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -161,7 +163,8 @@ def train_model(
     config = replace(config, nbr_frame=nbr_frame, modes=modes, **options)  # as trained, in the log
     model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes, dec=config.dec, cv_mode=config.cv_mode,
                            single_mode_groups=tuple(config.single_mode_groups),
-                           stay_mode_groups=tuple(config.stay_mode_groups))
+                           stay_mode_groups=tuple(config.stay_mode_groups),
+                           residual_groups=tuple(config.residual_groups))
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     n_batches = math.ceil(len(train_idx) / config.batch_size)
     best, best_state, best_epoch, bad = math.inf, None, -1, 0
