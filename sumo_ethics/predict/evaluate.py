@@ -181,7 +181,7 @@ def evaluate(
     selections: list[tuple[str, np.ndarray]] = [("all", np.ones(len(fut), dtype=bool))]
     selections += [(g, groups == i) for i, g in enumerate(F.GROUP_NAMES)]
     standing = batch["tgt_speed"] < STANDING_SPEED
-    for i in (F.GROUP_VEHICLE, F.GROUP_CYCLIST):
+    for i in (F.GROUP_VEHICLE, F.GROUP_CYCLIST, F.GROUP_PEDESTRIAN):
         selections += [(f"{F.GROUP_NAMES[i]}:standing", (groups == i) & standing),
                        (f"{F.GROUP_NAMES[i]}:moving", (groups == i) & ~standing)]
     if "manoeuvre" in batch:
