@@ -122,6 +122,19 @@ def test_dataset_reports_a_scenario_that_crashes_sumo_in_one_line(tmp_path, caps
     assert not out.exists()
 
 
+def test_runs_in_fresh_processes_keep_their_order_and_a_crash_is_named():
+    """The dataset's runs (isolated_map): results in job order whatever finishes first; a process
+    that dies mid-run (SUMO crashing after a good start) is named instead of waited for forever."""
+    import os
+
+    from sumo_ethics.errors import SimulationError
+    from sumo_ethics.predict.dataset import isolated_map
+
+    assert list(isolated_map(abs, [-3, 1, -2], 2, str)) == [3, 1, 2]
+    with pytest.raises(SimulationError, match="SUMO crashed while simulating job 7"):
+        list(isolated_map(os._exit, [7], 2, lambda j: f"job {j}"))  # the process dies: exit code 7
+
+
 def test_dataset_writes_nothing_next_to_the_scenario(tmp_path):
     """The scenario's own outputs (an output option, a detector dump in an additional file, as
     eclipse-sumo's tools/game configs have) go to a scratch folder, not next to the scenario."""

@@ -31,7 +31,7 @@ import pickle
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator, TypeVar
 
 import numpy as np
 import pandas as pd
@@ -41,6 +41,7 @@ from sumo_ethics.sim.frames import front_to_centre
 from sumo_ethics.types import RoadUserClass
 
 log = logging.getLogger(__name__)
+T, R = TypeVar("T"), TypeVar("R")
 
 SIM_DT = 0.1
 DEFAULT_SCALES = (0.7, 1.0, 1.3)
@@ -226,18 +227,56 @@ def _simulate_safely(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
         return _simulate(spec)
 
 
+def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, names: Callable[[T], str]) -> Iterator[R]:
+    """``fn(job)`` for every job, each in a fresh spawned process (libsumo: one simulation per
+    process), at most ``workers`` at a time; results in job order. A process that dies (SUMO
+    crashing) raises SimulationError naming its job instead of waiting for it forever, which is
+    what ``multiprocessing.Pool`` does."""
+    from collections import deque
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    from sumo_ethics.errors import SimulationError
+
+    ctx = mp.get_context("spawn")
+    todo = iter(jobs)
+    window: deque = deque()
+
+    def submit() -> None:
+        job = next(todo, None)
+        if job is not None:
+            pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx)
+            window.append((job, pool, pool.submit(fn, job)))
+
+    try:
+        for _ in range(max(1, workers)):
+            submit()
+        while window:
+            job, pool, future = window[0]
+            try:
+                result = future.result()
+            except BrokenProcessPool:
+                raise SimulationError(f"dataset: SUMO crashed while simulating {names(job)}") from None
+            window.popleft()
+            pool.shutdown()
+            submit()
+            yield result
+    finally:
+        for _, pool, _ in window:  # after a failure or an interrupt: nothing new starts
+            pool.shutdown(wait=False, cancel_futures=True)
+
+
 def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame, dict[str, F.LaneGraph]]:
-    """Run every spec in a fresh spawned process (libsumo: one simulation per process).
+    """Run every spec in a fresh spawned process (:func:`isolated_map`).
 
     Returns the trajectory rows and each scenario's lane graph (keyed by the scenario path)."""
-    ctx = mp.get_context("spawn")
     frames = []
     graphs: dict[str, F.LaneGraph] = {}
-    with ctx.Pool(processes=max(1, workers), maxtasksperchild=1) as pool:
-        for i, (df, graph) in enumerate(pool.imap(_simulate_safely, specs)):
-            log.info("run %d/%d: %s seed %d scale %.2f -> %d rows", i + 1, len(specs), specs[i].scenario.name, specs[i].seed, specs[i].scale, len(df))
-            frames.append(df)
-            graphs.setdefault(str(specs[i].scenario), graph)
+    named = lambda spec: f"{spec.scenario.name} seed {spec.seed}"  # noqa: E731
+    for i, (df, graph) in enumerate(isolated_map(_simulate_safely, specs, workers, named)):
+        log.info("run %d/%d: %s seed %d scale %.2f -> %d rows", i + 1, len(specs), specs[i].scenario.name, specs[i].seed, specs[i].scale, len(df))
+        frames.append(df)
+        graphs.setdefault(str(specs[i].scenario), graph)
     return pd.concat(frames, ignore_index=True), graphs
 
 
@@ -421,16 +460,15 @@ def _simulate_suite(args: tuple[int, Path]) -> tuple[pd.DataFrame, F.LaneGraph |
 
 
 def simulate_suite(scenarios: list[Path], first_run_id: int, workers: int = 1) -> tuple[list[pd.DataFrame], dict[str, F.LaneGraph]]:
-    """Record suite scenarios (hazards included), one spawned process each."""
-    ctx = mp.get_context("spawn")
+    """Record suite scenarios (hazards included), one spawned process each (:func:`isolated_map`)."""
     frames, graphs = [], {}
     jobs = [(first_run_id + i, Path(s).resolve()) for i, s in enumerate(scenarios)]
-    with ctx.Pool(processes=max(1, workers), maxtasksperchild=1) as pool:
-        for (run_id, scen), (df, graph) in zip(jobs, pool.imap(_simulate_suite, jobs)):
-            log.info("suite run %d: %s -> %d rows", run_id, scen.name, len(df))
-            if len(df) and graph is not None:
-                frames.append(df)
-                graphs[str(scen)] = graph
+    named = lambda job: f"suite scenario {job[1].name}"  # noqa: E731
+    for (run_id, scen), (df, graph) in zip(jobs, isolated_map(_simulate_suite, jobs, workers, named)):
+        log.info("suite run %d: %s -> %d rows", run_id, scen.name, len(df))
+        if len(df) and graph is not None:
+            frames.append(df)
+            graphs[str(scen)] = graph
     return frames, graphs
 
 
