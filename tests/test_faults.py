@@ -134,7 +134,9 @@ def test_killed_sweep_parent_leaves_no_run_alive(tmp_path, sig):
     _, err = proc.communicate(timeout=30)
     if sig == signal.SIGTERM:  # handled like Ctrl-C: runs stopped, manifest written, one line
         assert proc.returncode == 143 and err.strip().startswith("error: terminated") and len(err.splitlines()) == 1
-        assert json.loads((out / "manifest.json").read_text())["counts"] == {"pending": 2}
+        # the runs still going are pending again; one may have finished just before the signal
+        counts = json.loads((out / "manifest.json").read_text())["counts"]
+        assert counts in ({"pending": 2}, {"completed": 1, "pending": 1}), counts
     deadline = time.monotonic() + 5
     while (alive := [p for p in family if _running(p)]) and time.monotonic() < deadline:
         time.sleep(0.05)
