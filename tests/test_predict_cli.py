@@ -130,9 +130,12 @@ def test_runs_in_fresh_processes_keep_their_order_and_a_crash_is_named():
     from sumo_ethics.errors import SimulationError
     from sumo_ethics.predict.dataset import isolated_map
 
-    assert list(isolated_map(abs, [-3, 1, -2], 2, str)) == [3, 1, 2]
+    def crashed(job: int) -> SimulationError:
+        return SimulationError(f"SUMO crashed while simulating job {job}")
+
+    assert list(isolated_map(abs, [-3, 1, -2], 2, crashed)) == [3, 1, 2]
     with pytest.raises(SimulationError, match="SUMO crashed while simulating job 7"):
-        list(isolated_map(os._exit, [7], 2, lambda j: f"job {j}"))  # the process dies: exit code 7
+        list(isolated_map(os._exit, [7], 2, crashed))  # the process dies: exit code 7
 
 
 def test_dataset_writes_nothing_next_to_the_scenario(tmp_path):

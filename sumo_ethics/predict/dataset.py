@@ -191,18 +191,12 @@ def check_scenarios(scenarios: list[Path]) -> None:
     """Load every scenario once in SUMO before any run is simulated: one that cannot start (a
     malformed config, an option plain sumo lacks, e.g. a gui-only ``osg-view``) raises ConfigError
     with SUMO's reason, so nothing is simulated in vain; one that crashes SUMO, too."""
-    from concurrent.futures import ProcessPoolExecutor
-    from concurrent.futures.process import BrokenProcessPool
-
     from sumo_ethics.errors import ConfigError
 
-    ctx = mp.get_context("spawn")
-    for scenario in scenarios:  # a fresh process each: SUMO may crash outright on a broken file
-        with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
-            try:
-                problem = pool.submit(_probe, scenario).result()
-            except BrokenProcessPool:
-                problem = f"SUMO crashed while loading {scenario} (a malformed network or route file?)"
+    def crashed(scenario: Path) -> ConfigError:  # SUMO may crash outright on a broken file
+        return ConfigError(f"dataset: SUMO crashed while loading {scenario} (a malformed network or route file?)")
+
+    for problem in isolated_map(_probe, scenarios, 1, crashed):
         if problem:
             raise ConfigError(f"dataset: {problem}")
 
@@ -221,22 +215,31 @@ def _failures_named(what: str) -> Iterator[None]:
         raise SimulationError(f"dataset: {what}: {type(exc).__name__}: {exc}") from None
 
 
+def _run_name(spec: RunSpec) -> str:
+    return f"{spec.scenario.name} seed {spec.seed}"
+
+
 def _simulate_safely(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
     """:func:`_simulate`, its failures as SimulationError naming scenario and seed."""
-    with _failures_named(f"{spec.scenario.name} seed {spec.seed}"):
+    with _failures_named(_run_name(spec)):
         return _simulate(spec)
 
 
-def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, names: Callable[[T], str]) -> Iterator[R]:
+def _crashed_run(name: str) -> Exception:
+    from sumo_ethics.errors import SimulationError
+
+    return SimulationError(f"dataset: SUMO crashed while simulating {name}")
+
+
+def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Callable[[T], Exception]) -> Iterator[R]:
     """``fn(job)`` for every job, each in a fresh spawned process (libsumo: one simulation per
     process), at most ``workers`` at a time; results in job order. A process that dies (SUMO
-    crashing) raises SimulationError naming its job instead of waiting for it forever, which is
-    what ``multiprocessing.Pool`` does."""
+    crashing) raises ``crashed(job)`` instead of being waited for forever, which is what
+    ``multiprocessing.Pool`` does. The next job starts when a result has been taken, so a caller
+    that stops at a result starts nothing more."""
     from collections import deque
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
-
-    from sumo_ethics.errors import SimulationError
 
     ctx = mp.get_context("spawn")
     todo = iter(jobs)
@@ -256,11 +259,11 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, names: Calla
             try:
                 result = future.result()
             except BrokenProcessPool:
-                raise SimulationError(f"dataset: SUMO crashed while simulating {names(job)}") from None
+                raise crashed(job) from None
             window.popleft()
             pool.shutdown()
-            submit()
             yield result
+            submit()
     finally:
         for _, pool, _ in window:  # after a failure or an interrupt: nothing new starts
             pool.shutdown(wait=False, cancel_futures=True)
@@ -272,8 +275,8 @@ def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame,
     Returns the trajectory rows and each scenario's lane graph (keyed by the scenario path)."""
     frames = []
     graphs: dict[str, F.LaneGraph] = {}
-    named = lambda spec: f"{spec.scenario.name} seed {spec.seed}"  # noqa: E731
-    for i, (df, graph) in enumerate(isolated_map(_simulate_safely, specs, workers, named)):
+    crashed = lambda spec: _crashed_run(_run_name(spec))  # noqa: E731
+    for i, (df, graph) in enumerate(isolated_map(_simulate_safely, specs, workers, crashed)):
         log.info("run %d/%d: %s seed %d scale %.2f -> %d rows", i + 1, len(specs), specs[i].scenario.name, specs[i].seed, specs[i].scale, len(df))
         frames.append(df)
         graphs.setdefault(str(specs[i].scenario), graph)
@@ -444,12 +447,16 @@ def build_samples(traj: pd.DataFrame, split: dict[str, list[int]], anchor_every:
 SUITE_SEED0 = 100_000
 
 
+def _suite_name(scenario: Path) -> str:
+    return f"suite scenario {scenario.name}"
+
+
 def _simulate_suite(args: tuple[int, Path]) -> tuple[pd.DataFrame, F.LaneGraph | None]:
     """One suite scenario with its hazards (worker process) -> trajectory rows, lane graph."""
     from sumo_ethics.suite.traffic import record_scenario
 
     run_id, scenario = args
-    with _failures_named(f"suite scenario {scenario.name}"):
+    with _failures_named(_suite_name(scenario)):
         df, graph = record_scenario(scenario)
     if len(df):
         df.insert(0, "run_id", np.int32(run_id))
@@ -463,8 +470,8 @@ def simulate_suite(scenarios: list[Path], first_run_id: int, workers: int = 1) -
     """Record suite scenarios (hazards included), one spawned process each (:func:`isolated_map`)."""
     frames, graphs = [], {}
     jobs = [(first_run_id + i, Path(s).resolve()) for i, s in enumerate(scenarios)]
-    named = lambda job: f"suite scenario {job[1].name}"  # noqa: E731
-    for (run_id, scen), (df, graph) in zip(jobs, isolated_map(_simulate_suite, jobs, workers, named)):
+    crashed = lambda job: _crashed_run(_suite_name(job[1]))  # noqa: E731
+    for (run_id, scen), (df, graph) in zip(jobs, isolated_map(_simulate_suite, jobs, workers, crashed)):
         log.info("suite run %d: %s -> %d rows", run_id, scen.name, len(df))
         if len(df) and graph is not None:
             frames.append(df)
