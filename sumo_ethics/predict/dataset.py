@@ -31,7 +31,8 @@ import pickle
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator, TypeVar
+from collections.abc import Callable, Iterator
+from typing import TypeVar
 
 import numpy as np
 import pandas as pd
@@ -275,7 +276,7 @@ def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame,
     Returns the trajectory rows and each scenario's lane graph (keyed by the scenario path)."""
     frames = []
     graphs: dict[str, F.LaneGraph] = {}
-    crashed = lambda spec: _crashed_run(_run_name(spec))  # noqa: E731
+    crashed = lambda spec: _crashed_run(_run_name(spec))
     for i, (df, graph) in enumerate(isolated_map(_simulate_safely, specs, workers, crashed)):
         log.info("run %d/%d: %s seed %d scale %.2f -> %d rows", i + 1, len(specs), specs[i].scenario.name, specs[i].seed, specs[i].scale, len(df))
         frames.append(df)
@@ -470,7 +471,7 @@ def simulate_suite(scenarios: list[Path], first_run_id: int, workers: int = 1) -
     """Record suite scenarios (hazards included), one spawned process each (:func:`isolated_map`)."""
     frames, graphs = [], {}
     jobs = [(first_run_id + i, Path(s).resolve()) for i, s in enumerate(scenarios)]
-    crashed = lambda job: _crashed_run(_suite_name(job[1]))  # noqa: E731
+    crashed = lambda job: _crashed_run(_suite_name(job[1]))
     for (run_id, scen), (df, graph) in zip(jobs, isolated_map(_simulate_suite, jobs, workers, crashed)):
         log.info("suite run %d: %s -> %d rows", run_id, scen.name, len(df))
         if len(df) and graph is not None:
