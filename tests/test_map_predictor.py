@@ -87,6 +87,87 @@ def test_lane_positions_scale_onto_the_shape():
     assert g.shape_pos(0, 50.0) == pytest.approx(25.0)
 
 
+def walking_graph() -> F.LaneGraph:
+    """A sidewalk 's_0' along +x from (0, 0) to (20, 0); a walking area ':J_w0_0' (a square
+    patch, 20..24 x -2..2); a crossing ':J_c0_0' up the line x = 22 from (22, 2) to (22, 12);
+    a sidewalk 't_0' from (22, 14) to (22, 40)."""
+    shapes = {
+        "s_0": [[0, 0], [20, 0]],
+        ":J_w0_0": [[20, -2], [24, -2], [24, 2], [20, 2], [20, -2]],
+        ":J_c0_0": [[22, 2], [22, 12]],
+        "t_0": [[22, 14], [22, 40]],
+    }
+    ids = list(shapes)
+    links = [(":J_w0_0",), ("s_0",), (":J_w0_0",), ()]
+    return F.LaneGraph.build(ids, [np.array(shapes[k], float) for k in ids], [13.9] * 4, links)
+
+
+def _walker(lane, pos, next_lane=-1, tls_dist=np.inf, tls_state=0):
+    return F.MapContext(np.array([lane]), np.array([pos]), np.array([tls_dist]), np.array([tls_state]),
+                        person=np.array([True]), next_lane=np.array([next_lane]))
+
+
+def test_pedestrian_rows_follow_its_heading_along_a_sidewalk():
+    g = walking_graph()
+    # at 10 m along s_0 walking -x (yaw pi): the sidewalk reversed, 1 m apart: world x = 10, 9, ..., 1,
+    # which is straight ahead in its frame; its next lane is the walking area: no second row
+    f = F.map_features(g, _walker(0, 10.0, next_lane=1), np.array([[10.0, 0.0]]), np.array([np.pi]), np.array([1.2]))
+    np.testing.assert_allclose(f["map_pts"][0, 0], [[k, 0] for k in range(10)], atol=1e-5)
+    assert f["map_valid"][0].tolist() == [True, False, False, False, False, False]
+    # no light, and the walking lane's speed limit (the road's) is left out
+    np.testing.assert_allclose(f["map_scalar"][0], [1, 0, 0, 0, 0, 0, 0], atol=1e-6)
+    # at 15 m walking +x: 15, 16, ..., 20 m, then the sidewalk's end held
+    f = F.map_features(g, _walker(0, 15.0), np.array([[15.0, 0.0]]), np.array([0.0]), np.array([1.2]))
+    np.testing.assert_allclose(f["map_pts"][0, 0, :, 0], [0, 1, 2, 3, 4, 5, 5, 5, 5, 5], atol=1e-5)
+
+
+def test_pedestrian_waiting_on_a_walking_area_sees_its_crossing_and_the_red_light():
+    g = walking_graph()
+    # standing at (21, 1.5) facing +y on the walking area, its walk goes on over the crossing,
+    # whose light is red 0.5 m away: row 0 is the crossing from its nearer end (22, 2), world
+    # (22, 2 + k); in the pedestrian's frame (+x = world +y, +y = world -x): (0.5 + k, -1)
+    f = F.map_features(g, _walker(1, 2.0, next_lane=2, tls_dist=0.5, tls_state=3), np.array([[21.0, 1.5]]),
+                       np.array([np.pi / 2]), np.array([0.0]))
+    np.testing.assert_allclose(f["map_pts"][0, 0], [[0.5 + k, -1.0] for k in range(10)], atol=1e-5)
+    assert f["map_valid"][0].tolist() == [True, False, False, False, False, False]
+    # [on a lane, a signalised crossing ahead, 0.5 / 50, green, yellow, red, 0]
+    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0.01, 0, 0, 1, 0], atol=1e-6)
+
+
+def test_pedestrian_on_a_crossing_sees_its_rest_and_the_sidewalk_beyond():
+    g = walking_graph()
+    # 4 m along the crossing at (22, 6) heading +y, green: row 0 the crossing's last 6 m (held at
+    # its end, world y = 12), row 1 the sidewalk t_0 from its nearer end (22, 14): 8, 9, ... m ahead
+    f = F.map_features(g, _walker(2, 4.0, next_lane=3, tls_dist=0.0, tls_state=1), np.array([[22.0, 6.0]]),
+                       np.array([np.pi / 2]), np.array([1.3]))
+    np.testing.assert_allclose(f["map_pts"][0, 0, :, 0], [0, 1, 2, 3, 4, 5, 6, 6, 6, 6], atol=1e-5)
+    np.testing.assert_allclose(f["map_pts"][0, 1], [[8 + k, 0] for k in range(10)], atol=1e-5)
+    assert f["map_valid"][0].tolist() == [True, True, False, False, False, False]
+    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0, 1, 0, 0, 0], atol=1e-6)
+
+
+def test_map_version_1_gives_pedestrians_nothing_and_vehicles_the_same():
+    g = junction_graph()
+    car = F.MapContext(np.array([0, 0]), np.array([90.0, 50.0]), np.array([20.0, 5.0]), np.array([3, 1]),
+                       person=np.array([False, True]), next_lane=np.array([-1, -1]))
+    xy, yaw, v = np.array([[90.0, 0.0], [50.0, 0.0]]), np.zeros(2), np.array([10.0, 1.0])
+    new, old = F.map_features(g, car, xy, yaw, v), F.map_features(g, car, xy, yaw, v, version=1)
+    for key in new:
+        np.testing.assert_array_equal(new[key][0], old[key][0])  # the car: the same
+    assert new["map_valid"][1, 0] and not old["map_valid"][1].any() and not old["map_scalar"][1].any()
+    assert not old["map_pts"][1].any()
+    # the tensors of a version-1 model empty the pedestrians' rows of a version-2 sample the same way
+    from sumo_ethics.predict.models import batch_to_tensors
+
+    batch = {"tgt_group": np.array([F.GROUP_VEHICLE, F.GROUP_PEDESTRIAN]), "nbr_batch": np.zeros(0, dtype=np.int64),
+             "tgt_hist": np.zeros((2, F.HIST_STEPS, 2)), "nbr_hist": np.zeros((0, F.HIST_STEPS, 2)),
+             "nbr_group": np.zeros(0, dtype=np.int64), "nbr_cell": np.zeros(0, dtype=np.int64), **new}
+    t1, t2 = batch_to_tensors(batch, with_map=True, map_version=1), batch_to_tensors(batch, with_map=True)
+    assert not t1["map_valid"][1].any() and not t1["map_scalar"][1].any() and not t1["map_pts"][1].any()
+    assert torch.equal(t1["map_pts"][0], t2["map_pts"][0]) and torch.equal(t1["map_valid"][0], t2["map_valid"][0])
+    assert t2["map_valid"][1, 0]
+
+
 def _batch(n: int = 3, n_nbr: int = 4):
     rng = np.random.default_rng(0)
     return dict(
@@ -142,7 +223,7 @@ def test_weights_of_another_kind_or_map_version_are_refused(tmp_path):
     blob = torch.load(path, weights_only=True)
     blob["map_version"] = 0
     torch.save(blob, tmp_path / "old_map.pt")
-    with pytest.raises(PredictorError, match="map_version=0, this code needs 1"):
+    with pytest.raises(PredictorError, match="map_version=0, this code reads 1 or 2"):
         load_model(tmp_path / "old_map.pt")
     blob["map_version"], blob["kind"] = F.MAP_VERSION, "transformer"
     torch.save(blob, tmp_path / "other.pt")
@@ -215,7 +296,15 @@ def test_dataset_carries_map_context_from_sumo(tmp_path):
     on = veh & s["map_valid"][:, 0]
     assert on.mean() > 0.9 * veh.mean()
     assert np.median(np.hypot(*s["map_pts"][on, 0, 0].T)) < 0.5
-    assert not s["map_valid"][ped].any()
+    # pedestrians (map version 2): every one on a walking lane has a row, and the urban junction's
+    # crossings are signalised: those standing at them wait at a red light
+    assert s["map_valid"][ped, 0].mean() > 0.9
+    assert (s["map_scalar"][ped, 0] == 1).all() and (s["map_scalar"][ped, 6] == 0).all()
+    moving = ped & (s["tgt_speed"] > 0.8) & s["map_valid"][:, 0]
+    ahead = s["map_pts"][moving, 0, -1] - s["map_pts"][moving, 0, 0]
+    assert (ahead[:, 0] > 0).mean() > 0.9  # the row runs the way they walk
+    standing = ped & (s["tgt_speed"] < 0.1)
+    assert standing.any() and (s["map_scalar"][standing, 5] == 1).mean() > 0.5
     # the urban scenario has traffic lights: some vehicles see one ahead, some a red one
     assert s["map_scalar"][on, 1].mean() > 0.2 and s["map_scalar"][on, 5].any()
     labels = set(np.unique(s["manoeuvre"][veh]).tolist())

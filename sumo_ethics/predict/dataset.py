@@ -8,7 +8,9 @@ varying by seed), and writes to ``out``:
   position, yaw CCW from +x): run_id, seed, scenario, scale, time, agent_id, cls
   (RoadUserClass int), x, y, yaw, speed, length, width, and at the model rate (every
   0.2 s; other rows lane = -1) the map context of :mod:`sumo_ethics.sim.lanes`: lane (index
-  into the run's lane graph, -1 none), lane_pos (centre), tls_dist, tls_state.
+  into the run's lane graph, -1 none), lane_pos (centre), tls_dist, tls_state, next_lane (a
+  pedestrian's next lane, -1 none; datasets built before map version 2 have no such column and
+  no lanes for pedestrians).
 - ``lane_graphs.pkl``: scenario path -> :class:`features.LaneGraph` of its network.
 - ``samples.npz``: training samples at the model rate (5 Hz, see
   :mod:`sumo_ethics.predict.features`): a target with 3 s history and 4 s future,
@@ -58,14 +60,14 @@ class RunSpec:
 
 def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
     """One SUMO run through libsumo -> trajectory rows and the network's lane graph (runs
-    inside a worker process). Map context (lane, lane_pos, tls_dist, tls_state; see
+    inside a worker process). Map context (lane, lane_pos, tls_dist, tls_state, next_lane; see
     :mod:`sumo_ethics.sim.lanes`) is read at the model rate only (other rows: lane -1)."""
     import shutil
     import tempfile
 
     import libsumo as ls
 
-    from sumo_ethics.sim.lanes import agent_context, lane_graph
+    from sumo_ethics.sim.lanes import agent_context, crossing_signals, lane_graph
     from sumo_ethics.sim.scenario import read_scenario, redirected
     from sumo_ethics.sim.session import output_args
 
@@ -98,8 +100,9 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
         return type_info[type_id]
 
     rows_t, rows_id, rows_x, rows_y, rows_a, rows_v = [], [], [], [], [], []
-    rows_lane, rows_pos, rows_td, rows_ts = [], [], [], []
+    rows_lane, rows_pos, rows_td, rows_ts, rows_next = [], [], [], [], []
     graph = lane_graph()
+    signals = crossing_signals()
     ratio = int(round(F.MODEL_DT / SIM_DT))
     t0 = ls.simulation.getTime()
     try:
@@ -116,13 +119,14 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
             for is_person, res in enumerate((ls.vehicle.getAllSubscriptionResults(), ls.person.getAllSubscriptionResults())):
                 ids = list(res)
                 if at_model_rate:
-                    ctx = agent_context(graph, ids, np.full(len(ids), bool(is_person)))
+                    ctx = agent_context(graph, ids, np.full(len(ids), bool(is_person)), signals)
                 else:
                     ctx = F.MapContext.empty(len(ids))
                 rows_lane.extend(ctx.lane.tolist())
                 rows_pos.extend(ctx.lane_pos.tolist())
                 rows_td.extend(ctx.tls_dist.tolist())
                 rows_ts.extend(ctx.tls_state.tolist())
+                rows_next.extend(ctx.next_lane.tolist())
                 for aid, r in res.items():
                     pos = r[ls.VAR_POSITION]
                     rows_t.append(t)
@@ -154,6 +158,7 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
             "lane_pos": np.array(rows_pos, dtype=np.float32),
             "tls_dist": np.array(rows_td, dtype=np.float32),
             "tls_state": np.array(rows_ts, dtype=np.int8),
+            "next_lane": np.array(rows_next, dtype=np.int32),
         }
     ), graph
 
@@ -347,12 +352,15 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
     lane_pos = np.zeros((na, nf))
     tls_dist = np.full((na, nf), np.inf)
     tls_state = np.zeros((na, nf), dtype=np.int64)
+    next_lane = np.full((na, nf), -1, dtype=np.int64)
     has_map = graph is not None and "lane" in d.columns
     if has_map:
         lane[agent_codes, frame] = d["lane"].to_numpy()
         lane_pos[agent_codes, frame] = d["lane_pos"].to_numpy()
         tls_dist[agent_codes, frame] = d["tls_dist"].to_numpy()
         tls_state[agent_codes, frame] = d["tls_state"].to_numpy()
+        if "next_lane" in d.columns:
+            next_lane[agent_codes, frame] = d["next_lane"].to_numpy()
     cls = np.zeros(na, dtype=np.int64)
     cls[agent_codes] = d["cls"].to_numpy()
     hazard_agent = np.array([str(a).startswith("hazard_") for a in agent_names], dtype=bool)
@@ -387,7 +395,8 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
         last = fpos[np.arange(len(ta)), fvalid.sum(axis=1) - 1]  # hold the last seen position
         fpos = np.where(fvalid[..., None], fpos, last[:, None, :])
         fut = F.to_target_frame(fpos, pos[ta, f], yaw[ta, f])
-        ctx = F.MapContext(lane[ta, f], lane_pos[ta, f], tls_dist[ta, f], tls_state[ta, f])
+        ctx = F.MapContext(lane[ta, f], lane_pos[ta, f], tls_dist[ta, f], tls_state[ta, f],
+                           person=feats["tgt_group"] == F.GROUP_PEDESTRIAN, next_lane=next_lane[ta, f])
         mf = F.map_features(graph if has_map else None, ctx, pos[ta, f], yaw[ta, f], speed[ta, f])
         out["tgt_hist"].append(feats["tgt_hist"])
         out["tgt_group"].append(feats["tgt_group"])
@@ -541,6 +550,12 @@ def build_dataset(
     }
     (out / "split.json").write_text(json.dumps(meta, indent=2))
     return out
+
+
+def map_version_of(dataset: Path) -> int:
+    """The map version of a dataset folder's samples (split.json; 1 for datasets without it)."""
+    meta = Path(dataset) / "split.json"
+    return int(json.loads(meta.read_text()).get("map_version") or 1) if meta.is_file() else 1
 
 
 def split_counts(samples: dict[str, np.ndarray]) -> dict[str, int]:

@@ -16,7 +16,7 @@ import pandas as pd
 
 from sumo_ethics.predict import features as F
 from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor
-from sumo_ethics.predict.dataset import load_samples, require_nbr_yaw, run_scenarios, subset
+from sumo_ethics.predict.dataset import load_samples, map_version_of, require_nbr_yaw, run_scenarios, subset
 
 HORIZONS_S = (1.0, 2.0, 3.0, 4.0)
 
@@ -63,7 +63,7 @@ def lstm_outputs(model, batch: dict[str, np.ndarray], batch_size: int = 1024) ->
     with torch.inference_mode():
         for start in range(0, len(batch["tgt_speed"]), batch_size):
             b = subset(batch, np.arange(start, min(start + batch_size, len(batch["tgt_speed"]))))
-            x = batch_to_tensors(b, model.pos_scale, with_map=model.kind in MAP_KINDS)
+            x = batch_to_tensors(b, model.pos_scale, with_map=model.kind in MAP_KINDS, map_version=model.map_version)
             s = model.scale(x["tgt_group"])[:, None, None, None]
             o, log_w = rank_modes(*model(**x, all_modes=True))
             outs.append(torch.cat([o[..., :4] * s, o[..., 4:]], -1).numpy().astype(float))
@@ -153,7 +153,7 @@ def evaluate(
     scenarios never trained on); written to ``out`` if given. The calibrated constant velocity
     is fitted on the train split of ``calibration_dataset`` (default: ``dataset``)."""
     from sumo_ethics.predict.dataset import MANOEUVRES
-    from sumo_ethics.predict.models import KINDS, load_model
+    from sumo_ethics.predict.models import KINDS, MAP_KINDS, load_model
     from sumo_ethics.predict.predictor import default_weights
 
     samples = load_samples(dataset)
@@ -172,6 +172,11 @@ def evaluate(
         "constant_velocity": (cv_outputs(batch), None), "constant_velocity_calibrated": (cv_outputs(batch, cv_cal), None)}
     for name, path in weights.items():
         model, _ = load_model(Path(path))
+        if model.kind in MAP_KINDS and model.map_version > map_version_of(dataset):
+            from sumo_ethics.predict import PredictorError
+
+            raise PredictorError(f"{name} ({path}) reads map version {model.map_version} (pedestrians' map context), "
+                                 f"dataset {dataset} has version {map_version_of(dataset)}: build the dataset again")
         if model.nbr_frame == "agent":
             require_nbr_yaw(batch, dataset, who=f"{name} ({path})")
         outputs[name] = lstm_outputs(model, batch)

@@ -26,6 +26,7 @@ Layout (FEATURE_VERSION 1):
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -227,9 +228,9 @@ def own_frame(hist: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------
-# Map and signal context (MAP_VERSION 1), for the map-aware model (kind "map")
+# Map and signal context (MAP_VERSION 2), for the map-aware models (kinds "map", "map_cslstm")
 #
-# For each target on a lane (vehicles and cyclists; pedestrians get none):
+# For each vehicle or cyclist on a lane:
 #
 # - ``map_pts`` (N, MAP_LANES, MAP_POINTS, 2): centre lines of the lanes it may take next, in
 #   the target's frame [m]. Rows 0..MAP_AHEAD-1: the paths through its current lane and its
@@ -245,20 +246,39 @@ def own_frame(hist: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 # - ``map_scalar`` (N, MAP_SCALARS): [on a lane, a traffic light ahead, its stop-line
 #   distance / 50 m clipped to [0, 2], green, yellow, red (one-hot of its link state),
 #   speed limit of the lane / 30 m/s].
-# ---------------------------------------------------------------------------------------------
-
-MAP_VERSION = 1
+#
+# For each pedestrian on a walking lane (new in MAP_VERSION 2; version 1 gave them nothing):
+# sidewalks and crossings have no direction of travel, so a pedestrian's rows follow its
+# heading, and a walking area (a junction's patch of pavement) has no centre line at all.
+#
+# - Row 0: its current sidewalk or crossing from its position, in the direction of the lane
+#   it faces (the lane's shape reversed when its heading is more than 90 degrees off the
+#   lane's); on a walking area: the next lane of its walk (below) from the end nearer to it.
+# - Row 1: the next lane of its walk (``MapContext.next_lane``, SUMO's next edge of the
+#   walk), from the end nearer to it, when it is on a sidewalk or crossing.
+# - Points ``MAP_DS_PERSON`` = 1 m apart (9 m: 4 s at a brisk walk plus a margin).
+# - Scalars: [on a lane, a signalised crossing ahead (the one it is on or the next one of
+#   its walk), the distance to it / 50 m, green, yellow, red, 0]: the walking-lane speed
+#   limit is the road's, so it is left 0. Whether the light of the crossing it waits at is
+#   red is what tells a pedestrian who will stay from one who will walk off.
+MAP_VERSION = 2
+#: map versions this code can build (version 1: pedestrians get no map context)
+MAP_VERSIONS = (1, 2)
 MAP_AHEAD = 4
 MAP_LANES = MAP_AHEAD + 2
 MAP_POINTS = 10
 MAP_DS_MIN = 2.5
 MAP_DS_PER_SPEED = 0.5
+MAP_DS_PERSON = 1.0
 MAP_SCALARS = 7
 MAP_KIND_AHEAD, MAP_KIND_LEFT, MAP_KIND_RIGHT = 0, 1, 2
 TLS_DIST_SCALE = 50.0
 SPEED_SCALE = 30.0
 #: link state character -> 0 none/off, 1 green, 2 yellow, 3 red
 TLS_CODES = {"G": 1, "g": 1, "s": 1, "y": 2, "Y": 2, "u": 2, "r": 3, "R": 3}
+
+
+WALKING_AREA = re.compile(r":.+_w\d+_0")
 
 
 class LaneGraph:
@@ -326,6 +346,33 @@ class LaneGraph:
     def first_path(self, lane: int, start: float, reach: float) -> tuple[int, ...]:
         return self.paths(lane, start, reach, 1)[0]
 
+    def is_walking_area(self, lane: int) -> bool:
+        """A junction's walking area (SUMO id ``:<junction>_w<k>_0``): a patch of pavement, no centre line."""
+        return WALKING_AREA.fullmatch(self.ids[lane]) is not None
+
+    def facing(self, lane: int, start: float, yaw: float) -> tuple[tuple[np.ndarray, np.ndarray], float]:
+        """A lane's centre line (points, arc lengths) and the arc length ``start`` on it, both
+        reversed when ``yaw`` [rad] is more than 90 degrees off the lane's direction there
+        (pedestrians walk sidewalks and crossings either way)."""
+        pts, cum = self.polyline((lane,))
+        if len(pts) < 2:
+            return (pts, cum), start
+        k = int(np.clip(np.searchsorted(cum, start, side="right") - 1, 0, len(pts) - 2))
+        d = pts[k + 1] - pts[k]
+        if d[0] * np.cos(yaw) + d[1] * np.sin(yaw) >= 0.0:
+            return (pts, cum), start
+        rev = self.__dict__.setdefault("_rev", {})  # lane graphs pickled before this have no _rev
+        if lane not in rev:
+            rev[lane] = (pts[::-1].copy(), cum[-1] - cum[::-1])
+        return rev[lane], float(cum[-1] - start)
+
+    def from_nearer_end(self, lane: int, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A lane's centre line (points, arc lengths) starting at its end nearer to ``xy``."""
+        pts, cum = self.polyline((lane,))
+        if np.hypot(*(pts[-1] - xy)) < np.hypot(*(pts[0] - xy)):
+            return pts[::-1].copy(), cum[-1] - cum[::-1]
+        return pts, cum
+
     def polyline(self, path: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
         """Concatenated centre line (P, 2) of a lane sequence and its arc lengths (P,)."""
         got = self._poly.get(path)
@@ -343,17 +390,23 @@ class LaneGraph:
 @dataclass(frozen=True)
 class MapContext:
     """Per agent (N,): lane index into a LaneGraph (-1 none), position of its centre along that
-    lane [m, SUMO's lane length units], distance
-    to the next traffic light's stop line [m] (inf: none) and its state (TLS_CODES value)."""
+    lane [m, SUMO's lane length units], distance to the next traffic light's stop line [m]
+    (inf: none) and its state (TLS_CODES value); for a pedestrian the light is that of the
+    signalised crossing it is on or walks to next, the distance the one to that crossing.
+    person: (N,) bool, pedestrians (None: none); next_lane: (N,) the next lane of a
+    pedestrian's walk (-1 none; None: none for all)."""
 
     lane: np.ndarray
     lane_pos: np.ndarray
     tls_dist: np.ndarray
     tls_state: np.ndarray
+    person: np.ndarray | None = None
+    next_lane: np.ndarray | None = None
 
     @staticmethod
     def empty(n: int) -> "MapContext":
-        return MapContext(np.full(n, -1, dtype=np.int64), np.zeros(n), np.full(n, np.inf), np.zeros(n, dtype=np.int64))
+        return MapContext(np.full(n, -1, dtype=np.int64), np.zeros(n), np.full(n, np.inf), np.zeros(n, dtype=np.int64),
+                          np.zeros(n, dtype=bool), np.full(n, -1, dtype=np.int64))
 
 
 def sample_path(graph: LaneGraph, path: tuple[int, ...], start: float, ds: float) -> np.ndarray:
@@ -383,13 +436,36 @@ def _sample_many(lines: list[tuple[np.ndarray, np.ndarray]], s: np.ndarray) -> n
     return pts[i] * (1.0 - w) + pts[j] * w
 
 
+def _signal_scalars(out: np.ndarray, tls_dist: float, tls_state: int) -> None:
+    """Scalars 0-5 of a target on a lane (see the layout above), written into ``out`` (MAP_SCALARS,)."""
+    out[0] = 1.0
+    if np.isfinite(tls_dist):
+        out[1] = 1.0
+        out[2] = min(max(float(tls_dist) / TLS_DIST_SCALE, 0.0), 2.0)
+        code = int(tls_state)
+        if code > 0:
+            out[2 + code] = 1.0
+
+
+def _walk_lines(graph: LaneGraph, lane: int, lane_pos: float, next_lane: int, xy: np.ndarray,
+                yaw: float) -> list[tuple[tuple[np.ndarray, np.ndarray], float]]:
+    """A pedestrian's rows (see the layout above): (centre line, arc length to start at) each."""
+    out = []
+    if not graph.is_walking_area(lane):
+        out.append(graph.facing(lane, graph.shape_pos(lane, lane_pos), yaw))
+    if next_lane >= 0 and next_lane != lane and not graph.is_walking_area(next_lane):
+        out.append((graph.from_nearer_end(next_lane, xy), 0.0))
+    return out
+
+
 def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: np.ndarray,
-                 speed: np.ndarray) -> dict[str, np.ndarray]:
+                 speed: np.ndarray, version: int = MAP_VERSION) -> dict[str, np.ndarray]:
     """Map inputs of N targets (see the layout above): map_pts, map_valid, map_kind, map_scalar.
 
     xy (N, 2), yaw (N,), speed (N,): the targets' current centre, heading and speed; ctx:
     their lanes and signals. Targets without a lane (or without a graph) get all rows invalid
-    and zero scalars.
+    and zero scalars, and so do pedestrians for ``version`` 1 (the features of models trained
+    before pedestrians had map context).
     """
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     n = len(xy)
@@ -403,8 +479,21 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
         speed = np.maximum(np.asarray(speed, dtype=float), 0.0)
         steps = np.arange(MAP_POINTS, dtype=float)
         who, row, lines, where = [], [], [], []
+        person = np.zeros(n, dtype=bool) if ctx.person is None else np.asarray(ctx.person, dtype=bool)
+        nxt = np.full(n, -1) if ctx.next_lane is None else np.asarray(ctx.next_lane)
         for i in np.flatnonzero(np.asarray(ctx.lane) >= 0):
             lane = int(ctx.lane[i])
+            if person[i]:
+                if version < 2:
+                    continue
+                for r, (line, s0) in enumerate(_walk_lines(graph, lane, float(ctx.lane_pos[i]), int(nxt[i]), xy[i],
+                                                           float(yaw[i]))):
+                    who.append(i)
+                    row.append(r)
+                    lines.append(line)
+                    where.append(s0 + steps * MAP_DS_PERSON)
+                _signal_scalars(scalar[i], ctx.tls_dist[i], ctx.tls_state[i])
+                continue
             ds = max(MAP_DS_MIN, MAP_DS_PER_SPEED * float(speed[i]))
             reach = (MAP_POINTS - 1) * ds
             start = graph.shape_pos(lane, ctx.lane_pos[i])
@@ -420,13 +509,7 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
                     row.append(r)
                     lines.append(graph.polyline(graph.first_path(side, s0, reach)))
                     where.append(s0 + steps * ds)
-            scalar[i, 0] = 1.0
-            if np.isfinite(ctx.tls_dist[i]):
-                scalar[i, 1] = 1.0
-                scalar[i, 2] = min(max(float(ctx.tls_dist[i]) / TLS_DIST_SCALE, 0.0), 2.0)
-                code = int(ctx.tls_state[i])
-                if code > 0:
-                    scalar[i, 2 + code] = 1.0
+            _signal_scalars(scalar[i], ctx.tls_dist[i], ctx.tls_state[i])
             scalar[i, 6] = graph.speed[lane] / SPEED_SCALE
         if lines:
             who_a, row_a = np.array(who), np.array(row)

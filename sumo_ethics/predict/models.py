@@ -79,7 +79,9 @@ the M agents once and gives the same result (tests/test_predictor_fast.py).
 
 The cslstm/attention parameters are built exactly as before (same names, same order), so
 their shipped files and seeded initialisations are unchanged. Weight files of the map kinds
-carry ``map_version`` (features.MAP_VERSION) and are refused with any other.
+carry ``map_version``, the map features they were trained with (features.MAP_VERSIONS: 1
+without pedestrian map context, 2 with it; ``TrajectoryLSTM.map_version``), and are refused
+with any other.
 """
 
 from __future__ import annotations
@@ -194,6 +196,9 @@ class TrajectoryLSTM(nn.Module):
         if cv_mode and not residual:
             raise ValueError("cv_mode needs residual decoding (its mean is the constant-velocity rollout)")
         self.kind = kind
+        #: map features the model reads (features.map_features' version; set from the dataset it is
+        #: trained on and from its weights file)
+        self.map_version = F.MAP_VERSION
         self.nbr_frame = nbr_frame
         self.modes = modes
         self.cv_mode = bool(cv_mode)
@@ -570,7 +575,7 @@ def save_model(model: TrajectoryLSTM, path: Path, info: dict[str, Any] | None = 
         "grid": [F.GRID_LON, F.GRID_LAT],
         "grid_cell": F.GRID_CELL.tolist(),
         "pos_scale": [float(v) for v in model.pos_scale.tolist()],
-        "map_version": F.MAP_VERSION if model.kind in MAP_KINDS else None,
+        "map_version": model.map_version if model.kind in MAP_KINDS else None,
         "config": model_config(model),
         "info": info or {},
         "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
@@ -604,9 +609,9 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
     if blob.get("kind") not in KINDS:
         raise PredictorError(f"predictor weights file {path} holds an unknown model kind {blob.get('kind')!r}; "
                              f"this code knows {', '.join(KINDS)}")
-    if blob.get("kind") in MAP_KINDS and blob.get("map_version") != F.MAP_VERSION:
+    if blob.get("kind") in MAP_KINDS and blob.get("map_version") not in F.MAP_VERSIONS:
         raise PredictorError(f"predictor weights file {path} has map_version={blob.get('map_version')!r}, "
-                             f"this code needs {F.MAP_VERSION!r}")
+                             f"this code reads {' or '.join(map(str, F.MAP_VERSIONS))}")
     if abs(float(blob.get("dt", -1)) - F.MODEL_DT) > 1e-9 or blob.get("grid_cell") != F.GRID_CELL.tolist():
         raise PredictorError(f"predictor weights file {path} was trained for another time step or grid")
     try:
@@ -619,15 +624,19 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
                                single_mode_groups=tuple(cfg.get("single_mode_groups", ())),
                                stay_mode_groups=tuple(cfg.get("stay_mode_groups", ())))
         model.load_state_dict(blob["state_dict"])
+        if model.kind in MAP_KINDS:
+            model.map_version = int(blob["map_version"])
     except Exception as exc:  # noqa: BLE001
         raise PredictorError(f"predictor weights file {path} does not match the model: {exc}") from None
     model.eval()
     return model, blob
 
 
-def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE, with_map: bool = False) -> dict[str, torch.Tensor]:
+def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE, with_map: bool = False,
+                     map_version: int = F.MAP_VERSION) -> dict[str, torch.Tensor]:
     """numpy sample batch (see dataset.subset) -> model input tensors, normalised (with the
-    map inputs if ``with_map``; a batch without map arrays then gets an empty map)."""
+    map inputs if ``with_map``; a batch without map arrays then gets an empty map). For a
+    ``map_version`` 1 model the pedestrians' map inputs are emptied, as that version built them."""
     g = torch.as_tensor(batch["tgt_group"], dtype=torch.long)
     nb = torch.as_tensor(batch["nbr_batch"], dtype=torch.long)
     scale = torch.as_tensor(pos_scale, dtype=torch.float32)[g]
@@ -643,6 +652,11 @@ def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE, with_m
         out["map_pts"] = torch.as_tensor(batch["map_pts"], dtype=torch.float32) / scale[:, None, None, None]
         out["map_valid"] = torch.as_tensor(batch["map_valid"], dtype=torch.bool)
         out["map_scalar"] = torch.as_tensor(batch["map_scalar"], dtype=torch.float32)
+        if map_version < 2:
+            ped = g == F.GROUP_PEDESTRIAN
+            out["map_pts"] = out["map_pts"].masked_fill(ped[:, None, None, None], 0.0)
+            out["map_valid"] = out["map_valid"] & ~ped[:, None]
+            out["map_scalar"] = out["map_scalar"].masked_fill(ped[:, None], 0.0)
     if "nbr_yaw" in batch:
         out["nbr_yaw"] = torch.as_tensor(batch["nbr_yaw"], dtype=torch.float32)
     return out

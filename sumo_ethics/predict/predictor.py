@@ -128,7 +128,7 @@ class LSTMPredictor:
                 graph, ctx = self.map_source(cur.ids, person)
             else:
                 graph, ctx = None, F.MapContext.empty(n)
-            mf = F.map_features(graph, ctx, xy, yaw, cur.speed)
+            mf = F.map_features(graph, ctx, xy, yaw, cur.speed, version=getattr(self.model, "map_version", 1))
             extra = {"map_pts": torch.from_numpy(mf["map_pts"] / s[:, None, None, None]),
                      "map_valid": torch.from_numpy(mf["map_valid"]),
                      "map_scalar": torch.from_numpy(mf["map_scalar"])}

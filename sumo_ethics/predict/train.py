@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from sumo_ethics.predict import features as F
-from sumo_ethics.predict.dataset import load_samples, require_nbr_yaw, subset
+from sumo_ethics.predict.dataset import load_samples, map_version_of, require_nbr_yaw, subset
 from sumo_ethics.predict.models import (
     TrajectoryLSTM,
     batch_to_tensors,
@@ -90,7 +90,7 @@ def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng
 
 def _loss(model: TrajectoryLSTM, samples: dict[str, np.ndarray], index: np.ndarray, use_nll: bool) -> torch.Tensor:
     batch = subset(samples, index)
-    x = batch_to_tensors(batch, model.pos_scale, with_map=model.kind in MAP_KINDS)
+    x = batch_to_tensors(batch, model.pos_scale, with_map=model.kind in MAP_KINDS, map_version=model.map_version)
     scale = model.scale(x["tgt_group"])
     y = torch.as_tensor(batch["fut"], dtype=torch.float32) / scale[:, None, None]
     mask = torch.as_tensor(batch["fut_valid"]) if "fut_valid" in batch else None
@@ -110,7 +110,7 @@ def validate(model: TrajectoryLSTM, samples: dict[str, np.ndarray], index: np.nd
     for start in range(0, len(index), batch_size):
         idx = index[start: start + batch_size]
         batch = subset(samples, idx)
-        x = batch_to_tensors(batch, model.pos_scale, with_map=model.kind in MAP_KINDS)
+        x = batch_to_tensors(batch, model.pos_scale, with_map=model.kind in MAP_KINDS, map_version=model.map_version)
         scale = model.scale(x["tgt_group"])
         fut = torch.as_tensor(batch["fut"], dtype=torch.float32)
         mask = torch.as_tensor(batch["fut_valid"]) if "fut_valid" in batch else torch.ones(fut.shape[:2], dtype=torch.bool)
@@ -165,6 +165,7 @@ def train_model(
                            single_mode_groups=tuple(config.single_mode_groups),
                            stay_mode_groups=tuple(config.stay_mode_groups),
                            residual_groups=tuple(config.residual_groups))
+    model.map_version = map_version_of(dataset)  # the map features its samples were built with
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     n_batches = math.ceil(len(train_idx) / config.batch_size)
     best, best_state, best_epoch, bad = math.inf, None, -1, 0

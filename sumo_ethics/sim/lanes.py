@@ -6,23 +6,26 @@ arrays; this module is where they come from in a running simulation:
 - :func:`lane_graph` reads every lane's centre line, speed limit and successors once
   (``lane.getShape``, ``lane.getMaxSpeed``, ``lane.getLinks``) into a
   :class:`~sumo_ethics.predict.features.LaneGraph`.
-- :func:`agent_context` reads, for a list of vehicles, the lane each one is on, the position
-  of its centre along that lane (SUMO's front-bumper position minus half its length, at least
-  0) and the next traffic light ahead (distance to its stop line and the state
-  of the link it will use), as arrays.
-- :class:`SumoMapSource` bundles both for the run-time predictor; the dataset builder calls
-  the same two functions, so training and run-time inputs come from the same code.
-
-Persons get no map context (lane index -1): their sidewalks and walking areas have no
-direction of travel to follow.
+- :func:`agent_context` reads, for a list of road users, the lane each one is on, the position
+  of its centre along that lane (for vehicles SUMO's front-bumper position minus half its
+  length, at least 0) and the next traffic light ahead (distance to its stop line and the state
+  of the link it will use). For pedestrians: their sidewalk, crossing or walking area, the next
+  lane of their walk, and the signalised crossing they are on or walk to next
+  (:func:`crossing_signals`: distance to its nearer end, its state), as arrays.
+- :class:`SumoMapSource` bundles them for the run-time predictor; the dataset builder calls
+  the same functions, so training and run-time inputs come from the same code.
 """
 
 from __future__ import annotations
+
+import re
 
 import libsumo
 import numpy as np
 
 from sumo_ethics.predict.features import TLS_CODES, LaneGraph, MapContext
+
+CROSSING = re.compile(r":.+_c\d+_0")
 
 
 def lane_graph() -> LaneGraph:
@@ -47,20 +50,80 @@ def tls_code(state: str) -> int:
     return TLS_CODES.get(state, 0)
 
 
-def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np.ndarray) -> MapContext:
-    """Lane index (-1: none), lane position, next traffic light distance/state of ``ids``.
+#: crossing lane id -> (traffic light id, link index) of the link that signals it
+CrossingSignals = dict[str, tuple[str, int]]
 
-    person: (N,) bool, True for persons (no context, no libsumo calls).
+
+def crossing_signals() -> CrossingSignals:
+    """Every signalised pedestrian crossing of the loaded network: its lane -> (light, link index).
+
+    SUMO signals a crossing by one link from a walking area into it (``trafficlight.getControlledLinks``);
+    crossing lanes are the internal lanes ``:<junction>_c<k>_0``.
+    """
+    out: CrossingSignals = {}
+    for tls in libsumo.trafficlight.getIDList():
+        for index, links in enumerate(libsumo.trafficlight.getControlledLinks(tls)):
+            for link in links:
+                for lane in link[:2]:
+                    if CROSSING.fullmatch(lane):
+                        out.setdefault(lane, (tls, index))
+    return out
+
+
+def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, ctx: dict[str, np.ndarray],
+                    states: dict[str, str]) -> None:
+    """Fill row ``i`` of ``ctx``'s arrays for person ``k`` (see :func:`agent_context`)."""
+    p = libsumo.person
+    lane_id = p.getLaneID(k)
+    j = graph.index.get(lane_id, -1)
+    if j < 0:  # riding, or on a lane this graph does not know
+        return
+    ctx["lane"][i] = j
+    ctx["lane_pos"][i] = max(p.getLanePosition(k), 0.0)
+    nxt = p.getNextEdge(k)
+    nxt_lane = f"{nxt}_0" if nxt else ""
+    ctx["next_lane"][i] = graph.index.get(nxt_lane, -1)
+    for cand, on in ((lane_id, True), (nxt_lane, False)):
+        sig = signals.get(cand)
+        if sig is None:
+            continue
+        tls, link = sig
+        if tls not in states:
+            states[tls] = libsumo.trafficlight.getRedYellowGreenState(tls)
+        state = states[tls]
+        ctx["tls_state"][i] = tls_code(state[link]) if link < len(state) else 0
+        if on:
+            ctx["tls_dist"][i] = 0.0
+        else:
+            ends = graph.shapes[graph.index[cand]][[0, -1]]
+            ctx["tls_dist"][i] = float(np.hypot(*(ends - np.asarray(p.getPosition(k))).T).min())
+        return
+
+
+def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np.ndarray,
+                  signals: CrossingSignals | None = None) -> MapContext:
+    """Lane index (-1: none), lane position, next traffic light distance/state of ``ids``, and
+    for persons their next lane (see the module docstring).
+
+    person: (N,) bool, True for persons; signals: :func:`crossing_signals` of the network (read
+    here when not given and there are persons).
     """
     n = len(ids)
-    lane = np.full(n, -1, dtype=np.int64)
-    pos = np.zeros(n)
-    tls_dist = np.full(n, np.inf)
-    tls_state = np.zeros(n, dtype=np.int64)
+    person = np.asarray(person, dtype=bool)
+    ctx = {"lane": np.full(n, -1, dtype=np.int64), "lane_pos": np.zeros(n), "tls_dist": np.full(n, np.inf),
+           "tls_state": np.zeros(n, dtype=np.int64), "next_lane": np.full(n, -1, dtype=np.int64)}
+    lane, pos, tls_dist, tls_state = ctx["lane"], ctx["lane_pos"], ctx["tls_dist"], ctx["tls_state"]
+    if signals is None and person.any():
+        signals = crossing_signals()
+    states: dict[str, str] = {}
     v = libsumo.vehicle
     index = graph.index
     for i, k in enumerate(ids):
         if person[i]:
+            try:
+                _person_context(graph, signals, k, i, ctx, states)
+            except libsumo.TraCIException:  # left the simulation in between: no context
+                lane[i], tls_dist[i], tls_state[i], ctx["next_lane"][i] = -1, np.inf, 0, -1
             continue
         try:
             lane_id = v.getLaneID(k)
@@ -77,7 +140,8 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
         if nxt:
             tls_dist[i] = float(nxt[0][2])
             tls_state[i] = tls_code(nxt[0][3])
-    return MapContext(lane=lane, lane_pos=pos, tls_dist=tls_dist, tls_state=tls_state)
+    return MapContext(lane=lane, lane_pos=pos, tls_dist=tls_dist, tls_state=tls_state, person=person,
+                      next_lane=ctx["next_lane"])
 
 
 class SumoMapSource:
@@ -85,16 +149,18 @@ class SumoMapSource:
 
     def __init__(self) -> None:
         self._graph: LaneGraph | None = None
+        self._signals: CrossingSignals | None = None
 
     @property
     def graph(self) -> LaneGraph:
         if self._graph is None:
             self._graph = lane_graph()
+            self._signals = crossing_signals()
         return self._graph
 
     def __call__(self, ids: tuple[str, ...], person: np.ndarray) -> tuple[LaneGraph, MapContext]:
         graph = self.graph
-        return graph, agent_context(graph, ids, person)
+        return graph, agent_context(graph, ids, person, self._signals)
 
 
 class TrafficRecorder:
@@ -106,10 +172,12 @@ class TrafficRecorder:
     def __init__(self, skip: tuple[str, ...] = (), sim_dt: float = 0.1, model_dt: float = 0.2) -> None:
         self.skip = set(skip)
         self.graph = lane_graph()
+        self.signals = crossing_signals()
         self.ratio = int(round(model_dt / sim_dt))
         self.sim_dt = sim_dt
         self.cols: dict[str, list] = {k: [] for k in ("time", "agent_id", "cls", "x", "y", "yaw", "speed", "length",
-                                                      "width", "lane", "lane_pos", "tls_dist", "tls_state")}
+                                                      "width", "lane", "lane_pos", "tls_dist", "tls_state",
+                                                      "next_lane")}
         self._types: dict[tuple[str, bool], tuple[float, float, int]] = {}
 
     def _info(self, type_id: str, person: bool) -> tuple[float, float, int]:
@@ -132,7 +200,7 @@ class TrafficRecorder:
             ids = [k for k in dom.getIDList() if k not in self.skip]
             if not ids:
                 continue
-            ctx = agent_context(self.graph, ids, np.full(len(ids), person)) if at_rate else None
+            ctx = agent_context(self.graph, ids, np.full(len(ids), person), self.signals) if at_rate else None
             for i, k in enumerate(ids):
                 length, width, cls = self._info(dom.getTypeID(k), person)
                 fx, fy = dom.getPosition(k)
@@ -151,3 +219,4 @@ class TrafficRecorder:
                 c["lane_pos"].append(float(ctx.lane_pos[i]) if ctx is not None else 0.0)
                 c["tls_dist"].append(float(ctx.tls_dist[i]) if ctx is not None else np.inf)
                 c["tls_state"].append(int(ctx.tls_state[i]) if ctx is not None else 0)
+                c["next_lane"].append(int(ctx.next_lane[i]) if ctx is not None else -1)
