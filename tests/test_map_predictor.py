@@ -285,6 +285,33 @@ def test_default_shipped_model_loads_and_predicts():
 
 @pytest.mark.sumo
 @pytest.mark.skipif(not URBAN.exists(), reason="bundled urban scenario missing")
+def test_a_person_riding_a_car_gets_no_walking_context(tmp_path):
+    """SUMO gives a riding person its vehicle's lane; that is not a walk."""
+    import libsumo
+
+    from sumo_ethics.sim.lanes import agent_context, lane_graph
+
+    routes = tmp_path / "ride.rou.xml"
+    routes.write_text('<routes><vType id="car" vClass="passenger"/><vType id="walker" vClass="pedestrian"/>'
+                      '<trip id="v0" type="car" depart="triggered" from="W_in" to="E_out"/>'
+                      '<person id="rider" depart="0"><ride from="W_in" to="E_out" lines="v0"/></person>'
+                      '<person id="walker" type="walker" depart="0"><walk from="W_in" to="E_out"/></person></routes>')
+    libsumo.start(["sumo", "-n", str(ROOT / "networks" / "urban" / "urban.net.xml"), "-r", str(routes),
+                   "--no-step-log", "--no-warnings"])
+    try:
+        for _ in range(20):
+            libsumo.simulationStep()
+        graph = lane_graph()
+        ctx = agent_context(graph, ["rider", "walker"], np.array([True, True]))
+        assert libsumo.person.getVehicle("rider") == "v0" and libsumo.person.getLaneID("rider")  # on its car's lane
+    finally:
+        libsumo.close()
+    assert ctx.lane[0] == -1 and ctx.next_lane[0] == -1 and not np.isfinite(ctx.tls_dist[0])
+    assert ctx.lane[1] >= 0 and ctx.person.all()
+
+
+@pytest.mark.sumo
+@pytest.mark.skipif(not URBAN.exists(), reason="bundled urban scenario missing")
 def test_dataset_carries_map_context_from_sumo(tmp_path):
     from sumo_ethics.predict.dataset import MANOEUVRES, build_dataset, load_samples
 

@@ -87,17 +87,15 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
         shutil.rmtree(scratch, ignore_errors=True)
         raise
     vars_ = (ls.VAR_POSITION, ls.VAR_ANGLE, ls.VAR_SPEED)
-    type_info: dict[str, tuple[float, float, int]] = {}
+    type_info: dict[tuple[str, bool], tuple[float, float, int]] = {}
     agent_type: dict[str, tuple[float, float, int]] = {}
 
-    def info(type_id: str) -> tuple[float, float, int]:
-        if type_id not in type_info:
-            type_info[type_id] = (
-                ls.vehicletype.getLength(type_id),
-                ls.vehicletype.getWidth(type_id),
-                int(RoadUserClass.from_vclass(ls.vehicletype.getVehicleClass(type_id))),
-            )
-        return type_info[type_id]
+    def info(type_id: str, person: bool = False) -> tuple[float, float, int]:
+        """Length, width and class of a type; a person is a pedestrian whatever its type's vClass (as at run time)."""
+        if (type_id, person) not in type_info:
+            cls = RoadUserClass.PEDESTRIAN if person else RoadUserClass.from_vclass(ls.vehicletype.getVehicleClass(type_id))
+            type_info[type_id, person] = (ls.vehicletype.getLength(type_id), ls.vehicletype.getWidth(type_id), int(cls))
+        return type_info[type_id, person]
 
     rows_t, rows_id, rows_x, rows_y, rows_a, rows_v = [], [], [], [], [], []
     rows_lane, rows_pos, rows_td, rows_ts, rows_next = [], [], [], [], []
@@ -113,7 +111,7 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
                 agent_type[v] = info(ls.vehicle.getTypeID(v))
             for p in ls.simulation.getDepartedPersonIDList():
                 ls.person.subscribe(p, vars_)
-                agent_type[p] = info(ls.person.getTypeID(p))
+                agent_type[p] = info(ls.person.getTypeID(p), person=True)
             t = ls.simulation.getTime()
             at_model_rate = int(round(t / SIM_DT)) % ratio == 0
             for is_person, res in enumerate((ls.vehicle.getAllSubscriptionResults(), ls.person.getAllSubscriptionResults())):

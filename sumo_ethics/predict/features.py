@@ -300,6 +300,7 @@ class LaneGraph:
         self.right = np.asarray(right, dtype=np.int64)
         self.lengths = np.asarray(lengths, dtype=float)
         self._poly: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
+        self._rev: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     @classmethod
     def build(cls, ids, shapes, speed, links, lengths=None) -> "LaneGraph":

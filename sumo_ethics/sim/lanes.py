@@ -74,9 +74,11 @@ def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, 
                     states: dict[str, str]) -> None:
     """Fill row ``i`` of ``ctx``'s arrays for person ``k`` (see :func:`agent_context`)."""
     p = libsumo.person
+    if p.getVehicle(k):  # riding: getLaneID is its vehicle's lane
+        return
     lane_id = p.getLaneID(k)
     j = graph.index.get(lane_id, -1)
-    if j < 0:  # riding, or on a lane this graph does not know
+    if j < 0:  # on a lane this graph does not know
         return
     ctx["lane"][i] = j
     ctx["lane_pos"][i] = max(p.getLanePosition(k), 0.0)
@@ -85,7 +87,7 @@ def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, 
     ctx["next_lane"][i] = graph.index.get(nxt_lane, -1)
     for cand, on in ((lane_id, True), (nxt_lane, False)):
         sig = signals.get(cand)
-        if sig is None:
+        if sig is None or cand not in graph.index:
             continue
         tls, link = sig
         if tls not in states:
@@ -123,7 +125,7 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
             try:
                 _person_context(graph, signals, k, i, ctx, states)
             except libsumo.TraCIException:  # left the simulation in between: no context
-                lane[i], tls_dist[i], tls_state[i], ctx["next_lane"][i] = -1, np.inf, 0, -1
+                lane[i], pos[i], tls_dist[i], tls_state[i], ctx["next_lane"][i] = -1, 0.0, np.inf, 0, -1
             continue
         try:
             lane_id = v.getLaneID(k)
