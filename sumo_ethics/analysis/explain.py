@@ -358,6 +358,7 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
     from matplotlib.colors import LogNorm
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
+    from matplotlib.patheffects import withStroke
 
     x0, y0, x1, y1 = window(d, extra=None if hit is None else np.array([hit[:2]]))
     if (x1 - x0) > 1.6 * (y1 - y0):  # a long straight window: the two maps one above the other
@@ -386,7 +387,7 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
             in_view = {RoadUserClass(int(a[6])).label for a in d.agents if x0 <= a[0] <= x1 and y0 <= a[1] <= y1}
             classes = sorted(set(seen) & in_view, key=lambda s: list(CLASS_COLOURS).index(s))
             handles += [Patch(fc=EGO_COLOUR, label="ego")] + [Patch(fc=CLASS_COLOURS[c], label=c) for c in classes]
-            handles.append(Patch(fc="0.5", alpha=0.35, ec="0.3", ls="--", label="predicted 1 sigma (2 sigma dashed), each s"))
+            handles.append(Patch(fc="0.5", alpha=0.35, ec="0.3", ls="--", label="predicted 1 sigma (2 sigma dashed), every second"))
             if d.pred_alt_mean is not None:
                 handles.append(Line2D([], [], color="0.3", lw=1.2, ls=":",
                                       label="other modes' mean paths (width, %: probability)"))
@@ -403,8 +404,12 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
             ax.set_title("The same candidates by J_risk", fontsize=10)
         if hit is not None:  # the other party of a collision, where it was just before impact
             ax.plot(hit[0], hit[1], marker="X", ms=13, mfc="red", mec="white", mew=1.2, zorder=8)
-            ax.annotate(f"hit: {hit[2]}", (hit[0], hit[1]), xytext=(8, 8), textcoords="offset points",
-                        color="red", fontsize=9, weight="bold", zorder=8)
+            # the label goes towards the middle of the panel, so that it never runs off its edge
+            right, top = hit[0] > (x0 + x1) / 2, hit[1] > (y0 + y1) / 2
+            ax.annotate(f"hit: {hit[2]}", (hit[0], hit[1]), xytext=(-8 if right else 8, -8 if top else 8),
+                        textcoords="offset points", ha="right" if right else "left", va="top" if top else "bottom",
+                        color="red", fontsize=9, weight="bold", zorder=8,
+                        path_effects=[withStroke(linewidth=2.0, foreground="white")])
         ax.set_xlim(x0, x1)
         ax.set_ylim(y0, y1)
         ax.set_aspect("equal")
