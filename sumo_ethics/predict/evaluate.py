@@ -170,13 +170,14 @@ def evaluate(
     cv_cal = calibrate_cv(cal)
     outputs: dict[str, tuple[np.ndarray, np.ndarray | None]] = {
         "constant_velocity": (cv_outputs(batch), None), "constant_velocity_calibrated": (cv_outputs(batch, cv_cal), None)}
+    data_map_version = map_version_of(dataset)
     for name, path in weights.items():
         model, _ = load_model(Path(path))
-        if model.kind in MAP_KINDS and model.map_version > map_version_of(dataset):
+        if model.kind in MAP_KINDS and model.map_version > data_map_version:
             from sumo_ethics.predict import PredictorError
 
             raise PredictorError(f"{name} ({path}) reads map version {model.map_version} (pedestrians' map context), "
-                                 f"dataset {dataset} has version {map_version_of(dataset)}: build the dataset again")
+                                 f"dataset {dataset} has version {data_map_version}: build the dataset again")
         if model.nbr_frame == "agent":
             require_nbr_yaw(batch, dataset, who=f"{name} ({path})")
         outputs[name] = lstm_outputs(model, batch)

@@ -362,17 +362,22 @@ class LaneGraph:
         d = pts[k + 1] - pts[k]
         if d[0] * np.cos(yaw) + d[1] * np.sin(yaw) >= 0.0:
             return (pts, cum), start
-        rev = self.__dict__.setdefault("_rev", {})  # lane graphs pickled before this have no _rev
-        if lane not in rev:
-            rev[lane] = (pts[::-1].copy(), cum[-1] - cum[::-1])
-        return rev[lane], float(cum[-1] - start)
+        return self.reversed_line(lane), float(cum[-1] - start)
 
     def from_nearer_end(self, lane: int, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A lane's centre line (points, arc lengths) starting at its end nearer to ``xy``."""
         pts, cum = self.polyline((lane,))
         if np.hypot(*(pts[-1] - xy)) < np.hypot(*(pts[0] - xy)):
-            return pts[::-1].copy(), cum[-1] - cum[::-1]
+            return self.reversed_line(lane)
         return pts, cum
+
+    def reversed_line(self, lane: int) -> tuple[np.ndarray, np.ndarray]:
+        """A lane's centre line from its end to its start (points, arc lengths), cached."""
+        rev = self.__dict__.setdefault("_rev", {})  # lane graphs pickled before this have no _rev
+        if lane not in rev:
+            pts, cum = self.polyline((lane,))
+            rev[lane] = (pts[::-1].copy(), cum[-1] - cum[::-1])
+        return rev[lane]
 
     def polyline(self, path: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
         """Concatenated centre line (P, 2) of a lane sequence and its arc lengths (P,)."""
