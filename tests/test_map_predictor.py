@@ -42,9 +42,10 @@ def junction_graph() -> F.LaneGraph:
 def test_map_features_by_hand():
     g = junction_graph()
     # a car on a_0 at lane position 90 m, heading +x at 10 m/s: ds = max(2.5, 0.5 * 10) = 5 m,
-    # points at arc lengths 90, 95, ..., 135 m along each path; a red light 20 m ahead
+    # points at arc lengths 90, 95, ..., 135 m along each path; a red light 20 m ahead that
+    # stays red for 3 more seconds
     ctx = F.MapContext(lane=np.array([0]), lane_pos=np.array([90.0]), tls_dist=np.array([20.0]),
-                       tls_state=np.array([3]))
+                       tls_state=np.array([3]), tls_switch=np.array([3.0]))
     f = F.map_features(g, ctx, np.array([[90.0, 0.0]]), np.array([0.0]), np.array([10.0]))
     pts, valid = f["map_pts"][0], f["map_valid"][0]
     # two branches ahead (b_0 first: SUMO's link order), no third or fourth; a_1 on the left, no right lane
@@ -57,8 +58,11 @@ def test_map_features_by_hand():
     # left lane a_1 then d_1, 3.2 m to the left
     np.testing.assert_allclose(pts[4], [[5 * k, 3.2] for k in range(10)], atol=1e-5)
     assert np.all(pts[[2, 3, 5]] == 0)
-    # [on a lane, light ahead, 20/50, green, yellow, red, 13.9/30]
-    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0.4, 0, 0, 1, 13.9 / 30], atol=1e-6)
+    # [on a lane, light ahead, 20/50, green, yellow, red, 13.9/30, red for 3 s / 10 s]
+    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0.4, 0, 0, 1, 13.9 / 30, 0.3], atol=1e-6)
+    # map version 2 models read the first 7 scalars only
+    f2 = F.map_features(g, ctx, np.array([[90.0, 0.0]]), np.array([0.0]), np.array([10.0]), version=2)
+    np.testing.assert_array_equal(f2["map_scalar"], f["map_scalar"][:, :7])
 
 
 def test_map_features_rotate_into_the_target_frame_and_hold_a_dead_end():
@@ -70,7 +74,7 @@ def test_map_features_rotate_into_the_target_frame_and_hold_a_dead_end():
     ahead = f["map_pts"][0, 0]
     np.testing.assert_allclose(ahead[:, 0], [0, 2.5, 5, 7.5, 10, 10, 10, 10, 10, 10], atol=1e-5)
     np.testing.assert_allclose(ahead[:, 1], 0, atol=1e-5)
-    np.testing.assert_allclose(f["map_scalar"][0], [1, 0, 0, 0, 0, 0, 8.0 / 30], atol=1e-6)
+    np.testing.assert_allclose(f["map_scalar"][0], [1, 0, 0, 0, 0, 0, 8.0 / 30, 0], atol=1e-6)
 
 
 def test_no_lane_means_no_map():
@@ -102,9 +106,9 @@ def walking_graph() -> F.LaneGraph:
     return F.LaneGraph.build(ids, [np.array(shapes[k], float) for k in ids], [13.9] * 4, links)
 
 
-def _walker(lane, pos, next_lane=-1, tls_dist=np.inf, tls_state=0):
+def _walker(lane, pos, next_lane=-1, tls_dist=np.inf, tls_state=0, tls_switch=np.inf):
     return F.MapContext(np.array([lane]), np.array([pos]), np.array([tls_dist]), np.array([tls_state]),
-                        person=np.array([True]), next_lane=np.array([next_lane]))
+                        person=np.array([True]), next_lane=np.array([next_lane]), tls_switch=np.array([tls_switch]))
 
 
 def test_pedestrian_rows_follow_its_heading_along_a_sidewalk():
@@ -115,7 +119,7 @@ def test_pedestrian_rows_follow_its_heading_along_a_sidewalk():
     np.testing.assert_allclose(f["map_pts"][0, 0], [[k, 0] for k in range(10)], atol=1e-5)
     assert f["map_valid"][0].tolist() == [True, False, False, False, False, False]
     # no light, and the walking lane's speed limit (the road's) is left out
-    np.testing.assert_allclose(f["map_scalar"][0], [1, 0, 0, 0, 0, 0, 0], atol=1e-6)
+    np.testing.assert_allclose(f["map_scalar"][0], [1, 0, 0, 0, 0, 0, 0, 0], atol=1e-6)
     # at 15 m walking +x: 15, 16, ..., 20 m, then the sidewalk's end held
     f = F.map_features(g, _walker(0, 15.0), np.array([[15.0, 0.0]]), np.array([0.0]), np.array([1.2]))
     np.testing.assert_allclose(f["map_pts"][0, 0, :, 0], [0, 1, 2, 3, 4, 5, 5, 5, 5, 5], atol=1e-5)
@@ -124,14 +128,14 @@ def test_pedestrian_rows_follow_its_heading_along_a_sidewalk():
 def test_pedestrian_waiting_on_a_walking_area_sees_its_crossing_and_the_red_light():
     g = walking_graph()
     # standing at (21, 1.5) facing +y on the walking area, its walk goes on over the crossing,
-    # whose light is red 0.5 m away: row 0 is the crossing from its nearer end (22, 2), world
-    # (22, 2 + k); in the pedestrian's frame (+x = world +y, +y = world -x): (0.5 + k, -1)
-    f = F.map_features(g, _walker(1, 2.0, next_lane=2, tls_dist=0.5, tls_state=3), np.array([[21.0, 1.5]]),
-                       np.array([np.pi / 2]), np.array([0.0]))
+    # whose light is red 0.5 m away for 2.5 s more: row 0 is the crossing from its nearer end
+    # (22, 2), world (22, 2 + k); in the pedestrian's frame (+x = world +y, +y = world -x): (0.5 + k, -1)
+    f = F.map_features(g, _walker(1, 2.0, next_lane=2, tls_dist=0.5, tls_state=3, tls_switch=2.5),
+                       np.array([[21.0, 1.5]]), np.array([np.pi / 2]), np.array([0.0]))
     np.testing.assert_allclose(f["map_pts"][0, 0], [[0.5 + k, -1.0] for k in range(10)], atol=1e-5)
     assert f["map_valid"][0].tolist() == [True, False, False, False, False, False]
-    # [on a lane, a signalised crossing ahead, 0.5 / 50, green, yellow, red, 0]
-    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0.01, 0, 0, 1, 0], atol=1e-6)
+    # [on a lane, a signalised crossing ahead, 0.5 / 50, green, yellow, red, 0, 2.5 s / 10 s]
+    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0.01, 0, 0, 1, 0, 0.25], atol=1e-6)
 
 
 def test_pedestrian_on_a_crossing_sees_its_rest_and_the_sidewalk_beyond():
@@ -143,7 +147,8 @@ def test_pedestrian_on_a_crossing_sees_its_rest_and_the_sidewalk_beyond():
     np.testing.assert_allclose(f["map_pts"][0, 0, :, 0], [0, 1, 2, 3, 4, 5, 6, 6, 6, 6], atol=1e-5)
     np.testing.assert_allclose(f["map_pts"][0, 1], [[8 + k, 0] for k in range(10)], atol=1e-5)
     assert f["map_valid"][0].tolist() == [True, True, False, False, False, False]
-    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0, 1, 0, 0, 0], atol=1e-6)
+    # green with no phase that changes it (tls_switch inf): the clipped 2
+    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0, 1, 0, 0, 0, 2], atol=1e-6)
 
 
 def test_map_version_1_gives_pedestrians_nothing_and_vehicles_the_same():
@@ -152,8 +157,9 @@ def test_map_version_1_gives_pedestrians_nothing_and_vehicles_the_same():
                        person=np.array([False, True]), next_lane=np.array([-1, -1]))
     xy, yaw, v = np.array([[90.0, 0.0], [50.0, 0.0]]), np.zeros(2), np.array([10.0, 1.0])
     new, old = F.map_features(g, car, xy, yaw, v), F.map_features(g, car, xy, yaw, v, version=1)
-    for key in new:
-        np.testing.assert_array_equal(new[key][0], old[key][0])  # the car: the same
+    for key in new:  # the car: the same (version 1 has the first 7 scalars)
+        np.testing.assert_array_equal(new[key][0][..., :old[key].shape[-1]] if key == "map_scalar" else new[key][0],
+                                      old[key][0])
     assert new["map_valid"][1, 0] and not old["map_valid"][1].any() and not old["map_scalar"][1].any()
     assert not old["map_pts"][1].any()
     # the tensors of a version-1 model empty the pedestrians' rows of a version-2 sample the same way
@@ -283,6 +289,55 @@ def test_default_shipped_model_loads_and_predicts():
     assert np.all(np.abs(d[:, 0] - 40.0) < 8.0) and np.all(np.abs(d[:, 1]) < 1.0)
 
 
+# the bundled urban junction's program (networks/urban/urban.net.xml, light "C")
+URBAN_PHASES = ("gGGgrrrrgGGgrrrrrGrG", "gGGgrrrrgGGgrrrrrrrr", "yyyyrrrryyyyrrrrrrrr",
+                "rrrrgGGgrrrrgGGgGrGr", "rrrrgGGgrrrrgGGgrrrr", "rrrryyyyrrrryyyyrrrr")
+URBAN_DURATIONS = (37, 5, 3, 37, 5, 3)
+
+
+def test_time_a_link_keeps_its_colour_by_hand():
+    from sumo_ethics.sim.lanes import time_to_change
+
+    # 27 s left of phase 0: link 17 (a crossing) is green in phase 0 only -> 27 s; link 0 is
+    # green ('g' and 'G' alike) in phases 0 and 1, yellow in 2 -> 27 + 5 = 32 s; link 16 is
+    # red in phases 0-2, green in 3 -> 27 + 5 + 3 = 35 s
+    holds = [time_to_change(URBAN_PHASES, URBAN_DURATIONS, 0, 27.0, k) for k in (17, 0, 16)]
+    assert holds == [27.0, 32.0, 35.0]
+    # from phase 5 (2 s left) link 0 turns green in phase 0 -> 2 s; link 4 (yellow) red next -> 2 s
+    assert time_to_change(URBAN_PHASES, URBAN_DURATIONS, 5, 2.0, 0) == 2.0
+    # a link that never changes, and a link the program does not have
+    assert time_to_change(("GGr", "GGy"), (10, 3), 0, 4.0, 0) == float("inf")
+    assert time_to_change(("GGr",), (10,), 0, 4.0, 7) == float("inf")
+
+
+@pytest.mark.sumo
+@pytest.mark.skipif(not URBAN.exists(), reason="bundled urban scenario missing")
+def test_signal_clock_reads_the_running_light_and_its_colours_last_that_long():
+    import libsumo
+
+    from sumo_ethics.sim.lanes import SignalClock
+
+    libsumo.start(["sumo", "-c", str(URBAN), "--no-step-log", "--no-warnings"])
+    try:
+        while libsumo.simulation.getTime() < 10.0 - 1e-9:
+            libsumo.simulationStep()
+        clock = SignalClock()
+        # t = 10 s in phase 0 (37 s): 27 s left, as worked out above
+        assert [clock.holds("C", k) for k in (17, 0, 16)] == pytest.approx([27.0, 32.0, 35.0])
+        # and SUMO agrees: link 17 changes colour 27 s later, link 16 35 s later
+        start, seen = libsumo.simulation.getTime(), {}
+        while len(seen) < 2:
+            libsumo.simulationStep()
+            state = libsumo.trafficlight.getRedYellowGreenState("C")
+            for k in (17, 16):
+                if k not in seen and state[k] != URBAN_PHASES[0][k]:
+                    seen[k] = libsumo.simulation.getTime() - start
+    finally:
+        libsumo.close()
+    # (the new colour is read after the step that starts at the switch time: one 0.1 s step later)
+    assert seen == pytest.approx({17: 27.1, 16: 35.1})
+
+
 @pytest.mark.sumo
 @pytest.mark.skipif(not URBAN.exists(), reason="bundled urban scenario missing")
 def test_a_person_riding_a_car_gets_no_walking_context(tmp_path):
@@ -332,6 +387,16 @@ def test_dataset_carries_map_context_from_sumo(tmp_path):
     assert (ahead[:, 0] > 0).mean() > 0.9  # the row runs the way they walk
     standing = ped & (s["tgt_speed"] < 0.1)
     assert standing.any() and (s["map_scalar"][standing, 5] == 1).mean() > 0.5
+    # (map version 3) how long their red lasts: the junction's crossings (links 16-19 of
+    # URBAN_PHASES) are red until t = 45 s (links 16, 18) or 90 s (17, 19) in the first cycle,
+    # so every pedestrian row at red has time + tls_switch at one of those two
+    import pandas as pd
+
+    df = pd.read_parquet(out / "trajectories.parquet", columns=["time", "cls", "lane", "tls_state", "tls_switch"])
+    red = df[(df["cls"] == int(RoadUserClass.PEDESTRIAN)) & (df["lane"] >= 0) & (df["tls_state"] == 3)]
+    assert len(red) > 20
+    ends = (red["time"] + red["tls_switch"]).to_numpy()
+    assert np.all(np.minimum(np.abs(ends - 45.0), np.abs(ends - 90.0)) < 1e-3)
     # the urban scenario has traffic lights: some vehicles see one ahead, some a red one
     assert s["map_scalar"][on, 1].mean() > 0.2 and s["map_scalar"][on, 5].any()
     labels = set(np.unique(s["manoeuvre"][veh]).tolist())

@@ -10,7 +10,8 @@ varying by seed), and writes to ``out``:
   0.2 s; other rows lane = -1) the map context of :mod:`sumo_ethics.sim.lanes`: lane (index
   into the run's lane graph, -1 none), lane_pos (centre), tls_dist, tls_state, next_lane (a
   pedestrian's next lane, -1 none; datasets built before map version 2 have no such column and
-  no lanes for pedestrians).
+  no lanes for pedestrians), tls_switch (how long the light's state holds [s], inf none or no
+  change; from map version 3).
 - ``lane_graphs.pkl``: scenario path -> :class:`features.LaneGraph` of its network.
 - ``samples.npz``: training samples at the model rate (5 Hz, see
   :mod:`sumo_ethics.predict.features`): a target with 3 s history and 4 s future,
@@ -67,7 +68,7 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
 
     import libsumo as ls
 
-    from sumo_ethics.sim.lanes import agent_context, crossing_signals, lane_graph
+    from sumo_ethics.sim.lanes import SignalClock, agent_context, crossing_signals, lane_graph
     from sumo_ethics.sim.scenario import read_scenario, redirected
     from sumo_ethics.sim.session import output_args
 
@@ -98,9 +99,10 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
         return type_info[type_id, person]
 
     rows_t, rows_id, rows_x, rows_y, rows_a, rows_v = [], [], [], [], [], []
-    rows_lane, rows_pos, rows_td, rows_ts, rows_next = [], [], [], [], []
+    rows_lane, rows_pos, rows_td, rows_ts, rows_next, rows_sw = [], [], [], [], [], []
     graph = lane_graph()
     signals = crossing_signals()
+    clock = SignalClock()
     ratio = int(round(F.MODEL_DT / SIM_DT))
     t0 = ls.simulation.getTime()
     try:
@@ -117,7 +119,7 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
             for is_person, res in enumerate((ls.vehicle.getAllSubscriptionResults(), ls.person.getAllSubscriptionResults())):
                 ids = list(res)
                 if at_model_rate:
-                    ctx = agent_context(graph, ids, np.full(len(ids), bool(is_person)), signals)
+                    ctx = agent_context(graph, ids, np.full(len(ids), bool(is_person)), signals, clock)
                 else:
                     ctx = F.MapContext.empty(len(ids))
                 rows_lane.extend(ctx.lane.tolist())
@@ -125,6 +127,7 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
                 rows_td.extend(ctx.tls_dist.tolist())
                 rows_ts.extend(ctx.tls_state.tolist())
                 rows_next.extend(ctx.next_lane.tolist())
+                rows_sw.extend(ctx.tls_switch.tolist())
                 for aid, r in res.items():
                     pos = r[ls.VAR_POSITION]
                     rows_t.append(t)
@@ -157,6 +160,7 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
             "tls_dist": np.array(rows_td, dtype=np.float32),
             "tls_state": np.array(rows_ts, dtype=np.int8),
             "next_lane": np.array(rows_next, dtype=np.int32),
+            "tls_switch": np.array(rows_sw, dtype=np.float32),
         }
     ), graph
 
@@ -351,6 +355,7 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
     tls_dist = np.full((na, nf), np.inf)
     tls_state = np.zeros((na, nf), dtype=np.int64)
     next_lane = np.full((na, nf), -1, dtype=np.int64)
+    tls_switch = np.full((na, nf), np.inf)
     has_map = graph is not None and "lane" in d.columns
     if has_map:
         lane[agent_codes, frame] = d["lane"].to_numpy()
@@ -359,6 +364,8 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
         tls_state[agent_codes, frame] = d["tls_state"].to_numpy()
         if "next_lane" in d.columns:
             next_lane[agent_codes, frame] = d["next_lane"].to_numpy()
+        if "tls_switch" in d.columns:
+            tls_switch[agent_codes, frame] = d["tls_switch"].to_numpy()
     cls = np.zeros(na, dtype=np.int64)
     cls[agent_codes] = d["cls"].to_numpy()
     hazard_agent = np.array([str(a).startswith("hazard_") for a in agent_names], dtype=bool)
@@ -394,7 +401,8 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
         fpos = np.where(fvalid[..., None], fpos, last[:, None, :])
         fut = F.to_target_frame(fpos, pos[ta, f], yaw[ta, f])
         ctx = F.MapContext(lane[ta, f], lane_pos[ta, f], tls_dist[ta, f], tls_state[ta, f],
-                           person=feats["tgt_group"] == F.GROUP_PEDESTRIAN, next_lane=next_lane[ta, f])
+                           person=feats["tgt_group"] == F.GROUP_PEDESTRIAN, next_lane=next_lane[ta, f],
+                           tls_switch=tls_switch[ta, f])
         mf = F.map_features(graph if has_map else None, ctx, pos[ta, f], yaw[ta, f], speed[ta, f])
         out["tgt_hist"].append(feats["tgt_hist"])
         out["tgt_group"].append(feats["tgt_group"])

@@ -261,21 +261,34 @@ def own_frame(hist: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 #   its walk), the distance to it / 50 m, green, yellow, red, 0]: the walking-lane speed
 #   limit is the road's, so it is left 0. Whether the light of the crossing it waits at is
 #   red is what tells a pedestrian who will stay from one who will walk off.
-MAP_VERSION = 2
-#: map versions this code can build (version 1: pedestrians get no map context)
-MAP_VERSIONS = (1, 2)
+#
+# Version 3 adds scalar 7 for vehicles and pedestrians alike: how long the light's current
+# state holds, from its program (the time to the light's next switch plus the durations of the
+# following phases in which this link keeps its colour) / 10 s, clipped to [0, 2]; 2 when no
+# phase changes it, 0 without a light. Whether a pedestrian waiting at red walks off within the
+# horizon depends on when the light turns green, which the colour alone does not tell.
+MAP_VERSION = 3
+#: map versions this code can build (version 1: pedestrians get no map context; version 2: no
+#: time to the light's switch, 7 scalars)
+MAP_VERSIONS = (1, 2, 3)
 MAP_AHEAD = 4
 MAP_LANES = MAP_AHEAD + 2
 MAP_POINTS = 10
 MAP_DS_MIN = 2.5
 MAP_DS_PER_SPEED = 0.5
 MAP_DS_PERSON = 1.0
-MAP_SCALARS = 7
+MAP_SCALARS = 8
 MAP_KIND_AHEAD, MAP_KIND_LEFT, MAP_KIND_RIGHT = 0, 1, 2
 TLS_DIST_SCALE = 50.0
+TLS_SWITCH_SCALE = 10.0
 SPEED_SCALE = 30.0
 #: link state character -> 0 none/off, 1 green, 2 yellow, 3 red
 TLS_CODES = {"G": 1, "g": 1, "s": 1, "y": 2, "Y": 2, "u": 2, "r": 3, "R": 3}
+
+
+def map_scalars(version: int) -> int:
+    """Number of map scalars of a map version (7 before version 3)."""
+    return MAP_SCALARS if version >= 3 else 7
 
 
 WALKING_AREA = re.compile(r":.+_w\d+_0")
@@ -400,7 +413,8 @@ class MapContext:
     (inf: none) and its state (TLS_CODES value); for a pedestrian the light is that of the
     signalised crossing it is on or walks to next, the distance the one to that crossing.
     person: (N,) bool, pedestrians (None: none); next_lane: (N,) the next lane of a
-    pedestrian's walk (-1 none; None: none for all)."""
+    pedestrian's walk (-1 none; None: none for all); tls_switch: (N,) how long that light's
+    state holds [s] (inf: no change in its program, or unknown; None: unknown for all)."""
 
     lane: np.ndarray
     lane_pos: np.ndarray
@@ -408,11 +422,12 @@ class MapContext:
     tls_state: np.ndarray
     person: np.ndarray | None = None
     next_lane: np.ndarray | None = None
+    tls_switch: np.ndarray | None = None
 
     @staticmethod
     def empty(n: int) -> "MapContext":
         return MapContext(np.full(n, -1, dtype=np.int64), np.zeros(n), np.full(n, np.inf), np.zeros(n, dtype=np.int64),
-                          np.zeros(n, dtype=bool), np.full(n, -1, dtype=np.int64))
+                          np.zeros(n, dtype=bool), np.full(n, -1, dtype=np.int64), np.full(n, np.inf))
 
 
 def sample_path(graph: LaneGraph, path: tuple[int, ...], start: float, ds: float) -> np.ndarray:
@@ -442,8 +457,8 @@ def _sample_many(lines: list[tuple[np.ndarray, np.ndarray]], s: np.ndarray) -> n
     return pts[i] * (1.0 - w) + pts[j] * w
 
 
-def _signal_scalars(out: np.ndarray, tls_dist: float, tls_state: int) -> None:
-    """Scalars 0-5 of a target on a lane (see the layout above), written into ``out`` (MAP_SCALARS,)."""
+def _signal_scalars(out: np.ndarray, tls_dist: float, tls_state: int, tls_switch: float) -> None:
+    """Scalars 0-5 and 7 of a target on a lane (see the layout above), written into ``out`` (MAP_SCALARS,)."""
     out[0] = 1.0
     if np.isfinite(tls_dist):
         out[1] = 1.0
@@ -451,6 +466,7 @@ def _signal_scalars(out: np.ndarray, tls_dist: float, tls_state: int) -> None:
         code = int(tls_state)
         if code > 0:
             out[2 + code] = 1.0
+        out[7] = min(max(float(tls_switch) / TLS_SWITCH_SCALE, 0.0), 2.0)
 
 
 def _walk_lines(graph: LaneGraph, lane: int, lane_pos: float, next_lane: int, xy: np.ndarray,
@@ -471,7 +487,7 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
     xy (N, 2), yaw (N,), speed (N,): the targets' current centre, heading and speed; ctx:
     their lanes and signals. Targets without a lane (or without a graph) get all rows invalid
     and zero scalars, and so do pedestrians for ``version`` 1 (the features of models trained
-    before pedestrians had map context).
+    before pedestrians had map context); versions before 3 get the first 7 scalars only.
     """
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     n = len(xy)
@@ -487,6 +503,7 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
         who, row, lines, where = [], [], [], []
         person = np.zeros(n, dtype=bool) if ctx.person is None else np.asarray(ctx.person, dtype=bool)
         nxt = np.full(n, -1) if ctx.next_lane is None else np.asarray(ctx.next_lane)
+        switch = np.full(n, np.inf) if ctx.tls_switch is None else np.asarray(ctx.tls_switch, dtype=float)
         for i in np.flatnonzero(np.asarray(ctx.lane) >= 0):
             lane = int(ctx.lane[i])
             if person[i]:
@@ -498,7 +515,7 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
                     row.append(r)
                     lines.append(line)
                     where.append(s0 + steps * MAP_DS_PERSON)
-                _signal_scalars(scalar[i], ctx.tls_dist[i], ctx.tls_state[i])
+                _signal_scalars(scalar[i], ctx.tls_dist[i], ctx.tls_state[i], switch[i])
                 continue
             ds = max(MAP_DS_MIN, MAP_DS_PER_SPEED * float(speed[i]))
             reach = (MAP_POINTS - 1) * ds
@@ -515,7 +532,7 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
                     row.append(r)
                     lines.append(graph.polyline(graph.first_path(side, s0, reach)))
                     where.append(s0 + steps * ds)
-            _signal_scalars(scalar[i], ctx.tls_dist[i], ctx.tls_state[i])
+            _signal_scalars(scalar[i], ctx.tls_dist[i], ctx.tls_state[i], switch[i])
             scalar[i, 6] = graph.speed[lane] / SPEED_SCALE
         if lines:
             who_a, row_a = np.array(who), np.array(row)
@@ -530,5 +547,5 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
         "map_pts": pts.astype(np.float32),
         "map_valid": valid,
         "map_kind": kind,
-        "map_scalar": scalar.astype(np.float32),
+        "map_scalar": scalar[:, :map_scalars(version)].astype(np.float32),
     }

@@ -80,8 +80,8 @@ the M agents once and gives the same result (tests/test_predictor_fast.py).
 The cslstm/attention parameters are built exactly as before (same names, same order), so
 their shipped files and seeded initialisations are unchanged. Weight files of the map kinds
 carry ``map_version``, the map features they were trained with (features.MAP_VERSIONS: 1
-without pedestrian map context, 2 with it; ``TrajectoryLSTM.map_version``), and are refused
-with any other.
+without pedestrian map context, 2 with it, 3 with the time the light's state holds as an 8th
+scalar; ``TrajectoryLSTM.map_version``), and are refused with any other.
 """
 
 from __future__ import annotations
@@ -181,6 +181,7 @@ class TrajectoryLSTM(nn.Module):
         cv_mode: bool = False,
         single_mode_groups: tuple[int, ...] = (),
         stay_mode_groups: tuple[int, ...] = (),
+        map_version: int = F.MAP_VERSION,
     ) -> None:
         super().__init__()
         if kind not in KINDS:
@@ -196,9 +197,10 @@ class TrajectoryLSTM(nn.Module):
         if cv_mode and not residual:
             raise ValueError("cv_mode needs residual decoding (its mean is the constant-velocity rollout)")
         self.kind = kind
-        #: map features the model reads (features.map_features' version; set from the dataset it is
-        #: trained on and from its weights file)
-        self.map_version = F.MAP_VERSION
+        #: map features the model reads (features.map_features' version: the dataset's it is
+        #: trained on, read back from its weights file); it sets the number of map scalars
+        self.map_version = int(map_version)
+        self.n_scalars = F.map_scalars(self.map_version)
         self.nbr_frame = nbr_frame
         self.modes = modes
         self.cv_mode = bool(cv_mode)
@@ -243,8 +245,8 @@ class TrajectoryLSTM(nn.Module):
             # encoding and its signal/speed-limit scalars; scaled dot-product attention
             self.poly_enc = nn.Sequential(nn.Linear(F.MAP_POINTS * 2 + 3, map_size), nn.LeakyReLU(0.1),
                                           nn.Linear(map_size, map_size))
-            self.map_query = nn.Linear(enc + F.MAP_SCALARS, map_size)
-            self.scalar_emb = nn.Linear(F.MAP_SCALARS, 32)
+            self.map_query = nn.Linear(enc + self.n_scalars, map_size)
+            self.scalar_emb = nn.Linear(self.n_scalars, 32)
             self.map_size = map_size + 32
         self.decoder = nn.LSTM(self.soc_size + dyn + self.map_size, dec, batch_first=True)
         self.output = nn.Linear(dec, 5 * modes)
@@ -440,13 +442,13 @@ class TrajectoryLSTM(nn.Module):
         """(B, map_size): attention of the target over its lane polylines + its scalars.
 
         pts (B, MAP_LANES, MAP_POINTS, 2) normalised target-frame points; valid (B, MAP_LANES);
-        scalar (B, MAP_SCALARS). Missing inputs (or no valid polyline) give a zero lane context."""
+        scalar (B, n_scalars). Missing inputs (or no valid polyline) give a zero lane context."""
         b = tgt_enc.shape[0]
         if pts is None:
             pts = tgt_enc.new_zeros(b, F.MAP_LANES, F.MAP_POINTS, 2)
             valid = torch.zeros(b, F.MAP_LANES, dtype=torch.bool)
         if scalar is None:
-            scalar = tgt_enc.new_zeros(b, F.MAP_SCALARS)
+            scalar = tgt_enc.new_zeros(b, self.n_scalars)
         valid = valid.to(torch.bool)
         kind = torch.zeros(F.MAP_LANES, 3, dtype=pts.dtype)
         kind[: F.MAP_AHEAD, F.MAP_KIND_AHEAD] = 1.0
@@ -622,10 +624,9 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
                                map_size=cfg.get("map_size", 64), nbr_frame=cfg.get("nbr_frame", "target"),
                                modes=cfg.get("modes", 1), dec=cfg.get("dec", 128), cv_mode=cfg.get("cv_mode", False),
                                single_mode_groups=tuple(cfg.get("single_mode_groups", ())),
-                               stay_mode_groups=tuple(cfg.get("stay_mode_groups", ())))
+                               stay_mode_groups=tuple(cfg.get("stay_mode_groups", ())),
+                               map_version=int(blob.get("map_version") or F.MAP_VERSION))
         model.load_state_dict(blob["state_dict"])
-        if model.kind in MAP_KINDS:
-            model.map_version = int(blob["map_version"])
     except Exception as exc:  # noqa: BLE001
         raise PredictorError(f"predictor weights file {path} does not match the model: {exc}") from None
     model.eval()
@@ -636,7 +637,8 @@ def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE, with_m
                      map_version: int = F.MAP_VERSION) -> dict[str, torch.Tensor]:
     """numpy sample batch (see dataset.subset) -> model input tensors, normalised (with the
     map inputs if ``with_map``; a batch without map arrays then gets an empty map). For a
-    ``map_version`` 1 model the pedestrians' map inputs are emptied, as that version built them."""
+    ``map_version`` 1 model the pedestrians' map inputs are emptied, as that version built them;
+    models before version 3 get the first 7 scalars."""
     g = torch.as_tensor(batch["tgt_group"], dtype=torch.long)
     nb = torch.as_tensor(batch["nbr_batch"], dtype=torch.long)
     scale = torch.as_tensor(pos_scale, dtype=torch.float32)[g]
@@ -651,7 +653,7 @@ def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE, with_m
     if with_map and "map_pts" in batch:
         out["map_pts"] = torch.as_tensor(batch["map_pts"], dtype=torch.float32) / scale[:, None, None, None]
         out["map_valid"] = torch.as_tensor(batch["map_valid"], dtype=torch.bool)
-        out["map_scalar"] = torch.as_tensor(batch["map_scalar"], dtype=torch.float32)
+        out["map_scalar"] = torch.as_tensor(batch["map_scalar"], dtype=torch.float32)[:, :F.map_scalars(map_version)]
         if map_version < 2:
             ped = g == F.GROUP_PEDESTRIAN
             out["map_pts"] = out["map_pts"].masked_fill(ped[:, None, None, None], 0.0)

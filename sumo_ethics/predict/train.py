@@ -164,8 +164,8 @@ def train_model(
     model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes, dec=config.dec, cv_mode=config.cv_mode,
                            single_mode_groups=tuple(config.single_mode_groups),
                            stay_mode_groups=tuple(config.stay_mode_groups),
-                           residual_groups=tuple(config.residual_groups))
-    model.map_version = map_version_of(dataset)  # the map features its samples were built with
+                           residual_groups=tuple(config.residual_groups),
+                           map_version=map_version_of(dataset))  # the map features its samples were built with
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     n_batches = math.ceil(len(train_idx) / config.batch_size)
     best, best_state, best_epoch, bad = math.inf, None, -1, 0

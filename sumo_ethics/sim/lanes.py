@@ -9,7 +9,7 @@ arrays; this module is where they come from in a running simulation:
 - :func:`agent_context` reads, for a list of road users, the lane each one is on, the position
   of its centre along that lane (for vehicles SUMO's front-bumper position minus half its
   length, at least 0) and the next traffic light ahead (distance to its stop line and the state
-  of the link it will use). For pedestrians: their sidewalk, crossing or walking area, the next
+  of the link it will use, and how long that state holds: :class:`SignalClock`). For pedestrians: their sidewalk, crossing or walking area, the next
   lane of their walk, and the signalised crossing they are on or walk to next
   (:func:`crossing_signals`: distance to its nearer end, its state), as arrays.
 - :class:`SumoMapSource` bundles them for the run-time predictor; the dataset builder calls
@@ -50,6 +50,63 @@ def tls_code(state: str) -> int:
     return TLS_CODES.get(state, 0)
 
 
+def time_to_change(states: list[str] | tuple[str, ...], durations, phase: int, remaining: float, link: int) -> float:
+    """How long link ``link`` of a traffic light keeps its colour [s] (inf: no phase changes it).
+
+    states, durations: the light's program (one state string and duration [s] per phase);
+    phase: the current phase, ``remaining`` [s] of it left. The colour is the TLS_CODES value
+    ('G' and 'g' are both green), so a change is green -> yellow, yellow -> red, red -> green
+    or red+yellow. The following phases are taken at their programmed durations (an actuated
+    light's may differ).
+    """
+    n = len(states)
+    if n == 0 or link >= len(states[phase % n]):
+        return float("inf")
+    code = tls_code(states[phase % n][link])
+    t = float(remaining)
+    for k in range(1, n):
+        j = (phase + k) % n
+        if link >= len(states[j]) or tls_code(states[j][link]) != code:
+            return t
+        t += float(durations[j])
+    return float("inf")
+
+
+class SignalClock:
+    """Per traffic light, its colours now and how long each link keeps its colour (read once
+    per simulation step and light; the programs once per program)."""
+
+    def __init__(self) -> None:
+        self._programs: dict[tuple[str, str], tuple[tuple[str, ...], tuple[float, ...]]] = {}
+        self._now: dict[str, tuple[str, int, float]] = {}
+        self._time = -1.0
+
+    def _read(self, tls: str) -> tuple[str, int, float]:
+        t = libsumo.simulation.getTime()
+        if t != self._time:
+            self._now.clear()
+            self._time = t
+        if tls not in self._now:
+            tl = libsumo.trafficlight
+            program = tl.getProgram(tls)
+            if (tls, program) not in self._programs:
+                logic = next((lg for lg in tl.getAllProgramLogics(tls) if lg.programID == program), None)
+                phases = logic.phases if logic is not None else ()
+                self._programs[tls, program] = (tuple(ph.state for ph in phases), tuple(ph.duration for ph in phases))
+            self._now[tls] = (tl.getRedYellowGreenState(tls), tl.getPhase(tls), tl.getNextSwitch(tls) - t)
+        return self._now[tls]
+
+    def state(self, tls: str) -> str:
+        """The light's state string now."""
+        return self._read(tls)[0]
+
+    def holds(self, tls: str, link: int) -> float:
+        """How long link ``link`` of light ``tls`` keeps its colour [s] (:func:`time_to_change`)."""
+        _, phase, remaining = self._read(tls)
+        states, durations = self._programs[tls, libsumo.trafficlight.getProgram(tls)]
+        return time_to_change(states, durations, phase, remaining, link)
+
+
 #: crossing lane id -> (traffic light id, link index) of the link that signals it
 CrossingSignals = dict[str, tuple[str, int]]
 
@@ -71,7 +128,7 @@ def crossing_signals() -> CrossingSignals:
 
 
 def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, ctx: dict[str, np.ndarray],
-                    states: dict[str, str]) -> None:
+                    clock: SignalClock) -> None:
     """Fill row ``i`` of ``ctx``'s arrays for person ``k`` (see :func:`agent_context`)."""
     p = libsumo.person
     if p.getVehicle(k):  # riding: getLaneID is its vehicle's lane
@@ -90,10 +147,9 @@ def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, 
         if sig is None or cand not in graph.index:
             continue
         tls, link = sig
-        if tls not in states:
-            states[tls] = libsumo.trafficlight.getRedYellowGreenState(tls)
-        state = states[tls]
+        state = clock.state(tls)
         ctx["tls_state"][i] = tls_code(state[link]) if link < len(state) else 0
+        ctx["tls_switch"][i] = clock.holds(tls, link)
         if on:
             ctx["tls_dist"][i] = 0.0
         else:
@@ -103,29 +159,32 @@ def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, 
 
 
 def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np.ndarray,
-                  signals: CrossingSignals | None = None) -> MapContext:
-    """Lane index (-1: none), lane position, next traffic light distance/state of ``ids``, and
-    for persons their next lane (see the module docstring).
+                  signals: CrossingSignals | None = None, clock: SignalClock | None = None) -> MapContext:
+    """Lane index (-1: none), lane position, next traffic light distance/state and how long
+    that state holds of ``ids``, and for persons their next lane (see the module docstring).
 
     person: (N,) bool, True for persons; signals: :func:`crossing_signals` of the network (read
-    here when not given and there are persons).
+    here when not given and there are persons); clock: a :class:`SignalClock` kept across
+    steps (it caches the lights' programs; a new one when not given).
     """
     n = len(ids)
     person = np.asarray(person, dtype=bool)
     ctx = {"lane": np.full(n, -1, dtype=np.int64), "lane_pos": np.zeros(n), "tls_dist": np.full(n, np.inf),
-           "tls_state": np.zeros(n, dtype=np.int64), "next_lane": np.full(n, -1, dtype=np.int64)}
+           "tls_state": np.zeros(n, dtype=np.int64), "next_lane": np.full(n, -1, dtype=np.int64),
+           "tls_switch": np.full(n, np.inf)}
     lane, pos, tls_dist, tls_state = ctx["lane"], ctx["lane_pos"], ctx["tls_dist"], ctx["tls_state"]
     if signals is None and person.any():
         signals = crossing_signals()
-    states: dict[str, str] = {}
+    clock = SignalClock() if clock is None else clock
     v = libsumo.vehicle
     index = graph.index
     for i, k in enumerate(ids):
         if person[i]:
             try:
-                _person_context(graph, signals, k, i, ctx, states)
+                _person_context(graph, signals, k, i, ctx, clock)
             except libsumo.TraCIException:  # left the simulation in between: no context
                 lane[i], pos[i], tls_dist[i], tls_state[i], ctx["next_lane"][i] = -1, 0.0, np.inf, 0, -1
+                ctx["tls_switch"][i] = np.inf
             continue
         try:
             lane_id = v.getLaneID(k)
@@ -139,11 +198,12 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
         except libsumo.TraCIException:  # left the simulation in between: no context
             lane[i] = -1
             continue
-        if nxt:
+        if nxt:  # (light id, link index, distance, state)
             tls_dist[i] = float(nxt[0][2])
             tls_state[i] = tls_code(nxt[0][3])
+            ctx["tls_switch"][i] = clock.holds(nxt[0][0], int(nxt[0][1]))
     return MapContext(lane=lane, lane_pos=pos, tls_dist=tls_dist, tls_state=tls_state, person=person,
-                      next_lane=ctx["next_lane"])
+                      next_lane=ctx["next_lane"], tls_switch=ctx["tls_switch"])
 
 
 class SumoMapSource:
@@ -152,6 +212,7 @@ class SumoMapSource:
     def __init__(self) -> None:
         self._graph: LaneGraph | None = None
         self._signals: CrossingSignals | None = None
+        self._clock = SignalClock()
 
     @property
     def graph(self) -> LaneGraph:
@@ -162,7 +223,7 @@ class SumoMapSource:
 
     def __call__(self, ids: tuple[str, ...], person: np.ndarray) -> tuple[LaneGraph, MapContext]:
         graph = self.graph
-        return graph, agent_context(graph, ids, person, self._signals)
+        return graph, agent_context(graph, ids, person, self._signals, self._clock)
 
 
 class TrafficRecorder:
@@ -175,11 +236,12 @@ class TrafficRecorder:
         self.skip = set(skip)
         self.graph = lane_graph()
         self.signals = crossing_signals()
+        self.clock = SignalClock()
         self.ratio = int(round(model_dt / sim_dt))
         self.sim_dt = sim_dt
         self.cols: dict[str, list] = {k: [] for k in ("time", "agent_id", "cls", "x", "y", "yaw", "speed", "length",
                                                       "width", "lane", "lane_pos", "tls_dist", "tls_state",
-                                                      "next_lane")}
+                                                      "next_lane", "tls_switch")}
         self._types: dict[tuple[str, bool], tuple[float, float, int]] = {}
 
     def _info(self, type_id: str, person: bool) -> tuple[float, float, int]:
@@ -202,7 +264,7 @@ class TrafficRecorder:
             ids = [k for k in dom.getIDList() if k not in self.skip]
             if not ids:
                 continue
-            ctx = agent_context(self.graph, ids, np.full(len(ids), person), self.signals) if at_rate else None
+            ctx = agent_context(self.graph, ids, np.full(len(ids), person), self.signals, self.clock) if at_rate else None
             for i, k in enumerate(ids):
                 length, width, cls = self._info(dom.getTypeID(k), person)
                 fx, fy = dom.getPosition(k)
@@ -222,3 +284,4 @@ class TrafficRecorder:
                 c["tls_dist"].append(float(ctx.tls_dist[i]) if ctx is not None else np.inf)
                 c["tls_state"].append(int(ctx.tls_state[i]) if ctx is not None else 0)
                 c["next_lane"].append(int(ctx.next_lane[i]) if ctx is not None else -1)
+                c["tls_switch"].append(float(ctx.tls_switch[i]) if ctx is not None else np.inf)

@@ -70,5 +70,6 @@ def record_scenario(scenario_dir: Path | str) -> tuple[pd.DataFrame, Any]:
         "lane": np.array(c["lane"], dtype=np.int32), "lane_pos": np.array(c["lane_pos"], dtype=np.float32),
         "tls_dist": np.array(c["tls_dist"], dtype=np.float32), "tls_state": np.array(c["tls_state"], dtype=np.int8),
         "next_lane": np.array(c["next_lane"], dtype=np.int32),
+        "tls_switch": np.array(c["tls_switch"], dtype=np.float32),
     })
     return df, ctrl.recorder.graph
