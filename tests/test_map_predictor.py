@@ -5,6 +5,7 @@ context read from a real SUMO run."""
 from __future__ import annotations
 
 import subprocess
+from dataclasses import replace
 import sys
 from pathlib import Path
 
@@ -287,6 +288,39 @@ def test_default_shipped_model_loads_and_predicts():
     pm = LSTMPredictor.default(map_source=source).predict(obs, 40, 0.1)
     d = pm.mean[:, -1] - obs.current.xy
     assert np.all(np.abs(d[:, 0] - 40.0) < 8.0) and np.all(np.abs(d[:, 1]) < 1.0)
+
+
+def test_a_map_version_1_model_does_not_ask_for_pedestrians_map_context():
+    """Version 1 gives pedestrians no map rows: their lanes and crossings are not looked up
+    (in a run, about six libsumo calls per pedestrian and step), and the prediction is the same."""
+    obs = _observation()
+    cls = np.asarray(obs.current.cls).copy()
+    cls[[1, 3]] = int(RoadUserClass.PEDESTRIAN)
+    obs = Observation(time=obs.time, dt=obs.dt, history=obs.history, valid=obs.valid,
+                      current=replace(obs.current, cls=cls), ego=obs.ego)
+    graph = F.LaneGraph.build(["r_0"], [np.array([[-100.0, 0.0], [400.0, 0.0]])], [13.9], [()])
+    asked = []
+
+    def source(ids, person):
+        asked.append((tuple(ids), np.asarray(person).tolist()))
+        n = len(ids)
+        return graph, F.MapContext(np.zeros(n, dtype=np.int64), np.full(n, 150.0), np.full(n, 30.0),
+                                   np.full(n, 3), person=np.asarray(person), next_lane=np.full(n, -1),
+                                   tls_switch=np.full(n, 4.0))
+
+    p = LSTMPredictor.default(map_source=source)
+    assert p.model.map_version == 1
+    ids = tuple(obs.current.ids)
+    mine = p.predict(obs, 40, 0.1)
+    assert asked == [(ids[:1] + ids[2:3] + ids[4:], [False, False, False])]
+    # and the map inputs are those of asking for everyone (version 1 throws pedestrians' answers away)
+    everyone = source(ids, cls == int(RoadUserClass.PEDESTRIAN))[1]
+    some = source(ids[:1] + ids[2:3] + ids[4:], [False] * 3)[1].spread(5, np.array([0, 2, 4]))
+    xy, yaw, v = obs.current.xy, obs.current.yaw, obs.current.speed
+    f_all, f_some = (F.map_features(graph, c, xy, yaw, v, version=1) for c in (everyone, some))
+    for key in f_all:
+        np.testing.assert_array_equal(f_all[key], f_some[key])
+    assert np.all(np.isfinite(mine.mean))
 
 
 # the bundled urban junction's program (networks/urban/urban.net.xml, light "C")
