@@ -78,22 +78,22 @@ class SignalClock:
 
     def __init__(self) -> None:
         self._programs: dict[tuple[str, str], tuple[tuple[str, ...], tuple[float, ...]]] = {}
-        self._now: dict[str, tuple[str, int, float]] = {}
+        self._now: dict[str, tuple[str, int, float, tuple[str, str]]] = {}
         self._time = -1.0
 
-    def _read(self, tls: str) -> tuple[str, int, float]:
+    def _read(self, tls: str) -> tuple[str, int, float, tuple[str, str]]:
         t = libsumo.simulation.getTime()
         if t != self._time:
             self._now.clear()
             self._time = t
         if tls not in self._now:
             tl = libsumo.trafficlight
-            program = tl.getProgram(tls)
-            if (tls, program) not in self._programs:
-                logic = next((lg for lg in tl.getAllProgramLogics(tls) if lg.programID == program), None)
+            key = (tls, tl.getProgram(tls))
+            if key not in self._programs:
+                logic = next((lg for lg in tl.getAllProgramLogics(tls) if lg.programID == key[1]), None)
                 phases = logic.phases if logic is not None else ()
-                self._programs[tls, program] = (tuple(ph.state for ph in phases), tuple(ph.duration for ph in phases))
-            self._now[tls] = (tl.getRedYellowGreenState(tls), tl.getPhase(tls), tl.getNextSwitch(tls) - t)
+                self._programs[key] = (tuple(ph.state for ph in phases), tuple(ph.duration for ph in phases))
+            self._now[tls] = (tl.getRedYellowGreenState(tls), tl.getPhase(tls), tl.getNextSwitch(tls) - t, key)
         return self._now[tls]
 
     def state(self, tls: str) -> str:
@@ -102,8 +102,8 @@ class SignalClock:
 
     def holds(self, tls: str, link: int) -> float:
         """How long link ``link`` of light ``tls`` keeps its colour [s] (:func:`time_to_change`)."""
-        _, phase, remaining = self._read(tls)
-        states, durations = self._programs[tls, libsumo.trafficlight.getProgram(tls)]
+        _, phase, remaining, key = self._read(tls)
+        states, durations = self._programs[key]
         return time_to_change(states, durations, phase, remaining, link)
 
 
