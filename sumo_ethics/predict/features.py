@@ -228,7 +228,7 @@ def own_frame(hist: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------
-# Map and signal context (MAP_VERSION 2), for the map-aware models (kinds "map", "map_cslstm")
+# Map and signal context (MAP_VERSION 3), for the map-aware models (kinds "map", "map_cslstm")
 #
 # For each vehicle or cyclist on a lane:
 #
