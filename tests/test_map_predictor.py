@@ -5,7 +5,6 @@ context read from a real SUMO run."""
 from __future__ import annotations
 
 import subprocess
-from dataclasses import replace
 import sys
 from pathlib import Path
 
@@ -290,37 +289,50 @@ def test_default_shipped_model_loads_and_predicts():
     assert np.all(np.abs(d[:, 0] - 40.0) < 8.0) and np.all(np.abs(d[:, 1]) < 1.0)
 
 
-def test_a_map_version_1_model_does_not_ask_for_pedestrians_map_context():
-    """Version 1 gives pedestrians no map rows: their lanes and crossings are not looked up
-    (in a run, about six libsumo calls per pedestrian and step), and the prediction is the same."""
-    obs = _observation()
-    cls = np.asarray(obs.current.cls).copy()
-    cls[[1, 3]] = int(RoadUserClass.PEDESTRIAN)
-    obs = Observation(time=obs.time, dt=obs.dt, history=obs.history, valid=obs.valid,
-                      current=replace(obs.current, cls=cls), ego=obs.ego)
-    graph = F.LaneGraph.build(["r_0"], [np.array([[-100.0, 0.0], [400.0, 0.0]])], [13.9], [()])
-    asked = []
+@pytest.mark.sumo
+@pytest.mark.skipif(not URBAN.exists(), reason="bundled urban scenario missing")
+def test_a_map_version_1_source_does_not_look_up_pedestrians_or_switch_times(monkeypatch):
+    """Version 1 gives pedestrians no map rows and no version before 3 reads switch times: the
+    run-time source for such a model does not ask SUMO for them (about six libsumo calls per
+    pedestrian and step), and the model's map inputs are the same as from a version-3 source."""
+    import libsumo
 
-    def source(ids, person):
-        asked.append((tuple(ids), np.asarray(person).tolist()))
-        n = len(ids)
-        return graph, F.MapContext(np.zeros(n, dtype=np.int64), np.full(n, 150.0), np.full(n, 30.0),
-                                   np.full(n, 3), person=np.asarray(person), next_lane=np.full(n, -1),
-                                   tls_switch=np.full(n, 4.0))
+    from sumo_ethics.sim.lanes import SumoMapSource
 
-    p = LSTMPredictor.default(map_source=source)
-    assert p.model.map_version == 1
-    ids = tuple(obs.current.ids)
-    mine = p.predict(obs, 40, 0.1)
-    assert asked == [(ids[:1] + ids[2:3] + ids[4:], [False, False, False])]
-    # and the map inputs are those of asking for everyone (version 1 throws pedestrians' answers away)
-    everyone = source(ids, cls == int(RoadUserClass.PEDESTRIAN))[1]
-    some = source(ids[:1] + ids[2:3] + ids[4:], [False] * 3)[1].spread(5, np.array([0, 2, 4]))
-    xy, yaw, v = obs.current.xy, obs.current.yaw, obs.current.speed
-    f_all, f_some = (F.map_features(graph, c, xy, yaw, v, version=1) for c in (everyone, some))
-    for key in f_all:
-        np.testing.assert_array_equal(f_all[key], f_some[key])
-    assert np.all(np.isfinite(mine.mean))
+    calls = {"person": 0, "switch": 0}
+    lane_id, next_switch = libsumo.person.getLaneID, libsumo.trafficlight.getNextSwitch
+
+    def count(key, fn):
+        def wrapped(*a):
+            calls[key] += 1
+            return fn(*a)
+        return wrapped
+
+    monkeypatch.setattr(libsumo.person, "getLaneID", count("person", lane_id))
+    monkeypatch.setattr(libsumo.trafficlight, "getNextSwitch", count("switch", next_switch))
+    libsumo.start(["sumo", "-c", str(URBAN), "--no-step-log", "--no-warnings"])
+    try:
+        while libsumo.simulation.getTime() < 60.0 - 1e-9:
+            libsumo.simulationStep()
+        vehicles, persons = libsumo.vehicle.getIDList(), libsumo.person.getIDList()
+        ids = tuple(vehicles) + tuple(persons)
+        person = np.array([False] * len(vehicles) + [True] * len(persons))
+        xy = np.array([libsumo.vehicle.getPosition(k) for k in vehicles] + [libsumo.person.getPosition(k) for k in persons])
+        yaw, speed = np.zeros(len(ids)), np.ones(len(ids))
+        graph, old = SumoMapSource(1)(ids, person)
+        asked_old = dict(calls)
+        _, new = SumoMapSource(3)(ids, person)
+    finally:
+        libsumo.close()
+    assert len(persons) > 0 and asked_old == {"person": 0, "switch": 0}
+    assert calls["person"] >= len(persons) and calls["switch"] > 0
+    assert (old.lane[person] == -1).all() and (new.lane[person] >= 0).any() and np.isinf(old.tls_switch).all()
+    assert np.isfinite(new.tls_switch[~person]).any()
+    for name in ("lane", "lane_pos", "tls_dist", "tls_state"):  # the vehicles: the same
+        np.testing.assert_array_equal(getattr(old, name)[~person], getattr(new, name)[~person])
+    f_old, f_new = (F.map_features(graph, c, xy, yaw, speed, version=1) for c in (old, new))
+    for key in f_old:
+        np.testing.assert_array_equal(f_old[key], f_new[key])
 
 
 # the bundled urban junction's program (networks/urban/urban.net.xml, light "C")

@@ -120,14 +120,12 @@ def make_predictor(name: str, weights: str | None = None) -> Predictor:
 
     if name == "cv":
         return ConstantVelocityPredictor()
-    source = None
-    if name in ("map", "map_cslstm"):
+    predictor = LSTMPredictor.from_file(weights, kind=name) if weights else LSTMPredictor.default(name)
+    if predictor.uses_map:
         from sumo_ethics.sim.lanes import SumoMapSource
 
-        source = SumoMapSource()
-    if weights:
-        return LSTMPredictor.from_file(weights, kind=name, map_source=source)
-    return LSTMPredictor.default(name, map_source=source)
+        predictor.map_source = SumoMapSource(predictor.model.map_version)  # looks up what the model reads
+    return predictor
 
 
 def first_overlap(cand: Candidates, pred: Prediction, risk: RiskTerms, length: np.ndarray,

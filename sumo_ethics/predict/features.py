@@ -429,15 +429,6 @@ class MapContext:
         return MapContext(np.full(n, -1, dtype=np.int64), np.zeros(n), np.full(n, np.inf), np.zeros(n, dtype=np.int64),
                           np.zeros(n, dtype=bool), np.full(n, -1, dtype=np.int64), np.full(n, np.inf))
 
-    def spread(self, n: int, rows: np.ndarray) -> "MapContext":
-        """This context of agents ``rows`` (indices into n agents) as a context of all n, the
-        others without a lane."""
-        out = MapContext.empty(n)
-        for name in ("lane", "lane_pos", "tls_dist", "tls_state", "person", "next_lane", "tls_switch"):
-            if getattr(self, name) is not None:
-                getattr(out, name)[rows] = getattr(self, name)
-        return out
-
 
 def sample_path(graph: LaneGraph, path: tuple[int, ...], start: float, ds: float) -> np.ndarray:
     """(MAP_POINTS, 2) world points at arc lengths start + k ds along ``path``."""

@@ -124,16 +124,11 @@ class LSTMPredictor:
         extra = {}
         if self.uses_map:
             person = g == F.GROUP_PEDESTRIAN
-            version = getattr(self.model, "map_version", 1)
-            if self.map_source is None:
-                graph, ctx = None, F.MapContext.empty(n)
-            elif version < 2 and person.any():  # version 1 gives pedestrians no map: not looked up
-                rows = np.flatnonzero(~person)
-                graph, sub = self.map_source(tuple(cur.ids[i] for i in rows), person[rows])
-                ctx = sub.spread(n, rows)
-            else:
+            if self.map_source is not None:
                 graph, ctx = self.map_source(cur.ids, person)
-            mf = F.map_features(graph, ctx, xy, yaw, cur.speed, version=version)
+            else:
+                graph, ctx = None, F.MapContext.empty(n)
+            mf = F.map_features(graph, ctx, xy, yaw, cur.speed, version=getattr(self.model, "map_version", 1))
             extra = {"map_pts": torch.from_numpy(mf["map_pts"] / s[:, None, None, None]),
                      "map_valid": torch.from_numpy(mf["map_valid"]),
                      "map_scalar": torch.from_numpy(mf["map_scalar"])}

@@ -23,7 +23,7 @@ import re
 import libsumo
 import numpy as np
 
-from sumo_ethics.predict.features import TLS_CODES, LaneGraph, MapContext
+from sumo_ethics.predict.features import MAP_VERSION, TLS_CODES, LaneGraph, MapContext
 
 CROSSING = re.compile(r":.+_c\d+_0")
 
@@ -128,7 +128,7 @@ def crossing_signals() -> CrossingSignals:
 
 
 def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, ctx: dict[str, np.ndarray],
-                    clock: SignalClock) -> None:
+                    clock: SignalClock, switch_times: bool) -> None:
     """Fill row ``i`` of ``ctx``'s arrays for person ``k`` (see :func:`agent_context`)."""
     p = libsumo.person
     if p.getVehicle(k):  # riding: getLaneID is its vehicle's lane
@@ -149,7 +149,8 @@ def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, 
         tls, link = sig
         state = clock.state(tls)
         ctx["tls_state"][i] = tls_code(state[link]) if link < len(state) else 0
-        ctx["tls_switch"][i] = clock.holds(tls, link)
+        if switch_times:
+            ctx["tls_switch"][i] = clock.holds(tls, link)
         if on:
             ctx["tls_dist"][i] = 0.0
         else:
@@ -159,13 +160,16 @@ def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, 
 
 
 def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np.ndarray,
-                  signals: CrossingSignals | None = None, clock: SignalClock | None = None) -> MapContext:
+                  signals: CrossingSignals | None = None, clock: SignalClock | None = None,
+                  version: int = MAP_VERSION) -> MapContext:
     """Lane index (-1: none), lane position, next traffic light distance/state and how long
     that state holds of ``ids``, and for persons their next lane (see the module docstring).
 
     person: (N,) bool, True for persons; signals: :func:`crossing_signals` of the network (read
     here when not given and there are persons); clock: a :class:`SignalClock` kept across
-    steps (it caches the lights' programs; a new one when not given).
+    steps (it caches the lights' programs; a new one when not given); version: the map version
+    the context is for: what it does not use is not looked up (version 1: persons get no
+    context; before 3: no switch times, tls_switch inf).
     """
     n = len(ids)
     person = np.asarray(person, dtype=bool)
@@ -173,15 +177,18 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
            "tls_state": np.zeros(n, dtype=np.int64), "next_lane": np.full(n, -1, dtype=np.int64),
            "tls_switch": np.full(n, np.inf)}
     lane, pos, tls_dist, tls_state = ctx["lane"], ctx["lane_pos"], ctx["tls_dist"], ctx["tls_state"]
-    if signals is None and person.any():
+    walks, switch_times = version >= 2, version >= 3
+    if walks and signals is None and person.any():
         signals = crossing_signals()
     clock = SignalClock() if clock is None else clock
     v = libsumo.vehicle
     index = graph.index
     for i, k in enumerate(ids):
         if person[i]:
+            if not walks:
+                continue
             try:
-                _person_context(graph, signals, k, i, ctx, clock)
+                _person_context(graph, signals, k, i, ctx, clock, switch_times)
             except libsumo.TraCIException:  # left the simulation in between: no context
                 lane[i], pos[i], tls_dist[i], tls_state[i], ctx["next_lane"][i] = -1, 0.0, np.inf, 0, -1
                 ctx["tls_switch"][i] = np.inf
@@ -201,15 +208,18 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
         if nxt:  # (light id, link index, distance, state)
             tls_dist[i] = float(nxt[0][2])
             tls_state[i] = tls_code(nxt[0][3])
-            ctx["tls_switch"][i] = clock.holds(nxt[0][0], int(nxt[0][1]))
+            if switch_times:
+                ctx["tls_switch"][i] = clock.holds(nxt[0][0], int(nxt[0][1]))
     return MapContext(lane=lane, lane_pos=pos, tls_dist=tls_dist, tls_state=tls_state, person=person,
                       next_lane=ctx["next_lane"], tls_switch=ctx["tls_switch"])
 
 
 class SumoMapSource:
-    """Map context of the running simulation for the map-aware predictor (built lazily)."""
+    """Map context of the running simulation for the map-aware predictor (built lazily), for a
+    model of map version ``version`` (what it does not read is not looked up)."""
 
-    def __init__(self) -> None:
+    def __init__(self, version: int = MAP_VERSION) -> None:
+        self.version = int(version)
         self._graph: LaneGraph | None = None
         self._signals: CrossingSignals | None = None
         self._clock = SignalClock()
@@ -223,7 +233,7 @@ class SumoMapSource:
 
     def __call__(self, ids: tuple[str, ...], person: np.ndarray) -> tuple[LaneGraph, MapContext]:
         graph = self.graph
-        return graph, agent_context(graph, ids, person, self._signals, self._clock)
+        return graph, agent_context(graph, ids, person, self._signals, self._clock, self.version)
 
 
 class TrafficRecorder:
