@@ -112,11 +112,13 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
                 ls.vehicle.subscribe(v, vars_)
                 agent_type[v] = info(ls.vehicle.getTypeID(v))
             for p in ls.simulation.getDepartedPersonIDList():
-                ls.person.subscribe(p, vars_)
+                ls.person.subscribe(p, vars_ + (ls.VAR_VEHICLE,))
                 agent_type[p] = info(ls.person.getTypeID(p), person=True)
             t = ls.simulation.getTime()
             at_model_rate = int(round(t / SIM_DT)) % ratio == 0
             for is_person, res in enumerate((ls.vehicle.getAllSubscriptionResults(), ls.person.getAllSubscriptionResults())):
+                if is_person:  # a rider is in its vehicle, not a pedestrian (as at run time)
+                    res = {k: r for k, r in res.items() if not r[ls.VAR_VEHICLE]}
                 ids = list(res)
                 if at_model_rate:
                     ctx = agent_context(graph, ids, np.full(len(ids), bool(is_person)), signals, clock)

@@ -271,7 +271,7 @@ class TrafficRecorder:
         t = libsumo.simulation.getTime()
         at_rate = int(round(t / self.sim_dt)) % self.ratio == 0
         for person, dom in ((False, libsumo.vehicle), (True, libsumo.person)):
-            ids = [k for k in dom.getIDList() if k not in self.skip]
+            ids = [k for k in dom.getIDList() if k not in self.skip and not (person and dom.getVehicle(k))]  # no riders
             if not ids:
                 continue
             ctx = agent_context(self.graph, ids, np.full(len(ids), person), self.signals, self.clock) if at_rate else None

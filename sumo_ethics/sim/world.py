@@ -3,7 +3,9 @@
 One context subscription per domain (vehicles, persons) returns every neighbour in range in
 one call. Both come back merged in one dict, the ego included; persons are told apart by
 the variable set (only vehicles are subscribed with acceleration); a person is always a
-pedestrian, whatever vClass its vType has.
+pedestrian, whatever vClass its vType has. A person riding a vehicle (a bus or taxi passenger,
+a ``<ride>`` stage) is part of that vehicle and left out: SUMO reports it at its vehicle's
+position, where it would be a pedestrian inside a car to the planner and the collision check.
 
 Road users on another level cannot meet the ego and are left out of the scene, so neither the
 planner nor the collision check sees them: more than ``VERTICAL_CLEARANCE`` above or below it
@@ -26,7 +28,7 @@ from sumo_ethics.sim.route import JunctionLink, RoutePath, build_route_path
 from sumo_ethics.types import AgentStates, RoadUserClass
 
 _VEH_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE, tc.VAR_ACCELERATION)
-_PER_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE)
+_PER_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE, tc.VAR_VEHICLE)  # vehicle: '' or the ridden one
 
 #: road users whose elevation differs from the ego's by more than this [m] are on another level
 #: (a bridge deck is some 5 m above the road below; a ramp changes height by a few % per metre)
@@ -142,6 +144,7 @@ class SumoWorld:
             res = self._read_off_network()
             if res is None:
                 return None
+        res = {k: r for k, r in res.items() if not r.get(tc.VAR_VEHICLE)}  # riders travel inside their vehicle
         ego, others = self._states([self.ego_id] + sorted(k for k in res if k != self.ego_id), res)
         sumo_speed = float(ego.speed[0])
         if self._commanded is not None:
@@ -179,6 +182,8 @@ class SumoWorld:
                          tc.VAR_TYPE: dom.getTypeID(k)}
                     if tc.VAR_ACCELERATION in vars_:
                         r[tc.VAR_ACCELERATION] = dom.getAcceleration(k)
+                    else:
+                        r[tc.VAR_VEHICLE] = dom.getVehicle(k)
                     res[k] = r
         return res
 
