@@ -246,7 +246,7 @@ def _dataset_folder(path: Path) -> Path:
 @click.option("--cv-mode/--no-cv-mode", default=None,
               help="Make the last mode's mean the constant-velocity rollout, its weight and spread learned "
                    "(pedestrians, decoded in absolute positions, get 'stands still' there; default: off, as "
-                   "shipped; the previous default map_cslstm_v3 had it).")
+                   "shipped; the earlier default map_cslstm_v3 had it).")
 @click.option("--one-mode-pedestrians/--all-modes-pedestrians", default=None,
               help="Give pedestrians the first mode only, with weight 1 (default: on for map_cslstm with several "
                    "modes, as shipped).")

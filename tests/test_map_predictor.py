@@ -489,9 +489,10 @@ def test_runs_with_the_default_map_predictor_are_byte_identical_for_one_seed(tmp
     assert (outs[0] / "steps.parquet").read_bytes() == (outs[1] / "steps.parquet").read_bytes()
 
 
-def _queue_at_light(state: int) -> tuple[Observation, object]:
+def _queue_at_light(state: int, switch: float = 20.0) -> tuple[Observation, object]:
     """Four cars standing for 3 s in a queue 5, 12, 19 and 26 m before a stop line (x = 0) whose
-    light shows ``state`` (features.TLS_CODES: 1 green, 3 red), and the map source of that lane."""
+    light shows ``state`` (features.TLS_CODES: 1 green, 3 red) for ``switch`` more seconds, and
+    the map source of that lane."""
     x0 = np.array([-5.0, -12.0, -19.0, -26.0])
     n = len(x0)
     hist = np.stack([np.repeat(x0[:, None], 31, 1), np.zeros((n, 31))], -1)
@@ -505,23 +506,32 @@ def _queue_at_light(state: int) -> tuple[Observation, object]:
 
     def source(ids, person):
         k = len(ids)
-        return graph, F.MapContext(np.zeros(k, dtype=np.int64), x0 + 200.0, -x0, np.full(k, state, dtype=np.int64))
+        return graph, F.MapContext(np.zeros(k, dtype=np.int64), x0 + 200.0, -x0, np.full(k, state, dtype=np.int64),
+                                   tls_switch=np.full(k, switch))
 
     return obs, source
 
 
-def test_shipped_default_keeps_a_queue_at_a_red_light_standing_as_its_most_likely_mode():
-    # the single-Gaussian model this replaced moved the first car 0.83 m in 4 s at red (the
-    # average of "stays" and "pulls away"); with modes, "stays" is a mode of its own
-    obs, source = _queue_at_light(3)
+def _queue_modes(state: int, switch: float = 20.0) -> tuple[np.ndarray, np.ndarray]:
+    """The shipped default on :func:`_queue_at_light`: how far each car moves along the lane in
+    4 s in each mode (4 cars, 3 modes) [m], and the modes' weights (4, 3), most likely first."""
+    obs, source = _queue_at_light(state, switch)
     p = LSTMPredictor.default(map_source=source)
-    assert p.model.modes == 3
+    assert p.model.modes == 3 and p.model.map_version == 3
     mean, _, w = p.mode_outputs(obs)
-    moved = mean[:, :, -1, 0] - obs.current.x[:, None]  # (4 cars, 3 modes) along the lane after 4 s
-    assert np.all(w[:, 0] > 0.75) and np.all(np.abs(moved[:, 0]) < 0.1)  # most likely: stays (< 10 cm)
-    assert w[0, 0] > 0.9  # the first car, right at the red light, the most surely
-    assert np.all(moved[:, 1:] > 0.1)  # the other modes pull away
-    # at green the first car is likelier to go than at red
-    obs_g, source_g = _queue_at_light(1)
-    _, _, w_g = LSTMPredictor.default(map_source=source_g).mode_outputs(obs_g)
-    assert 1.0 - w_g[0, 0] > 1.0 - w[0, 0]
+    return mean[:, :, -1, 0] - obs.current.x[:, None], w
+
+
+def test_shipped_default_keeps_a_queue_at_a_red_light_standing_until_the_light_changes():
+    # the single-Gaussian model of earlier versions moved the first car 0.83 m in 4 s at red (the
+    # average of "stays" and "pulls away"); knowing how long the red holds (map version 3), the
+    # default keeps the queue standing in every mode while it holds and sets it off as it ends
+    moved, w = _queue_modes(3, switch=20.0)
+    assert np.all(w[:, 0] > 0.9) and np.all(np.abs(moved) < 0.5)  # red for 20 s more: nobody leaves in 4 s
+    soon, w_soon = _queue_modes(3, switch=1.0)  # red for 1 s more
+    assert np.all(soon[0] > 1.0)  # the first car moves off in every mode ...
+    assert np.all(np.diff(soon, axis=0) < 0)  # ... and the queue follows in order, each car less far
+    assert np.all(w_soon[:, 0] < w[:, 0])  # the "stays" mode loses weight for every car
+    green, w_g = _queue_modes(1, switch=20.0)
+    assert np.all(green[:, 1:] > 1.0)  # at green the other modes pull away
+    assert 1.0 - w_g[0, 0] > 1.0 - w[0, 0]  # and the first car is likelier to go than at red

@@ -5,9 +5,10 @@ scenarios that no predictor was trained or evaluated on.
 
 Planners (the paper's planner, only the predictor or the priors changed): cv, cslstm,
 attention, map (attention + lanes), map_cslstm (CS-LSTM + lanes, 3 trajectory modes, pedestrians
-with one mode: the default), map_cslstm_v3 (the same with the last mode constant velocity, the
-default before, weights/map_cslstm_v3.pt), map_cslstm_v2 (3 free modes, a 128-state decoder, the
-default before that), map_cslstm_1mode (the one-mode map_cslstm before that,
+with one mode, map version 3: the default), map_cslstm_v4 (map version 1, the default before,
+weights/map_cslstm_v4.pt), map_cslstm_v3 (with the last mode constant velocity, the default
+before that, weights/map_cslstm_v3.pt), map_cslstm_v2 (3 free modes, a 128-state decoder, the
+default before), map_cslstm_1mode (the one-mode map_cslstm before that,
 weights/map_cslstm_1mode.pt) and map_cslstm_nopriors (map_cslstm with braking_prior =
 lateral_prior = 0).
 Scenarios s<first>..s<first+count-1> of scenarios/suite (tools/train_shipped.py trains on
@@ -31,6 +32,7 @@ PLANNERS = (
     "attention=predictor=attention",
     "map=predictor=map",
     "map_cslstm=predictor=map_cslstm",
+    f"map_cslstm_v4=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v4.pt'}",
     f"map_cslstm_v3=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v3.pt'}",
     f"map_cslstm_v2=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v2.pt'}",
     f"map_cslstm_1mode=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_1mode.pt'}",

@@ -64,7 +64,7 @@ stays exactly where the agent is now (mean 0, spread ``sigma_min``, no correlati
 weights learned, the others weight 0 (one Gaussian averages a standing pedestrian's "stays" and
 "walks off"; with a learned spread the stay mode grew wide enough to cover the walkers and mode
 0 collapsed onto the standing ones);
-``dec``, the decoder's size (64 instead of 128). The previous default
+``dec``, the decoder's size (64 instead of 128). An earlier default
 (weights/map_cslstm_v3.pt) had ``cv_mode`` too; the selection rule of docs/predictor_seeds.md
 chose the file without it.
 
