@@ -19,15 +19,15 @@ Stages:
   ("How a shipped file is chosen") into DIR_selection/selection_scores.csv.
 
 ``--models`` picks what is trained: "map_cslstm" (the shipped default, feature version 1 + map
-version 3: the lights' switch times) and "map" (map version 1, trained on the dataset of that
-version; a dataset written now has version 3); the default of --models is both and/or the ablation's "attention", "cslstm"
-(their shipped files were trained on the version-1 dataset without map columns or suite
+version 3: the lights' switch times) and "map" (its shipped file has map version 1, from the
+dataset of that version; a dataset written now has version 3), both by default, and/or the
+ablation's "attention", "cslstm" (their shipped files were trained on the version-1 dataset without map columns or suite
 runs: ``--stages dataset --no-suite`` and then ``--models attention,cslstm`` rebuild them).
 
 Wall time on this shared 2-core machine (one worker, one thread): dataset 19.0 min (16.6 min
 with two workers); training of the shipped map_cslstm 52.2 min beside a second training (45.0
-CPU-minutes, best epoch 17 of 18, cut by the budget), of map 22.2 min (best epoch 6 of 9); held-out dataset 6.7 min;
-evaluation of the nine models about 10 min on the test split and 2 min on the held-out one: about 100 min in all
+CPU-minutes, best epoch 17 of 18, cut by the budget), of map 22.2 min (best epoch 6 of 9);
+held-out dataset 6.7 min; evaluation of the ten models about 10 min on the test split and 2 min on the held-out one: about 100 min in all
 for both map models, one after the other (``--parallel`` trains them at once).
 
     python tools/train_shipped.py --work /tmp/pred --stages dataset,train,heldout,evaluate --workers 1
@@ -60,13 +60,14 @@ SUITE_SELECT_FIRST, SUITE_SELECT = 176, 20
 #: (docs/predictor_seeds.md);
 #: map (attention) per target as CS-LSTM with one mode
 #: earlier defaults kept in the weights folder, evaluated beside the shipped models: map_cslstm_v4 (map
-#: version 1, seed 2, 20 CPU-minutes), map_cslstm_v3 (the same with the last mode constant velocity), map_cslstm_v2 (3 free modes, a 128-state decoder, seed 0) and
-#: map_cslstm_1mode (one mode)
+#: version 1, seed 2, 20 CPU-minutes), map_cslstm_v3 (the same with the last mode constant velocity),
+#: map_cslstm_v2 (3 free modes, a 128-state decoder, seed 0) and map_cslstm_1mode (one mode)
 PREVIOUS = ("map_cslstm_v4", "map_cslstm_v3", "map_cslstm_v2", "map_cslstm_1mode")
 TRAIN = {"map": {"hazard_repeat": 4, "nbr_frame": "target", "modes": 1},
          "map_cslstm": {"hazard_repeat": 4, "nbr_frame": "agent", "modes": 3, "seed": 0}}
-#: CPU-minute budgets that differ from --max-minutes' default: the default model (map version 3, seed 0)
-#: was still improving when 20 minutes stopped it; 45 minutes is the shipped file's (best epoch 17 of 18)
+#: CPU-minute training budget per model (--max-minutes overrides it): the default model (map version 3,
+#: seed 0) was still improving when 20 minutes stopped it; 45 minutes is the shipped file's (best epoch 17 of 18)
+BUDGET_DEFAULT = 20.0
 BUDGET = {"map_cslstm": 45.0}
 
 
@@ -94,7 +95,7 @@ def main() -> None:
     ap.add_argument("--stages", default="dataset,train,evaluate")
     ap.add_argument("--parallel", action="store_true", help="train both models at once (one thread each)")
     ap.add_argument("--max-minutes", type=float, default=None,
-                    help="CPU-time budget per model [min] (default: 45 for map_cslstm, 20 for the others)")
+                    help=f"CPU-time budget per model [min] (default: {BUDGET} for these, {BUDGET_DEFAULT} for the others)")
     ap.add_argument("--max-wall-minutes", type=float, default=None)
     ap.add_argument("--out-dir", default=str(WEIGHTS), help="where weights and the evaluation go")
     ap.add_argument("--workers", type=int, default=2)
@@ -113,7 +114,7 @@ def main() -> None:
     stages = args.stages.split(",")
     if args.model:
         t0 = time.time()
-        minutes = args.max_minutes or BUDGET.get(args.model, 20.0)
+        minutes = args.max_minutes or BUDGET.get(args.model, BUDGET_DEFAULT)
         info = train_main(work, args.model, Path(args.out_dir) / f"{args.model}.pt", max_minutes=minutes,
                           max_wall_minutes=args.max_wall_minutes, progress=False, **TRAIN.get(args.model, {}))
         logging.info("%s: %.1f min, best epoch %s, val nll %.3f, %s", args.model, (time.time() - t0) / 60,
@@ -127,8 +128,9 @@ def main() -> None:
         dataset_main(scen, work, seeds=SEEDS, workers=args.workers, suite=suite)
         logging.info("dataset: %.1f min", (time.time() - t0) / 60)
     if "train" in stages:
-        cmds = [[sys.executable, __file__, "--work", str(work), "--model", m, "--out-dir", args.out_dir]
-                + (["--max-minutes", str(args.max_minutes)] if args.max_minutes else []) + (["--max-wall-minutes", str(args.max_wall_minutes)] if args.max_wall_minutes else [])
+        budget = (["--max-minutes", str(args.max_minutes)] if args.max_minutes else []) + (
+            ["--max-wall-minutes", str(args.max_wall_minutes)] if args.max_wall_minutes else [])
+        cmds = [[sys.executable, __file__, "--work", str(work), "--model", m, "--out-dir", args.out_dir] + budget
                 for m in args.models.split(",")]
         if args.parallel:
             procs = [subprocess.Popen(c) for c in cmds]
