@@ -287,3 +287,20 @@ def test_missing_corrupt_and_wrong_kind_weights(tmp_path):
 def test_default_weights_are_small():
     for kind in ("attention", "cslstm"):
         assert default_weights(kind).stat().st_size < 5e6
+
+
+def test_path_yaw_holds_the_heading_while_standing():
+    """Heading of a predicted path at 0.1 s steps: the direction of each step, held where the
+    step is shorter than MIN_YAW_SPEED x dt (0.03 m), and the current yaw until the first move."""
+    from sumo_ethics.predict.predictor import path_yaw
+
+    xy = np.array([[0.0, 0.0], [5.0, 5.0]])
+    # agent 0: stands 2 steps (0.01 m each), moves +y 1 m, stands, moves -x 1 m, stands
+    # agent 1: moves 1 m at 45 degrees, then stands
+    steps = np.array([[[0.01, 0.0], [0.0, 0.01], [0.0, 1.0], [0.0, 0.0], [-1.0, 0.0], [0.02, 0.0]],
+                      [[1.0, 1.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]])
+    mean = xy[:, None] + np.cumsum(steps, axis=1)
+    yaw = path_yaw(xy, np.array([0.3, -2.0]), mean, 0.1)
+    half_pi, pi = np.pi / 2, np.pi
+    assert yaw[0] == pytest.approx([0.3, 0.3, half_pi, half_pi, pi, pi])
+    assert yaw[1] == pytest.approx([pi / 4] * 6)

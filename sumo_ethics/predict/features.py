@@ -342,6 +342,9 @@ class LaneGraph:
     def paths(self, lane: int, start: float, reach: float, limit: int) -> list[tuple[int, ...]]:
         """Up to ``limit`` lane sequences from ``lane`` (arc length ``start`` on it) covering
         ``reach`` metres, depth first in link order; dead ends end a path early."""
+        left0 = reach - (self.cum[lane][-1] - start)
+        if left0 <= 0.0 or not self.succ[lane]:  # the common case: the reach ends on this lane
+            return [(lane,)]
         out: list[tuple[int, ...]] = []
 
         def walk(path: tuple[int, ...], left: float) -> None:
@@ -354,7 +357,7 @@ class LaneGraph:
             for j in nxt:
                 walk(path + (j,), left - self.cum[j][-1])
 
-        walk((lane,), reach - (self.cum[lane][-1] - start))
+        walk((lane,), left0)
         return out
 
     def first_path(self, lane: int, start: float, reach: float) -> tuple[int, ...]:
@@ -457,16 +460,18 @@ def _sample_many(lines: list[tuple[np.ndarray, np.ndarray]], s: np.ndarray) -> n
     return pts[i] * (1.0 - w) + pts[j] * w
 
 
-def _signal_scalars(out: np.ndarray, tls_dist: float, tls_state: int, tls_switch: float) -> None:
-    """Scalars 0-5 and 7 of a target on a lane (see the layout above), written into ``out`` (MAP_SCALARS,)."""
-    out[0] = 1.0
-    if np.isfinite(tls_dist):
-        out[1] = 1.0
-        out[2] = min(max(float(tls_dist) / TLS_DIST_SCALE, 0.0), 2.0)
-        code = int(tls_state)
-        if code > 0:
-            out[2 + code] = 1.0
-        out[7] = min(max(float(tls_switch) / TLS_SWITCH_SCALE, 0.0), 2.0)
+def _signal_scalars(out: np.ndarray, rows: np.ndarray, tls_dist: np.ndarray, tls_state: np.ndarray,
+                    tls_switch: np.ndarray) -> None:
+    """Scalars 0-5 and 7 (see the layout above) of the targets ``rows`` (on a lane), written into
+    ``out`` (N, MAP_SCALARS); tls_dist, tls_state, tls_switch (N,) as in MapContext."""
+    out[rows, 0] = 1.0
+    dist = np.asarray(tls_dist, dtype=float)[rows]
+    lit = rows[np.isfinite(dist)]
+    out[lit, 1] = 1.0
+    out[lit, 2] = np.clip(dist[np.isfinite(dist)] / TLS_DIST_SCALE, 0.0, 2.0)
+    code = np.asarray(tls_state, dtype=np.int64)[lit]
+    out[lit[code > 0], 2 + code[code > 0]] = 1.0
+    out[lit, 7] = np.clip(np.asarray(tls_switch, dtype=float)[lit] / TLS_SWITCH_SCALE, 0.0, 2.0)
 
 
 def _walk_lines(graph: LaneGraph, lane: int, lane_pos: float, next_lane: int, xy: np.ndarray,
@@ -499,44 +504,52 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
     scalar = np.zeros((n, MAP_SCALARS))
     if graph is not None:
         speed = np.maximum(np.asarray(speed, dtype=float), 0.0)
-        steps = np.arange(MAP_POINTS, dtype=float)
-        who, row, lines, where = [], [], [], []
         person = np.zeros(n, dtype=bool) if ctx.person is None else np.asarray(ctx.person, dtype=bool)
         nxt = np.full(n, -1) if ctx.next_lane is None else np.asarray(ctx.next_lane)
         switch = np.full(n, np.inf) if ctx.tls_switch is None else np.asarray(ctx.tls_switch, dtype=float)
-        for i in np.flatnonzero(np.asarray(ctx.lane) >= 0):
-            lane = int(ctx.lane[i])
+        lanes = np.asarray(ctx.lane, dtype=np.int64)
+        on = np.flatnonzero(lanes >= 0)
+        if version < 2:  # pedestrians get no map context
+            on = on[~person[on]]
+        _signal_scalars(scalar, on, ctx.tls_dist, ctx.tls_state, switch)
+        veh = on[~person[on]]
+        scalar[veh, 6] = graph.speed[lanes[veh]] / SPEED_SCALE
+        # rows (target, row, centre line, first arc length, spacing); the per-target walk runs on
+        # Python scalars (numpy's scalar arithmetic costs more than the walk itself)
+        who, row, lines, first, spacing = [], [], [], [], []
+        lane_l, pos_l, speed_l = lanes.tolist(), np.asarray(ctx.lane_pos, dtype=float).tolist(), speed.tolist()
+        left_l, right_l = graph.left.tolist(), graph.right.tolist()
+        for i in on.tolist():
+            lane = lane_l[i]
             if person[i]:
-                if version < 2:
-                    continue
-                for r, (line, s0) in enumerate(_walk_lines(graph, lane, float(ctx.lane_pos[i]), int(nxt[i]), xy[i],
-                                                           float(yaw[i]))):
+                for r, (line, s0) in enumerate(_walk_lines(graph, lane, pos_l[i], int(nxt[i]), xy[i], float(yaw[i]))):
                     who.append(i)
                     row.append(r)
                     lines.append(line)
-                    where.append(s0 + steps * MAP_DS_PERSON)
-                _signal_scalars(scalar[i], ctx.tls_dist[i], ctx.tls_state[i], switch[i])
+                    first.append(s0)
+                    spacing.append(MAP_DS_PERSON)
                 continue
-            ds = max(MAP_DS_MIN, MAP_DS_PER_SPEED * float(speed[i]))
+            ds = max(MAP_DS_MIN, MAP_DS_PER_SPEED * speed_l[i])
             reach = (MAP_POINTS - 1) * ds
-            start = graph.shape_pos(lane, ctx.lane_pos[i])
+            start = graph.shape_pos(lane, pos_l[i])
             for r, path in enumerate(graph.paths(lane, start, reach, MAP_AHEAD)):
                 who.append(i)
                 row.append(r)
                 lines.append(graph.polyline(path))
-                where.append(start + steps * ds)
-            for r, side in ((MAP_AHEAD, graph.left[lane]), (MAP_AHEAD + 1, graph.right[lane])):
+                first.append(start)
+                spacing.append(ds)
+            for r, side in ((MAP_AHEAD, left_l[lane]), (MAP_AHEAD + 1, right_l[lane])):
                 if side >= 0:
                     s0 = min(start, graph.cum[side][-1])
                     who.append(i)
                     row.append(r)
                     lines.append(graph.polyline(graph.first_path(side, s0, reach)))
-                    where.append(s0 + steps * ds)
-            _signal_scalars(scalar[i], ctx.tls_dist[i], ctx.tls_state[i], switch[i])
-            scalar[i, 6] = graph.speed[lane] / SPEED_SCALE
+                    first.append(s0)
+                    spacing.append(ds)
         if lines:
             who_a, row_a = np.array(who), np.array(row)
-            world = _sample_many(lines, np.stack(where))  # (R, MAP_POINTS, 2)
+            where = np.asarray(first, dtype=float)[:, None] + np.arange(MAP_POINTS, dtype=float) * np.asarray(spacing, dtype=float)[:, None]
+            world = _sample_many(lines, where)  # (R, MAP_POINTS, 2)
             yaw = np.asarray(yaw, dtype=float)
             c, s_ = np.cos(yaw[who_a])[:, None], np.sin(yaw[who_a])[:, None]
             dx = world[..., 0] - xy[who_a, 0][:, None]
