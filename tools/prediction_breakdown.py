@@ -1,0 +1,99 @@
+"""Where a predictor loses against constant velocity: ADE of the most likely mode on subsets of a
+dataset's samples (light ahead and its colour, distance to the stop line, speed, manoeuvre).
+
+    python tools/prediction_breakdown.py DATASET [--scenario corridor,square,grid6] [--group vehicle]
+        [--moving | --standing] [--model NAME=FILE ...]
+
+DATASET: a folder written by ``sumo-ethics dataset`` (every sample is used, as for scenarios never
+trained on); --scenario keeps the runs of those scenario stems (suite runs are named "suite");
+--model: weights files (default: the shipped map_cslstm). Besides each model's ADE it prints the
+ADE of its closest mode (min_ade) and the weight of its most likely mode, which tell a mixture
+that holds the truth but ranks it second from one that misses it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+
+def subsets(b: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Named (S,) masks over the samples ``b`` (map scalars as in features.map_features)."""
+    from sumo_ethics.predict.dataset import MANOEUVRES
+
+    sc, speed = b["map_scalar"], b["tgt_speed"]
+    light = sc[:, 1] > 0
+    dist = sc[:, 2] * 50.0
+    out = {"all": np.ones(len(speed), dtype=bool), "no light ahead": ~light, "red ahead": sc[:, 5] > 0,
+           "yellow ahead": sc[:, 4] > 0, "green ahead": sc[:, 3] > 0}
+    for lo, hi in ((0, 20), (20, 50), (50, 100)):
+        out[f"green ahead, {lo}-{hi} m"] = (sc[:, 3] > 0) & (dist >= lo) & (dist < hi)
+    for lo, hi in ((0, 0.5), (0.5, 5), (5, 10), (10, 99)):
+        out[f"speed {lo}-{hi} m/s"] = (speed >= lo) & (speed < hi)
+    for i, m in enumerate(MANOEUVRES):
+        out[f"m:{m}"] = b["manoeuvre"] == i
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("dataset", type=Path)
+    ap.add_argument("--scenario", default=None, help="comma-separated scenario stems to keep")
+    ap.add_argument("--group", default="vehicle", choices=("vehicle", "cyclist", "pedestrian"))
+    move = ap.add_mutually_exclusive_group()
+    move.add_argument("--moving", action="store_true", help="only those at 0.5 m/s or faster now")
+    move.add_argument("--standing", action="store_true", help="only those slower than 0.5 m/s now")
+    ap.add_argument("--model", action="append", default=[], metavar="NAME=FILE")
+    args = ap.parse_args()
+
+    import torch
+
+    from sumo_ethics.predict import features as F
+    from sumo_ethics.predict.dataset import load_samples, subset
+    from sumo_ethics.predict.evaluate import cv_outputs, lstm_outputs
+    from sumo_ethics.predict.models import load_model
+    from sumo_ethics.predict.predictor import default_weights
+
+    torch.set_num_threads(1)
+    if not (args.dataset / "samples.npz").is_file():
+        raise SystemExit(f"{args.dataset}: no samples.npz (not a dataset folder)")
+    s = load_samples(args.dataset)
+    runs = json.loads((args.dataset / "split.json").read_text()).get("runs", [])
+    stem = {int(r["run_id"]): Path(r["scenario"]).stem for r in runs}
+    name = np.array([stem.get(int(r), "suite") for r in s["run_id"]])
+    keep = s["tgt_group"] == F.GROUP_NAMES.index(args.group)
+    if args.scenario:
+        keep &= np.isin(name, args.scenario.split(","))
+    if args.moving or args.standing:
+        keep &= (s["tgt_speed"] >= 0.5) if args.moving else (s["tgt_speed"] < 0.5)
+    if not keep.any():
+        raise SystemExit("no samples left after the filters")
+    b = subset(s, np.flatnonzero(keep))
+    fut, valid = b["fut"].astype(float), b["fut_valid"]
+
+    def ade(mean: np.ndarray) -> np.ndarray:  # (S, T, 2) -> (S,)
+        d = np.hypot(*(mean - fut).transpose(2, 0, 1))
+        return (d * valid).sum(1) / valid.sum(1)
+
+    cols = {"constant velocity": ade(cv_outputs(b)[..., :2])}
+    models = dict(m.split("=", 1) for m in args.model) or {"map_cslstm": str(default_weights("map_cslstm"))}
+    for label, path in models.items():
+        model, _ = load_model(Path(path))
+        out, weight = lstm_outputs(model, b)
+        per_mode = np.stack([ade(out[:, k, :, :2]) for k in range(out.shape[1])], 1)
+        cols[label] = per_mode[:, 0]
+        cols[f"{label} min_ade"] = np.where(weight > 0, per_mode, np.inf).min(1)
+        cols[f"{label} top weight"] = weight[:, 0]
+    rows = [{"subset": k, "n": int(m.sum()), **{c: float(v[m].mean()) for c, v in cols.items()}}
+            for k, m in subsets(b).items() if m.sum() >= 20]
+    print(f"{args.group}s of {args.dataset}" + (f" ({args.scenario})" if args.scenario else "")
+          + (" moving" if args.moving else " standing" if args.standing else "") + ": ADE [m] of the most likely mode")
+    print(pd.DataFrame(rows).round(3).to_string(index=False))
+
+
+if __name__ == "__main__":
+    main()
