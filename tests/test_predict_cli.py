@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -14,6 +16,7 @@ from sumo_ethics.predict import LSTMPredictor
 from conftest import SCENARIOS
 
 pytestmark = pytest.mark.sumo
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_dataset_train_evaluate_chain(tmp_path, capsys):
@@ -65,6 +68,20 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys):
         assert row["n"] == full.loc[(row["model"], row["group"]), "n"]
         assert row["ade"] == pytest.approx(full.loc[(row["model"], row["group"]), "ade"], rel=1e-12)
     assert "| urban | vehicle |" in (tmp_path / "eval3" / "prediction_eval_by_scenario.md").read_text()
+    # tools/prediction_breakdown.py on the same samples (the shipped default): its "all" row is the
+    # table's vehicle row; the closest mode is never further than the most likely one
+    sys.path.insert(0, str(ROOT / "tools"))
+    from prediction_breakdown import breakdown
+
+    br = breakdown(data, "vehicle", ["urban"]).set_index("subset")
+    assert br.loc["all", "n"] == full.loc[("map_cslstm", "vehicle"), "n"]
+    for col, model in (("constant velocity", "constant_velocity"), ("map_cslstm", "map_cslstm"),
+                       ("map_cslstm min_ade", "map_cslstm")):
+        metric = "min_ade" if col.endswith("min_ade") else "ade"
+        assert br.loc["all", col] == pytest.approx(full.loc[(model, "vehicle"), metric], rel=1e-6)
+    assert (br["map_cslstm min_ade"] <= br["map_cslstm"] + 1e-12).all()
+    assert br.loc["speed 0-0.5 m/s", "n"] + br.loc[[k for k in br.index if k.startswith("speed ") and k != "speed 0-0.5 m/s"], "n"].sum() \
+        <= br.loc["all", "n"]
     # samples derived again from the recorded trajectories, without simulating: the same arrays
     assert main(["dataset", "--samples-from", str(data), "--out", str(tmp_path / "data2")]) == 0
     with np.load(data / "samples.npz") as a, np.load(tmp_path / "data2" / "samples.npz") as b:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +40,53 @@ def subsets(b: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return out
 
 
+def breakdown(dataset: Path, group: str = "vehicle", scenarios: list[str] | None = None, moving: bool | None = None,
+              models: dict[str, str] | None = None) -> pd.DataFrame:
+    """Rows per subset (``subsets``, those of 20 samples or more): n and the mean ADE [m] of
+    constant velocity and of each model's most likely mode, its closest mode of non-zero weight
+    (min_ade) and its most likely mode's weight. ``moving``: None all, True those at 0.5 m/s or
+    faster now, False the others; ``models``: name -> weights file (default: the shipped map_cslstm)."""
+    import torch
+
+    from sumo_ethics.predict import features as F
+    from sumo_ethics.predict.dataset import load_samples, subset
+    from sumo_ethics.predict.evaluate import cv_outputs, lstm_outputs
+    from sumo_ethics.predict.models import load_model
+    from sumo_ethics.predict.predictor import default_weights
+
+    torch.set_num_threads(1)
+    if not (Path(dataset) / "samples.npz").is_file():
+        raise ValueError(f"{dataset}: no samples.npz (not a dataset folder)")
+    s = load_samples(Path(dataset))
+    runs = json.loads((Path(dataset) / "split.json").read_text()).get("runs", [])
+    stem = {int(r["run_id"]): Path(r["scenario"]).stem for r in runs}
+    name = np.array([stem.get(int(r), "suite") for r in s["run_id"]])
+    keep = s["tgt_group"] == F.GROUP_NAMES.index(group)
+    if scenarios:
+        keep &= np.isin(name, scenarios)
+    if moving is not None:
+        keep &= (s["tgt_speed"] >= 0.5) if moving else (s["tgt_speed"] < 0.5)
+    if not keep.any():
+        raise ValueError("no samples left after the filters")
+    b = subset(s, np.flatnonzero(keep))
+    fut, valid = b["fut"].astype(float), b["fut_valid"]
+
+    def ade(mean: np.ndarray) -> np.ndarray:  # (S, T, 2) -> (S,)
+        d = np.hypot(*(mean - fut).transpose(2, 0, 1))
+        return (d * valid).sum(1) / valid.sum(1)
+
+    cols = {"constant velocity": ade(cv_outputs(b)[..., :2])}
+    for label, path in (models or {"map_cslstm": str(default_weights("map_cslstm"))}).items():
+        model, _ = load_model(Path(path))
+        out, weight = lstm_outputs(model, b)
+        per_mode = np.stack([ade(out[:, k, :, :2]) for k in range(out.shape[1])], 1)
+        cols[label] = per_mode[:, 0]
+        cols[f"{label} min_ade"] = np.where(weight > 0, per_mode, np.inf).min(1)
+        cols[f"{label} top weight"] = weight[:, 0]
+    return pd.DataFrame([{"subset": k, "n": int(m.sum()), **{c: float(v[m].mean()) for c, v in cols.items()}}
+                         for k, m in subsets(b).items() if m.sum() >= 20])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("dataset", type=Path)
@@ -49,50 +97,20 @@ def main() -> None:
     move.add_argument("--standing", action="store_true", help="only those slower than 0.5 m/s now")
     ap.add_argument("--model", action="append", default=[], metavar="NAME=FILE")
     args = ap.parse_args()
-
-    import torch
-
-    from sumo_ethics.predict import features as F
-    from sumo_ethics.predict.dataset import load_samples, subset
-    from sumo_ethics.predict.evaluate import cv_outputs, lstm_outputs
-    from sumo_ethics.predict.models import load_model
-    from sumo_ethics.predict.predictor import default_weights
-
-    torch.set_num_threads(1)
-    if not (args.dataset / "samples.npz").is_file():
-        raise SystemExit(f"{args.dataset}: no samples.npz (not a dataset folder)")
-    s = load_samples(args.dataset)
-    runs = json.loads((args.dataset / "split.json").read_text()).get("runs", [])
-    stem = {int(r["run_id"]): Path(r["scenario"]).stem for r in runs}
-    name = np.array([stem.get(int(r), "suite") for r in s["run_id"]])
-    keep = s["tgt_group"] == F.GROUP_NAMES.index(args.group)
-    if args.scenario:
-        keep &= np.isin(name, args.scenario.split(","))
-    if args.moving or args.standing:
-        keep &= (s["tgt_speed"] >= 0.5) if args.moving else (s["tgt_speed"] < 0.5)
-    if not keep.any():
-        raise SystemExit("no samples left after the filters")
-    b = subset(s, np.flatnonzero(keep))
-    fut, valid = b["fut"].astype(float), b["fut_valid"]
-
-    def ade(mean: np.ndarray) -> np.ndarray:  # (S, T, 2) -> (S,)
-        d = np.hypot(*(mean - fut).transpose(2, 0, 1))
-        return (d * valid).sum(1) / valid.sum(1)
-
-    cols = {"constant velocity": ade(cv_outputs(b)[..., :2])}
-    models = dict(m.split("=", 1) for m in args.model) or {"map_cslstm": str(default_weights("map_cslstm"))}
-    for label, path in models.items():
-        model, _ = load_model(Path(path))
-        out, weight = lstm_outputs(model, b)
-        per_mode = np.stack([ade(out[:, k, :, :2]) for k in range(out.shape[1])], 1)
-        cols[label] = per_mode[:, 0]
-        cols[f"{label} min_ade"] = np.where(weight > 0, per_mode, np.inf).min(1)
-        cols[f"{label} top weight"] = weight[:, 0]
-    rows = [{"subset": k, "n": int(m.sum()), **{c: float(v[m].mean()) for c, v in cols.items()}}
-            for k, m in subsets(b).items() if m.sum() >= 20]
+    bad = [m for m in args.model if "=" not in m or not Path(m.split("=", 1)[1]).is_file()]
+    if bad:
+        print(f"prediction_breakdown: --model {bad[0]!r}: give NAME=FILE with an existing weights file", file=sys.stderr)
+        sys.exit(2)
+    moving = True if args.moving else False if args.standing else None
+    try:
+        df = breakdown(args.dataset, args.group, args.scenario.split(",") if args.scenario else None, moving,
+                       dict(m.split("=", 1) for m in args.model) or None)
+    except ValueError as exc:
+        print(f"prediction_breakdown: {exc}", file=sys.stderr)
+        sys.exit(2)
     print(f"{args.group}s of {args.dataset}" + (f" ({args.scenario})" if args.scenario else "")
-          + (" moving" if args.moving else " standing" if args.standing else "") + ": ADE [m] of the most likely mode")
-    print(pd.DataFrame(rows).round(3).to_string(index=False))
+          + {True: " moving", False: " standing", None: ""}[moving] + ": ADE [m] of the most likely mode")
+    print(df.round(3).to_string(index=False))
 
 
 if __name__ == "__main__":
