@@ -174,6 +174,37 @@ def test_map_version_1_gives_pedestrians_nothing_and_vehicles_the_same():
     assert t2["map_valid"][1, 0]
 
 
+def test_each_target_of_a_mixed_batch_gets_what_it_gets_alone():
+    """Cars and pedestrians, with and without a lane, before red, yellow and green lights and none,
+    in one call: every row equals the call for that target alone, for each map version."""
+    a, w = junction_graph(), walking_graph()
+    # one graph with both: the walking graph's lanes after the junction graph's 5
+    g = F.LaneGraph.build(a.ids + w.ids, a.shapes + w.shapes, np.concatenate([a.speed, w.speed]),
+                          [tuple(a.ids[j] for j in s) for s in a.succ] + [tuple(w.ids[j] for j in s) for s in w.succ])
+    lane = np.array([0, 5, -1, 1, 6, 0, 2, 8])  # a_0, s_0 (walker), none, a_1, walking area (walker), a_0, b_0, t_0 (walker)
+    person = np.array([False, True, False, False, True, False, False, True])
+    ctx = F.MapContext(lane, np.array([90.0, 10.0, 0.0, 20.0, 1.0, 40.0, 5.0, 3.0]),
+                       np.array([20.0, np.inf, 5.0, 150.0, 0.0, np.inf, 30.0, 2.0]), np.array([3, 0, 1, 2, 3, 1, 1, 0]),
+                       person=person, next_lane=np.array([-1, 6, -1, -1, 7, -1, -1, -1]),
+                       tls_switch=np.array([12.0, np.inf, 3.0, np.inf, 25.0, 4.0, 0.5, np.inf]))
+    xy = np.array([[90.0, 0.0], [10.0, 0.0], [5.0, 5.0], [20.0, 3.2], [21.0, 1.5], [40.0, 0.0], [100.0, 5.0], [22.0, 17.0]])
+    yaw = np.array([0.0, np.pi, 0.3, 0.0, np.pi / 2, 0.0, np.pi / 2, np.pi / 2])
+    speed = np.array([10.0, 1.2, 3.0, 14.0, 0.0, 0.0, 6.0, 1.4])
+    for version in F.MAP_VERSIONS:
+        batch = F.map_features(g, ctx, xy, yaw, speed, version=version)
+        assert batch["map_valid"][[0, 3, 5, 6]].any(axis=1).all() and not batch["map_valid"][2].any()
+        for i in range(len(lane)):
+            one = F.MapContext(*(np.asarray(getattr(ctx, k))[i:i + 1] for k in
+                                 ("lane", "lane_pos", "tls_dist", "tls_state", "person", "next_lane", "tls_switch")))
+            alone = F.map_features(g, one, xy[i:i + 1], yaw[i:i + 1], speed[i:i + 1], version=version)
+            for key in batch:
+                np.testing.assert_array_equal(batch[key][i], alone[key][0], err_msg=f"{key} of target {i}, version {version}")
+    # by hand, version 3: the car before the red light 20 m ahead, which holds 12 s; the yellow one
+    # 150 m ahead (distance clipped to 2 x 50 m), its switch time unknown (clipped to 2 x 10 s)
+    np.testing.assert_allclose(batch["map_scalar"][0], [1, 1, 0.4, 0, 0, 1, 13.9 / 30, 1.2], atol=1e-6)
+    np.testing.assert_allclose(batch["map_scalar"][3], [1, 1, 2, 0, 1, 0, 13.9 / 30, 2], atol=1e-6)
+
+
 def _batch(n: int = 3, n_nbr: int = 4):
     rng = np.random.default_rng(0)
     return dict(

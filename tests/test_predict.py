@@ -304,3 +304,11 @@ def test_path_yaw_holds_the_heading_while_standing():
     half_pi, pi = np.pi / 2, np.pi
     assert yaw[0] == pytest.approx([0.3, 0.3, half_pi, half_pi, pi, pi])
     assert yaw[1] == pytest.approx([pi / 4] * 6)
+
+
+def test_prediction_breakdown_refuses_bad_input_in_one_line(tmp_path):
+    tool = Path(__file__).resolve().parents[1] / "tools" / "prediction_breakdown.py"
+    for args, says in (([str(tmp_path)], "no samples.npz"),
+                       ([str(tmp_path), "--model", f"x={tmp_path / 'none.pt'}"], "existing weights file")):
+        r = subprocess.run([sys.executable, str(tool), *args], capture_output=True, text=True)
+        assert r.returncode == 2 and says in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr

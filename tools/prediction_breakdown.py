@@ -6,15 +6,18 @@ dataset's samples (light ahead and its colour, distance to the stop line, speed,
 
 DATASET: a folder written by ``sumo-ethics dataset`` (every sample is used, as for scenarios never
 trained on); --scenario keeps the runs of those scenario stems (suite runs are named "suite");
---model: weights files (default: the shipped map_cslstm). Besides each model's ADE it prints the
-ADE of its closest mode (min_ade) and the weight of its most likely mode, which tell a mixture
-that holds the truth but ranks it second from one that misses it.
+--model: weights files (default: the shipped map_cslstm). ADE and min_ade are averaged over the
+valid future points, as ``sumo-ethics evaluate-predictor`` does (a sample with a partial future
+counts by its points). Besides each model's ADE it prints the ADE of its closest mode (min_ade),
+the mean weight of its most likely mode and how far that mode ends ahead of the truth along the
+target's heading at the horizon (``along``, metres; negative: short of it), which tell a mixture
+that holds the truth but ranks it second from one that misses it. Subsets of fewer than 20
+samples are left out.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -23,18 +26,20 @@ import pandas as pd
 
 
 def subsets(b: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Named (S,) masks over the samples ``b`` (map scalars as in features.map_features)."""
+    """Named (S,) masks over the samples ``b`` (map scalars as in features.map_features; a light
+    100 m away or more has its distance clipped to 100 m)."""
+    from sumo_ethics.predict import features as F
     from sumo_ethics.predict.dataset import MANOEUVRES
 
     sc, speed = b["map_scalar"], b["tgt_speed"]
     light = sc[:, 1] > 0
-    dist = sc[:, 2] * 50.0
+    dist = sc[:, 2] * F.TLS_DIST_SCALE
     out = {"all": np.ones(len(speed), dtype=bool), "no light ahead": ~light, "red ahead": sc[:, 5] > 0,
            "yellow ahead": sc[:, 4] > 0, "green ahead": sc[:, 3] > 0}
-    for lo, hi in ((0, 20), (20, 50), (50, 100)):
-        out[f"green ahead, {lo}-{hi} m"] = (sc[:, 3] > 0) & (dist >= lo) & (dist < hi)
-    for lo, hi in ((0, 0.5), (0.5, 5), (5, 10), (10, 99)):
-        out[f"speed {lo}-{hi} m/s"] = (speed >= lo) & (speed < hi)
+    for lo, hi in ((0, 20), (20, 50), (50, 100), (100, np.inf)):
+        out[f"green ahead, {lo}-{hi:g} m"] = (sc[:, 3] > 0) & (dist >= lo) & (dist < hi)
+    for lo, hi in ((0, 0.5), (0.5, 5), (5, 10), (10, np.inf)):
+        out[f"speed {lo}-{hi:g} m/s"] = (speed >= lo) & (speed < hi)
     for i, m in enumerate(MANOEUVRES):
         out[f"m:{m}"] = b["manoeuvre"] == i
     return out
@@ -49,7 +54,7 @@ def breakdown(dataset: Path, group: str = "vehicle", scenarios: list[str] | None
     import torch
 
     from sumo_ethics.predict import features as F
-    from sumo_ethics.predict.dataset import load_samples, subset
+    from sumo_ethics.predict.dataset import load_samples, run_scenarios, subset
     from sumo_ethics.predict.evaluate import cv_outputs, lstm_outputs
     from sumo_ethics.predict.models import load_model
     from sumo_ethics.predict.predictor import default_weights
@@ -58,9 +63,8 @@ def breakdown(dataset: Path, group: str = "vehicle", scenarios: list[str] | None
     if not (Path(dataset) / "samples.npz").is_file():
         raise ValueError(f"{dataset}: no samples.npz (not a dataset folder)")
     s = load_samples(Path(dataset))
-    runs = json.loads((Path(dataset) / "split.json").read_text()).get("runs", [])
-    stem = {int(r["run_id"]): Path(r["scenario"]).stem for r in runs}
-    name = np.array([stem.get(int(r), "suite") for r in s["run_id"]])
+    stem = run_scenarios(Path(dataset))
+    name = np.array([stem.get(int(r), "?") for r in s["run_id"]])
     keep = s["tgt_group"] == F.GROUP_NAMES.index(group)
     if scenarios:
         keep &= np.isin(name, scenarios)
@@ -69,22 +73,38 @@ def breakdown(dataset: Path, group: str = "vehicle", scenarios: list[str] | None
     if not keep.any():
         raise ValueError("no samples left after the filters")
     b = subset(s, np.flatnonzero(keep))
-    fut, valid = b["fut"].astype(float), b["fut_valid"]
+    fut, valid = b["fut"].astype(float), b["fut_valid"].astype(bool)
+    points = valid.sum(1)  # (S,) valid future points per sample
+    last = points - 1  # the last valid point (futures are valid from the start without a gap)
+    rows = np.arange(len(fut))
 
-    def ade(mean: np.ndarray) -> np.ndarray:  # (S, T, 2) -> (S,)
-        d = np.hypot(*(mean - fut).transpose(2, 0, 1))
-        return (d * valid).sum(1) / valid.sum(1)
+    def err_sum(mean: np.ndarray) -> np.ndarray:  # (S, T, 2) -> (S,) summed distance over the valid points
+        return (np.hypot(*(mean - fut).transpose(2, 0, 1)) * valid).sum(1)
 
-    cols = {"constant velocity": ade(cv_outputs(b)[..., :2])}
+    def along(mean: np.ndarray) -> np.ndarray:  # (S, T, 2) -> (S,) along-heading offset at the last valid point
+        return mean[rows, last, 0] - fut[rows, last, 0]
+
+    cv = cv_outputs(b)[..., :2]
+    sums = {"constant velocity": err_sum(cv)}  # per point: summed over the subset, then / its points
+    means = {"constant velocity along": along(cv)}  # per sample
     for label, path in (models or {"map_cslstm": str(default_weights("map_cslstm"))}).items():
         model, _ = load_model(Path(path))
         out, weight = lstm_outputs(model, b)
-        per_mode = np.stack([ade(out[:, k, :, :2]) for k in range(out.shape[1])], 1)
-        cols[label] = per_mode[:, 0]
-        cols[f"{label} min_ade"] = np.where(weight > 0, per_mode, np.inf).min(1)
-        cols[f"{label} top weight"] = weight[:, 0]
-    return pd.DataFrame([{"subset": k, "n": int(m.sum()), **{c: float(v[m].mean()) for c, v in cols.items()}}
-                         for k, m in subsets(b).items() if m.sum() >= 20])
+        per_mode = np.stack([err_sum(out[:, k, :, :2]) for k in range(out.shape[1])], 1)
+        sums[label] = per_mode[:, 0]
+        sums[f"{label} min_ade"] = np.where(weight > 0, per_mode, np.inf).min(1)
+        means[f"{label} top weight"] = weight[:, 0]
+        means[f"{label} along"] = along(out[:, 0, :, :2])
+    table = []
+    for key, m in subsets(b).items():
+        if m.sum() >= 20:
+            row = {"subset": key, "n": int(m.sum())}
+            row.update({c: float(v[m].sum() / points[m].sum()) for c, v in sums.items()})
+            row.update({c: float(v[m].mean()) for c, v in means.items()})
+            table.append(row)
+    if not table:
+        raise ValueError(f"fewer than 20 samples in every subset ({int(keep.sum())} in all)")
+    return pd.DataFrame(table)
 
 
 def main() -> None:
@@ -105,7 +125,7 @@ def main() -> None:
     try:
         df = breakdown(args.dataset, args.group, args.scenario.split(",") if args.scenario else None, moving,
                        dict(m.split("=", 1) for m in args.model) or None)
-    except ValueError as exc:
+    except (ValueError, RuntimeError, OSError) as exc:  # bad dataset or filters; a weights file refused (PredictorError)
         print(f"prediction_breakdown: {exc}", file=sys.stderr)
         sys.exit(2)
     print(f"{args.group}s of {args.dataset}" + (f" ({args.scenario})" if args.scenario else "")

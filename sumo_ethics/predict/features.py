@@ -343,6 +343,8 @@ class LaneGraph:
         """Up to ``limit`` lane sequences from ``lane`` (arc length ``start`` on it) covering
         ``reach`` metres, depth first in link order; dead ends end a path early."""
         left0 = reach - (self.cum[lane][-1] - start)
+        if limit < 1:
+            return []
         if left0 <= 0.0 or not self.succ[lane]:  # the common case: the reach ends on this lane
             return [(lane,)]
         out: list[tuple[int, ...]] = []
@@ -469,7 +471,7 @@ def _signal_scalars(out: np.ndarray, rows: np.ndarray, tls_dist: np.ndarray, tls
     lit = rows[np.isfinite(dist)]
     out[lit, 1] = 1.0
     out[lit, 2] = np.clip(dist[np.isfinite(dist)] / TLS_DIST_SCALE, 0.0, 2.0)
-    code = np.asarray(tls_state, dtype=np.int64)[lit]
+    code = np.asarray(tls_state)[lit].astype(np.int64)
     out[lit[code > 0], 2 + code[code > 0]] = 1.0
     out[lit, 7] = np.clip(np.asarray(tls_switch, dtype=float)[lit] / TLS_SWITCH_SCALE, 0.0, 2.0)
 
