@@ -309,6 +309,8 @@ def test_path_yaw_holds_the_heading_while_standing():
 def test_prediction_breakdown_refuses_bad_input_in_one_line(tmp_path):
     tool = Path(__file__).resolve().parents[1] / "tools" / "prediction_breakdown.py"
     for args, says in (([str(tmp_path)], "no samples.npz"),
-                       ([str(tmp_path), "--model", f"x={tmp_path / 'none.pt'}"], "existing weights file")):
+                       ([str(tmp_path), "--model", f"x={tmp_path / 'none.pt'}"], "existing weights file"),
+                       ([str(tmp_path), "--model", f"x={default_weights('cslstm')}", "--model", f"x={default_weights('map')}"],
+                        "given twice")):
         r = subprocess.run([sys.executable, str(tool), *args], capture_output=True, text=True)
         assert r.returncode == 2 and says in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr

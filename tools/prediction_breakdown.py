@@ -118,8 +118,12 @@ def main() -> None:
     ap.add_argument("--model", action="append", default=[], metavar="NAME=FILE")
     args = ap.parse_args()
     bad = [m for m in args.model if "=" not in m or not Path(m.split("=", 1)[1]).is_file()]
-    if bad:
-        print(f"prediction_breakdown: --model {bad[0]!r}: give NAME=FILE with an existing weights file", file=sys.stderr)
+    names = [m.split("=", 1)[0] for m in args.model]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if bad or twice:
+        what = f"--model {bad[0]!r}: give NAME=FILE with an existing weights file" if bad else \
+            f"--model name {twice[0]!r} given twice"
+        print(f"prediction_breakdown: {what}", file=sys.stderr)
         sys.exit(2)
     moving = True if args.moving else False if args.standing else None
     try:
