@@ -319,3 +319,22 @@ def test_a_crashing_run_process_fails_alone(tmp_path):
     assert results["good"]["status"] == "timeout"
     assert "unknown controller 'nonexistent'" in results["bad"]
     assert [p.name for p in tmp_path.iterdir()] == [good["run_id"]]
+
+
+def test_a_ctrl_c_while_a_run_process_starts_waits_for_the_start():
+    """SIGINT inside ``ctrl_c_after`` is raised as KeyboardInterrupt when the block is done, not in
+    the middle of it (a process start cut in two left its child printing a traceback)."""
+    from sumo_ethics.sweep.executors import ctrl_c_after
+
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    reached = []
+    with pytest.raises(KeyboardInterrupt):
+        with ctrl_c_after():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)  # the signal is handled in here
+            reached.append("end of block")
+    assert reached == ["end of block"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    with ctrl_c_after():  # no Ctrl-C: nothing raised
+        reached.append("quiet")
+    assert reached == ["end of block", "quiet"]

@@ -8,13 +8,16 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
+import threading
 import time
 import traceback
 import uuid
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Iterator
 
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.sweep.grid import RunSpec
@@ -108,6 +111,27 @@ def _child(conn: Any, spec: dict[str, Any], runs_dir: str) -> None:
         conn.close()
 
 
+@contextmanager
+def ctrl_c_after() -> Iterator[None]:
+    """Hold a Ctrl-C (SIGINT) that arrives inside the block until the block is done, then raise it.
+
+    Starting a process from the forkserver is two steps: the forkserver forks the child, then this
+    process writes it what to run. A KeyboardInterrupt between the two left the child reading an
+    empty pipe, and it printed ``EOFError: Ran out of input`` under the sweep's one error line."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield
+        return
+    held: list[int] = []
+    signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if held:
+        raise KeyboardInterrupt
+
+
 class RunProcess:
     """One run in its own process; ``result()`` like a Future's (raises RuntimeError on a crash)."""
 
@@ -115,7 +139,8 @@ class RunProcess:
         self.conn, child = ctx.Pipe(duplex=False)
         self.proc = ctx.Process(target=_child, args=(child, spec, runs_dir), name=f"run-{spec['run_id']}",
                                 daemon=True)
-        self.proc.start()
+        with ctrl_c_after():  # the child gets what to run even when Ctrl-C comes now
+            self.proc.start()
         child.close()
         self._msg: tuple | None = None
 
