@@ -326,15 +326,20 @@ def test_a_ctrl_c_while_a_run_process_starts_waits_for_the_start():
     the middle of it (a process start cut in two left its child printing a traceback)."""
     from sumo_ethics.sweep.executors import ctrl_c_after
 
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    reached = []
-    with pytest.raises(KeyboardInterrupt):
-        with ctrl_c_after():
-            os.kill(os.getpid(), signal.SIGINT)
-            time.sleep(0.05)  # the signal is handled in here
-            reached.append("end of block")
-    assert reached == ["end of block"]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    with ctrl_c_after():  # no Ctrl-C: nothing raised
-        reached.append("quiet")
-    assert reached == ["end of block", "quiet"]
+    # Python's own Ctrl-C handler, as in a terminal (a shell starting pytest in the background
+    # leaves SIGINT ignored, and then there is nothing to hold)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        reached = []
+        with pytest.raises(KeyboardInterrupt):
+            with ctrl_c_after():
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.05)  # the signal is handled in here
+                reached.append("end of block")
+        assert reached == ["end of block"]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        with ctrl_c_after():  # no Ctrl-C: nothing raised
+            reached.append("quiet")
+        assert reached == ["end of block", "quiet"]
+    finally:
+        signal.signal(signal.SIGINT, before)
