@@ -55,7 +55,12 @@ def breakdown(dataset: Path, group: str = "vehicle", scenarios: list[str] | None
 
     from sumo_ethics.predict import features as F
     from sumo_ethics.predict.dataset import load_samples, run_scenarios, subset
-    from sumo_ethics.predict.evaluate import cv_outputs, lstm_outputs
+    from sumo_ethics.predict.evaluate import (
+        STANDING_SPEED,
+        cv_outputs,
+        lstm_outputs,
+        metrics,
+    )
     from sumo_ethics.predict.models import load_model
     from sumo_ethics.predict.predictor import default_weights
 
@@ -69,39 +74,33 @@ def breakdown(dataset: Path, group: str = "vehicle", scenarios: list[str] | None
     if scenarios:
         keep &= np.isin(name, scenarios)
     if moving is not None:
-        keep &= (s["tgt_speed"] >= 0.5) if moving else (s["tgt_speed"] < 0.5)
+        keep &= (s["tgt_speed"] >= STANDING_SPEED) if moving else (s["tgt_speed"] < STANDING_SPEED)
     if not keep.any():
         raise ValueError("no samples left after the filters")
     b = subset(s, np.flatnonzero(keep))
     fut, valid = b["fut"].astype(float), b["fut_valid"].astype(bool)
-    points = valid.sum(1)  # (S,) valid future points per sample
-    last = points - 1  # the last valid point (futures are valid from the start without a gap)
+    last = valid.sum(1) - 1  # each sample's last valid point (futures are valid from the start without a gap)
     rows = np.arange(len(fut))
-
-    def err_sum(mean: np.ndarray) -> np.ndarray:  # (S, T, 2) -> (S,) summed distance over the valid points
-        return (np.hypot(*(mean - fut).transpose(2, 0, 1)) * valid).sum(1)
-
-    def along(mean: np.ndarray) -> np.ndarray:  # (S, T, 2) -> (S,) along-heading offset at the last valid point
-        return mean[rows, last, 0] - fut[rows, last, 0]
-
-    cv = cv_outputs(b)[..., :2]
-    sums = {"constant velocity": err_sum(cv)}  # per point: summed over the subset, then / its points
-    means = {"constant velocity along": along(cv)}  # per sample
+    # (S, [M,] T, 5) Gaussians and (S, M) mode weights (None: one mode), as evaluate-predictor has them
+    outputs = {"constant velocity": (cv_outputs(b), None)}
     for label, path in (models or {"map_cslstm": str(default_weights("map_cslstm"))}).items():
         model, _ = load_model(Path(path))
-        out, weight = lstm_outputs(model, b)
-        per_mode = np.stack([err_sum(out[:, k, :, :2]) for k in range(out.shape[1])], 1)
-        sums[label] = per_mode[:, 0]
-        sums[f"{label} min_ade"] = np.where(weight > 0, per_mode, np.inf).min(1)
-        means[f"{label} top weight"] = weight[:, 0]
-        means[f"{label} along"] = along(out[:, 0, :, :2])
+        outputs[label] = lstm_outputs(model, b)
+    # per sample: how far the most likely mode ends ahead of the truth along the heading [m]
+    along = {label: (p if w is None else p[:, 0])[rows, last, 0] - fut[rows, last, 0] for label, (p, w) in outputs.items()}
     table = []
     for key, m in subsets(b).items():
-        if m.sum() >= 20:
-            row = {"subset": key, "n": int(m.sum())}
-            row.update({c: float(v[m].sum() / points[m].sum()) for c, v in sums.items()})
-            row.update({c: float(v[m].mean()) for c, v in means.items()})
-            table.append(row)
+        if m.sum() < 20:
+            continue
+        row = {"subset": key, "n": int(m.sum())}
+        for label, (p, w) in outputs.items():
+            met = metrics(p[m], fut[m], valid[m], None if w is None else w[m])  # ADE averaged over valid points
+            row[label] = met["ade"]
+            if w is not None:
+                row[f"{label} min_ade"] = met["min_ade"]
+                row[f"{label} top weight"] = float(w[m, 0].mean())
+            row[f"{label} along"] = float(along[label][m].mean())
+        table.append(row)
     if not table:
         raise ValueError(f"fewer than 20 samples in every subset ({int(keep.sum())} in all)")
     return pd.DataFrame(table)
