@@ -22,28 +22,39 @@ BANDS = ((0.0, 20.0), (20.0, 50.0), (50.0, float("inf")))
 
 def count(cfg: Path, seconds: float, seed: int) -> collections.Counter:
     """(direction, band index, blinker "-"/"L"/"R") -> vehicle samples."""
+    import tempfile
+
     import libsumo as ls
 
-    ls.start(["sumo", "-c", str(cfg), "--seed", str(seed), "--step-length", "0.1", "--no-step-log", "true",
-              "--no-warnings", "true"])
+    from sumo_ethics.sim.scenario import read_scenario, redirected
+    from sumo_ethics.sim.session import output_args
+
     out: collections.Counter = collections.Counter()
-    try:
-        for step in range(int(round(seconds / 0.1))):
-            ls.simulationStep()
-            if step % 5:
-                continue
-            for v in ls.vehicle.getIDList():
-                lane = ls.vehicle.getLaneID(v)
-                links = ls.vehicle.getNextLinks(v)
-                if not links or not lane or lane.startswith(":"):
-                    continue
-                left = ls.lane.getLength(lane) - ls.vehicle.getLanePosition(v)
-                band = next(i for i, (lo, hi) in enumerate(BANDS) if lo <= left < hi)
-                sig = ls.vehicle.getSignals(v)
-                out[(links[0][6], band, "R" if sig & 1 else "L" if sig & 2 else "-")] += 1
-    finally:
-        ls.close()
+    with tempfile.TemporaryDirectory() as scratch:  # the config's own outputs go there, not next to it
+        ls.start(["sumo", "-c", str(cfg), "--seed", str(seed), "--step-length", "0.1", "--no-step-log", "true",
+                  "--no-warnings", "true"] + output_args(redirected(read_scenario(cfg), Path(scratch))[0]))
+        try:
+            _count_steps(ls, seconds, out)
+        finally:
+            ls.close()
     return out
+
+
+def _count_steps(ls, seconds: float, out: collections.Counter) -> None:
+    """Step the running simulation for ``seconds`` and count into ``out`` (see :func:`count`)."""
+    for step in range(int(round(seconds / 0.1))):
+        ls.simulationStep()
+        if step % 5:
+            continue
+        for v in ls.vehicle.getIDList():
+            lane = ls.vehicle.getLaneID(v)
+            links = ls.vehicle.getNextLinks(v)
+            if not links or not lane or lane.startswith(":"):
+                continue
+            left = ls.lane.getLength(lane) - ls.vehicle.getLanePosition(v)
+            band = next(i for i, (lo, hi) in enumerate(BANDS) if lo <= left < hi)
+            sig = ls.vehicle.getSignals(v)
+            out[(links[0][6], band, "R" if sig & 1 else "L" if sig & 2 else "-")] += 1
 
 
 def main() -> None:
