@@ -520,7 +520,6 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
         # Python scalars (numpy's scalar arithmetic costs more than the walk itself)
         who, row, lines, first, spacing = [], [], [], [], []
         lane_l, pos_l, speed_l = lanes.tolist(), np.asarray(ctx.lane_pos, dtype=float).tolist(), speed.tolist()
-        left_l, right_l = graph.left.tolist(), graph.right.tolist()
         for i in on.tolist():
             lane = lane_l[i]
             if person[i]:
@@ -540,7 +539,7 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
                 lines.append(graph.polyline(path))
                 first.append(start)
                 spacing.append(ds)
-            for r, side in ((MAP_AHEAD, left_l[lane]), (MAP_AHEAD + 1, right_l[lane])):
+            for r, side in ((MAP_AHEAD, int(graph.left[lane])), (MAP_AHEAD + 1, int(graph.right[lane]))):
                 if side >= 0:
                     s0 = min(start, graph.cum[side][-1])
                     who.append(i)
