@@ -253,9 +253,12 @@ def _dataset_folder(path: Path) -> Path:
 @click.option("--stay-mode-pedestrians/--no-stay-mode-pedestrians", default=None,
               help="Give pedestrians two modes: the first and one that stays where it is (mean 0, spread "
                    "sigma_min), only the two weights learned (instead of one mode).")
+@click.option("--map-version", type=int, default=None,
+              help="Map features a map model reads (default: the dataset's; an earlier one trains a file of "
+                   "that version again, e.g. 3 for the shipped default).")
 def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
           nbr_frame: str | None, modes: int | None, decoder_size: int | None, cv_mode: bool | None,
-          one_mode_pedestrians: bool | None, stay_mode_pedestrians: bool | None) -> None:
+          one_mode_pedestrians: bool | None, stay_mode_pedestrians: bool | None, map_version: int | None) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation; with several modes the
     warm-up is winner-takes-all and the NLL that of the mixture)."""
     from sumo_ethics.predict import train_main
@@ -275,7 +278,7 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
     stay = None if stay_mode_pedestrians is None else ((GROUP_PEDESTRIAN,) if stay_mode_pedestrians else ())
     result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed,
                         hazard_repeat=hazard_repeat, nbr_frame=nbr_frame, modes=modes, dec=decoder_size,
-                        cv_mode=cv_mode, single_mode_groups=single, stay_mode_groups=stay)
+                        cv_mode=cv_mode, single_mode_groups=single, stay_mode_groups=stay, map_version=map_version)
     click.echo(f"weights written to {out}: {result['kind']}, best epoch {result['best_epoch']} "
                f"(validation NLL {result['best_val_nll']:.3f}), stopped by {result['stopped']} after "
                f"{result['cpu_minutes']:.1f} CPU-minutes; the training log is {Path(out).with_suffix('.json')}")

@@ -59,10 +59,30 @@ def test_map_features_by_hand():
     np.testing.assert_allclose(pts[4], [[5 * k, 3.2] for k in range(10)], atol=1e-5)
     assert np.all(pts[[2, 3, 5]] == 0)
     # [on a lane, light ahead, 20/50, green, yellow, red, 13.9/30, red for 3 s / 10 s]
-    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0.4, 0, 0, 1, 13.9 / 30, 0.3], atol=1e-6)
-    # map version 2 models read the first 7 scalars only
-    f2 = F.map_features(g, ctx, np.array([[90.0, 0.0]]), np.array([0.0]), np.array([10.0]), version=2)
-    np.testing.assert_array_equal(f2["map_scalar"], f["map_scalar"][:, :7])
+    # and no blinker (left, right)
+    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0.4, 0, 0, 1, 13.9 / 30, 0.3, 0, 0], atol=1e-6)
+    # map version 2 models read the first 7 scalars only, version 3 the first 8
+    for version, n in ((2, 7), (3, 8)):
+        fv = F.map_features(g, ctx, np.array([[90.0, 0.0]]), np.array([0.0]), np.array([10.0]), version=version)
+        np.testing.assert_array_equal(fv["map_scalar"], f["map_scalar"][:, :n])
+        np.testing.assert_array_equal(fv["map_pts"], f["map_pts"])
+
+
+def test_blinkers_are_the_vehicles_scalars_8_and_9():
+    """SUMO's signal bits: 1 right blinker, 2 left blinker, 4 hazard flasher (both lit); other
+    bits (brake light 8) are not blinkers; pedestrians have none; version 3 reads 8 scalars."""
+    g = junction_graph()
+    bits = np.array([0, 1, 2, 4, 3, 8, 2])
+    n = len(bits)
+    person = np.array([False] * 6 + [True])
+    ctx = F.MapContext(np.zeros(n, dtype=np.int64), np.full(n, 50.0), np.full(n, np.inf), np.zeros(n, dtype=np.int64),
+                       person=person, blinker=bits)
+    xy, yaw, v = np.column_stack([np.full(n, 50.0), np.zeros(n)]), np.zeros(n), np.full(n, 5.0)
+    f = F.map_features(g, ctx, xy, yaw, v)
+    assert f["map_scalar"][:, 8:].tolist() == [[0, 0], [0, 1], [1, 0], [1, 1], [1, 1], [0, 0], [0, 0]]
+    f3 = F.map_features(g, ctx, xy, yaw, v, version=3)
+    assert f3["map_scalar"].shape == (n, 8)
+    np.testing.assert_array_equal(f3["map_scalar"], f["map_scalar"][:, :8])
 
 
 def test_map_features_rotate_into_the_target_frame_and_hold_a_dead_end():
@@ -74,7 +94,7 @@ def test_map_features_rotate_into_the_target_frame_and_hold_a_dead_end():
     ahead = f["map_pts"][0, 0]
     np.testing.assert_allclose(ahead[:, 0], [0, 2.5, 5, 7.5, 10, 10, 10, 10, 10, 10], atol=1e-5)
     np.testing.assert_allclose(ahead[:, 1], 0, atol=1e-5)
-    np.testing.assert_allclose(f["map_scalar"][0], [1, 0, 0, 0, 0, 0, 8.0 / 30, 0], atol=1e-6)
+    np.testing.assert_allclose(f["map_scalar"][0], [1, 0, 0, 0, 0, 0, 8.0 / 30, 0, 0, 0], atol=1e-6)
 
 
 def test_no_lane_means_no_map():
@@ -119,7 +139,7 @@ def test_pedestrian_rows_follow_its_heading_along_a_sidewalk():
     np.testing.assert_allclose(f["map_pts"][0, 0], [[k, 0] for k in range(10)], atol=1e-5)
     assert f["map_valid"][0].tolist() == [True, False, False, False, False, False]
     # no light, and the walking lane's speed limit (the road's) is left out
-    np.testing.assert_allclose(f["map_scalar"][0], [1, 0, 0, 0, 0, 0, 0, 0], atol=1e-6)
+    np.testing.assert_allclose(f["map_scalar"][0], [1, 0, 0, 0, 0, 0, 0, 0, 0, 0], atol=1e-6)
     # at 15 m walking +x: 15, 16, ..., 20 m, then the sidewalk's end held
     f = F.map_features(g, _walker(0, 15.0), np.array([[15.0, 0.0]]), np.array([0.0]), np.array([1.2]))
     np.testing.assert_allclose(f["map_pts"][0, 0, :, 0], [0, 1, 2, 3, 4, 5, 5, 5, 5, 5], atol=1e-5)
@@ -135,7 +155,7 @@ def test_pedestrian_waiting_on_a_walking_area_sees_its_crossing_and_the_red_ligh
     np.testing.assert_allclose(f["map_pts"][0, 0], [[0.5 + k, -1.0] for k in range(10)], atol=1e-5)
     assert f["map_valid"][0].tolist() == [True, False, False, False, False, False]
     # [on a lane, a signalised crossing ahead, 0.5 / 50, green, yellow, red, 0, 2.5 s / 10 s]
-    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0.01, 0, 0, 1, 0, 0.25], atol=1e-6)
+    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0.01, 0, 0, 1, 0, 0.25, 0, 0], atol=1e-6)
 
 
 def test_pedestrian_on_a_crossing_sees_its_rest_and_the_sidewalk_beyond():
@@ -148,7 +168,60 @@ def test_pedestrian_on_a_crossing_sees_its_rest_and_the_sidewalk_beyond():
     np.testing.assert_allclose(f["map_pts"][0, 1], [[8 + k, 0] for k in range(10)], atol=1e-5)
     assert f["map_valid"][0].tolist() == [True, True, False, False, False, False]
     # green with no phase that changes it (tls_switch inf): the clipped 2
-    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0, 1, 0, 0, 0, 2], atol=1e-6)
+    np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0, 1, 0, 0, 0, 2, 0, 0], atol=1e-6)
+
+
+def test_pedestrian_walking_to_a_walking_area_sees_the_crossing_after_it_from_version_4():
+    g = walking_graph()
+    # at 10 m along s_0 walking +x toward the walking area (its next lane, which has no row); the
+    # walk goes on over the crossing: row 2 is the crossing from its nearer end (22, 2), world
+    # (22, 2 + k), in the walker's frame (origin (10, 0), +x = world +x): (12, 2 + k)
+    ctx = F.MapContext(np.array([0]), np.array([10.0]), np.array([np.inf]), np.array([0]), person=np.array([True]),
+                       next_lane=np.array([1]), tls_switch=np.array([np.inf]), after_lane=np.array([2]))
+    args = (np.array([[10.0, 0.0]]), np.array([0.0]), np.array([1.2]))
+    f = F.map_features(g, ctx, *args)
+    assert f["map_valid"][0].tolist() == [True, False, True, False, False, False]
+    np.testing.assert_allclose(f["map_pts"][0, 0], [[k, 0] for k in range(10)], atol=1e-5)
+    np.testing.assert_allclose(f["map_pts"][0, F.MAP_ROW_AFTER], [[12, 2 + k] for k in range(10)], atol=1e-5)
+    # version 3 has no such row; a version-3 model's tensors of the version-4 sample are its own features
+    f3 = F.map_features(g, ctx, *args, version=3)
+    assert f3["map_valid"][0].tolist() == [True, False, False, False, False, False] and not f3["map_pts"][0, 2].any()
+    from sumo_ethics.predict.models import batch_to_tensors
+
+    def tensors(feats, version):
+        batch = {"tgt_group": np.array([F.GROUP_PEDESTRIAN]), "nbr_batch": np.zeros(0, dtype=np.int64),
+                 "tgt_hist": np.zeros((1, F.HIST_STEPS, 2)), "nbr_hist": np.zeros((0, F.HIST_STEPS, 2)),
+                 "nbr_group": np.zeros(0, dtype=np.int64), "nbr_cell": np.zeros(0, dtype=np.int64), **feats}
+        return batch_to_tensors(batch, with_map=True, map_version=version)
+
+    t4_as_3, t3 = tensors(f, 3), tensors(f3, 3)
+    for key in ("map_pts", "map_valid", "map_scalar"):
+        assert torch.equal(t4_as_3[key], t3[key]), key
+    assert tensors(f, 4)["map_valid"][0, 2]
+
+
+def test_the_lane_after_a_walking_area_is_the_first_step_of_the_shortest_walk_to_the_next_sidewalk():
+    """A junction with two walking areas w0 and w1 joined by crossing c0 (linked w0 -> c0 -> w1, as
+    SUMO links a crossing one way, though pedestrians walk it both ways); sidewalk s ends at w0,
+    u starts at w0 and t at w1; v starts at w1 and is long, w0 -> c1 -> w1 is a longer crossing."""
+    from sumo_ethics.sim.lanes import after_walking_area
+
+    ids = ["s_0", ":J_w0_0", ":J_c0_0", ":J_c1_0", ":J_w1_0", "t_0", "u_0"]
+    lengths = [50.0, 3.0, 10.0, 25.0, 3.0, 40.0, 30.0]
+    links = [(":J_w0_0",), (":J_c0_0", ":J_c1_0", "u_0"), (":J_w1_0",), (":J_w1_0",), ("t_0",), (), ()]
+    shapes = [np.array([[0.0, 0.0], [x, 0.0]]) for x in lengths]
+    g = F.LaneGraph.build(ids, shapes, [13.9] * len(ids), links, lengths)
+    w0, c0, w1, t, u = (g.index[k] for k in (":J_w0_0", ":J_c0_0", ":J_w1_0", "t_0", "u_0"))
+    # from s, at w0: on to t over the shorter crossing c0 (13 m against 28 m), or straight to u
+    assert after_walking_area(g, w0, frozenset({"t"})) == c0
+    assert after_walking_area(g, w0, frozenset({"u"})) == u
+    # against the crossing's link direction: from w1 back to s over c0
+    assert after_walking_area(g, w1, frozenset({"s"})) == c0
+    # not over the crossing the walker is on: the longer one is left; an edge not there: none
+    assert after_walking_area(g, w1, frozenset({"s"}), skip=c0) == g.index[":J_c1_0"]
+    assert after_walking_area(g, w0, frozenset({"x"})) == -1
+    # on a crossing, any edge of the walk: the one across (its walk s -> t, arriving at w1: t, not s)
+    assert after_walking_area(g, w1, frozenset({"s", "t"}), skip=c0) == t
 
 
 def test_map_version_1_gives_pedestrians_nothing_and_vehicles_the_same():
@@ -186,7 +259,8 @@ def test_each_target_of_a_mixed_batch_gets_what_it_gets_alone():
     ctx = F.MapContext(lane, np.array([90.0, 10.0, 0.0, 20.0, 1.0, 40.0, 5.0, 3.0]),
                        np.array([20.0, np.inf, 5.0, 150.0, 0.0, np.inf, 30.0, 2.0]), np.array([3, 0, 1, 2, 3, 1, 1, 0]),
                        person=person, next_lane=np.array([-1, 6, -1, -1, 7, -1, -1, -1]),
-                       tls_switch=np.array([12.0, np.inf, 3.0, np.inf, 25.0, 4.0, 0.5, np.inf]))
+                       tls_switch=np.array([12.0, np.inf, 3.0, np.inf, 25.0, 4.0, 0.5, np.inf]),
+                       blinker=np.array([2, 1, 1, 4, 3, 0, 1, 0]), after_lane=np.array([-1, 7, -1, -1, -1, -1, -1, -1]))
     xy = np.array([[90.0, 0.0], [10.0, 0.0], [5.0, 5.0], [20.0, 3.2], [21.0, 1.5], [40.0, 0.0], [100.0, 5.0], [22.0, 17.0]])
     yaw = np.array([0.0, np.pi, 0.3, 0.0, np.pi / 2, 0.0, np.pi / 2, np.pi / 2])
     speed = np.array([10.0, 1.2, 3.0, 14.0, 0.0, 0.0, 6.0, 1.4])
@@ -195,14 +269,19 @@ def test_each_target_of_a_mixed_batch_gets_what_it_gets_alone():
         assert batch["map_valid"][[0, 3, 5, 6]].any(axis=1).all() and not batch["map_valid"][2].any()
         for i in range(len(lane)):
             one = F.MapContext(*(np.asarray(getattr(ctx, k))[i:i + 1] for k in
-                                 ("lane", "lane_pos", "tls_dist", "tls_state", "person", "next_lane", "tls_switch")))
+                                 ("lane", "lane_pos", "tls_dist", "tls_state", "person", "next_lane", "tls_switch",
+                                  "blinker", "after_lane")))
             alone = F.map_features(g, one, xy[i:i + 1], yaw[i:i + 1], speed[i:i + 1], version=version)
             for key in batch:
                 np.testing.assert_array_equal(batch[key][i], alone[key][0], err_msg=f"{key} of target {i}, version {version}")
-    # by hand, version 3: the car before the red light 20 m ahead, which holds 12 s; the yellow one
-    # 150 m ahead (distance clipped to 2 x 50 m), its switch time unknown (clipped to 2 x 10 s)
-    np.testing.assert_allclose(batch["map_scalar"][0], [1, 1, 0.4, 0, 0, 1, 13.9 / 30, 1.2], atol=1e-6)
-    np.testing.assert_allclose(batch["map_scalar"][3], [1, 1, 2, 0, 1, 0, 13.9 / 30, 2], atol=1e-6)
+    # by hand, version 4: the car before the red light 20 m ahead, which holds 12 s, blinking left;
+    # the yellow one 150 m ahead (distance clipped to 2 x 50 m), its switch time unknown (clipped to
+    # 2 x 10 s), hazard flasher on; the walker on s_0 sees the crossing after its walking area
+    np.testing.assert_allclose(batch["map_scalar"][0], [1, 1, 0.4, 0, 0, 1, 13.9 / 30, 1.2, 1, 0], atol=1e-6)
+    np.testing.assert_allclose(batch["map_scalar"][3], [1, 1, 2, 0, 1, 0, 13.9 / 30, 2, 1, 1], atol=1e-6)
+    assert not batch["map_scalar"][[1, 4], 8:].any()  # walkers have no blinkers
+    assert batch["map_valid"][1].tolist() == [True, False, True, False, False, False]
+    assert not batch["map_valid"][4, F.MAP_ROW_AFTER]
 
 
 def _batch(n: int = 3, n_nbr: int = 4):
@@ -479,6 +558,28 @@ def test_dataset_carries_map_context_from_sumo(tmp_path):
     labels = set(np.unique(s["manoeuvre"][veh]).tolist())
     assert {MANOEUVRES.index("straight"), MANOEUVRES.index("turn")} <= labels
     assert (s["manoeuvre"][ped] == -1).all()
+    # (map version 4) the blinkers: nearly every vehicle that turns within the 4 s shows one
+    # (97.6 % on this data) and blinking vehicles turn more often than others
+    blink = veh & (s["map_scalar"][:, 8:].sum(axis=1) > 0)
+    turn = veh & (s["manoeuvre"] == MANOEUVRES.index("turn"))
+    assert (blink & turn).sum() > 0.9 * turn.sum() and (blink & turn).sum() / blink.sum() > turn.sum() / veh.sum()
+    # and the lane after a walking area: most walkers head for one (their next lane, no row of its
+    # own), and each one who walks on within the run steps onto that lane next
+    assert s["map_valid"][ped, F.MAP_ROW_AFTER].mean() > 0.5
+    df = pd.read_parquet(out / "trajectories.parquet", columns=["run_id", "agent_id", "time", "lane", "next_lane",
+                                                                "after_lane"])
+    walks = {k: g.sort_values("time")[["time", "lane"]].to_numpy() for k, g in df[df["lane"] >= 0].groupby(["run_id", "agent_id"])}
+    scored = 0
+    for run, aid, t, area, after in df.loc[df["after_lane"] >= 0, ["run_id", "agent_id", "time", "next_lane",
+                                                                    "after_lane"]].itertuples(index=False):
+        later = walks[run, aid]
+        later = later[later[:, 0] > t, 1]
+        reached = np.flatnonzero(later == area)
+        beyond = later[reached[0]:][later[reached[0]:] != area] if len(reached) else []
+        if len(beyond):
+            scored += 1
+            assert beyond[0] == after, (aid, t)
+    assert scored >= 10
 
 
 SUITE = ROOT / "scenarios" / "suite"

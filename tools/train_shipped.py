@@ -20,7 +20,7 @@ Stages:
 
 ``--models`` picks what is trained: "map_cslstm" (the shipped default, feature version 1 + map
 version 3: the lights' switch times) and "map" (its shipped file has map version 1, from the
-dataset of that version; a dataset written now has version 3), both by default, and/or the
+dataset of that version; a dataset written now has version 4), both by default, and/or the
 ablation's "attention", "cslstm" (their shipped files were trained on the version-1 dataset without map columns or suite
 runs: ``--stages dataset --no-suite`` and then ``--models attention,cslstm`` rebuild them).
 
@@ -57,14 +57,15 @@ SUITE_SELECT_FIRST, SUITE_SELECT = 176, 20
 #: per-model train_main options (others: defaults); map_cslstm (the default) encodes every agent once in its
 #: own frame with 3 trajectory modes (models.default_options: a 64-state decoder, pedestrians with one mode);
 #: seed 0 of map version 3 with a 45 CPU-minute budget is the file the selection rule chose
-#: (docs/predictor_seeds.md);
+#: (docs/predictor_seeds.md); a dataset written now has map version 4, whose samples give a version-3
+#: model exactly the inputs of the version-3 dataset (models.batch_to_tensors), so it is trained at 3;
 #: map (attention) per target as CS-LSTM with one mode
 #: earlier defaults kept in the weights folder, evaluated beside the shipped models: map_cslstm_v4 (map
 #: version 1, seed 2, 20 CPU-minutes), map_cslstm_v3 (the same with the last mode constant velocity),
 #: map_cslstm_v2 (3 free modes, a 128-state decoder, seed 0) and map_cslstm_1mode (one mode)
 PREVIOUS = ("map_cslstm_v4", "map_cslstm_v3", "map_cslstm_v2", "map_cslstm_1mode")
 TRAIN = {"map": {"hazard_repeat": 4, "nbr_frame": "target", "modes": 1},
-         "map_cslstm": {"hazard_repeat": 4, "nbr_frame": "agent", "modes": 3, "seed": 0}}
+         "map_cslstm": {"hazard_repeat": 4, "nbr_frame": "agent", "modes": 3, "seed": 0, "map_version": 3}}
 #: CPU-minute training budget per model (--max-minutes overrides it): the default model (map version 3,
 #: seed 0) was still improving when 20 minutes stopped it; 45 minutes is the shipped file's (best epoch 17 of 18)
 BUDGET_DEFAULT = 20.0

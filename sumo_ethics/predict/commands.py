@@ -51,10 +51,12 @@ def train_main(
     single_mode_groups: tuple[int, ...] | None = None,
     stay_mode_groups: tuple[int, ...] | None = None,
     residual_groups: tuple[int, ...] | None = None,
+    map_version: int | None = None,
 ) -> dict:
     """Train ``model`` ("map", "map_cslstm", "attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
 
-    max_minutes is a CPU-time budget (one thread); max_wall_minutes caps wall time (default 3x).
+    max_minutes is a CPU-time budget (one thread); max_wall_minutes caps wall time (default 3x);
+    map_version: the map features a map model reads (None: the dataset's).
     """
     from sumo_ethics.predict.train import TrainConfig, train_model
 
@@ -63,7 +65,8 @@ def train_main(
                       nbr_frame=nbr_frame, modes=modes, dec=dec, cv_mode=cv_mode,
                       single_mode_groups=None if single_mode_groups is None else tuple(single_mode_groups),
                       stay_mode_groups=None if stay_mode_groups is None else tuple(stay_mode_groups),
-                      residual_groups=None if residual_groups is None else tuple(residual_groups))
+                      residual_groups=None if residual_groups is None else tuple(residual_groups),
+                      map_version=map_version)
     return train_model(Path(dataset), model, Path(out), cfg, progress=progress)
 
 

@@ -11,7 +11,8 @@ varying by seed), and writes to ``out``:
   into the run's lane graph, -1 none), lane_pos (centre), tls_dist, tls_state, next_lane (a
   pedestrian's next lane, -1 none; datasets built before map version 2 have no such column and
   no lanes for pedestrians), tls_switch (how long the light's state holds [s], inf none or no
-  change; from map version 3).
+  change; from map version 3), blinker (a vehicle's signal bits, features.BLINKER_*) and
+  after_lane (a pedestrian's lane after a walking area, -1 none; both from map version 4).
 - ``lane_graphs.pkl``: scenario path -> :class:`features.LaneGraph` of its network.
 - ``samples.npz``: training samples at the model rate (5 Hz, see
   :mod:`sumo_ethics.predict.features`): a target with 3 s history and 4 s future,
@@ -99,7 +100,7 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
         return type_info[type_id, person]
 
     rows_t, rows_id, rows_x, rows_y, rows_a, rows_v = [], [], [], [], [], []
-    rows_lane, rows_pos, rows_td, rows_ts, rows_next, rows_sw = [], [], [], [], [], []
+    rows_lane, rows_pos, rows_td, rows_ts, rows_next, rows_sw, rows_bl, rows_after = [], [], [], [], [], [], [], []
     graph = lane_graph()
     signals = crossing_signals()
     clock = SignalClock()
@@ -130,6 +131,8 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
                 rows_ts.extend(ctx.tls_state.tolist())
                 rows_next.extend(ctx.next_lane.tolist())
                 rows_sw.extend(ctx.tls_switch.tolist())
+                rows_bl.extend(ctx.blinker.tolist())
+                rows_after.extend(ctx.after_lane.tolist())
                 for aid, r in res.items():
                     pos = r[ls.VAR_POSITION]
                     rows_t.append(t)
@@ -163,6 +166,8 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
             "tls_state": np.array(rows_ts, dtype=np.int8),
             "next_lane": np.array(rows_next, dtype=np.int32),
             "tls_switch": np.array(rows_sw, dtype=np.float32),
+            "blinker": np.array(rows_bl, dtype=np.int8),
+            "after_lane": np.array(rows_after, dtype=np.int32),
         }
     ), graph
 
@@ -358,6 +363,8 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
     tls_state = np.zeros((na, nf), dtype=np.int64)
     next_lane = np.full((na, nf), -1, dtype=np.int64)
     tls_switch = np.full((na, nf), np.inf)
+    blinker = np.zeros((na, nf), dtype=np.int64)
+    after_lane = np.full((na, nf), -1, dtype=np.int64)
     has_map = graph is not None and "lane" in d.columns
     if has_map:
         lane[agent_codes, frame] = d["lane"].to_numpy()
@@ -368,6 +375,9 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
             next_lane[agent_codes, frame] = d["next_lane"].to_numpy()
         if "tls_switch" in d.columns:
             tls_switch[agent_codes, frame] = d["tls_switch"].to_numpy()
+        if "blinker" in d.columns:
+            blinker[agent_codes, frame] = d["blinker"].to_numpy()
+            after_lane[agent_codes, frame] = d["after_lane"].to_numpy()
     cls = np.zeros(na, dtype=np.int64)
     cls[agent_codes] = d["cls"].to_numpy()
     hazard_agent = np.array([str(a).startswith("hazard_") for a in agent_names], dtype=bool)
@@ -404,7 +414,7 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
         fut = F.to_target_frame(fpos, pos[ta, f], yaw[ta, f])
         ctx = F.MapContext(lane[ta, f], lane_pos[ta, f], tls_dist[ta, f], tls_state[ta, f],
                            person=feats["tgt_group"] == F.GROUP_PEDESTRIAN, next_lane=next_lane[ta, f],
-                           tls_switch=tls_switch[ta, f])
+                           tls_switch=tls_switch[ta, f], blinker=blinker[ta, f], after_lane=after_lane[ta, f])
         mf = F.map_features(graph if has_map else None, ctx, pos[ta, f], yaw[ta, f], speed[ta, f])
         out["tgt_hist"].append(feats["tgt_hist"])
         out["tgt_group"].append(feats["tgt_group"])

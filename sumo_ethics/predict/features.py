@@ -228,7 +228,7 @@ def own_frame(hist: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------
-# Map and signal context (MAP_VERSION 3), for the map-aware models (kinds "map", "map_cslstm")
+# Map and signal context (MAP_VERSION 4), for the map-aware models (kinds "map", "map_cslstm")
 #
 # For each vehicle or cyclist on a lane:
 #
@@ -267,17 +267,30 @@ def own_frame(hist: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 # following phases in which this link keeps its colour) / 10 s, clipped to [0, 2]; 2 when no
 # phase changes it, 0 without a light. Whether a pedestrian waiting at red walks off within the
 # horizon depends on when the light turns green, which the colour alone does not tell.
-MAP_VERSION = 3
+#
+# Version 4 adds, for vehicles, scalars 8 and 9: the left and the right blinker (SUMO's
+# ``vehicle.getSignals`` bits 1 and 0; the hazard flasher, bit 2, lights both). A vehicle that
+# will turn at the junction ahead shows it (99-100 % within 50 m of the lane's end on the
+# bundled urban scenario, ``tools/blinker_check.py``) and slows for the turn; one going straight
+# shows nothing and keeps its speed through a green light. For pedestrians it adds row 2: when
+# the next lane of its walk is a walking area (which has no row), the lane after it toward the
+# walk's next sidewalk (a crossing, or that sidewalk; ``MapContext.after_lane``), from the end
+# nearer to it. Models of earlier versions see neither (``models.batch_to_tensors``).
+MAP_VERSION = 4
 #: map versions this code can build (version 1: pedestrians get no map context; version 2: no
-#: time to the light's switch, 7 scalars)
-MAP_VERSIONS = (1, 2, 3)
+#: time to the light's switch, 7 scalars; version 3: no blinkers and no lane after a walking area)
+MAP_VERSIONS = (1, 2, 3, 4)
 MAP_AHEAD = 4
 MAP_LANES = MAP_AHEAD + 2
 MAP_POINTS = 10
 MAP_DS_MIN = 2.5
 MAP_DS_PER_SPEED = 0.5
 MAP_DS_PERSON = 1.0
-MAP_SCALARS = 8
+MAP_SCALARS = 10
+#: the row of a pedestrian's lane after a walking area (version 4)
+MAP_ROW_AFTER = 2
+#: ``MapContext.blinker`` bits (SUMO's vehicle signals): right blinker, left blinker, hazard flasher
+BLINKER_RIGHT, BLINKER_LEFT, BLINKER_EMERGENCY = 1, 2, 4
 MAP_KIND_AHEAD, MAP_KIND_LEFT, MAP_KIND_RIGHT = 0, 1, 2
 TLS_DIST_SCALE = 50.0
 TLS_SWITCH_SCALE = 10.0
@@ -287,8 +300,8 @@ TLS_CODES = {"G": 1, "g": 1, "s": 1, "y": 2, "Y": 2, "u": 2, "r": 3, "R": 3}
 
 
 def map_scalars(version: int) -> int:
-    """Number of map scalars of a map version (7 before version 3)."""
-    return MAP_SCALARS if version >= 3 else 7
+    """Number of map scalars of a map version (7 before version 3, 8 in version 3, then 10)."""
+    return MAP_SCALARS if version >= 4 else 8 if version == 3 else 7
 
 
 WALKING_AREA = re.compile(r":.+_w\d+_0")
@@ -419,7 +432,10 @@ class MapContext:
     signalised crossing it is on or walks to next, the distance the one to that crossing.
     person: (N,) bool, pedestrians (None: none); next_lane: (N,) the next lane of a
     pedestrian's walk (-1 none; None: none for all); tls_switch: (N,) how long that light's
-    state holds [s] (inf: no change in its program, or unknown; None: unknown for all)."""
+    state holds [s] (inf: no change in its program, or unknown; None: unknown for all);
+    blinker: (N,) a vehicle's signal bits (BLINKER_RIGHT | BLINKER_LEFT | BLINKER_EMERGENCY; None:
+    none lit); after_lane: (N,) for a pedestrian whose next lane is a walking area, the lane after
+    it toward the walk's next sidewalk (-1 none; None: none for all)."""
 
     lane: np.ndarray
     lane_pos: np.ndarray
@@ -428,11 +444,14 @@ class MapContext:
     person: np.ndarray | None = None
     next_lane: np.ndarray | None = None
     tls_switch: np.ndarray | None = None
+    blinker: np.ndarray | None = None
+    after_lane: np.ndarray | None = None
 
     @staticmethod
     def empty(n: int) -> "MapContext":
         return MapContext(np.full(n, -1, dtype=np.int64), np.zeros(n), np.full(n, np.inf), np.zeros(n, dtype=np.int64),
-                          np.zeros(n, dtype=bool), np.full(n, -1, dtype=np.int64), np.full(n, np.inf))
+                          np.zeros(n, dtype=bool), np.full(n, -1, dtype=np.int64), np.full(n, np.inf),
+                          np.zeros(n, dtype=np.int64), np.full(n, -1, dtype=np.int64))
 
 
 def sample_path(graph: LaneGraph, path: tuple[int, ...], start: float, ds: float) -> np.ndarray:
@@ -477,13 +496,17 @@ def _signal_scalars(out: np.ndarray, rows: np.ndarray, tls_dist: np.ndarray, tls
 
 
 def _walk_lines(graph: LaneGraph, lane: int, lane_pos: float, next_lane: int, xy: np.ndarray,
-                yaw: float) -> list[tuple[tuple[np.ndarray, np.ndarray], float]]:
-    """A pedestrian's rows (see the layout above): (centre line, arc length to start at) each."""
+                yaw: float, after_lane: int = -1) -> list[tuple[int, tuple[np.ndarray, np.ndarray], float]]:
+    """A pedestrian's rows (see the layout above): (row, centre line, arc length to start at)
+    each; ``after_lane`` >= 0 (version 4) fills row MAP_ROW_AFTER."""
     out = []
     if not graph.is_walking_area(lane):
-        out.append(graph.facing(lane, graph.shape_pos(lane, lane_pos), yaw))
+        line, s0 = graph.facing(lane, graph.shape_pos(lane, lane_pos), yaw)
+        out.append((0, line, s0))
     if next_lane >= 0 and next_lane != lane and not graph.is_walking_area(next_lane):
-        out.append((graph.from_nearer_end(next_lane, xy), 0.0))
+        out.append((len(out), graph.from_nearer_end(next_lane, xy), 0.0))
+    if after_lane >= 0 and after_lane != lane and not graph.is_walking_area(after_lane):
+        out.append((MAP_ROW_AFTER, graph.from_nearer_end(after_lane, xy), 0.0))
     return out
 
 
@@ -494,7 +517,8 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
     xy (N, 2), yaw (N,), speed (N,): the targets' current centre, heading and speed; ctx:
     their lanes and signals. Targets without a lane (or without a graph) get all rows invalid
     and zero scalars, and so do pedestrians for ``version`` 1 (the features of models trained
-    before pedestrians had map context); versions before 3 get the first 7 scalars only.
+    before pedestrians had map context); each version gets its own scalars only
+    (:func:`map_scalars`), and before version 4 no blinkers and no pedestrian row MAP_ROW_AFTER.
     """
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     n = len(xy)
@@ -509,6 +533,7 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
         person = np.zeros(n, dtype=bool) if ctx.person is None else np.asarray(ctx.person, dtype=bool)
         nxt = np.full(n, -1) if ctx.next_lane is None else np.asarray(ctx.next_lane)
         switch = np.full(n, np.inf) if ctx.tls_switch is None else np.asarray(ctx.tls_switch, dtype=float)
+        after = np.full(n, -1) if ctx.after_lane is None or version < 4 else np.asarray(ctx.after_lane)
         lanes = np.asarray(ctx.lane, dtype=np.int64)
         on = np.flatnonzero(lanes >= 0)
         if version < 2:  # pedestrians get no map context
@@ -516,6 +541,10 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
         _signal_scalars(scalar, on, ctx.tls_dist, ctx.tls_state, switch)
         veh = on[~person[on]]
         scalar[veh, 6] = graph.speed[lanes[veh]] / SPEED_SCALE
+        if ctx.blinker is not None and version >= 4:
+            bits = np.asarray(ctx.blinker, dtype=np.int64)[veh]
+            scalar[veh, 8] = (bits & (BLINKER_LEFT | BLINKER_EMERGENCY)) > 0
+            scalar[veh, 9] = (bits & (BLINKER_RIGHT | BLINKER_EMERGENCY)) > 0
         # rows (target, row, centre line, first arc length, spacing); the per-target walk runs on
         # Python scalars (numpy's scalar arithmetic costs more than the walk itself)
         who, row, lines, first, spacing = [], [], [], [], []
@@ -523,7 +552,7 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
         for i in on.tolist():
             lane = lane_l[i]
             if person[i]:
-                for r, (line, s0) in enumerate(_walk_lines(graph, lane, pos_l[i], int(nxt[i]), xy[i], float(yaw[i]))):
+                for r, line, s0 in _walk_lines(graph, lane, pos_l[i], int(nxt[i]), xy[i], float(yaw[i]), int(after[i])):
                     who.append(i)
                     row.append(r)
                     lines.append(line)

@@ -81,7 +81,8 @@ The cslstm/attention parameters are built exactly as before (same names, same or
 their shipped files and seeded initialisations are unchanged. Weight files of the map kinds
 carry ``map_version``, the map features they were trained with (features.MAP_VERSIONS: 1
 without pedestrian map context, 2 with it, 3 with the time the light's state holds as an 8th
-scalar; ``TrajectoryLSTM.map_version``), and are refused with any other.
+scalar, 4 with the blinkers as 9th and 10th scalars and the pedestrian's lane after a walking area;
+``TrajectoryLSTM.map_version``), and are refused with any other.
 """
 
 from __future__ import annotations
@@ -637,8 +638,9 @@ def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE, with_m
                      map_version: int = F.MAP_VERSION) -> dict[str, torch.Tensor]:
     """numpy sample batch (see dataset.subset) -> model input tensors, normalised (with the
     map inputs if ``with_map``; a batch without map arrays then gets an empty map). For a
-    ``map_version`` 1 model the pedestrians' map inputs are emptied, as that version built them;
-    models before version 3 get the first 7 scalars."""
+    ``map_version`` 1 model the pedestrians' map inputs are emptied, as that version built them,
+    and before version 4 their row after a walking area; each version gets its own scalars
+    (features.map_scalars)."""
     g = torch.as_tensor(batch["tgt_group"], dtype=torch.long)
     nb = torch.as_tensor(batch["nbr_batch"], dtype=torch.long)
     scale = torch.as_tensor(pos_scale, dtype=torch.float32)[g]
@@ -654,11 +656,17 @@ def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE, with_m
         out["map_pts"] = torch.as_tensor(batch["map_pts"], dtype=torch.float32) / scale[:, None, None, None]
         out["map_valid"] = torch.as_tensor(batch["map_valid"], dtype=torch.bool)
         out["map_scalar"] = torch.as_tensor(batch["map_scalar"], dtype=torch.float32)[:, :F.map_scalars(map_version)]
+        ped = g == F.GROUP_PEDESTRIAN
         if map_version < 2:
-            ped = g == F.GROUP_PEDESTRIAN
             out["map_pts"] = out["map_pts"].masked_fill(ped[:, None, None, None], 0.0)
             out["map_valid"] = out["map_valid"] & ~ped[:, None]
             out["map_scalar"] = out["map_scalar"].masked_fill(ped[:, None], 0.0)
+        elif map_version < 4:  # no pedestrian lane after a walking area (features.MAP_ROW_AFTER)
+            row = torch.zeros(out["map_valid"].shape[1], dtype=torch.bool)
+            row[F.MAP_ROW_AFTER] = True
+            gone = ped[:, None] & row[None, :]
+            out["map_pts"] = out["map_pts"].masked_fill(gone[:, :, None, None], 0.0)
+            out["map_valid"] = out["map_valid"] & ~gone
     if "nbr_yaw" in batch:
         out["nbr_yaw"] = torch.as_tensor(batch["nbr_yaw"], dtype=torch.float32)
     return out

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
 from sumo_ethics.predict.dataset import load_samples, map_version_of, require_nbr_yaw, subset
 from sumo_ethics.predict.models import (
@@ -55,7 +56,9 @@ class TrainConfig:
     (features.GROUP_*) that get mode 0 only (weight 1); stay_mode_groups: class groups that get
     mode 0 and a last mode that stays where it is (models.TrajectoryLSTM); residual_groups: class
     groups decoded as corrections to the constant-velocity rollout; each None:
-    models.default_options."""
+    models.default_options; map_version: the map features a map model reads (features.MAP_VERSIONS,
+    at most the dataset's; None: the dataset's), so a file of an earlier version can be trained
+    again from a newer dataset."""
 
     epochs: int = 40
     mse_epochs: int = 4
@@ -79,6 +82,7 @@ class TrainConfig:
     single_mode_groups: tuple[int, ...] | None = None
     stay_mode_groups: tuple[int, ...] | None = None
     residual_groups: tuple[int, ...] | None = None
+    map_version: int | None = None
 
 
 def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -156,6 +160,11 @@ def train_model(
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise ValueError(f"dataset {dataset} has no train or no validation samples")
     modes = config.modes or default_modes(kind)
+    data_version = map_version_of(dataset)  # the map features its samples were built with
+    map_version = data_version if config.map_version is None else int(config.map_version)
+    if map_version not in F.MAP_VERSIONS or map_version > data_version:
+        raise PredictorError(f"map version {map_version}: dataset {dataset} has map version {data_version}, so a "
+                             f"model of it reads {' to '.join(map(str, (min(F.MAP_VERSIONS), data_version)))}")
     options = {k: v if getattr(config, k) is None else getattr(config, k) for k, v in default_options(kind, modes).items()}
     for given, default in (("stay_mode_groups", "single_mode_groups"), ("single_mode_groups", "stay_mode_groups")):
         if getattr(config, given) is not None and getattr(config, default) is None:  # a group asked for one way
@@ -165,7 +174,7 @@ def train_model(
                            single_mode_groups=tuple(config.single_mode_groups),
                            stay_mode_groups=tuple(config.stay_mode_groups),
                            residual_groups=tuple(config.residual_groups),
-                           map_version=map_version_of(dataset))  # the map features its samples were built with
+                           map_version=map_version)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     n_batches = math.ceil(len(train_idx) / config.batch_size)
     best, best_state, best_epoch, bad = math.inf, None, -1, 0

@@ -11,19 +11,21 @@ arrays; this module is where they come from in a running simulation:
   length, at least 0) and the next traffic light ahead (distance to its stop line and the state
   of the link it will use, and how long that state holds: :class:`SignalClock`). For pedestrians: their sidewalk, crossing or walking area, the next
   lane of their walk, and the signalised crossing they are on or walk to next
-  (:func:`crossing_signals`: distance to its nearer end, its state), as arrays.
+  (:func:`crossing_signals`: distance to its nearer end, its state), as arrays; from map
+  version 4 also each vehicle's blinkers and each pedestrian's lane after a walking area.
 - :class:`SumoMapSource` bundles them for the run-time predictor; the dataset builder calls
   the same functions, so training and run-time inputs come from the same code.
 """
 
 from __future__ import annotations
 
+import heapq
 import re
 
 import libsumo
 import numpy as np
 
-from sumo_ethics.predict.features import MAP_VERSION, TLS_CODES, LaneGraph, MapContext
+from sumo_ethics.predict.features import MAP_VERSION, TLS_CODES, WALKING_AREA, LaneGraph, MapContext
 
 CROSSING = re.compile(r":.+_c\d+_0")
 
@@ -127,9 +129,59 @@ def crossing_signals() -> CrossingSignals:
     return out
 
 
+def _is_internal_walk(lane_id: str) -> bool:
+    return WALKING_AREA.fullmatch(lane_id) is not None or CROSSING.fullmatch(lane_id) is not None
+
+
+def after_walking_area(graph: LaneGraph, area: int, targets: frozenset[str], skip: int = -1) -> int:
+    """The lane a pedestrian takes after walking area ``area`` toward the next sidewalk of its walk.
+
+    The shortest way (by SUMO's lane lengths) from ``area`` through the junction's walking areas
+    and crossings to a lane of an edge in ``targets`` (the walk's next edge; on a crossing, any
+    edge of the walk: the nearest is the one across); returns its first
+    lane after ``area`` (a crossing, or that sidewalk), -1 when there is none within 8 lanes.
+    Pedestrians walk crossings both ways, so links are followed in both directions.
+    ``skip``: a lane not to walk through (the crossing the pedestrian is on). Cached on the graph.
+    """
+    cache = graph.__dict__.setdefault("_after", {})
+    key = (area, targets, skip)
+    if key in cache:
+        return cache[key]
+    adj = graph.__dict__.get("_walk_adj")
+    if adj is None:  # lane -> lanes linked to it either way, for walking areas and crossings
+        adj = {}
+        for i, nxt in enumerate(graph.succ):
+            for j in nxt:
+                if _is_internal_walk(graph.ids[i]) or _is_internal_walk(graph.ids[j]):
+                    adj.setdefault(i, []).append(j)
+                    adj.setdefault(j, []).append(i)
+        adj = graph.__dict__["_walk_adj"] = {k: tuple(v) for k, v in adj.items()}
+    best = -1
+    heap: list[tuple[float, int, int, int]] = [(0.0, 0, area, -1)]  # (length, hops, lane, first lane after area)
+    seen = {area}
+    while heap:
+        dist, hops, lane, first = heapq.heappop(heap)
+        lane_id = graph.ids[lane]
+        if lane != area and not _is_internal_walk(lane_id):
+            if lane_id.rpartition("_")[0] in targets:
+                best = first
+                break
+            continue  # another sidewalk: the walk does not go there
+        if hops >= 8:
+            continue
+        for j in adj.get(lane, ()):
+            if j not in seen and j != skip:
+                seen.add(j)
+                cost = float(graph.lengths[j]) if _is_internal_walk(graph.ids[j]) else 0.0  # to the sidewalk's start
+                heapq.heappush(heap, (dist + cost, hops + 1, j, j if first < 0 else first))
+    cache[key] = best
+    return best
+
+
 def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, ctx: dict[str, np.ndarray],
-                    clock: SignalClock, switch_times: bool) -> None:
-    """Fill row ``i`` of ``ctx``'s arrays for person ``k`` (see :func:`agent_context`)."""
+                    clock: SignalClock, switch_times: bool, after: bool = False) -> None:
+    """Fill row ``i`` of ``ctx``'s arrays for person ``k`` (see :func:`agent_context`); ``after``:
+    also its lane after a walking area (map version 4)."""
     p = libsumo.person
     if p.getVehicle(k):  # riding: getLaneID is its vehicle's lane
         return
@@ -142,6 +194,16 @@ def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, 
     nxt = p.getNextEdge(k)
     nxt_lane = f"{nxt}_0" if nxt else ""
     ctx["next_lane"][i] = graph.index.get(nxt_lane, -1)
+    if after and ctx["next_lane"][i] >= 0 and WALKING_AREA.fullmatch(nxt_lane):
+        edges = p.getEdges(k)
+        road = p.getRoadID(k)
+        if road in edges:  # on a sidewalk: the walk's next edge
+            at = edges.index(road)
+            targets = frozenset(edges[at + 1: at + 2])
+        else:  # on a crossing: the edge of the walk at the other side
+            targets = frozenset(edges)
+        if targets:
+            ctx["after_lane"][i] = after_walking_area(graph, int(ctx["next_lane"][i]), targets, skip=j)
     for cand, on in ((lane_id, True), (nxt_lane, False)):
         sig = signals.get(cand)
         if sig is None or cand not in graph.index:
@@ -169,15 +231,17 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
     here when not given and there are persons); clock: a :class:`SignalClock` kept across
     steps (it caches the lights' programs; a new one when not given); version: the map version
     the context is for: what it does not use is not looked up (version 1: persons get no
-    context; before 3: no switch times, tls_switch inf).
+    context; before 3: no switch times, tls_switch inf; before 4: no blinkers (0) and no lane
+    after a walking area (-1): :func:`after_walking_area`).
     """
     n = len(ids)
     person = np.asarray(person, dtype=bool)
     ctx = {"lane": np.full(n, -1, dtype=np.int64), "lane_pos": np.zeros(n), "tls_dist": np.full(n, np.inf),
            "tls_state": np.zeros(n, dtype=np.int64), "next_lane": np.full(n, -1, dtype=np.int64),
-           "tls_switch": np.full(n, np.inf)}
+           "tls_switch": np.full(n, np.inf), "blinker": np.zeros(n, dtype=np.int64),
+           "after_lane": np.full(n, -1, dtype=np.int64)}
     lane, pos, tls_dist, tls_state = ctx["lane"], ctx["lane_pos"], ctx["tls_dist"], ctx["tls_state"]
-    walks, switch_times = version >= 2, version >= 3
+    walks, switch_times, v4 = version >= 2, version >= 3, version >= 4
     if walks and signals is None and person.any():
         signals = crossing_signals()
     clock = SignalClock() if clock is None else clock
@@ -188,10 +252,10 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
             if not walks:
                 continue
             try:
-                _person_context(graph, signals, k, i, ctx, clock, switch_times)
+                _person_context(graph, signals, k, i, ctx, clock, switch_times, after=v4)
             except libsumo.TraCIException:  # left the simulation in between: no context
                 lane[i], pos[i], tls_dist[i], tls_state[i], ctx["next_lane"][i] = -1, 0.0, np.inf, 0, -1
-                ctx["tls_switch"][i] = np.inf
+                ctx["tls_switch"][i], ctx["after_lane"][i] = np.inf, -1
             continue
         try:
             lane_id = v.getLaneID(k)
@@ -202,6 +266,8 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
             # SUMO's lane position is the front bumper's; the features use the centre's
             pos[i] = max(v.getLanePosition(k) - 0.5 * v.getLength(k), 0.0)
             nxt = v.getNextTLS(k)
+            if v4:
+                ctx["blinker"][i] = v.getSignals(k) & 7  # right, left blinker, hazard flasher
         except libsumo.TraCIException:  # left the simulation in between: no context
             lane[i] = -1
             continue
@@ -211,7 +277,8 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
             if switch_times:
                 ctx["tls_switch"][i] = clock.holds(nxt[0][0], int(nxt[0][1]))
     return MapContext(lane=lane, lane_pos=pos, tls_dist=tls_dist, tls_state=tls_state, person=person,
-                      next_lane=ctx["next_lane"], tls_switch=ctx["tls_switch"])
+                      next_lane=ctx["next_lane"], tls_switch=ctx["tls_switch"], blinker=ctx["blinker"],
+                      after_lane=ctx["after_lane"])
 
 
 class SumoMapSource:
@@ -251,7 +318,7 @@ class TrafficRecorder:
         self.sim_dt = sim_dt
         self.cols: dict[str, list] = {k: [] for k in ("time", "agent_id", "cls", "x", "y", "yaw", "speed", "length",
                                                       "width", "lane", "lane_pos", "tls_dist", "tls_state",
-                                                      "next_lane", "tls_switch")}
+                                                      "next_lane", "tls_switch", "blinker", "after_lane")}
         self._types: dict[tuple[str, bool], tuple[float, float, int]] = {}
 
     def _info(self, type_id: str, person: bool) -> tuple[float, float, int]:
@@ -295,3 +362,5 @@ class TrafficRecorder:
                 c["tls_state"].append(int(ctx.tls_state[i]) if ctx is not None else 0)
                 c["next_lane"].append(int(ctx.next_lane[i]) if ctx is not None else -1)
                 c["tls_switch"].append(float(ctx.tls_switch[i]) if ctx is not None else np.inf)
+                c["blinker"].append(int(ctx.blinker[i]) if ctx is not None else 0)
+                c["after_lane"].append(int(ctx.after_lane[i]) if ctx is not None else -1)

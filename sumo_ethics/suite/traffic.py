@@ -71,5 +71,7 @@ def record_scenario(scenario_dir: Path | str) -> tuple[pd.DataFrame, Any]:
         "tls_dist": np.array(c["tls_dist"], dtype=np.float32), "tls_state": np.array(c["tls_state"], dtype=np.int8),
         "next_lane": np.array(c["next_lane"], dtype=np.int32),
         "tls_switch": np.array(c["tls_switch"], dtype=np.float32),
+        "blinker": np.array(c["blinker"], dtype=np.int8),
+        "after_lane": np.array(c["after_lane"], dtype=np.int32),
     })
     return df, ctrl.recorder.graph
