@@ -138,10 +138,16 @@ def after_walking_area(graph: LaneGraph, area: int, targets: frozenset[str], ski
 
     The shortest way (by SUMO's lane lengths) from ``area`` through the junction's walking areas
     and crossings to a lane of an edge in ``targets`` (the walk's next edge; on a crossing, any
-    edge of the walk: the nearest is the one across); returns its first
-    lane after ``area`` (a crossing, or that sidewalk), -1 when there is none within 8 lanes.
-    Pedestrians walk crossings both ways, so links are followed in both directions.
-    ``skip``: a lane not to walk through (the crossing the pedestrian is on). Cached on the graph.
+    edge of the walk: the nearest is the one across). Returns the way's first lane after ``area``
+    (a crossing, or that sidewalk), -1 when there is none within 8 lanes. Pedestrians walk
+    crossings both ways, so links are followed in both directions. ``skip``: a lane not to walk
+    through (the crossing the pedestrian is on). Cached on the graph.
+
+    SUMO's own router adds 20 s for a crossing that is red when the pedestrian enters the walking
+    area, and routes again while it waits there, so on a diagonal walk (two crossings either
+    way) it may take the other one: ``tools/walk_check.py`` measures how often this is right.
+    Reckoning the lights in here was tried and was right less often (93.7 against 95.0 % of
+    4,186 rows on urban and urban_grid).
     """
     cache = graph.__dict__.setdefault("_after", {})
     key = (area, targets, skip)
@@ -158,9 +164,12 @@ def after_walking_area(graph: LaneGraph, area: int, targets: frozenset[str], ski
         adj = graph.__dict__["_walk_adj"] = {k: tuple(v) for k, v in adj.items()}
     best = -1
     heap: list[tuple[float, int, int, int]] = [(0.0, 0, area, -1)]  # (length, hops, lane, first lane after area)
-    seen = {area}
+    done: set[int] = set()
     while heap:
         dist, hops, lane, first = heapq.heappop(heap)
+        if lane in done:
+            continue
+        done.add(lane)
         lane_id = graph.ids[lane]
         if lane != area and not _is_internal_walk(lane_id):
             if lane_id.rpartition("_")[0] in targets:
@@ -170,10 +179,10 @@ def after_walking_area(graph: LaneGraph, area: int, targets: frozenset[str], ski
         if hops >= 8:
             continue
         for j in adj.get(lane, ()):
-            if j not in seen and j != skip:
-                seen.add(j)
-                cost = float(graph.lengths[j]) if _is_internal_walk(graph.ids[j]) else 0.0  # to the sidewalk's start
-                heapq.heappush(heap, (dist + cost, hops + 1, j, j if first < 0 else first))
+            if j in done or j == skip:
+                continue
+            cost = float(graph.lengths[j]) if _is_internal_walk(graph.ids[j]) else 0.0  # a sidewalk: from its near end
+            heapq.heappush(heap, (dist + cost, hops + 1, j, j if first < 0 else first))
     cache[key] = best
     return best
 
