@@ -48,6 +48,8 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "has map version 4, so a model of it reads 1 to 4" in err
     assert not (tmp_path / "v5.pt").exists()
+    assert main(["train", str(data), "--model", "cslstm", "--out", str(tmp_path / "c.pt"), "--map-version", "3"]) == 2
+    assert "cslstm reads no map" in capsys.readouterr().err
     # a two-mode model trains (winner-takes-all warm-up, then the mixture NLL) and is evaluated
     modes2 = tmp_path / "m2.pt"
     assert main(["train", str(data), "--out", str(modes2), "--max-minutes", "0.05", "--modes", "2"]) == 0

@@ -176,7 +176,7 @@ def evaluate(
         if model.kind in MAP_KINDS and model.map_version > data_map_version:
             from sumo_ethics.predict import PredictorError
 
-            raise PredictorError(f"{name} ({path}) reads map version {model.map_version} (pedestrians' map context), "
+            raise PredictorError(f"{name} ({path}) reads map version {model.map_version}, "
                                  f"dataset {dataset} has version {data_map_version}: build the dataset again")
         if model.nbr_frame == "agent":
             require_nbr_yaw(batch, dataset, who=f"{name} ({path})")

@@ -328,6 +328,11 @@ class LaneGraph:
         self._poly: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
         self._rev: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
+    def __getstate__(self) -> dict:
+        """Pickled without the walking-area caches of sim.lanes.after_walking_area (an answer of
+        that code as it was must not come back with a lane graph stored in a dataset)."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("_after", "_walk_adj")}
+
     @classmethod
     def build(cls, ids, shapes, speed, links, lengths=None) -> "LaneGraph":
         """From lane ids, shapes, limits and successor ids; lane ``edge_i``'s left neighbour is
@@ -547,40 +552,41 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
             scalar[veh, 9] = (bits & (BLINKER_RIGHT | BLINKER_EMERGENCY)) > 0
         # rows (target, row, centre line, first arc length, spacing); the per-target walk runs on
         # Python scalars (numpy's scalar arithmetic costs more than the walk itself)
-        who, row, lines, first, spacing = [], [], [], [], []
+        # rows (target, row, centre line, first arc length, spacing); the per-target walk runs on
+        # Python scalars (numpy's scalar arithmetic costs more than the walk itself). The pedestrians'
+        # rows after a walking area (version 4) are sampled in a second pass, so that the rows of
+        # versions 1-3 are sampled exactly as those versions did (_sample_many's rounding depends
+        # on a row's place among all rows)
+        rows: tuple[list, ...] = ([], [], [], [], [])
+        later: tuple[list, ...] = ([], [], [], [], [])
+
+        def add(to: tuple[list, ...], i: int, r: int, line, s0: float, ds: float) -> None:
+            for column, value in zip(to, (i, r, line, s0, ds)):
+                column.append(value)
+
         lane_l, pos_l, speed_l = lanes.tolist(), np.asarray(ctx.lane_pos, dtype=float).tolist(), speed.tolist()
         for i in on.tolist():
             lane = lane_l[i]
             if person[i]:
                 for r, line, s0 in _walk_lines(graph, lane, pos_l[i], int(nxt[i]), xy[i], float(yaw[i]), int(after[i])):
-                    who.append(i)
-                    row.append(r)
-                    lines.append(line)
-                    first.append(s0)
-                    spacing.append(MAP_DS_PERSON)
+                    add(later if r == MAP_ROW_AFTER else rows, i, r, line, s0, MAP_DS_PERSON)
                 continue
             ds = max(MAP_DS_MIN, MAP_DS_PER_SPEED * speed_l[i])
             reach = (MAP_POINTS - 1) * ds
             start = graph.shape_pos(lane, pos_l[i])
             for r, path in enumerate(graph.paths(lane, start, reach, MAP_AHEAD)):
-                who.append(i)
-                row.append(r)
-                lines.append(graph.polyline(path))
-                first.append(start)
-                spacing.append(ds)
+                add(rows, i, r, graph.polyline(path), start, ds)
             for r, side in ((MAP_AHEAD, int(graph.left[lane])), (MAP_AHEAD + 1, int(graph.right[lane]))):
                 if side >= 0:
                     s0 = min(start, graph.cum[side][-1])
-                    who.append(i)
-                    row.append(r)
-                    lines.append(graph.polyline(graph.first_path(side, s0, reach)))
-                    first.append(s0)
-                    spacing.append(ds)
-        if lines:
+                    add(rows, i, r, graph.polyline(graph.first_path(side, s0, reach)), s0, ds)
+        yaw = np.asarray(yaw, dtype=float)
+        for who, row, lines, first, spacing in (rows, later):
+            if not lines:
+                continue
             who_a, row_a = np.array(who), np.array(row)
             where = np.asarray(first, dtype=float)[:, None] + np.arange(MAP_POINTS, dtype=float) * np.asarray(spacing, dtype=float)[:, None]
             world = _sample_many(lines, where)  # (R, MAP_POINTS, 2)
-            yaw = np.asarray(yaw, dtype=float)
             c, s_ = np.cos(yaw[who_a])[:, None], np.sin(yaw[who_a])[:, None]
             dx = world[..., 0] - xy[who_a, 0][:, None]
             dy = world[..., 1] - xy[who_a, 1][:, None]

@@ -148,6 +148,13 @@ def train_model(
     torch.manual_seed(config.seed)
     torch.use_deterministic_algorithms(True)
     rng = np.random.default_rng(config.seed)
+    data_version = map_version_of(dataset)  # the map features its samples were built with
+    map_version = data_version if config.map_version is None else int(config.map_version)
+    if config.map_version is not None and kind not in MAP_KINDS:
+        raise PredictorError(f"--map-version {config.map_version}: {kind} reads no map")
+    if map_version not in F.MAP_VERSIONS or map_version > data_version:
+        raise PredictorError(f"map version {map_version}: dataset {dataset} has map version {data_version}, so a "
+                             f"model of it reads {' to '.join(map(str, (min(F.MAP_VERSIONS), data_version)))}")
     samples = load_samples(dataset)
     nbr_frame = config.nbr_frame or default_nbr_frame(kind)
     if nbr_frame == "agent":
@@ -160,11 +167,6 @@ def train_model(
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise ValueError(f"dataset {dataset} has no train or no validation samples")
     modes = config.modes or default_modes(kind)
-    data_version = map_version_of(dataset)  # the map features its samples were built with
-    map_version = data_version if config.map_version is None else int(config.map_version)
-    if map_version not in F.MAP_VERSIONS or map_version > data_version:
-        raise PredictorError(f"map version {map_version}: dataset {dataset} has map version {data_version}, so a "
-                             f"model of it reads {' to '.join(map(str, (min(F.MAP_VERSIONS), data_version)))}")
     options = {k: v if getattr(config, k) is None else getattr(config, k) for k, v in default_options(kind, modes).items()}
     for given, default in (("stay_mode_groups", "single_mode_groups"), ("single_mode_groups", "stay_mode_groups")):
         if getattr(config, given) is not None and getattr(config, default) is None:  # a group asked for one way

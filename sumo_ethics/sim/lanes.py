@@ -206,6 +206,8 @@ def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, 
     if after and ctx["next_lane"][i] >= 0 and WALKING_AREA.fullmatch(nxt_lane):
         edges = p.getEdges(k)
         road = p.getRoadID(k)
+        # (a walk that passes an edge twice is taken at its first pass; on a crossing, an edge of
+        # the walk already walked counts too: both are rare, and tools/walk_check.py counts them)
         if road in edges:  # on a sidewalk: the walk's next edge
             at = edges.index(road)
             targets = frozenset(edges[at + 1: at + 2])
