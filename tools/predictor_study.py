@@ -5,7 +5,8 @@ scenarios that no predictor was trained or evaluated on.
 
 Planners (the paper's planner, only the predictor or the priors changed): cv, cslstm,
 attention, map (attention + lanes), map_cslstm (CS-LSTM + lanes, 3 trajectory modes, pedestrians
-with one mode, map version 3: the default), map_cslstm_v4 (map version 1, the default before,
+with one mode, map version 4: the default), map_cslstm_v5 (map version 3, the default before,
+weights/map_cslstm_v5.pt), map_cslstm_v4 (map version 1, the default before that,
 weights/map_cslstm_v4.pt), map_cslstm_v3 (with the last mode constant velocity, the default
 before that, weights/map_cslstm_v3.pt), map_cslstm_v2 (3 free modes, a 128-state decoder, the
 default before), map_cslstm_1mode (the one-mode map_cslstm before that,
@@ -32,6 +33,7 @@ PLANNERS = (
     "attention=predictor=attention",
     "map=predictor=map",
     "map_cslstm=predictor=map_cslstm",
+    f"map_cslstm_v5=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v5.pt'}",
     f"map_cslstm_v4=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v4.pt'}",
     f"map_cslstm_v3=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v3.pt'}",
     f"map_cslstm_v2=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v2.pt'}",
