@@ -11,38 +11,25 @@ direction of its next link).
 
 from __future__ import annotations
 
-import argparse
 import collections
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from _sumo_check import parse_args, sumo_running
+
 BANDS = ((0.0, 20.0), (20.0, 50.0), (50.0, float("inf")))
 
 
 def count(cfg: Path, seconds: float, seed: int) -> collections.Counter:
     """(direction, band index, blinker "-"/"L"/"R") -> vehicle samples."""
-    import tempfile
-
-    import libsumo as ls
-
-    from sumo_ethics.sim.scenario import read_scenario, redirected
-    from sumo_ethics.sim.session import output_args
-
     out: collections.Counter = collections.Counter()
-    with tempfile.TemporaryDirectory() as scratch:  # the config's own outputs go there, not next to it
-        ls.start(["sumo", "-c", str(cfg), "--seed", str(seed), "--step-length", "0.1", "--no-step-log", "true",
-                  "--no-warnings", "true"] + output_args(redirected(read_scenario(cfg), Path(scratch))[0]))
-        try:
-            _count_steps(ls, seconds, out)
-        finally:
-            ls.close()
+    with sumo_running(cfg, seed) as ls:
+        _count_steps(ls, seconds, out)
     return out
 
 
 def _count_steps(ls, seconds: float, out: collections.Counter) -> None:
     """Step the running simulation for ``seconds`` and count into ``out`` (see :func:`count`)."""
-    for step in range(int(round(seconds / 0.1))):
+    for step in range(round(seconds / 0.1)):
         ls.simulationStep()
         if step % 5:
             continue
@@ -58,14 +45,7 @@ def _count_steps(ls, seconds: float, out: collections.Counter) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("config", nargs="?", type=Path, default=ROOT / "scenarios" / "urban" / "urban.sumocfg")
-    ap.add_argument("--seconds", type=float, default=300.0)
-    ap.add_argument("--seed", type=int, default=1)
-    args = ap.parse_args()
-    if not args.config.is_file():
-        print(f"blinker_check: {args.config}: no such file", file=sys.stderr)
-        sys.exit(2)
+    args = parse_args("blinker_check", __doc__)
     stats = count(args.config, args.seconds, args.seed)
     print(f"{args.config.name}, {args.seconds:g} s, seed {args.seed}: share of vehicles per blinker")
     print("distance to lane end | next link | n | none | left | right")
