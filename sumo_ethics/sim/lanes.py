@@ -205,7 +205,7 @@ def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, 
     ctx["next_lane"][i] = graph.index.get(nxt_lane, -1)
     if after and ctx["next_lane"][i] >= 0 and WALKING_AREA.fullmatch(nxt_lane):
         edges = p.getEdges(k)
-        road = p.getRoadID(k)
+        road = lane_id.rpartition("_")[0]  # its edge (the lane read above; no second look-up)
         # (a walk that passes an edge twice is taken at its first pass; on a crossing, an edge of
         # the walk already walked counts too: both are rare, and tools/walk_check.py counts them)
         if road in edges:  # on a sidewalk: the walk's next edge
