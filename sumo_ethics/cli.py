@@ -243,6 +243,9 @@ def _dataset_folder(path: Path) -> Path:
                    "1 for the others, as shipped).")
 @click.option("--decoder-size", type=click.IntRange(8, 512), default=None,
               help="Decoder LSTM states (default: 64 for map_cslstm, 128 for the others, as shipped).")
+@click.option("--decoder-steps", type=click.Choice(["1", "2", "4", "5", "10", "20"]), default=None,
+              help="Decoder LSTM steps over the 4 s horizon; each emits 20 / N output steps of 0.2 s (default: 20, "
+                   "one per output step; fewer are faster at run time).")
 @click.option("--cv-mode/--no-cv-mode", default=None,
               help="Make the last mode's mean the constant-velocity rollout, its weight and spread learned "
                    "(pedestrians, decoded in absolute positions, get 'stands still' there; default: off, as "
@@ -257,8 +260,9 @@ def _dataset_folder(path: Path) -> Path:
               help="Map features a map model reads (default: the dataset's; an earlier one trains a file of "
                    "that version again, e.g. 3 for the shipped default).")
 def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
-          nbr_frame: str | None, modes: int | None, decoder_size: int | None, cv_mode: bool | None,
-          one_mode_pedestrians: bool | None, stay_mode_pedestrians: bool | None, map_version: int | None) -> None:
+          nbr_frame: str | None, modes: int | None, decoder_size: int | None, decoder_steps: str | None,
+          cv_mode: bool | None, one_mode_pedestrians: bool | None, stay_mode_pedestrians: bool | None,
+          map_version: int | None) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation; with several modes the
     warm-up is winner-takes-all and the NLL that of the mixture)."""
     from sumo_ethics.predict import train_main
@@ -278,6 +282,7 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
     stay = None if stay_mode_pedestrians is None else ((GROUP_PEDESTRIAN,) if stay_mode_pedestrians else ())
     result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed,
                         hazard_repeat=hazard_repeat, nbr_frame=nbr_frame, modes=modes, dec=decoder_size,
+                        dec_steps=None if decoder_steps is None else int(decoder_steps),
                         cv_mode=cv_mode, single_mode_groups=single, stay_mode_groups=stay, map_version=map_version)
     click.echo(f"weights written to {out}: {result['kind']}, best epoch {result['best_epoch']} "
                f"(validation NLL {result['best_val_nll']:.3f}), stopped by {result['stopped']} after "

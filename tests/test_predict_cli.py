@@ -57,11 +57,11 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
     # the options can be switched (and are kept in the training log as trained)
     plain = tmp_path / "plain.pt"
     assert main(["train", str(data), "--out", str(plain), "--max-minutes", "0.05", "--decoder-size", "32",
-                 "--cv-mode", "--all-modes-pedestrians"]) == 0
+                 "--decoder-steps", "5", "--cv-mode", "--all-modes-pedestrians"]) == 0
     m = LSTMPredictor.from_file(plain).model
-    assert (m.modes, m.dec_size, m.cv_mode, m.single_mode_groups) == (3, 32, True, ())
+    assert (m.modes, m.dec_size, m.dec_steps, m.cv_mode, m.single_mode_groups) == (3, 32, 5, True, ())
     cfg = json.loads(plain.with_suffix(".json").read_text())["config"]
-    assert (cfg["dec"], cfg["cv_mode"], cfg["single_mode_groups"]) == (32, True, [])
+    assert (cfg["dec"], cfg["dec_steps"], cfg["cv_mode"], cfg["single_mode_groups"]) == (32, 5, True, [])
     assert main(["evaluate-predictor", str(data), "--out", str(tmp_path / "eval")]) == 0
     table = pd.read_csv(tmp_path / "eval" / "prediction_eval.csv")
     assert {"constant_velocity", "cslstm", "attention", "map", "map_cslstm"} <= set(table["model"])

@@ -97,6 +97,44 @@ def test_fast_decoder_equals_nn_lstm_and_old_kinds_keep_nn_lstm():
         assert torch.equal(old.decode(enc), h)
 
 
+
+def test_fewer_decoder_steps_emit_every_output_step_in_order(tmp_path):
+    """dec_steps=5: each decoder state gives 4 consecutive 0.2 s output steps through its own rows
+    of the output layer; an untrained model still starts at constant velocity (mode 0), the run-time
+    and the training path agree, the option survives the weights file, and 3 (not a divisor of 20)
+    is refused."""
+    torch.manual_seed(3)
+    m = TrajectoryLSTM(kind="map_cslstm", nbr_frame="agent", modes=3, dec=64, dec_steps=5).eval()
+    assert m.output.out_features == 4 * 3 * 5
+    b = 4
+    hist = torch.cumsum(torch.full((b, F.HIST_STEPS, 2), 0.05), 1)  # 0.05 per model step along x and y
+    group = torch.tensor([0, 1, 0, 1])
+    none = torch.zeros(0, dtype=torch.long)
+    args = (hist, group, torch.zeros(0, F.HIST_STEPS, 2), none, none, none)
+    with torch.inference_mode():
+        params, _ = m(*args, nbr_yaw=torch.zeros(0), all_modes=True)
+    assert params.shape == (b, 3, F.FUT_STEPS, 5)
+    steps = torch.arange(1, F.FUT_STEPS + 1, dtype=torch.float32)
+    assert torch.allclose(params[:, 0, :, 0], 0.05 * steps.expand(b, -1), atol=1e-6)  # mode 0 = CV
+    # output step k comes from decoder state k // 4, rows (k % 4) x 15 .. + 15 of the output layer
+    with torch.inference_mode():
+        enc = torch.randn(2, m.decoder.input_size)
+        h = m.decode(enc)
+        assert h.shape == (2, 5, 64)
+        out = m.output(h).reshape(2, F.FUT_STEPS, 15)
+        w, bias = m.output.weight, m.output.bias
+        assert torch.allclose(out[:, 6], h[:, 1] @ w[30:45].t() + bias[30:45], atol=1e-6)
+    with torch.enable_grad():
+        slow, _ = m(*args, nbr_yaw=torch.zeros(0), all_modes=True)
+    assert (slow.detach() - params).abs().max() < 1e-5
+    save_model(m, tmp_path / "d5.pt")
+    back, header = load_model(tmp_path / "d5.pt")
+    assert back.dec_steps == 5 and header["config"]["dec_steps"] == 5
+    save_model(TrajectoryLSTM(kind="map_cslstm"), tmp_path / "d20.pt")  # one decoder step per output step:
+    assert "dec_steps" not in load_model(tmp_path / "d20.pt")[1]["config"]  # files as before
+    with pytest.raises(ValueError, match="dec_steps must divide"):
+        TrajectoryLSTM(kind="map_cslstm", dec_steps=3)
+
 def test_decoder_recurrence_first_step_by_hand():
     torch.manual_seed(1)
     pre, w_hh = torch.randn(9, 4 * 16), torch.randn(16, 4 * 16) * 0.3

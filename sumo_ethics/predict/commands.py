@@ -47,6 +47,7 @@ def train_main(
     nbr_frame: str | None = None,
     modes: int | None = None,
     dec: int | None = None,
+    dec_steps: int | None = None,
     cv_mode: bool | None = None,
     single_mode_groups: tuple[int, ...] | None = None,
     stay_mode_groups: tuple[int, ...] | None = None,
@@ -62,7 +63,7 @@ def train_main(
 
     cfg = TrainConfig(epochs=epochs, mse_epochs=mse_epochs, max_minutes=max_minutes, max_train=max_train,
                       seed=seed, threads=threads, max_wall_minutes=max_wall_minutes, hazard_repeat=hazard_repeat,
-                      nbr_frame=nbr_frame, modes=modes, dec=dec, cv_mode=cv_mode,
+                      nbr_frame=nbr_frame, modes=modes, dec=dec, dec_steps=dec_steps, cv_mode=cv_mode,
                       single_mode_groups=None if single_mode_groups is None else tuple(single_mode_groups),
                       stay_mode_groups=None if stay_mode_groups is None else tuple(stay_mode_groups),
                       residual_groups=None if residual_groups is None else tuple(residual_groups),

@@ -64,7 +64,10 @@ stays exactly where the agent is now (mean 0, spread ``sigma_min``, no correlati
 weights learned, the others weight 0 (one Gaussian averages a standing pedestrian's "stays" and
 "walks off"; with a learned spread the stay mode grew wide enough to cover the walkers and mode
 0 collapsed onto the standing ones);
-``dec``, the decoder's size (64 instead of 128). An earlier default
+``dec``, the decoder's size (64 instead of 128); ``dec_steps``, the decoder's steps (default
+``fut_steps``, one per output step; with fewer, each decoder step emits ``fut_steps // dec_steps``
+consecutive output steps through its own rows of the output layer: 5 decoder steps of 0.8 s
+instead of 20 make a call about 1 ms faster, tools/bench_predictor.py). An earlier default
 (weights/map_cslstm_v3.pt) had ``cv_mode`` too; the selection rule of docs/predictor_seeds.md
 chose the file without it.
 
@@ -183,6 +186,7 @@ class TrajectoryLSTM(nn.Module):
         single_mode_groups: tuple[int, ...] = (),
         stay_mode_groups: tuple[int, ...] = (),
         map_version: int = F.MAP_VERSION,
+        dec_steps: int | None = None,
     ) -> None:
         super().__init__()
         if kind not in KINDS:
@@ -193,6 +197,9 @@ class TrajectoryLSTM(nn.Module):
             raise ValueError(f"modes must be an integer from 1 to 8, got {modes!r}")
         if (cv_mode or single_mode_groups or stay_mode_groups) and modes < 2:
             raise ValueError("cv_mode, single_mode_groups and stay_mode_groups need modes >= 2")
+        dec_steps = fut_steps if dec_steps is None else dec_steps
+        if not (isinstance(dec_steps, int) and 1 <= dec_steps <= fut_steps and fut_steps % dec_steps == 0):
+            raise ValueError(f"dec_steps must divide the {fut_steps} output steps, got {dec_steps!r}")
         if set(single_mode_groups) & set(stay_mode_groups):
             raise ValueError("a class group cannot be in both single_mode_groups and stay_mode_groups")
         if cv_mode and not residual:
@@ -228,6 +235,8 @@ class TrajectoryLSTM(nn.Module):
         mask[list(self.residual_groups)] = 1.0
         self.register_buffer("residual_mask", mask, persistent=False)
         self.hist_steps, self.fut_steps = hist_steps, fut_steps
+        #: decoder steps; each emits fut_steps // dec_steps consecutive output steps
+        self.dec_steps = dec_steps
         self.enc_size = enc
         self.input_emb = nn.Linear(2, in_emb)
         self.class_emb = nn.Embedding(n_groups, in_emb)
@@ -250,11 +259,13 @@ class TrajectoryLSTM(nn.Module):
             self.scalar_emb = nn.Linear(self.n_scalars, 32)
             self.map_size = map_size + 32
         self.decoder = nn.LSTM(self.soc_size + dyn + self.map_size, dec, batch_first=True)
-        self.output = nn.Linear(dec, 5 * modes)
+        chunk = fut_steps // dec_steps  # output steps per decoder step (1: the original layout)
+        self.output = nn.Linear(dec, 5 * modes * chunk)
         if self.residual:  # start exactly at constant velocity (mode 0; the other modes start
             with torch.no_grad():  # near it, their random output weights break the symmetry)
-                self.output.weight[:2].zero_()
-                self.output.bias[:2].zero_()
+                mu0 = (torch.arange(chunk)[:, None] * 5 * modes + torch.arange(2)).flatten()  # mode 0's means
+                self.output.weight[mu0] = 0.0
+                self.output.bias[mu0] = 0.0
         if modes > 1:  # mode probabilities from the decoder's input
             self.mode_head = nn.Linear(self.soc_size + dyn + self.map_size, modes)
         self.act = nn.LeakyReLU(0.1)
@@ -375,6 +386,8 @@ class TrajectoryLSTM(nn.Module):
             parts.append(self.map_context(tgt_enc, map_pts, map_valid, map_scalar))
         enc = torch.cat(parts, dim=-1)
         out = self.output(self.decode(enc))
+        if self.dec_steps != self.fut_steps:  # (B, dec_steps, chunk x 5 M) -> (B, FUT_STEPS, 5 M)
+            out = out.reshape(b, self.fut_steps, 5 * self.modes)
         if self.modes > 1:
             out = out.view(b, self.fut_steps, self.modes, 5).transpose(1, 2)  # (B, M, T, 5)
         mu = out[..., :2]
@@ -424,7 +437,7 @@ class TrajectoryLSTM(nn.Module):
         return pooled.transpose(1, 2).reshape(b, self.soc_size)
 
     def decode(self, enc: torch.Tensor) -> torch.Tensor:
-        """(B, E) -> (B, FUT_STEPS, dec) decoder states; the same input every step.
+        """(B, E) -> (B, dec_steps, dec) decoder states; the same input every step.
 
         Without autograd, ``nbr_frame="agent"`` models take the input projection once and run
         the recurrence by hand (:func:`lstm_recurrence`; about 30 % faster than nn.LSTM for a few
@@ -432,11 +445,11 @@ class TrajectoryLSTM(nn.Module):
         Older models keep nn.LSTM, so their shipped outputs stay bit for bit."""
         b = enc.shape[0]
         if self.nbr_frame != "agent" or torch.is_grad_enabled():
-            h_dec, _ = self.decoder(enc[:, None, :].expand(b, self.fut_steps, enc.shape[-1]))
+            h_dec, _ = self.decoder(enc[:, None, :].expand(b, self.dec_steps, enc.shape[-1]))
             return h_dec
         d = self.decoder
         pre = torch.addmm(d.bias_ih_l0 + d.bias_hh_l0, enc, d.weight_ih_l0.t())
-        return lstm_recurrence(pre, d.weight_hh_l0.t(), self.fut_steps)
+        return lstm_recurrence(pre, d.weight_hh_l0.t(), self.dec_steps)
 
     def map_context(self, tgt_enc: torch.Tensor, pts: torch.Tensor | None, valid: torch.Tensor | None,
                     scalar: torch.Tensor | None) -> torch.Tensor:
@@ -560,6 +573,7 @@ def model_config(model: TrajectoryLSTM) -> dict[str, Any]:
         **({"cv_mode": True} if model.cv_mode else {}),
         **({"single_mode_groups": list(model.single_mode_groups)} if model.single_mode_groups else {}),
         **({"stay_mode_groups": list(model.stay_mode_groups)} if model.stay_mode_groups else {}),
+        **({"dec_steps": model.dec_steps} if model.dec_steps != model.fut_steps else {}),
     }
 
 
@@ -626,7 +640,8 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
                                modes=cfg.get("modes", 1), dec=cfg.get("dec", 128), cv_mode=cfg.get("cv_mode", False),
                                single_mode_groups=tuple(cfg.get("single_mode_groups", ())),
                                stay_mode_groups=tuple(cfg.get("stay_mode_groups", ())),
-                               map_version=int(blob.get("map_version") or F.MAP_VERSION))
+                               map_version=int(blob.get("map_version") or F.MAP_VERSION),
+                               dec_steps=cfg.get("dec_steps"))
         model.load_state_dict(blob["state_dict"])
     except Exception as exc:  # noqa: BLE001
         raise PredictorError(f"predictor weights file {path} does not match the model: {exc}") from None

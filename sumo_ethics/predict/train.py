@@ -51,7 +51,8 @@ class TrainConfig:
     rare and the planner's risk depends on them most); nbr_frame: the model's neighbour
     encoding (models.NBR_FRAMES; None: models.default_nbr_frame); modes: Gaussian trajectory modes
     per target (1: a single Gaussian as before; > 1: winner-takes-all MSE warm-up, then the mixture
-    NLL, see models.mixture_nll; None: models.default_modes); dec: decoder LSTM size; cv_mode: the
+    NLL, see models.mixture_nll; None: models.default_modes); dec: decoder LSTM size; dec_steps: its
+    steps (None: one per output step); cv_mode: the
     last mode's mean is the constant-velocity rollout; single_mode_groups: class groups
     (features.GROUP_*) that get mode 0 only (weight 1); stay_mode_groups: class groups that get
     mode 0 and a last mode that stays where it is (models.TrajectoryLSTM); residual_groups: class
@@ -78,6 +79,7 @@ class TrainConfig:
     nbr_frame: str | None = None
     modes: int | None = None
     dec: int | None = None
+    dec_steps: int | None = None
     cv_mode: bool | None = None
     single_mode_groups: tuple[int, ...] | None = None
     stay_mode_groups: tuple[int, ...] | None = None
@@ -173,6 +175,7 @@ def train_model(
             options[default] = tuple(g for g in options[default] if g not in options[given])  # leaves the other
     config = replace(config, nbr_frame=nbr_frame, modes=modes, **options)  # as trained, in the log
     model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes, dec=config.dec, cv_mode=config.cv_mode,
+                           dec_steps=config.dec_steps,
                            single_mode_groups=tuple(config.single_mode_groups),
                            stay_mode_groups=tuple(config.stay_mode_groups),
                            residual_groups=tuple(config.residual_groups),
