@@ -44,6 +44,13 @@ def test_neighbour_yaw_in_the_target_frame_by_hand():
     by_agent = dict(zip(f["nbr_agent"].tolist(), np.degrees(f["nbr_yaw"]).tolist()))
     assert by_agent.keys() == {1, 2}
     assert by_agent[1] == pytest.approx(20.0, abs=1e-4) and by_agent[2] == pytest.approx(-70.0, abs=1e-4)
+    # the neighbours' positions now: agent 1 10 m straight ahead, agent 2 10 m behind; the run time
+    # (histories=False) gets them without the histories, bit for bit the histories' last points
+    np.testing.assert_allclose(f["nbr_pos"][np.argsort(f["nbr_agent"])], [[10.0, 0.0], [-10.0, 0.0]], atol=1e-5)
+    np.testing.assert_array_equal(f["nbr_pos"], f["nbr_hist"][:, -1])
+    lean = F.build_features(hist, np.zeros(3, dtype=np.int64), yaw, targets=np.array([0]), histories=False)
+    assert "nbr_hist" not in lean and "tgt_hist" not in lean
+    np.testing.assert_array_equal(lean["nbr_pos"], f["nbr_pos"])
     # own frame: a straight history along its heading is (-5 m/s x t, 0) for every agent
     own = F.own_frame(hist, yaw)
     t = (np.arange(F.HIST_STEPS) - (F.HIST_STEPS - 1)) * F.MODEL_DT

@@ -169,6 +169,7 @@ def build_features(
     cls: np.ndarray,
     yaw: np.ndarray,
     targets: np.ndarray | None = None,
+    histories: bool = True,
 ) -> dict[str, np.ndarray]:
     """Model inputs for ``targets`` among M agents with (backfilled) histories at MODEL_DT.
 
@@ -180,8 +181,10 @@ def build_features(
     ``nbr_hist`` (P, H, 2) neighbour histories in their target's frame [m];
     ``nbr_group`` (P,); ``nbr_batch`` (P,) target row of each neighbour;
     ``nbr_cell`` (P,) grid cell = lon_index * GRID_LAT + lat_index; ``nbr_agent`` (P,);
-    ``nbr_yaw`` (P,) the neighbour's yaw in its target's frame [rad, wrapped] (read by models
-    that encode every agent once in its own frame, ``nbr_frame="agent"``).
+    ``nbr_yaw`` (P,) the neighbour's yaw in its target's frame [rad, wrapped] and ``nbr_pos``
+    (P, 2) its position there now [m] (``nbr_hist[:, -1]``; both read by models that encode every
+    agent once in its own frame, ``nbr_frame="agent"``, whose run time needs no ``tgt_hist`` and
+    ``nbr_hist``: ``histories=False`` leaves them out).
     """
     hist = np.asarray(hist, dtype=float)
     m = hist.shape[0]
@@ -190,7 +193,6 @@ def build_features(
     now = hist[:, -1, :]
     origin = now[targets]
     tyaw = np.asarray(yaw, dtype=float)[targets]
-    tgt_hist = to_target_frame(hist[targets], origin, tyaw)
     n = len(targets)
     # current positions of every agent in every target's frame: (N, M, 2)
     rel = to_target_frame(np.broadcast_to(now, (n, m, 2)), origin, tyaw)
@@ -209,17 +211,19 @@ def build_features(
     keep = np.ones(len(key), dtype=bool)
     keep[1:] = key[1:] != key[:-1]
     ti, ai, cells = ti[keep], ai[keep], cells[keep]
-    nbr_hist = to_target_frame(hist[ai], origin[ti], tyaw[ti])
-    return {
-        "tgt_hist": tgt_hist.astype(np.float32),
+    out = {
         "tgt_group": groups[targets].astype(np.int64),
-        "nbr_hist": nbr_hist.astype(np.float32),
         "nbr_group": groups[ai].astype(np.int64),
         "nbr_batch": ti.astype(np.int64),
         "nbr_cell": cells.astype(np.int64),
         "nbr_agent": ai.astype(np.int64),
         "nbr_yaw": wrap_angle(np.asarray(yaw, dtype=float)[ai] - tyaw[ti]).astype(np.float32),
+        "nbr_pos": rel[ti, ai].astype(np.float32),  # the same arithmetic as nbr_hist's last point
     }
+    if histories:
+        out["tgt_hist"] = to_target_frame(hist[targets], origin, tyaw).astype(np.float32)
+        out["nbr_hist"] = to_target_frame(hist[ai], origin[ti], tyaw[ti]).astype(np.float32)
+    return out
 
 
 def own_frame(hist: np.ndarray, yaw: np.ndarray) -> np.ndarray:

@@ -118,7 +118,8 @@ class LSTMPredictor:
             yaw_all = np.concatenate([yaw, np.asarray(ego.yaw, dtype=float)])
         else:
             yaw_all = yaw
-        feats = F.build_features(hist, cls, yaw_all, targets=np.arange(n))
+        agent_frame = getattr(self.model, "nbr_frame", "target") == "agent"
+        feats = F.build_features(hist, cls, yaw_all, targets=np.arange(n), histories=not agent_frame)
         g = feats["tgt_group"]
         s = self._scale[g]
         extra = {}
@@ -132,7 +133,7 @@ class LSTMPredictor:
             extra = {"map_pts": torch.from_numpy(mf["map_pts"] / s[:, None, None, None]),
                      "map_valid": torch.from_numpy(mf["map_valid"]),
                      "map_scalar": torch.from_numpy(mf["map_scalar"])}
-        if getattr(self.model, "nbr_frame", "target") == "agent":
+        if agent_frame:
             out, log_w = self._scene_outputs(hist, cls, yaw_all, feats, s, extra)
         else:
             with torch.inference_mode():
@@ -170,7 +171,7 @@ class LSTMPredictor:
         g_all = F.class_group(cls)
         own = F.own_frame(hist, yaw) / self._scale[g_all][:, None, None]
         nb = feats["nbr_batch"]
-        pose = np.concatenate([feats["nbr_hist"][:, -1] / s[nb][:, None], np.cos(feats["nbr_yaw"])[:, None],
+        pose = np.concatenate([feats["nbr_pos"] / s[nb][:, None], np.cos(feats["nbr_yaw"])[:, None],
                                np.sin(feats["nbr_yaw"])[:, None]], -1)
         with torch.inference_mode():
             out = self.model.scene_forward(
