@@ -555,8 +555,6 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
             scalar[veh, 8] = (bits & (BLINKER_LEFT | BLINKER_EMERGENCY)) > 0
             scalar[veh, 9] = (bits & (BLINKER_RIGHT | BLINKER_EMERGENCY)) > 0
         # rows (target, row, centre line, first arc length, spacing); the per-target walk runs on
-        # Python scalars (numpy's scalar arithmetic costs more than the walk itself)
-        # rows (target, row, centre line, first arc length, spacing); the per-target walk runs on
         # Python scalars (numpy's scalar arithmetic costs more than the walk itself). The pedestrians'
         # rows after a walking area (version 4) are sampled in a second pass, so that the rows of
         # versions 1-3 are sampled exactly as those versions did (_sample_many's rounding depends
