@@ -53,3 +53,61 @@ def test_build_dataset_from_sumo(tmp_path):
     assert json.loads((again / "split.json").read_text())["split"] == meta["split"]
     with pytest.raises(ValueError, match="out must differ"):
         rebuild_samples(out, out)
+
+
+def _children(pid: int) -> list[int]:
+    """Process ids whose parent is ``pid`` (Linux /proc)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+def _children_alive(pids: list[int]) -> list[int]:
+    """Those of ``pids`` still running: a zombie has ended (an init that reaps no orphans, as in
+    some containers, leaves multiprocessing's resource tracker so)."""
+    alive = []
+    for pid in pids:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if state != "Z":
+            alive.append(pid)
+    return alive
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+def test_ctrl_c_while_dataset_workers_start_prints_one_line_and_leaves_no_process(tmp_path):
+    """A terminal's Ctrl-C reaches the whole process group. The spawned SUMO workers used to print
+    KeyboardInterrupt tracebacks when it came while they were still importing; now they do not see
+    it, and the command terminates them and prints one line."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    args = [sys.executable, "-m", "sumo_ethics.cli", "dataset", str(ROOT / "scenarios" / "urban" / "urban.sumocfg"),
+            "--out", str(tmp_path / "ds"), "--seeds", "1-4", "--sim-seconds", "900", "--workers", "2"]
+    proc = subprocess.Popen(args, start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    workers: list[int] = []
+    while time.monotonic() < deadline and proc.poll() is None and not workers:
+        workers = _children(proc.pid)
+        time.sleep(0.02)
+    assert workers, "no worker process started"
+    time.sleep(0.3)  # a worker is importing now
+    workers = sorted(set(workers) | set(_children(proc.pid)))
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and err.strip() == "error: interrupted", err[-2000:]
+    time.sleep(0.5)
+    assert not [p for p in _children_alive(workers)], "a worker outlived the command"
+    assert not (tmp_path / "ds").exists()

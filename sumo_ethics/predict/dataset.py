@@ -32,6 +32,7 @@ import json
 import logging
 import multiprocessing as mp
 import pickle
+import signal
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -246,12 +247,40 @@ def _crashed_run(name: str) -> Exception:
     return SimulationError(f"dataset: SUMO crashed while simulating {name}")
 
 
+@contextmanager
+def _ctrl_c_blocked() -> Iterator[None]:
+    """Block Ctrl-C (SIGINT) in this thread inside the block; one that arrives meanwhile is
+    delivered after it. A process started inside inherits the block through fork and exec and so
+    never sees a terminal's Ctrl-C (which reaches the whole process group): it printed
+    KeyboardInterrupt tracebacks when it came while the process was still starting."""
+    if not hasattr(signal, "pthread_sigmask"):  # not on Windows
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def _stop(pool) -> None:
+    """Stop a one-worker pool now: no new job, and its running job's process terminated (its
+    processes ignore Ctrl-C, see :func:`_ctrl_c_blocked`, so nothing else would end them)."""
+    pool.shutdown(wait=False, cancel_futures=True)
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for proc in procs:
+        proc.terminate()
+    for proc in procs:
+        proc.join(timeout=5)
+
+
 def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Callable[[T], Exception]) -> Iterator[R]:
     """``fn(job)`` for every job, each in a fresh spawned process (libsumo: one simulation per
     process), at most ``workers`` at a time; results in job order. A process that dies (SUMO
     crashing) raises ``crashed(job)`` instead of being waited for forever, which is what
     ``multiprocessing.Pool`` does. The next job starts when a result has been taken, so a caller
-    that stops at a result starts nothing more."""
+    that stops at a result starts nothing more. The processes do not see Ctrl-C: this process
+    gets it and terminates the running ones (also after a failure or when the caller stops)."""
     from collections import deque
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
@@ -264,7 +293,9 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Cal
         job = next(todo, None)
         if job is not None:
             pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx)
-            window.append((job, pool, pool.submit(fn, job)))
+            window.append([job, pool, None])  # in the window first: an interrupt in submit still stops it
+            with _ctrl_c_blocked():  # the worker process is started in submit
+                window[-1][2] = pool.submit(fn, job)
 
     try:
         for _ in range(max(1, workers)):
@@ -280,8 +311,8 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Cal
             yield result
             submit()
     finally:
-        for _, pool, _ in window:  # after a failure or an interrupt: nothing new starts
-            pool.shutdown(wait=False, cancel_futures=True)
+        for _, pool, _ in window:  # after a failure or an interrupt: nothing new starts, nothing runs on
+            _stop(pool)
 
 
 def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame, dict[str, F.LaneGraph]]:
