@@ -33,10 +33,10 @@ import logging
 import multiprocessing as mp
 import pickle
 import signal
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from collections.abc import Callable, Iterator
 from typing import TypeVar
 
 import numpy as np
@@ -44,7 +44,6 @@ import pandas as pd
 
 from sumo_ethics.predict import features as F
 from sumo_ethics.sim.frames import front_to_centre
-from sumo_ethics.types import RoadUserClass
 
 log = logging.getLogger(__name__)
 T, R = TypeVar("T"), TypeVar("R")
@@ -62,15 +61,14 @@ class RunSpec:
 
 
 def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
-    """One SUMO run through libsumo -> trajectory rows and the network's lane graph (runs
-    inside a worker process). Map context (lane, lane_pos, tls_dist, tls_state, next_lane; see
-    :mod:`sumo_ethics.sim.lanes`) is read at the model rate only (other rows: lane -1)."""
+    """One SUMO run (:func:`sumo_ethics.sim.recorder.record_run`) -> trajectory rows and the
+    network's lane graph (runs inside a worker process). Map context (lane, lane_pos, tls_dist,
+    tls_state, next_lane, ...; see :mod:`sumo_ethics.sim.lanes`) is read at the model rate only
+    (other rows: lane -1)."""
     import shutil
     import tempfile
 
-    import libsumo as ls
-
-    from sumo_ethics.sim.lanes import SignalClock, agent_context, crossing_signals, lane_graph
+    from sumo_ethics.sim.recorder import record_run
     from sumo_ethics.sim.scenario import read_scenario, redirected
     from sumo_ethics.sim.session import output_args
 
@@ -83,92 +81,35 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
     # folder, as run does: never next to the scenario (eclipse-sumo's tools/game configs would write
     # netstate.xml and tlsstate.xml into the installed package), never shared by parallel runs
     scratch = Path(tempfile.mkdtemp(prefix="sumo_ethics_dataset_"))
-    cmd += output_args(redirected(read_scenario(spec.scenario), scratch)[0])
     try:
-        ls.start(cmd)
-    except BaseException:
-        shutil.rmtree(scratch, ignore_errors=True)
-        raise
-    vars_ = (ls.VAR_POSITION, ls.VAR_ANGLE, ls.VAR_SPEED)
-    type_info: dict[tuple[str, bool], tuple[float, float, int]] = {}
-    agent_type: dict[str, tuple[float, float, int]] = {}
-
-    def info(type_id: str, person: bool = False) -> tuple[float, float, int]:
-        """Length, width and class of a type; a person is a pedestrian whatever its type's vClass (as at run time)."""
-        if (type_id, person) not in type_info:
-            cls = RoadUserClass.PEDESTRIAN if person else RoadUserClass.from_vclass(ls.vehicletype.getVehicleClass(type_id))
-            type_info[type_id, person] = (ls.vehicletype.getLength(type_id), ls.vehicletype.getWidth(type_id), int(cls))
-        return type_info[type_id, person]
-
-    rows_t, rows_id, rows_x, rows_y, rows_a, rows_v = [], [], [], [], [], []
-    rows_lane, rows_pos, rows_td, rows_ts, rows_next, rows_sw, rows_bl, rows_after = [], [], [], [], [], [], [], []
-    graph = lane_graph()
-    signals = crossing_signals()
-    clock = SignalClock()
-    ratio = int(round(F.MODEL_DT / SIM_DT))
-    t0 = ls.simulation.getTime()
-    try:
-        while ls.simulation.getTime() - t0 < spec.sim_seconds and ls.simulation.getMinExpectedNumber() > 0:
-            ls.simulationStep()
-            for v in ls.simulation.getDepartedIDList():
-                ls.vehicle.subscribe(v, vars_)
-                agent_type[v] = info(ls.vehicle.getTypeID(v))
-            for p in ls.simulation.getDepartedPersonIDList():
-                ls.person.subscribe(p, vars_ + (ls.VAR_VEHICLE,))
-                agent_type[p] = info(ls.person.getTypeID(p), person=True)
-            t = ls.simulation.getTime()
-            at_model_rate = int(round(t / SIM_DT)) % ratio == 0
-            for is_person, res in enumerate((ls.vehicle.getAllSubscriptionResults(), ls.person.getAllSubscriptionResults())):
-                if is_person:  # a rider is in its vehicle, not a pedestrian (as at run time)
-                    res = {k: r for k, r in res.items() if not r[ls.VAR_VEHICLE]}
-                ids = list(res)
-                if at_model_rate:
-                    ctx = agent_context(graph, ids, np.full(len(ids), bool(is_person)), signals, clock)
-                else:
-                    ctx = F.MapContext.empty(len(ids))
-                rows_lane.extend(ctx.lane.tolist())
-                rows_pos.extend(ctx.lane_pos.tolist())
-                rows_td.extend(ctx.tls_dist.tolist())
-                rows_ts.extend(ctx.tls_state.tolist())
-                rows_next.extend(ctx.next_lane.tolist())
-                rows_sw.extend(ctx.tls_switch.tolist())
-                rows_bl.extend(ctx.blinker.tolist())
-                rows_after.extend(ctx.after_lane.tolist())
-                for aid, r in res.items():
-                    pos = r[ls.VAR_POSITION]
-                    rows_t.append(t)
-                    rows_id.append(aid)
-                    rows_x.append(pos[0])
-                    rows_y.append(pos[1])
-                    rows_a.append(r[ls.VAR_ANGLE])
-                    rows_v.append(r[ls.VAR_SPEED])
+        cmd += output_args(redirected(read_scenario(spec.scenario), scratch)[0])
+        rows, graph = record_run(cmd, spec.sim_seconds, SIM_DT, F.MODEL_DT)
     finally:
-        ls.close()
         shutil.rmtree(scratch, ignore_errors=True)
-    ids = np.array(rows_id, dtype=object)
-    tinfo = np.array([agent_type[a] for a in rows_id]).reshape(-1, 3)
+    ids = np.array(rows["agent_id"], dtype=object)
+    tinfo = np.array(rows["type"]).reshape(-1, 3)
     length, width, cls = tinfo[:, 0], tinfo[:, 1], tinfo[:, 2].astype(np.int8)
-    x, y, yaw = front_to_centre(np.array(rows_x), np.array(rows_y), np.array(rows_a), length)
+    x, y, yaw = front_to_centre(np.array(rows["x"]), np.array(rows["y"]), np.array(rows["angle"]), length)
     return pd.DataFrame(
         {
             "run_id": np.full(len(ids), spec.run_id, dtype=np.int32),
             "seed": np.full(len(ids), spec.seed, dtype=np.int32),
             "scenario": str(spec.scenario),
             "scale": np.float32(spec.scale),
-            "time": np.round(np.array(rows_t), 3),
+            "time": np.round(np.array(rows["time"]), 3),
             "agent_id": ids.astype(str),
             "cls": cls,
             "x": x, "y": y, "yaw": yaw,
-            "speed": np.array(rows_v, dtype=np.float32),
+            "speed": np.array(rows["speed"], dtype=np.float32),
             "length": length.astype(np.float32), "width": width.astype(np.float32),
-            "lane": np.array(rows_lane, dtype=np.int32),
-            "lane_pos": np.array(rows_pos, dtype=np.float32),
-            "tls_dist": np.array(rows_td, dtype=np.float32),
-            "tls_state": np.array(rows_ts, dtype=np.int8),
-            "next_lane": np.array(rows_next, dtype=np.int32),
-            "tls_switch": np.array(rows_sw, dtype=np.float32),
-            "blinker": np.array(rows_bl, dtype=np.int8),
-            "after_lane": np.array(rows_after, dtype=np.int32),
+            "lane": np.array(rows["lane"], dtype=np.int32),
+            "lane_pos": np.array(rows["lane_pos"], dtype=np.float32),
+            "tls_dist": np.array(rows["tls_dist"], dtype=np.float32),
+            "tls_state": np.array(rows["tls_state"], dtype=np.int8),
+            "next_lane": np.array(rows["next_lane"], dtype=np.int32),
+            "tls_switch": np.array(rows["tls_switch"], dtype=np.float32),
+            "blinker": np.array(rows["blinker"], dtype=np.int8),
+            "after_lane": np.array(rows["after_lane"], dtype=np.int32),
         }
     ), graph
 

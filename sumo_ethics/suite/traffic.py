@@ -2,7 +2,7 @@
 training and evaluation data (``sumo-ethics dataset --suite``).
 
 The scenario runs as the suite defines it (its seed, ego route and hazards) with the ethical planner
-(constant-velocity prediction) driving the ego; a :class:`~sumo_ethics.sim.lanes.TrafficRecorder` reads every road
+(constant-velocity prediction) driving the ego; a :class:`~sumo_ethics.sim.recorder.TrafficRecorder` reads every road
 user but the ego each step, so cut-ins, drifts, emergency stops, red-light runners and
 pedestrians stepping out appear in the data as they appear to the planner.
 """
@@ -30,7 +30,7 @@ class _Recording:
         self.recorder: Any = None
 
     def act(self, scene: Scene) -> Decision:
-        from sumo_ethics.sim.lanes import TrafficRecorder
+        from sumo_ethics.sim.recorder import TrafficRecorder
 
         if self.recorder is None:
             self.recorder = TrafficRecorder(skip=tuple(scene.ego.ids))
