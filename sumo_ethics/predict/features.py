@@ -559,33 +559,30 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
         # rows after a walking area (version 4) are sampled in a second pass, so that the rows of
         # versions 1-3 are sampled exactly as those versions did (_sample_many's rounding depends
         # on a row's place among all rows)
-        rows: tuple[list, ...] = ([], [], [], [], [])
-        later: tuple[list, ...] = ([], [], [], [], [])
-
-        def add(to: tuple[list, ...], i: int, r: int, line, s0: float, ds: float) -> None:
-            for column, value in zip(to, (i, r, line, s0, ds)):
-                column.append(value)
+        rows: list[tuple] = []  # (target, row, centre line, first arc length, spacing)
+        later: list[tuple] = []
 
         lane_l, pos_l, speed_l = lanes.tolist(), np.asarray(ctx.lane_pos, dtype=float).tolist(), speed.tolist()
         for i in on.tolist():
             lane = lane_l[i]
             if person[i]:
                 for r, line, s0 in _walk_lines(graph, lane, pos_l[i], int(nxt[i]), xy[i], float(yaw[i]), int(after[i])):
-                    add(later if r == MAP_ROW_AFTER else rows, i, r, line, s0, MAP_DS_PERSON)
+                    (later if r == MAP_ROW_AFTER else rows).append((i, r, line, s0, MAP_DS_PERSON))
                 continue
             ds = max(MAP_DS_MIN, MAP_DS_PER_SPEED * speed_l[i])
             reach = (MAP_POINTS - 1) * ds
             start = graph.shape_pos(lane, pos_l[i])
             for r, path in enumerate(graph.paths(lane, start, reach, MAP_AHEAD)):
-                add(rows, i, r, graph.polyline(path), start, ds)
+                rows.append((i, r, graph.polyline(path), start, ds))
             for r, side in ((MAP_AHEAD, int(graph.left[lane])), (MAP_AHEAD + 1, int(graph.right[lane]))):
                 if side >= 0:
                     s0 = min(start, graph.cum[side][-1])
-                    add(rows, i, r, graph.polyline(graph.first_path(side, s0, reach)), s0, ds)
+                    rows.append((i, r, graph.polyline(graph.first_path(side, s0, reach)), s0, ds))
         yaw = np.asarray(yaw, dtype=float)
-        for who, row, lines, first, spacing in (rows, later):
-            if not lines:
+        for done in (rows, later):
+            if not done:
                 continue
+            who, row, lines, first, spacing = zip(*done)
             who_a, row_a = np.array(who), np.array(row)
             where = np.asarray(first, dtype=float)[:, None] + np.arange(MAP_POINTS, dtype=float) * np.asarray(spacing, dtype=float)[:, None]
             world = _sample_many(lines, where)  # (R, MAP_POINTS, 2)
