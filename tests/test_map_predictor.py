@@ -703,3 +703,38 @@ def test_shipped_default_keeps_a_queue_at_a_red_light_standing_until_the_light_c
     green, w_g = _queue_modes(1, switch=20.0)
     assert np.all(green[:, 1:] > 1.0)  # at green the other modes pull away
     assert 1.0 - w_g[0, 0] > 1.0 - w[0, 0]  # and the first car is likelier to go than at red
+
+
+def test_fast_file_has_five_decoder_steps_and_keeps_a_red_queue():
+    """weights/map_cslstm_fast.pt: the default's recipe with a 5-step decoder (each step emits 0.8 s).
+    Cars on a straight lane go about 40 m in 4 s; a queue at a red that holds 20 s more stays in its
+    most likely mode, and at green the other modes pull away. Unlike the default, its most likely
+    mode still stays 1 s before the red ends (docs/predictor_seeds.md, "Fewer decoder steps")."""
+    from sumo_ethics.predict.predictor import WEIGHTS_DIR
+
+    path = WEIGHTS_DIR / "map_cslstm_fast.pt"
+    assert path.stat().st_size < 5e6
+    fast = LSTMPredictor.from_file(path, kind="map_cslstm")
+    assert (fast.model.dec_steps, fast.model.modes, fast.model.map_version) == (5, 3, 4)
+    obs = _observation()
+    graph = F.LaneGraph.build(["r_0"], [np.array([[-100.0, 0.0], [400.0, 0.0]])], [13.9], [()])
+
+    def lane(ids, person):
+        n = len(ids)
+        return graph, F.MapContext(np.zeros(n, dtype=np.int64), obs.current.x + 100.0, np.full(n, np.inf),
+                                   np.zeros(n, dtype=np.int64))
+
+    fast.map_source = lane
+    d = fast.predict(obs, 40, 0.1).mean[:, -1] - obs.current.xy
+    assert np.all(np.abs(d[:, 0] - 40.0) < 8.0) and np.all(np.abs(d[:, 1]) < 1.0)
+    moved = {}
+    for state, switch in ((3, 20.0), (1, 20.0), (3, 1.0)):
+        queue, source = _queue_at_light(state, switch)
+        mean, _, w = LSTMPredictor.from_file(path, map_source=source).mode_outputs(queue)
+        moved[state, switch] = (mean[:, :, -1, 0] - queue.current.x[:, None], w)
+    red, w_red = moved[3, 20.0]
+    assert np.all(w_red[:, 0] > 0.9) and np.all(np.abs(red[:, 0]) < 0.1)  # the queue stays (0.03 m at most)
+    green, _ = moved[1, 20.0]
+    assert np.all(green[:, 1:] > 1.0)
+    soon, _ = moved[3, 1.0]
+    assert np.all(np.abs(soon[:, 0]) < 0.1) and np.all(soon[0, 1:] > 1.0)  # stays; only the other modes go
