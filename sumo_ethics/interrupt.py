@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import signal
 import threading
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 from typing import Any, Iterator
 
 from sumo_ethics.errors import Terminated
@@ -31,14 +31,23 @@ def sigterm_as_interrupt() -> Iterator[None]:
 
 
 @contextmanager
-def sigterm_deferred() -> Iterator[None]:
-    """Within: SIGTERM waits (blocked) until the block is left, so the outputs of a run that is
-    ending are written whole. Only in the main thread on platforms with ``pthread_sigmask``."""
-    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+def signals_blocked(*signums: int) -> Iterator[None]:
+    """Within: these signals wait (blocked in this thread) until the block is left, then arrive.
+    A process started inside inherits the block through fork and exec. On platforms with
+    ``pthread_sigmask`` only (elsewhere nothing is blocked)."""
+    if not hasattr(signal, "pthread_sigmask"):
         yield
         return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, set(signums))
     try:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def sigterm_deferred() -> AbstractContextManager[None]:
+    """Within: SIGTERM waits (blocked) until the block is left, so the outputs of a run that is
+    ending are written whole. Only in the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        return nullcontext()
+    return signals_blocked(signal.SIGTERM)

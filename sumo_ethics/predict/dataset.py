@@ -42,6 +42,7 @@ from typing import TypeVar
 import numpy as np
 import pandas as pd
 
+from sumo_ethics.interrupt import signals_blocked
 from sumo_ethics.predict import features as F
 from sumo_ethics.sim.frames import front_to_centre
 
@@ -188,25 +189,9 @@ def _crashed_run(name: str) -> Exception:
     return SimulationError(f"dataset: SUMO crashed while simulating {name}")
 
 
-@contextmanager
-def _ctrl_c_blocked() -> Iterator[None]:
-    """Block Ctrl-C (SIGINT) in this thread inside the block; one that arrives meanwhile is
-    delivered after it. A process started inside inherits the block through fork and exec and so
-    never sees a terminal's Ctrl-C (which reaches the whole process group): it printed
-    KeyboardInterrupt tracebacks when it came while the process was still starting."""
-    if not hasattr(signal, "pthread_sigmask"):  # not on Windows
-        yield
-        return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
-
-
 def _stop(pool) -> None:
     """Stop a one-worker pool now: no new job, and its running job's process terminated (its
-    processes ignore Ctrl-C, see :func:`_ctrl_c_blocked`, so nothing else would end them)."""
+    processes never see Ctrl-C, see :func:`isolated_map`, so nothing else would end them)."""
     pool.shutdown(wait=False, cancel_futures=True)
     procs = list((getattr(pool, "_processes", None) or {}).values())
     for proc in procs:
@@ -235,7 +220,10 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Cal
         if job is not None:
             pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx)
             window.append([job, pool, None])  # in the window first: an interrupt in submit still stops it
-            with _ctrl_c_blocked():  # the worker process is started in submit
+            # the worker process, started in submit, inherits SIGINT blocked: a terminal's Ctrl-C
+            # (to the whole process group) printed KeyboardInterrupt tracebacks from workers still
+            # starting; this process gets it when the block ends
+            with signals_blocked(signal.SIGINT):
                 window[-1][2] = pool.submit(fn, job)
 
     try:
