@@ -98,16 +98,59 @@ def test_ctrl_c_while_dataset_workers_start_prints_one_line_and_leaves_no_proces
     proc = subprocess.Popen(args, start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60
-    workers: list[int] = []
+    workers: set[int] = set()
     while time.monotonic() < deadline and proc.poll() is None and not workers:
-        workers = _children(proc.pid)
+        workers = _spawned_workers_alive(proc.pid)  # a SUMO worker, not the resource tracker
         time.sleep(0.02)
     assert workers, "no worker process started"
-    time.sleep(0.3)  # a worker is importing now
-    workers = sorted(set(workers) | set(_children(proc.pid)))
+    time.sleep(0.3)  # the worker is importing now
+    workers = sorted(workers | set(_children(proc.pid)))
     os.killpg(proc.pid, signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130 and err.strip() == "error: interrupted", err[-2000:]
     time.sleep(0.5)
     assert not [p for p in _children_alive(workers)], "a worker outlived the command"
     assert not (tmp_path / "ds").exists()
+
+
+def _spawned_workers_alive(pid: int) -> set[int]:
+    """Live children of ``pid`` that are multiprocessing spawn workers (not its resource tracker)."""
+    out = set()
+    for child in _children_alive(_children(pid)):
+        try:
+            if b"spawn_main" in Path(f"/proc/{child}/cmdline").read_bytes():
+                out.add(child)
+        except OSError:
+            continue
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+def test_isolated_map_terminates_its_running_workers_when_interrupted():
+    """Two workers sleeping 60 s; an exception in the caller (here from a timer signal, as a
+    Ctrl-C) ends them at once: they never see Ctrl-C themselves, so nothing else would."""
+    import os
+    import signal
+    import time
+
+    from sumo_ethics.predict.dataset import isolated_map
+
+    class Stop(Exception):
+        pass
+
+    def stop(signum, frame):
+        raise Stop
+
+    before = _spawned_workers_alive(os.getpid())
+    old = signal.signal(signal.SIGALRM, stop)
+    jobs = isolated_map(time.sleep, [60.0, 60.0, 60.0], 2, lambda job: RuntimeError("crashed"))
+    t0 = time.monotonic()
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 4.0)  # the two workers have started by then
+        with pytest.raises(Stop):
+            next(jobs)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.signal(signal.SIGALRM, old)
+    assert time.monotonic() - t0 < 15.0
+    assert not _spawned_workers_alive(os.getpid()) - before

@@ -42,7 +42,7 @@ from typing import TypeVar
 import numpy as np
 import pandas as pd
 
-from sumo_ethics.interrupt import signals_blocked
+from sumo_ethics.interrupt import signals_held
 from sumo_ethics.predict import features as F
 from sumo_ethics.sim.frames import front_to_centre
 
@@ -192,8 +192,8 @@ def _crashed_run(name: str) -> Exception:
 def _stop(pool) -> None:
     """Stop a one-worker pool now: no new job, and its running job's process terminated (its
     processes never see Ctrl-C, see :func:`isolated_map`, so nothing else would end them)."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())  # before shutdown, which forgets them
     pool.shutdown(wait=False, cancel_futures=True)
-    procs = list((getattr(pool, "_processes", None) or {}).values())
     for proc in procs:
         proc.terminate()
     for proc in procs:
@@ -222,8 +222,8 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Cal
             window.append([job, pool, None])  # in the window first: an interrupt in submit still stops it
             # the worker process, started in submit, inherits SIGINT blocked: a terminal's Ctrl-C
             # (to the whole process group) printed KeyboardInterrupt tracebacks from workers still
-            # starting; this process gets it when the block ends
-            with signals_blocked(signal.SIGINT):
+            # starting. This process gets it when the block ends, not half-way through submit
+            with signals_held(signal.SIGINT):
                 window[-1][2] = pool.submit(fn, job)
 
     try:
