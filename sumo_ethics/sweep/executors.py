@@ -11,15 +11,15 @@ import shutil
 import signal
 import subprocess
 import sys
-import threading
 import time
 import traceback
 import uuid
-from contextlib import contextmanager
+from contextlib import AbstractContextManager
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Iterable
 
 from sumo_ethics.errors import ConfigError
+from sumo_ethics.interrupt import signals_held
 from sumo_ethics.sweep.grid import RunSpec
 from sumo_ethics.sweep.manifest import result_from_folder
 
@@ -111,25 +111,14 @@ def _child(conn: Any, spec: dict[str, Any], runs_dir: str) -> None:
         conn.close()
 
 
-@contextmanager
-def ctrl_c_after() -> Iterator[None]:
-    """Hold a Ctrl-C (SIGINT) that arrives inside the block until the block is done, then raise it.
+def ctrl_c_after() -> AbstractContextManager[None]:
+    """Hold a Ctrl-C (SIGINT) that arrives inside the block until the block is done, then raise it
+    (:func:`sumo_ethics.interrupt.signals_held`).
 
     Starting a process from the forkserver is two steps: the forkserver forks the child, then this
     process writes it what to run. A KeyboardInterrupt between the two left the child reading an
     empty pipe, and it printed ``EOFError: Ran out of input`` under the sweep's one error line."""
-    if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
-        yield
-        return
-    held: list[int] = []
-    signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-    if held:
-        raise KeyboardInterrupt
+    return signals_held(signal.SIGINT)
 
 
 class RunProcess:
