@@ -256,34 +256,46 @@ def _dataset_folder(path: Path) -> Path:
 @click.option("--stay-mode-pedestrians/--no-stay-mode-pedestrians", default=None,
               help="Give pedestrians two modes: the first and one that stays where it is (mean 0, spread "
                    "sigma_min), only the two weights learned (instead of one mode).")
+@click.option("--stay-mode-cyclists/--no-stay-mode-cyclists", default=None,
+              help="Give cyclists the first mode and the stay mode only (as --stay-mode-pedestrians).")
+@click.option("--stay-speed", type=float, default=None,
+              help="The stay mode only for road users slower than this [m/s] over the last 0.2 s; the faster "
+                   "ones get the first mode alone (default: the stay mode for all of its classes).")
 @click.option("--map-version", type=int, default=None,
               help="Map features a map model reads (default: the dataset's; an earlier one trains a file of "
                    "that version again, e.g. 3 for the shipped default).")
 def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
           nbr_frame: str | None, modes: int | None, decoder_size: int | None, decoder_steps: str | None,
           cv_mode: bool | None, one_mode_pedestrians: bool | None, stay_mode_pedestrians: bool | None,
-          map_version: int | None) -> None:
+          stay_mode_cyclists: bool | None, stay_speed: float | None, map_version: int | None) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation; with several modes the
     warm-up is winner-takes-all and the NLL that of the mixture)."""
     from sumo_ethics.predict import train_main
-    from sumo_ethics.predict.features import GROUP_PEDESTRIAN
+    from sumo_ethics.predict.features import GROUP_CYCLIST, GROUP_PEDESTRIAN
     from sumo_ethics.predict.models import default_modes
 
     if not max_minutes > 0:
         raise click.BadParameter("--max-minutes must be positive")
     if hazard_repeat < 1:
         raise click.BadParameter("--hazard-repeat must be at least 1")
-    if (cv_mode or one_mode_pedestrians or stay_mode_pedestrians) and (modes or default_modes(model)) < 2:
-        raise click.BadParameter(f"--cv-mode, --one-mode-pedestrians and --stay-mode-pedestrians need --modes 2 or "
+    if (cv_mode or one_mode_pedestrians or stay_mode_pedestrians or stay_mode_cyclists) and (modes or default_modes(model)) < 2:
+        raise click.BadParameter(f"--cv-mode, --one-mode-pedestrians and --stay-mode-* need --modes 2 or "
                                  f"more ({model} has {default_modes(model)} mode(s) unless --modes says otherwise)")
     if one_mode_pedestrians and stay_mode_pedestrians:
         raise click.BadParameter("--one-mode-pedestrians and --stay-mode-pedestrians exclude each other")
     single = None if one_mode_pedestrians is None else ((GROUP_PEDESTRIAN,) if one_mode_pedestrians else ())
-    stay = None if stay_mode_pedestrians is None else ((GROUP_PEDESTRIAN,) if stay_mode_pedestrians else ())
+    if stay_speed is not None and not (stay_mode_pedestrians or stay_mode_cyclists):
+        raise click.BadParameter("--stay-speed needs --stay-mode-pedestrians or --stay-mode-cyclists")
+    if stay_speed is not None and not stay_speed > 0:
+        raise click.BadParameter("--stay-speed must be positive")
+    stay = None
+    if stay_mode_pedestrians is not None or stay_mode_cyclists is not None:
+        stay = (GROUP_CYCLIST,) * bool(stay_mode_cyclists) + (GROUP_PEDESTRIAN,) * bool(stay_mode_pedestrians)
     result = train_main(_dataset_folder(dataset_dir), model, out, max_minutes=max_minutes, seed=seed,
                         hazard_repeat=hazard_repeat, nbr_frame=nbr_frame, modes=modes, dec=decoder_size,
                         dec_steps=None if decoder_steps is None else int(decoder_steps),
-                        cv_mode=cv_mode, single_mode_groups=single, stay_mode_groups=stay, map_version=map_version)
+                        cv_mode=cv_mode, single_mode_groups=single, stay_mode_groups=stay, stay_speed=stay_speed,
+                        map_version=map_version)
     click.echo(f"weights written to {out}: {result['kind']}, best epoch {result['best_epoch']} "
                f"(validation NLL {result['best_val_nll']:.3f}), stopped by {result['stopped']} after "
                f"{result['cpu_minutes']:.1f} CPU-minutes; the training log is {Path(out).with_suffix('.json')}")

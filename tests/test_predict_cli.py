@@ -62,6 +62,12 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
     assert (m.modes, m.dec_size, m.dec_steps, m.cv_mode, m.single_mode_groups) == (3, 32, 5, True, ())
     cfg = json.loads(plain.with_suffix(".json").read_text())["config"]
     assert (cfg["dec"], cfg["dec_steps"], cfg["cv_mode"], cfg["single_mode_groups"]) == (32, 5, True, [])
+    # stay modes for pedestrians and cyclists while they stand: pedestrians leave the one-mode groups
+    stay = tmp_path / "stay.pt"
+    assert main(["train", str(data), "--out", str(stay), "--max-minutes", "0.05", "--stay-mode-pedestrians",
+                 "--stay-mode-cyclists", "--stay-speed", "0.5"]) == 0
+    m = LSTMPredictor.from_file(stay).model
+    assert (m.stay_mode_groups, m.single_mode_groups, m.stay_speed) == ((1, 2), (), 0.5)
     assert main(["evaluate-predictor", str(data), "--out", str(tmp_path / "eval")]) == 0
     table = pd.read_csv(tmp_path / "eval" / "prediction_eval.csv")
     assert {"constant_velocity", "cslstm", "attention", "map", "map_cslstm"} <= set(table["model"])
@@ -105,6 +111,15 @@ def test_train_refuses_mode_options_without_modes(tmp_path, capsys):
         assert main(["train", str(tmp_path), "--out", str(tmp_path / "w.pt"), *args]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "need --modes 2 or more" in err[0]
+    assert not (tmp_path / "w.pt").exists()
+
+
+def test_train_refuses_a_stay_speed_without_a_stay_mode(tmp_path, capsys):
+    for args, why in ((["--stay-speed", "0.5"], "--stay-speed needs --stay-mode-pedestrians or --stay-mode-cyclists"),
+                      (["--stay-mode-cyclists", "--stay-speed", "-1"], "--stay-speed must be positive")):
+        assert main(["train", str(tmp_path), "--out", str(tmp_path / "w.pt"), *args]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and why in err[0]
     assert not (tmp_path / "w.pt").exists()
 
 

@@ -244,6 +244,39 @@ def test_stay_mode_pedestrians():
         TrajectoryLSTM(kind="map_cslstm", modes=3, single_mode_groups=(2,), stay_mode_groups=(2,))
 
 
+def test_stay_mode_only_while_standing():
+    """With stay_speed, a stay group's target at or above that speed over its last 0.2 s (pedestrian
+    scale 2 m: 0.5 m/s is 0.05 normalised) gets mode 0 alone; a slower one keeps mode 0 and the stay
+    mode as without the gate; other groups are untouched."""
+    from sumo_ethics.predict import features as F
+
+    groups = [F.GROUP_PEDESTRIAN, F.GROUP_PEDESTRIAN, F.GROUP_PEDESTRIAN, F.GROUP_VEHICLE, F.GROUP_CYCLIST]
+    gated = _options_model(stay_mode_groups=(F.GROUP_PEDESTRIAN, F.GROUP_CYCLIST), stay_speed=0.5)
+    free = _options_model(stay_mode_groups=(F.GROUP_PEDESTRIAN, F.GROUP_CYCLIST))  # the same weights, no gate
+    hist = torch.zeros(5, 16, 2)
+    # last steps: pedestrians 0.04 (0.4 m/s: stands) and 0.06 (0.6 m/s: walks) x 2 m, and exactly 0.5 m/s;
+    # vehicle 1.0 x 5 m over 0.2 s = 25 m/s; cyclist 0.02 x 5 m = 0.5 m/s (its scale is 5 m too)
+    hist[0, -1] = torch.tensor([0.04, 0.0])
+    hist[1, -1] = torch.tensor([0.0, 0.06])
+    hist[2, -1] = torch.tensor([0.03, 0.04])  # |(0.03, 0.04)| = 0.05: 0.5 m/s, at the gate: moving
+    hist[3, -1] = torch.tensor([1.0, 0.0])
+    hist[4, -1] = torch.tensor([0.0, 0.01])  # 0.01 x 5 m / 0.2 s = 0.25 m/s: stands
+    assert gated.pos_scale.tolist()[F.GROUP_PEDESTRIAN] == 2.0 and gated.pos_scale.tolist()[F.GROUP_CYCLIST] == 5.0
+    empty = torch.zeros(0, dtype=torch.long)
+    args = (hist, torch.tensor(groups), torch.zeros(0, 16, 2), empty, empty, empty)
+    out, log_w = gated(*args, nbr_yaw=torch.zeros(0), all_modes=True)
+    out0, log_w0 = free(*args, nbr_yaw=torch.zeros(0), all_modes=True)
+    assert torch.equal(out, out0)  # the gate changes weights only
+    assert log_w[1].tolist() == log_w[2].tolist() == [0.0, -math.inf, -math.inf]
+    for i in (0, 4):
+        assert torch.equal(log_w[i], log_w0[i]) and torch.isfinite(log_w[i, [0, 2]]).all()
+    assert torch.equal(log_w[3], log_w0[3])
+    with pytest.raises(ValueError, match="stay_speed"):
+        TrajectoryLSTM(kind="map_cslstm", modes=3, stay_speed=0.5)
+    with pytest.raises(ValueError, match="stay_speed"):
+        TrajectoryLSTM(kind="map_cslstm", modes=3, stay_mode_groups=(2,), stay_speed=0.0)
+
+
 def test_model_options_survive_the_file_and_reach_the_prediction(tmp_path):
     from sumo_ethics.predict import features as F
 
@@ -260,7 +293,10 @@ def test_model_options_survive_the_file_and_reach_the_prediction(tmp_path):
     assert not {"dec", "cv_mode", "single_mode_groups", "stay_mode_groups"} & set(cfg)
     # a stay group survives the file and reaches the prediction: the pedestrians' middle mode weight 0
     m3, header = load_model(save_model(_options_model(stay_mode_groups=(F.GROUP_PEDESTRIAN,)), tmp_path / "stay.pt"))
-    assert m3.stay_mode_groups == (F.GROUP_PEDESTRIAN,)
+    assert m3.stay_mode_groups == (F.GROUP_PEDESTRIAN,) and m3.stay_speed is None
+    assert "stay_speed" not in header["config"]
+    gated = _options_model(stay_mode_groups=(F.GROUP_PEDESTRIAN,), stay_speed=0.5)
+    assert load_model(save_model(gated, tmp_path / "gated.pt"))[0].stay_speed == 0.5
     p = LSTMPredictor(m3, header, map_source=lane_source(obs)).predict(obs, 20, 0.1)
     assert np.all((p.weight[:2] == 0.0).sum(1) == 1) and np.all(p.weight[2:] > 0.0)  # modes by falling weight
     # in the world frame the stay mode sits on the pedestrian now, spread 0.01 x 2 m (pedestrian scale)

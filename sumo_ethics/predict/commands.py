@@ -51,6 +51,7 @@ def train_main(
     cv_mode: bool | None = None,
     single_mode_groups: tuple[int, ...] | None = None,
     stay_mode_groups: tuple[int, ...] | None = None,
+    stay_speed: float | None = None,
     residual_groups: tuple[int, ...] | None = None,
     map_version: int | None = None,
 ) -> dict:
@@ -66,6 +67,7 @@ def train_main(
                       nbr_frame=nbr_frame, modes=modes, dec=dec, dec_steps=dec_steps, cv_mode=cv_mode,
                       single_mode_groups=None if single_mode_groups is None else tuple(single_mode_groups),
                       stay_mode_groups=None if stay_mode_groups is None else tuple(stay_mode_groups),
+                      stay_speed=stay_speed,
                       residual_groups=None if residual_groups is None else tuple(residual_groups),
                       map_version=map_version)
     return train_model(Path(dataset), model, Path(out), cfg, progress=progress)

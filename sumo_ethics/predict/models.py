@@ -63,7 +63,8 @@ the others weight 0; ``stay_mode_groups``, class groups that get mode 0 and a la
 stays exactly where the agent is now (mean 0, spread ``sigma_min``, no correlation), both
 weights learned, the others weight 0 (one Gaussian averages a standing pedestrian's "stays" and
 "walks off"; with a learned spread the stay mode grew wide enough to cover the walkers and mode
-0 collapsed onto the standing ones);
+0 collapsed onto the standing ones); ``stay_speed`` [m/s], the stay mode only for those slower
+than it over the last 0.2 s of history, the faster ones get mode 0 alone (weight 1);
 ``dec``, the decoder's size (64 instead of 128); ``dec_steps``, the decoder's steps (default
 ``fut_steps``, one per output step; with fewer, each decoder step emits ``fut_steps // dec_steps``
 consecutive output steps through its own rows of the output layer: 5 decoder steps of 0.8 s
@@ -187,6 +188,7 @@ class TrajectoryLSTM(nn.Module):
         stay_mode_groups: tuple[int, ...] = (),
         map_version: int = F.MAP_VERSION,
         dec_steps: int | None = None,
+        stay_speed: float | None = None,
     ) -> None:
         super().__init__()
         if kind not in KINDS:
@@ -200,6 +202,8 @@ class TrajectoryLSTM(nn.Module):
         dec_steps = fut_steps if dec_steps is None else dec_steps
         if not (isinstance(dec_steps, int) and 1 <= dec_steps <= fut_steps and fut_steps % dec_steps == 0):
             raise ValueError(f"dec_steps must divide the {fut_steps} output steps, got {dec_steps!r}")
+        if stay_speed is not None and not (stay_mode_groups and float(stay_speed) > 0):
+            raise ValueError(f"stay_speed needs stay_mode_groups and a positive speed, got {stay_speed!r}")
         if set(single_mode_groups) & set(stay_mode_groups):
             raise ValueError("a class group cannot be in both single_mode_groups and stay_mode_groups")
         if cv_mode and not residual:
@@ -228,6 +232,8 @@ class TrajectoryLSTM(nn.Module):
         self.register_buffer("stay_barred", barred, persistent=False)
         stay_params = torch.tensor([0.0, 0.0, float(sigma_min), float(sigma_min), 0.0])  # mean 0, sigma_min, rho 0
         self.register_buffer("stay_params", stay_params, persistent=False)
+        #: [m/s] a stay group's target at least this fast over the last 0.2 s has no stay mode (None: all have it)
+        self.stay_speed = None if stay_speed is None else float(stay_speed)
         self.sigma_min = float(sigma_min)
         self.residual = bool(residual)
         self.residual_groups = tuple(int(g) for g in residual_groups) if residual else ()
@@ -410,6 +416,10 @@ class TrajectoryLSTM(nn.Module):
         logits = self.mode_head(enc)
         if self.stay_mode_groups:  # these groups get the first and the stay mode (the others weight 0)
             logits = logits.masked_fill(self.stay_mode_mask[tgt_group][:, None] & self.stay_barred, -math.inf)
+        if self.stay_speed is not None:  # ... and only while they stand: a moving one gets mode 0 alone
+            step = torch.linalg.vector_norm(tgt_hist[:, -1] - tgt_hist[:, -2], dim=-1) * self.pos_scale[tgt_group]
+            moving = self.stay_mode_mask[tgt_group] & (step >= self.stay_speed * F.MODEL_DT)
+            logits = torch.cat([logits[:, :-1], logits[:, -1:].masked_fill(moving[:, None], -math.inf)], -1)
         log_w = torch.log_softmax(logits, -1)
         if self.single_mode_groups:  # these groups get mode 0 with weight 1 (the others weight 0)
             log_w = torch.where(self.single_mode_mask[tgt_group][:, None], self.one_mode_log_w, log_w)
@@ -574,6 +584,7 @@ def model_config(model: TrajectoryLSTM) -> dict[str, Any]:
         **({"single_mode_groups": list(model.single_mode_groups)} if model.single_mode_groups else {}),
         **({"stay_mode_groups": list(model.stay_mode_groups)} if model.stay_mode_groups else {}),
         **({"dec_steps": model.dec_steps} if model.dec_steps != model.fut_steps else {}),
+        **({"stay_speed": model.stay_speed} if model.stay_speed is not None else {}),
     }
 
 
@@ -641,7 +652,7 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
                                single_mode_groups=tuple(cfg.get("single_mode_groups", ())),
                                stay_mode_groups=tuple(cfg.get("stay_mode_groups", ())),
                                map_version=int(blob.get("map_version") or F.MAP_VERSION),
-                               dec_steps=cfg.get("dec_steps"))
+                               dec_steps=cfg.get("dec_steps"), stay_speed=cfg.get("stay_speed"))
         model.load_state_dict(blob["state_dict"])
     except Exception as exc:  # noqa: BLE001
         raise PredictorError(f"predictor weights file {path} does not match the model: {exc}") from None

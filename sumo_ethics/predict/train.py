@@ -55,7 +55,8 @@ class TrainConfig:
     steps (None: one per output step); cv_mode: the
     last mode's mean is the constant-velocity rollout; single_mode_groups: class groups
     (features.GROUP_*) that get mode 0 only (weight 1); stay_mode_groups: class groups that get
-    mode 0 and a last mode that stays where it is (models.TrajectoryLSTM); residual_groups: class
+    mode 0 and a last mode that stays where it is (models.TrajectoryLSTM); stay_speed [m/s]: that
+    mode only for targets slower than it (None: for all); residual_groups: class
     groups decoded as corrections to the constant-velocity rollout; each None:
     models.default_options; map_version: the map features a map model reads (features.MAP_VERSIONS,
     at most the dataset's; None: the dataset's), so a file of an earlier version can be trained
@@ -83,6 +84,7 @@ class TrainConfig:
     cv_mode: bool | None = None
     single_mode_groups: tuple[int, ...] | None = None
     stay_mode_groups: tuple[int, ...] | None = None
+    stay_speed: float | None = None
     residual_groups: tuple[int, ...] | None = None
     map_version: int | None = None
 
@@ -177,7 +179,7 @@ def train_model(
     model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes, dec=config.dec, cv_mode=config.cv_mode,
                            dec_steps=config.dec_steps,
                            single_mode_groups=tuple(config.single_mode_groups),
-                           stay_mode_groups=tuple(config.stay_mode_groups),
+                           stay_mode_groups=tuple(config.stay_mode_groups), stay_speed=config.stay_speed,
                            residual_groups=tuple(config.residual_groups),
                            map_version=map_version)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
