@@ -113,6 +113,35 @@ def test_ctrl_c_while_dataset_workers_start_prints_one_line_and_leaves_no_proces
     assert not (tmp_path / "ds").exists()
 
 
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+def test_a_dataset_interrupted_mid_run_leaves_no_scratch_folder(tmp_path):
+    """The runs' scratch folders (the scenario's own outputs) are removed after a Ctrl-C too: a
+    terminated worker cannot remove its own, so the command removes them once its workers are gone.
+    They used to stay in the temporary folder, one per interrupted run."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    args = [sys.executable, "-m", "sumo_ethics.cli", "dataset", str(ROOT / "scenarios" / "urban" / "urban.sumocfg"),
+            "--out", str(tmp_path / "ds"), "--seeds", "1-4", "--sim-seconds", "900", "--workers", "2"]
+    proc = subprocess.Popen(args, start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "TMPDIR": str(tmp)})
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and proc.poll() is None and not any(tmp.rglob("run_*")):
+        time.sleep(0.05)  # until a worker runs SUMO in its scratch folder
+    assert any(tmp.rglob("run_*")), "no run started"
+    time.sleep(1.0)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and err.strip() == "error: interrupted", err[-2000:]
+    assert sorted(p.name for p in tmp.iterdir()) == [], "scratch folders left behind"
+
+
 def _spawned_workers_alive(pid: int) -> set[int]:
     """Live children of ``pid`` that are multiprocessing spawn workers (not its resource tracker)."""
     out = set()

@@ -34,8 +34,8 @@ import multiprocessing as mp
 import pickle
 import signal
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass
+from contextlib import closing, contextmanager
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TypeVar
 
@@ -59,6 +59,8 @@ class RunSpec:
     seed: int
     scale: float
     sim_seconds: float
+    #: folder the run's scratch folder goes in (None: the system's temporary folder)
+    scratch_root: str | None = None
 
 
 def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
@@ -81,7 +83,7 @@ def _simulate(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
     # the scenario's own outputs (output options, dumps of its additional files) go to a scratch
     # folder, as run does: never next to the scenario (eclipse-sumo's tools/game configs would write
     # netstate.xml and tlsstate.xml into the installed package), never shared by parallel runs
-    scratch = Path(tempfile.mkdtemp(prefix="sumo_ethics_dataset_"))
+    scratch = Path(tempfile.mkdtemp(prefix="run_", dir=spec.scratch_root))
     try:
         cmd += output_args(redirected(read_scenario(spec.scenario), scratch)[0])
         rows, graph = record_run(cmd, spec.sim_seconds, SIM_DT, F.MODEL_DT)
@@ -247,14 +249,27 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Cal
 def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame, dict[str, F.LaneGraph]]:
     """Run every spec in a fresh spawned process (:func:`isolated_map`).
 
-    Returns the trajectory rows and each scenario's lane graph (keyed by the scenario path)."""
+    Returns the trajectory rows and each scenario's lane graph (keyed by the scenario path). The
+    runs' scratch folders (the scenarios' own outputs) go in one temporary folder, removed when
+    this returns or stops, after the processes are gone: a run terminated on Ctrl-C or SIGTERM
+    cannot remove its own."""
+    import shutil
+    import tempfile
+
     frames = []
     graphs: dict[str, F.LaneGraph] = {}
     crashed = lambda spec: _crashed_run(_run_name(spec))
-    for i, (df, graph) in enumerate(isolated_map(_simulate_safely, specs, workers, crashed)):
-        log.info("run %d/%d: %s seed %d scale %.2f -> %d rows", i + 1, len(specs), specs[i].scenario.name, specs[i].seed, specs[i].scale, len(df))
-        frames.append(df)
-        graphs.setdefault(str(specs[i].scenario), graph)
+    root = tempfile.mkdtemp(prefix="sumo_ethics_dataset_")
+    try:
+        jobs = [replace(spec, scratch_root=root) for spec in specs]
+        with closing(isolated_map(_simulate_safely, jobs, workers, crashed)) as results:  # closed: no process runs on
+            for i, (df, graph) in enumerate(results):
+                log.info("run %d/%d: %s seed %d scale %.2f -> %d rows", i + 1, len(specs), specs[i].scenario.name,
+                         specs[i].seed, specs[i].scale, len(df))
+                frames.append(df)
+                graphs.setdefault(str(specs[i].scenario), graph)
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
     return pd.concat(frames, ignore_index=True), graphs
 
 
