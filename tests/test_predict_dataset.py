@@ -114,10 +114,13 @@ def test_ctrl_c_while_dataset_workers_start_prints_one_line_and_leaves_no_proces
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
-def test_a_dataset_interrupted_mid_run_leaves_no_scratch_folder(tmp_path):
-    """The runs' scratch folders (the scenario's own outputs) are removed after a Ctrl-C too: a
-    terminated worker cannot remove its own, so the command removes them once its workers are gone.
-    They used to stay in the temporary folder, one per interrupted run."""
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
+def test_a_dataset_stopped_mid_run_leaves_no_scratch_folder_and_no_worker(tmp_path, how):
+    """Ctrl-C (to the process group, as a terminal sends it) or SIGTERM (to the command alone, as
+    a batch system sends it) mid-run: one line, every worker terminated, and the runs' scratch
+    folders (the scenario's own outputs) removed. A terminated worker cannot remove its own, so the
+    command removes them once its workers are gone; they used to stay, one per running worker. And
+    SIGTERM used to end the command alone, its workers simulating on."""
     import os
     import signal
     import subprocess
@@ -136,10 +139,18 @@ def test_a_dataset_interrupted_mid_run_leaves_no_scratch_folder(tmp_path):
         time.sleep(0.05)  # until a worker runs SUMO in its scratch folder
     assert any(tmp.rglob("run_*")), "no run started"
     time.sleep(1.0)
-    os.killpg(proc.pid, signal.SIGINT)
+    workers = sorted(_children(proc.pid))
+    if how == "ctrl-c":
+        os.killpg(proc.pid, signal.SIGINT)
+    else:
+        os.kill(proc.pid, signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130 and err.strip() == "error: interrupted", err[-2000:]
+    want = (130, "error: interrupted") if how == "ctrl-c" else (143, "error: terminated (SIGTERM)")
+    assert proc.returncode == want[0] and err.strip().startswith(want[1]) and len(err.strip().splitlines()) == 1, err[-2000:]
+    time.sleep(0.5)
+    assert not [p for p in _children_alive(workers)], "a worker outlived the command"
     assert sorted(p.name for p in tmp.iterdir()) == [], "scratch folders left behind"
+    assert not (tmp_path / "ds").exists()
 
 
 def _spawned_workers_alive(pid: int) -> set[int]:

@@ -21,14 +21,17 @@ def dataset_main(
     suite_anchor_every: float = 0.4,
 ) -> Path:
     """Simulate ``scenarios`` (.sumocfg) x ``seeds`` (and record the ``suite`` scenario folders
-    with their hazards) and write a prediction dataset folder to ``out``."""
+    with their hazards) and write a prediction dataset folder to ``out``. SIGTERM stops it as
+    Ctrl-C does (:class:`sumo_ethics.errors.Terminated`): its SUMO runs terminated, nothing written."""
+    from sumo_ethics.interrupt import sigterm_as_interrupt
     from sumo_ethics.predict.dataset import build_dataset
 
-    return build_dataset(
-        [Path(s) for s in scenarios], list(seeds), Path(out), scales=tuple(scales),
-        sim_seconds=sim_seconds, anchor_every=anchor_every, workers=workers,
-        suite=[Path(s) for s in suite], suite_anchor_every=suite_anchor_every,
-    )
+    with sigterm_as_interrupt():  # without it SIGTERM ended this process alone and its runs went on
+        return build_dataset(
+            [Path(s) for s in scenarios], list(seeds), Path(out), scales=tuple(scales),
+            sim_seconds=sim_seconds, anchor_every=anchor_every, workers=workers,
+            suite=[Path(s) for s in suite], suite_anchor_every=suite_anchor_every,
+        )
 
 
 def train_main(
