@@ -82,6 +82,19 @@ def _children_alive(pids: list[int]) -> list[int]:
     return alive
 
 
+def _long_dataset_command(out: Path, env: dict | None = None):
+    """``sumo-ethics dataset`` of four 900 s urban runs on two workers, in its own process group
+    (Ctrl-C restored: background shells start their children with it ignored)."""
+    import signal
+    import subprocess
+    import sys
+
+    args = [sys.executable, "-m", "sumo_ethics.cli", "dataset", str(ROOT / "scenarios" / "urban" / "urban.sumocfg"),
+            "--out", str(out), "--seeds", "1-4", "--sim-seconds", "900", "--workers", "2"]
+    return subprocess.Popen(args, start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+
+
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
 def test_ctrl_c_while_dataset_workers_start_prints_one_line_and_leaves_no_process(tmp_path):
     """A terminal's Ctrl-C reaches the whole process group. The spawned SUMO workers used to print
@@ -89,14 +102,9 @@ def test_ctrl_c_while_dataset_workers_start_prints_one_line_and_leaves_no_proces
     it, and the command terminates them and prints one line."""
     import os
     import signal
-    import subprocess
-    import sys
     import time
 
-    args = [sys.executable, "-m", "sumo_ethics.cli", "dataset", str(ROOT / "scenarios" / "urban" / "urban.sumocfg"),
-            "--out", str(tmp_path / "ds"), "--seeds", "1-4", "--sim-seconds", "900", "--workers", "2"]
-    proc = subprocess.Popen(args, start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = _long_dataset_command(tmp_path / "ds")
     deadline = time.monotonic() + 60
     workers: set[int] = set()
     while time.monotonic() < deadline and proc.poll() is None and not workers:
@@ -123,17 +131,11 @@ def test_a_dataset_stopped_mid_run_leaves_no_scratch_folder_and_no_worker(tmp_pa
     SIGTERM used to end the command alone, its workers simulating on."""
     import os
     import signal
-    import subprocess
-    import sys
     import time
 
     tmp = tmp_path / "tmp"
     tmp.mkdir()
-    args = [sys.executable, "-m", "sumo_ethics.cli", "dataset", str(ROOT / "scenarios" / "urban" / "urban.sumocfg"),
-            "--out", str(tmp_path / "ds"), "--seeds", "1-4", "--sim-seconds", "900", "--workers", "2"]
-    proc = subprocess.Popen(args, start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "TMPDIR": str(tmp)})
+    proc = _long_dataset_command(tmp_path / "ds", env={**os.environ, "TMPDIR": str(tmp)})
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and proc.poll() is None and not any(tmp.rglob("run_*")):
         time.sleep(0.05)  # until a worker runs SUMO in its scratch folder
