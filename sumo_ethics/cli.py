@@ -371,10 +371,11 @@ def main(argv: list[str] | None = None) -> int:
     except click.exceptions.Exit as exc:
         return exc.exit_code
     except _Interrupted as exc:
+        notes = "; ".join(getattr(exc.args[0], "__notes__", ()))  # e.g. what train kept
         if isinstance(exc.args[0], Terminated):
-            click.echo("error: terminated (SIGTERM); the outputs written so far are kept", err=True)
+            click.echo(f"error: terminated (SIGTERM); {notes or 'the outputs written so far are kept'}", err=True)
             return 143
-        click.echo("error: interrupted", err=True)
+        click.echo("error: interrupted" + (f"; {notes}" if notes else ""), err=True)
         return 130
     except click.exceptions.Abort:
         click.echo("error: aborted", err=True)

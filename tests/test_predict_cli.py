@@ -62,6 +62,46 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
     assert (m.modes, m.dec_size, m.dec_steps, m.cv_mode, m.single_mode_groups) == (3, 32, 5, True, ())
     cfg = json.loads(plain.with_suffix(".json").read_text())["config"]
     assert (cfg["dec"], cfg["dec_steps"], cfg["cv_mode"], cfg["single_mode_groups"]) == (32, 5, True, [])
+    # Ctrl-C in the third epoch: the best epoch so far (1, the first of the NLL) is written, the
+    # command says so in its one line and exits 130; before an NLL epoch ends nothing is written
+    from sumo_ethics.predict import train as train_mod
+
+    calls = []
+
+    def validate_then_ctrl_c(*a, **k):
+        calls.append(1)
+        if len(calls) == stop_at:
+            raise interrupt
+        return real_validate(*a, **k)
+
+    real_validate = train_mod.validate
+    monkeypatch.setattr(train_mod, "validate", validate_then_ctrl_c)
+    kept = tmp_path / "kept.pt"
+    stop_at, interrupt = 3, KeyboardInterrupt
+    capsys.readouterr()
+    assert main(["train", str(data), "--model", "cslstm", "--out", str(kept), "--max-minutes", "5"]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    log = json.loads(kept.with_suffix(".json").read_text())
+    assert (log["stopped"], log["best_epoch"], len(log["history"])) == ("interrupted (Ctrl-C)", 1, 2)
+    assert len(err) == 1 and err[0] == (f"error: interrupted; the best epoch so far (1, validation NLL "
+                                        f"{log['best_val_nll']:.3f}) is written to {kept}")
+    assert LSTMPredictor.from_file(kept).model.kind == "cslstm" and not list(tmp_path.glob("*.part"))
+    # SIGTERM (errors.Terminated, raised by the handler sigterm_as_interrupt installs) likewise, exit 143
+    from sumo_ethics.errors import Terminated
+
+    calls.clear()
+    interrupt = Terminated
+    assert main(["train", str(data), "--model", "cslstm", "--out", str(kept), "--max-minutes", "5"]) == 143
+    log = json.loads(kept.with_suffix(".json").read_text())
+    assert log["stopped"] == "interrupted (SIGTERM)"
+    assert capsys.readouterr().err.strip() == (f"error: terminated (SIGTERM); the best epoch so far (1, validation NLL "
+                                               f"{log['best_val_nll']:.3f}) is written to {kept}")
+    calls.clear()
+    interrupt = KeyboardInterrupt
+    stop_at = 2  # in the first NLL epoch
+    assert main(["train", str(data), "--model", "cslstm", "--out", str(tmp_path / "none.pt"), "--max-minutes", "5"]) == 130
+    assert capsys.readouterr().err.strip() == "error: interrupted" and not (tmp_path / "none.pt").exists()
+    monkeypatch.setattr(train_mod, "validate", real_validate)
     # stay modes for pedestrians and cyclists while they stand: pedestrians leave the one-mode groups
     stay = tmp_path / "stay.pt"
     assert main(["train", str(data), "--out", str(stay), "--max-minutes", "0.05", "--stay-mode-pedestrians",

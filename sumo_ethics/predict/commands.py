@@ -73,7 +73,10 @@ def train_main(
                       stay_speed=stay_speed,
                       residual_groups=None if residual_groups is None else tuple(residual_groups),
                       map_version=map_version)
-    return train_model(Path(dataset), model, Path(out), cfg, progress=progress)
+    from sumo_ethics.interrupt import sigterm_as_interrupt
+
+    with sigterm_as_interrupt():  # as Ctrl-C: the best epoch so far is written, then the interrupt goes on
+        return train_model(Path(dataset), model, Path(out), cfg, progress=progress)
 
 
 def evaluate_main(

@@ -92,6 +92,7 @@ scalar, 4 with the blinkers as 9th and 10th scalars and the pedestrian's lane af
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -608,7 +609,9 @@ def save_model(model: TrajectoryLSTM, path: Path, info: dict[str, Any] | None = 
         "info": info or {},
         "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
     }
-    torch.save(blob, path)
+    part = path.with_name(path.name + ".part")  # whole or not at all, even if killed while writing
+    torch.save(blob, part)
+    os.replace(part, path)
     return path
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import signal
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -17,6 +18,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from sumo_ethics.errors import Terminated
+from sumo_ethics.interrupt import signals_held
 from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
 from sumo_ethics.predict.dataset import load_samples, map_version_of, require_nbr_yaw, subset
@@ -203,41 +206,48 @@ def train_model(
     ) as bar:
         task = bar.add_task(f"{kind}", total=config.epochs * n_batches, info="")
         stopped = "max epochs"
-        for epoch in range(config.epochs):
-            use_nll = epoch >= config.mse_epochs
-            perm = rng.permutation(train_idx)
-            running = 0.0
-            for b in range(n_batches):
-                idx = np.sort(perm[b * config.batch_size: (b + 1) * config.batch_size])
-                loss = _loss(model, samples, idx, use_nll)
-                opt.zero_grad()
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
-                opt.step()
-                running += loss.item()
-                bar.update(task, advance=1, info=f"ep {epoch} {'nll' if use_nll else 'mse'} {running / (b + 1):.3f}")
-                if over_budget():
-                    break
-            val = validate(model, samples, val_idx)
-            history.append({"epoch": epoch, "loss": running / max(b + 1, 1), "val_nll": val["nll"], "val_ade": val["ade"],
-                            "phase": "nll" if use_nll else "mse", "minutes": (time.monotonic() - t0) / 60})
-            bar.update(task, info=f"ep {epoch} val nll {val['nll']:.3f} ade {val['ade']:.2f} m")
-            log.info("%s epoch %d (%s): train loss %.4f, val nll %.4f, val ade %.3f m, %.1f min", kind, epoch,
-                     history[-1]["phase"], history[-1]["loss"], val["nll"], val["ade"], history[-1]["minutes"])
-            if use_nll:
-                if val["nll"] < best - 1e-4:
-                    best, best_epoch, bad = val["nll"], epoch, 0
-                    best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
-                else:
-                    bad += 1
-                    for group in opt.param_groups:
-                        group["lr"] *= config.lr_decay
-                    if bad >= config.patience:
-                        stopped = "early stopping"
+        interrupted: KeyboardInterrupt | None = None
+        try:
+            for epoch in range(config.epochs):
+                use_nll = epoch >= config.mse_epochs
+                perm = rng.permutation(train_idx)
+                running = 0.0
+                for b in range(n_batches):
+                    idx = np.sort(perm[b * config.batch_size: (b + 1) * config.batch_size])
+                    loss = _loss(model, samples, idx, use_nll)
+                    opt.zero_grad()
+                    loss.backward()
+                    torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
+                    opt.step()
+                    running += loss.item()
+                    bar.update(task, advance=1, info=f"ep {epoch} {'nll' if use_nll else 'mse'} {running / (b + 1):.3f}")
+                    if over_budget():
                         break
-            if over_budget():
-                stopped = "time budget"
-                break
+                val = validate(model, samples, val_idx)
+                history.append({"epoch": epoch, "loss": running / max(b + 1, 1), "val_nll": val["nll"], "val_ade": val["ade"],
+                                "phase": "nll" if use_nll else "mse", "minutes": (time.monotonic() - t0) / 60})
+                bar.update(task, info=f"ep {epoch} val nll {val['nll']:.3f} ade {val['ade']:.2f} m")
+                log.info("%s epoch %d (%s): train loss %.4f, val nll %.4f, val ade %.3f m, %.1f min", kind, epoch,
+                         history[-1]["phase"], history[-1]["loss"], val["nll"], val["ade"], history[-1]["minutes"])
+                if use_nll:
+                    if val["nll"] < best - 1e-4:
+                        state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+                        best_state, best, best_epoch, bad = state, val["nll"], epoch, 0  # together, for an interrupt
+                    else:
+                        bad += 1
+                        for group in opt.param_groups:
+                            group["lr"] *= config.lr_decay
+                        if bad >= config.patience:
+                            stopped = "early stopping"
+                            break
+                if over_budget():
+                    stopped = "time budget"
+                    break
+        except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (errors.Terminated): the best epoch so far is kept
+            interrupted = exc
+            stopped = "interrupted (SIGTERM)" if isinstance(exc, Terminated) else "interrupted (Ctrl-C)"
+    if interrupted is not None and best_state is None:  # no NLL epoch ended: nothing worth a file
+        raise interrupted
     if best_state is not None:
         model.load_state_dict(best_state)
     info = {
@@ -254,6 +264,10 @@ def train_model(
         "history": history,
         "feature_version": F.FEATURE_VERSION,
     }
-    save_model(model, Path(out), info)
-    Path(out).with_suffix(".json").write_text(json.dumps(info, indent=2))
+    with signals_held(signal.SIGINT, signal.SIGTERM):  # the file and its log are written whole
+        save_model(model, Path(out), info)
+        Path(out).with_suffix(".json").write_text(json.dumps(info, indent=2))
+    if interrupted is not None:
+        interrupted.add_note(f"the best epoch so far ({best_epoch}, validation NLL {best:.3f}) is written to {out}")
+        raise interrupted
     return info
