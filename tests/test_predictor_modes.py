@@ -258,7 +258,7 @@ def test_stay_mode_only_while_standing():
     # vehicle 1.0 x 5 m over 0.2 s = 25 m/s; cyclist 0.02 x 5 m = 0.5 m/s (its scale is 5 m too)
     hist[0, -1] = torch.tensor([0.04, 0.0])
     hist[1, -1] = torch.tensor([0.0, 0.06])
-    hist[2, -1] = torch.tensor([0.03, 0.04])  # |(0.03, 0.04)| = 0.05: 0.5 m/s, at the gate: moving
+    hist[2, -1] = torch.tensor([0.05, 0.0])  # 0.05 x 2 m / 0.2 s = 0.5 m/s exactly (in float32 too): moving
     hist[3, -1] = torch.tensor([1.0, 0.0])
     hist[4, -1] = torch.tensor([0.0, 0.01])  # 0.01 x 5 m / 0.2 s = 0.25 m/s: stands
     assert gated.pos_scale.tolist()[F.GROUP_PEDESTRIAN] == 2.0 and gated.pos_scale.tolist()[F.GROUP_CYCLIST] == 5.0

@@ -192,12 +192,12 @@ def _crashed_run(name: str) -> Exception:
 
 
 def _stop(pool) -> None:
-    """Stop a one-worker pool now: no new job, and its running job's process terminated (its
-    processes never see Ctrl-C, see :func:`isolated_map`, so nothing else would end them)."""
+    """Stop a one-worker pool now: no new job, and its running job's process killed (its processes
+    never see Ctrl-C or SIGTERM, see :func:`isolated_map`, so nothing else would end them)."""
     procs = list((getattr(pool, "_processes", None) or {}).values())  # before shutdown, which forgets them
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in procs:
-        proc.terminate()
+        proc.kill()  # SIGKILL: they hold SIGTERM blocked; their scratch folders are removed by simulate_runs
     for proc in procs:
         proc.join(timeout=5)
 
@@ -207,8 +207,8 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Cal
     process), at most ``workers`` at a time; results in job order. A process that dies (SUMO
     crashing) raises ``crashed(job)`` instead of being waited for forever, which is what
     ``multiprocessing.Pool`` does. The next job starts when a result has been taken, so a caller
-    that stops at a result starts nothing more. The processes do not see Ctrl-C: this process
-    gets it and terminates the running ones (also after a failure or when the caller stops)."""
+    that stops at a result starts nothing more. The processes do not see Ctrl-C or SIGTERM: this
+    process gets them and kills the running ones (also after a failure or when the caller stops)."""
     from collections import deque
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
@@ -222,10 +222,11 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Cal
         if job is not None:
             pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx)
             window.append([job, pool, None])  # in the window first: an interrupt in submit still stops it
-            # the worker process, started in submit, inherits SIGINT blocked: a terminal's Ctrl-C
-            # (to the whole process group) printed KeyboardInterrupt tracebacks from workers still
-            # starting. This process gets it when the block ends, not half-way through submit
-            with signals_held(signal.SIGINT):
+            # the worker process, started in submit, inherits SIGINT and SIGTERM blocked: a terminal's
+            # Ctrl-C (to the whole process group) printed KeyboardInterrupt tracebacks from workers
+            # still starting. This process gets either when the block ends, not half-way through
+            # submit (a process started but not yet listed in the pool would never be stopped)
+            with signals_held(signal.SIGINT, signal.SIGTERM):
                 window[-1][2] = pool.submit(fn, job)
 
     try:
@@ -242,8 +243,9 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Cal
             yield result
             submit()
     finally:
-        for _, pool, _ in window:  # after a failure or an interrupt: nothing new starts, nothing runs on
-            _stop(pool)
+        with signals_held(signal.SIGINT, signal.SIGTERM):  # a second Ctrl-C does not cut the stopping short
+            for _, pool, _ in window:  # after a failure or an interrupt: nothing new starts, nothing runs on
+                _stop(pool)
 
 
 def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame, dict[str, F.LaneGraph]]:
@@ -522,6 +524,13 @@ def build_dataset(
             split[name].append(SUITE_SEED0 + len(specs) + i)
     # the samples first: a run too short for any sample stops here, before anything is written
     samples = build_samples(traj, split, anchor_every=anchor_every, graphs=graphs, suite_anchor_every=suite_anchor_every)
+    with signals_held(signal.SIGINT, signal.SIGTERM):  # Ctrl-C or SIGTERM now waits: the folder is written whole
+        _write_dataset(out, traj, graphs, samples, split, scenarios, suite, specs, anchor_every, suite_anchor_every)
+    return out
+
+
+def _write_dataset(out: Path, traj: pd.DataFrame, graphs: dict, samples: dict, split: dict, scenarios, suite,
+                   specs: list[RunSpec], anchor_every: float, suite_anchor_every: float) -> None:
     out.mkdir(parents=True, exist_ok=True)
     traj.to_parquet(out / "trajectories.parquet", index=False)
     with open(out / "lane_graphs.pkl", "wb") as fh:
@@ -542,7 +551,6 @@ def build_dataset(
         "n_samples": split_counts(samples),
     }
     (out / "split.json").write_text(json.dumps(meta, indent=2))
-    return out
 
 
 def map_version_of(dataset: Path) -> int:

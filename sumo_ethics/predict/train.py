@@ -264,9 +264,13 @@ def train_model(
         "history": history,
         "feature_version": F.FEATURE_VERSION,
     }
-    with signals_held(signal.SIGINT, signal.SIGTERM):  # the file and its log are written whole
-        save_model(model, Path(out), info)
-        Path(out).with_suffix(".json").write_text(json.dumps(info, indent=2))
+    try:
+        with signals_held(signal.SIGINT, signal.SIGTERM):  # the file and its log are written whole
+            save_model(model, Path(out), info)
+            Path(out).with_suffix(".json").write_text(json.dumps(info, indent=2))
+    except KeyboardInterrupt:  # one more held while writing: the first, with its note, is the one raised
+        if interrupted is None:
+            raise
     if interrupted is not None:
         interrupted.add_note(f"the best epoch so far ({best_epoch}, validation NLL {best:.3f}) is written to {out}")
         raise interrupted
