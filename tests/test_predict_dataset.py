@@ -82,15 +82,17 @@ def _children_alive(pids: list[int]) -> list[int]:
     return alive
 
 
-def _long_dataset_command(out: Path, env: dict | None = None):
-    """``sumo-ethics dataset`` of four 900 s urban runs on two workers, in its own process group
-    (Ctrl-C restored: background shells start their children with it ignored)."""
+def _long_dataset_command(out: Path, env: dict | None = None, suite: bool = False):
+    """``sumo-ethics dataset`` of four 900 s urban runs (``suite``: of four suite scenarios) on two
+    workers, in its own process group (Ctrl-C restored: background shells start their children
+    with it ignored)."""
     import signal
     import subprocess
     import sys
 
-    args = [sys.executable, "-m", "sumo_ethics.cli", "dataset", str(ROOT / "scenarios" / "urban" / "urban.sumocfg"),
-            "--out", str(out), "--seeds", "1-4", "--sim-seconds", "900", "--workers", "2"]
+    what = ([str(ROOT / "scenarios" / "urban" / "urban.sumocfg"), "--seeds", "1-4", "--sim-seconds", "900"] if not suite
+            else [a for k in range(4) for a in ("--suite", str(ROOT / "scenarios" / "suite" / f"s000{k}"))])
+    args = [sys.executable, "-m", "sumo_ethics.cli", "dataset", *what, "--out", str(out), "--workers", "2"]
     return subprocess.Popen(args, start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
 
@@ -122,7 +124,7 @@ def test_ctrl_c_while_dataset_workers_start_prints_one_line_and_leaves_no_proces
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
-@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm", "ctrl-c-suite"])
 def test_a_dataset_stopped_mid_run_leaves_no_scratch_folder_and_no_worker(tmp_path, how):
     """Ctrl-C (to the process group, as a terminal sends it) or SIGTERM (to the command alone, as
     a batch system sends it) mid-run: one line, every worker terminated, and the runs' scratch
@@ -135,19 +137,23 @@ def test_a_dataset_stopped_mid_run_leaves_no_scratch_folder_and_no_worker(tmp_pa
 
     tmp = tmp_path / "tmp"
     tmp.mkdir()
-    proc = _long_dataset_command(tmp_path / "ds", env={**os.environ, "TMPDIR": str(tmp)})
+    proc = _long_dataset_command(tmp_path / "ds", env={**os.environ, "TMPDIR": str(tmp)}, suite=how.endswith("suite"))
+
+    def running() -> bool:  # a worker runs SUMO in its scratch folder
+        return any(p.is_dir() for p in tmp.glob("*/*"))
+
     deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and proc.poll() is None and not any(tmp.rglob("run_*")):
-        time.sleep(0.05)  # until a worker runs SUMO in its scratch folder
-    assert any(tmp.rglob("run_*")), "no run started"
+    while time.monotonic() < deadline and proc.poll() is None and not running():
+        time.sleep(0.05)
+    assert running(), "no run started"
     time.sleep(1.0)
     workers = sorted(_children(proc.pid))
-    if how == "ctrl-c":
+    if how.startswith("ctrl-c"):
         os.killpg(proc.pid, signal.SIGINT)
     else:
         os.kill(proc.pid, signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
-    want = (130, "error: interrupted") if how == "ctrl-c" else (143, "error: terminated (SIGTERM)")
+    want = (130, "error: interrupted") if how.startswith("ctrl-c") else (143, "error: terminated (SIGTERM)")
     assert proc.returncode == want[0] and err.strip().startswith(want[1]) and len(err.strip().splitlines()) == 1, err[-2000:]
     time.sleep(0.5)
     assert not [p for p in _children_alive(workers)], "a worker outlived the command"

@@ -248,6 +248,20 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Cal
                 _stop(pool)
 
 
+@contextmanager
+def _scratch_root() -> Iterator[str]:
+    """A temporary folder for the scratch folders of a batch of runs, removed on leaving (the
+    runs' processes must be gone by then: :func:`isolated_map` closed first)."""
+    import shutil
+    import tempfile
+
+    root = tempfile.mkdtemp(prefix="sumo_ethics_dataset_")
+    try:
+        yield root
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+
+
 def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame, dict[str, F.LaneGraph]]:
     """Run every spec in a fresh spawned process (:func:`isolated_map`).
 
@@ -255,14 +269,10 @@ def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame,
     runs' scratch folders (the scenarios' own outputs) go in one temporary folder, removed when
     this returns or stops, after the processes are gone: a run terminated on Ctrl-C or SIGTERM
     cannot remove its own."""
-    import shutil
-    import tempfile
-
     frames = []
     graphs: dict[str, F.LaneGraph] = {}
     crashed = lambda spec: _crashed_run(_run_name(spec))
-    root = tempfile.mkdtemp(prefix="sumo_ethics_dataset_")
-    try:
+    with _scratch_root() as root:
         jobs = [replace(spec, scratch_root=root) for spec in specs]
         with closing(isolated_map(_simulate_safely, jobs, workers, crashed)) as results:  # closed: no process runs on
             for i, (df, graph) in enumerate(results):
@@ -270,8 +280,6 @@ def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame,
                          specs[i].seed, specs[i].scale, len(df))
                 frames.append(df)
                 graphs.setdefault(str(specs[i].scenario), graph)
-    finally:
-        shutil.rmtree(root, ignore_errors=True)
     return pd.concat(frames, ignore_index=True), graphs
 
 
@@ -456,13 +464,14 @@ def _suite_name(scenario: Path) -> str:
     return f"suite scenario {scenario.name}"
 
 
-def _simulate_suite(args: tuple[int, Path]) -> tuple[pd.DataFrame, F.LaneGraph | None]:
-    """One suite scenario with its hazards (worker process) -> trajectory rows, lane graph."""
+def _simulate_suite(args: tuple[int, Path, str | None]) -> tuple[pd.DataFrame, F.LaneGraph | None]:
+    """One suite scenario with its hazards (worker process) -> trajectory rows, lane graph;
+    args: run id, scenario folder, folder for its scratch folder."""
     from sumo_ethics.suite.traffic import record_scenario
 
-    run_id, scenario = args
+    run_id, scenario, scratch_root = args
     with _failures_named(_suite_name(scenario)):
-        df, graph = record_scenario(scenario)
+        df, graph = record_scenario(scenario, scratch_root=scratch_root)
     if len(df):
         df.insert(0, "run_id", np.int32(run_id))
         df.insert(1, "seed", np.int32(SUITE_SEED0 + run_id))
@@ -474,13 +483,15 @@ def _simulate_suite(args: tuple[int, Path]) -> tuple[pd.DataFrame, F.LaneGraph |
 def simulate_suite(scenarios: list[Path], first_run_id: int, workers: int = 1) -> tuple[list[pd.DataFrame], dict[str, F.LaneGraph]]:
     """Record suite scenarios (hazards included), one spawned process each (:func:`isolated_map`)."""
     frames, graphs = [], {}
-    jobs = [(first_run_id + i, Path(s).resolve()) for i, s in enumerate(scenarios)]
     crashed = lambda job: _crashed_run(_suite_name(job[1]))
-    for (run_id, scen), (df, graph) in zip(jobs, isolated_map(_simulate_suite, jobs, workers, crashed)):
-        log.info("suite run %d: %s -> %d rows", run_id, scen.name, len(df))
-        if len(df) and graph is not None:
-            frames.append(df)
-            graphs[str(scen)] = graph
+    with _scratch_root() as root:
+        jobs = [(first_run_id + i, Path(s).resolve(), root) for i, s in enumerate(scenarios)]
+        with closing(isolated_map(_simulate_suite, jobs, workers, crashed)) as results:
+            for (run_id, scen, _), (df, graph) in zip(jobs, results):
+                log.info("suite run %d: %s -> %d rows", run_id, scen.name, len(df))
+                if len(df) and graph is not None:
+                    frames.append(df)
+                    graphs[str(scen)] = graph
     return frames, graphs
 
 

@@ -39,18 +39,19 @@ class _Recording:
         return self.inner.act(scene)
 
 
-def record_scenario(scenario_dir: Path | str) -> tuple[pd.DataFrame, Any]:
+def record_scenario(scenario_dir: Path | str, scratch_root: str | None = None) -> tuple[pd.DataFrame, Any]:
     """Run one suite scenario (ethical planner with constant velocity, its hazards) -> (trajectory rows, lane graph).
 
     Rows have the columns of ``predict.dataset``'s trajectories but run_id/seed/scenario/scale,
-    which the caller adds. Runs SUMO in this process (call it in a worker process)."""
+    which the caller adds. Runs SUMO in this process (call it in a worker process); the run's
+    outputs go to a temporary folder inside ``scratch_root`` (None: the system's)."""
     from sumo_ethics.runner import make_controller, run
     from sumo_ethics.settings import planner_config
     from sumo_ethics.sim.hazards import HazardInjector
     from sumo_ethics.suite.spec import load
 
     spec = load(Path(scenario_dir))
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory(dir=scratch_root) as tmp:
         # the ethical planner with constant-velocity prediction: it avoids most hazards, so the
         # run (and the hazard actors' tracks) goes on after them; it is fast
         cfg = spec.run_config(Path(tmp) / "run", planner_config(None, predictor="cv"), overwrite=True)
