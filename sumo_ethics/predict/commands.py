@@ -22,16 +22,21 @@ def dataset_main(
 ) -> Path:
     """Simulate ``scenarios`` (.sumocfg) x ``seeds`` (and record the ``suite`` scenario folders
     with their hazards) and write a prediction dataset folder to ``out``. SIGTERM stops it as
-    Ctrl-C does (:class:`sumo_ethics.errors.Terminated`): its SUMO runs terminated, nothing written."""
+    Ctrl-C does (:class:`sumo_ethics.errors.Terminated`): its SUMO runs killed, nothing written (a
+    signal while the folder is written waits until it is whole); the interrupt's note says which."""
     from sumo_ethics.interrupt import sigterm_as_interrupt
     from sumo_ethics.predict.dataset import build_dataset
 
     with sigterm_as_interrupt():  # without it SIGTERM ended this process alone and its runs went on
-        return build_dataset(
-            [Path(s) for s in scenarios], list(seeds), Path(out), scales=tuple(scales),
-            sim_seconds=sim_seconds, anchor_every=anchor_every, workers=workers,
-            suite=[Path(s) for s in suite], suite_anchor_every=suite_anchor_every,
-        )
+        try:
+            return build_dataset(
+                [Path(s) for s in scenarios], list(seeds), Path(out), scales=tuple(scales),
+                sim_seconds=sim_seconds, anchor_every=anchor_every, workers=workers,
+                suite=[Path(s) for s in suite], suite_anchor_every=suite_anchor_every,
+            )
+        except KeyboardInterrupt as exc:  # the command's one line says what is on disk
+            exc.add_note(f"the dataset was written whole to {out}" if Path(out).exists() else "no dataset is written")
+            raise
 
 
 def train_main(
