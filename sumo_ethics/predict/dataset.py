@@ -197,7 +197,7 @@ def _stop(pool) -> None:
     procs = list((getattr(pool, "_processes", None) or {}).values())  # before shutdown, which forgets them
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in procs:
-        proc.kill()  # SIGKILL: they hold SIGTERM blocked; their scratch folders are removed by simulate_runs
+        proc.kill()  # SIGKILL: they hold SIGTERM blocked; the caller's _scratch_root removes their scratch folders
     for proc in procs:
         proc.join(timeout=5)
 
@@ -536,32 +536,27 @@ def build_dataset(
     # the samples first: a run too short for any sample stops here, before anything is written
     samples = build_samples(traj, split, anchor_every=anchor_every, graphs=graphs, suite_anchor_every=suite_anchor_every)
     with signals_held(signal.SIGINT, signal.SIGTERM):  # Ctrl-C or SIGTERM now waits: the folder is written whole
-        _write_dataset(out, traj, graphs, samples, split, scenarios, suite, specs, anchor_every, suite_anchor_every)
+        out.mkdir(parents=True, exist_ok=True)
+        traj.to_parquet(out / "trajectories.parquet", index=False)
+        with open(out / "lane_graphs.pkl", "wb") as fh:
+            pickle.dump(graphs, fh)
+        np.savez_compressed(out / "samples.npz", **samples)
+        meta = {
+            "split": split,
+            "scenarios": [str(Path(s)) for s in scenarios],
+            "suite": [str(Path(s)) for s in suite],
+            "runs": [{"run_id": s.run_id, "scenario": str(s.scenario), "seed": s.seed, "scale": s.scale} for s in specs],
+            "feature_version": F.FEATURE_VERSION,
+            "map_version": F.MAP_VERSION,
+            "anchor_every": anchor_every,
+            "suite_anchor_every": suite_anchor_every,
+            "model_dt": F.MODEL_DT,
+            "hist_steps": F.HIST_STEPS,
+            "fut_steps": F.FUT_STEPS,
+            "n_samples": split_counts(samples),
+        }
+        (out / "split.json").write_text(json.dumps(meta, indent=2))
     return out
-
-
-def _write_dataset(out: Path, traj: pd.DataFrame, graphs: dict, samples: dict, split: dict, scenarios, suite,
-                   specs: list[RunSpec], anchor_every: float, suite_anchor_every: float) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    traj.to_parquet(out / "trajectories.parquet", index=False)
-    with open(out / "lane_graphs.pkl", "wb") as fh:
-        pickle.dump(graphs, fh)
-    np.savez_compressed(out / "samples.npz", **samples)
-    meta = {
-        "split": split,
-        "scenarios": [str(Path(s)) for s in scenarios],
-        "suite": [str(Path(s)) for s in suite],
-        "runs": [{"run_id": s.run_id, "scenario": str(s.scenario), "seed": s.seed, "scale": s.scale} for s in specs],
-        "feature_version": F.FEATURE_VERSION,
-        "map_version": F.MAP_VERSION,
-        "anchor_every": anchor_every,
-        "suite_anchor_every": suite_anchor_every,
-        "model_dt": F.MODEL_DT,
-        "hist_steps": F.HIST_STEPS,
-        "fut_steps": F.FUT_STEPS,
-        "n_samples": split_counts(samples),
-    }
-    (out / "split.json").write_text(json.dumps(meta, indent=2))
 
 
 def map_version_of(dataset: Path) -> int:
