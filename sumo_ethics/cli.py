@@ -160,7 +160,9 @@ def explain(run_dir: Path, step: int | None, at_time: float | None, collision: i
 
 @cli.command()
 @click.argument("scenarios", nargs=-1, type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.option("--out", type=click.Path(path_type=Path), required=True, help="Dataset folder.")
+@click.option("--out", type=click.Path(path_type=Path), required=True,
+              help="Dataset folder, new or empty; each finished run is kept in OUT/partial as it ends, and the same "
+                   "command on an OUT holding only that folder resumes a stopped build.")
 @click.option("--seeds", default="1-7", show_default=True,
               help="Run seeds, e.g. 1-7 or 1,4,9 (split by seed into train/validation/test: at least 3).")
 @click.option("--sim-seconds", type=float, default=600.0, show_default=True, help="Simulated time per run [s].")
@@ -187,7 +189,10 @@ def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: flo
             raise click.BadParameter(f"{samples_from} has no {', '.join(missing)}: not a dataset folder")
         if out.exists() and out.resolve() == samples_from.resolve():
             raise click.BadParameter("--out must be a new folder, not the --samples-from dataset")
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    from sumo_ethics.predict.runstore import PARTIAL
+
+    resumable = samples_from is None and out.is_dir() and [p.name for p in out.iterdir()] == [PARTIAL]
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not resumable:
         raise click.BadParameter(f"--out {out} is not an empty folder: give a new one (nothing is overwritten)")
     if samples_from is not None:
         _dataset_written(rebuild_samples(samples_from, out))

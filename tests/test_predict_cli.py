@@ -204,10 +204,12 @@ def test_dataset_reports_a_scenario_that_crashes_sumo_in_one_line(tmp_path, caps
     assert not out.exists()
 
 
-def test_runs_in_fresh_processes_keep_their_order_and_a_crash_is_named():
-    """The dataset's runs (isolated_map): results in job order whatever finishes first; a process
+def test_runs_in_fresh_processes_come_as_they_finish_and_a_crash_is_named():
+    """The dataset's runs (isolated_map): each (job, result) as soon as it finishes, not held back
+    behind a longer job started before it (a stopped build keeps every finished run); a process
     that dies mid-run (SUMO crashing after a good start) is named instead of waited for forever."""
     import os
+    import time
 
     from sumo_ethics.errors import SimulationError
     from sumo_ethics.predict.dataset import isolated_map
@@ -215,7 +217,9 @@ def test_runs_in_fresh_processes_keep_their_order_and_a_crash_is_named():
     def crashed(job: int) -> SimulationError:
         return SimulationError(f"SUMO crashed while simulating job {job}")
 
-    assert list(isolated_map(abs, [-3, 1, -2], 2, crashed)) == [3, 1, 2]
+    assert sorted(isolated_map(abs, [-3, 1, -2], 2, crashed)) == [(-3, 3), (-2, 2), (1, 1)]
+    # two workers: the 3 s job starts first, the two short ones finish (one after the other) before it
+    assert [job for job, _ in isolated_map(time.sleep, [3.0, 0.1, 0.2], 2, crashed)] == [0.1, 0.2, 3.0]
     with pytest.raises(SimulationError, match="SUMO crashed while simulating job 7"):
         list(isolated_map(os._exit, [7], 2, crashed))  # the process dies: exit code 7
 

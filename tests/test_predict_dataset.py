@@ -202,3 +202,113 @@ def test_isolated_map_terminates_its_running_workers_when_interrupted():
         signal.signal(signal.SIGALRM, old)
     assert time.monotonic() - t0 < 15.0
     assert not _spawned_workers_alive(os.getpid()) - before
+
+
+def test_run_store_keeps_finished_runs_whole_and_refuses_another_plan(tmp_path):
+    """The partial folder of a dataset build: nothing until a run ends; a run's rows and lane graph
+    come back as given; a write cut short (a .part file) is not a finished run and is cleared; the
+    finished runs of another build are refused in one line, never mixed or deleted."""
+    from sumo_ethics.errors import ConfigError
+    from sumo_ethics.predict.runstore import RunStore, kept_runs
+
+    out = tmp_path / "ds"
+    plan = {"runs": [{"run_id": 0, "seed": 1, "scale": 0.7}, {"run_id": 1, "seed": 2, "scale": 1.0}], "suite": []}
+    store = RunStore.open(out, plan)
+    assert store.done() == set() and not out.exists() and kept_runs(out) == (0, 0)
+    rows = pd.DataFrame({"run_id": np.int32([1, 1]), "agent_id": ["a", "b"], "x": [0.5, -1.25],
+                         "speed": np.float32([3.0, 0.0]), "cls": np.int8([0, 5])})
+    store.put(1, rows, {"lanes": np.arange(3)})
+    assert store.done() == {1} and kept_runs(out) == (1, 2)
+    back, graph = RunStore.open(out, plan).get(1)
+    pd.testing.assert_frame_equal(back, rows)
+    assert list(back.dtypes) == list(rows.dtypes) and np.array_equal(graph["lanes"], [0, 1, 2])
+    (store.folder / "run_000000.parquet.part").write_bytes(b"cut short")
+    assert RunStore.open(out, plan).done() == {1}
+    assert not list(store.folder.glob("*.part"))
+    other = {**plan, "runs": plan["runs"][:1]}
+    with pytest.raises(ConfigError, match="holds the finished runs of another dataset build"):
+        RunStore.open(out, other)
+    assert store.done() == {1}
+    store.remove()
+    assert not store.folder.exists() and out.is_dir()
+
+
+@pytest.mark.sumo
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+def test_a_stopped_dataset_keeps_its_finished_runs_and_the_same_command_resumes_them(tmp_path, monkeypatch, capsys):
+    """SIGTERM after the first of three runs has finished: the line says it is kept, the build of
+    other runs into that folder is refused, and the same command simulates only the two others and
+    writes the very bytes of a build never stopped."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import sumo_ethics.predict.dataset as D
+    from sumo_ethics.cli import main
+
+    out = tmp_path / "ds"
+    args = ["dataset", str(URBAN), "--seeds", "1-3", "--sim-seconds", "60", "--out"]
+    proc = subprocess.Popen([sys.executable, "-m", "sumo_ethics.cli", *args, str(out)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    first = out / "partial" / "run_000000.parquet"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None and not first.exists():
+        time.sleep(0.05)
+    assert first.exists(), "the first run did not finish"
+    os.kill(proc.pid, signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143 and err.strip() == (
+        f"error: terminated (SIGTERM); no dataset is written (1 of 3 runs finished and are kept in {out / 'partial'}: "
+        "the same command resumes from them)"), err[-2000:]
+    kept = first.read_bytes()
+    assert sorted(p.name for p in out.iterdir()) == ["partial"]
+
+    assert main([*args[:3], "1-4", *args[4:], str(out)]) == 2  # another build (seeds 1-4) into that folder
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "holds the finished runs of another dataset build" in err[0], err
+    assert first.read_bytes() == kept
+
+    simulated: list[int] = []
+    real_map = D.isolated_map
+
+    def watched(fn, jobs, workers, crashed):
+        simulated.extend(job.run_id for job in jobs if isinstance(job, D.RunSpec))
+        return real_map(fn, jobs, workers, crashed)
+
+    monkeypatch.setattr(D, "isolated_map", watched)
+    assert main([*args, str(out)]) == 0
+    assert simulated == [1, 2] and not (out / "partial").exists()
+    assert main([*args, str(tmp_path / "fresh")]) == 0
+    assert simulated == [1, 2, 0, 1, 2]
+    for name in ("trajectories.parquet", "lane_graphs.pkl"):
+        assert (out / name).read_bytes() == (tmp_path / "fresh" / name).read_bytes(), name
+    with np.load(out / "samples.npz") as a, np.load(tmp_path / "fresh" / "samples.npz") as b:
+        assert sorted(a.files) == sorted(b.files) and all(np.array_equal(a[k], b[k]) for k in a.files)
+
+
+def test_a_failed_run_names_the_finished_runs_it_keeps(tmp_path, monkeypatch):
+    """A SUMO run failing after another one finished: the one line names what is kept and how to
+    go on (the kept run is not lost with the failure); with nothing finished, the failure alone."""
+    import sumo_ethics.predict.dataset as D
+    from sumo_ethics.errors import SimulationError
+    from sumo_ethics.predict.commands import dataset_main
+    from sumo_ethics.predict.runstore import RunStore
+
+    out = tmp_path / "ds"
+
+    def failing_build(scenarios, seeds, out, finished=1, **kw):
+        store = RunStore.open(out, {"runs": [{"run_id": i} for i in range(3)], "suite": []})
+        for run_id in range(finished):
+            store.put(run_id, pd.DataFrame({"x": [1.0]}), None)
+        raise SimulationError("dataset: urban.sumocfg seed 2: SUMO stopped")
+
+    monkeypatch.setattr(D, "build_dataset", failing_build)
+    with pytest.raises(SimulationError) as err:
+        dataset_main([URBAN], out)
+    assert str(err.value) == (f"dataset: urban.sumocfg seed 2: SUMO stopped (1 of 3 runs finished and are kept in "
+                              f"{out / 'partial'}: the same command resumes from them)")
+    monkeypatch.setattr(D, "build_dataset", lambda *a, **kw: failing_build(*a, finished=0, **kw))
+    with pytest.raises(SimulationError, match=r"^dataset: urban.sumocfg seed 2: SUMO stopped$"):
+        dataset_main([URBAN], tmp_path / "other")

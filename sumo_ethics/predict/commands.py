@@ -21,9 +21,13 @@ def dataset_main(
     suite_anchor_every: float = 0.4,
 ) -> Path:
     """Simulate ``scenarios`` (.sumocfg) x ``seeds`` (and record the ``suite`` scenario folders
-    with their hazards) and write a prediction dataset folder to ``out``. SIGTERM stops it as
-    Ctrl-C does (:class:`sumo_ethics.errors.Terminated`): its SUMO runs killed, nothing written (a
-    signal while the folder is written waits until it is whole); the interrupt's note says which."""
+    with their hazards) and write a prediction dataset folder to ``out``. Each finished run is kept
+    in ``out``/partial as it ends (:mod:`sumo_ethics.predict.runstore`), and the same call on the
+    same ``out`` resumes from them. SIGTERM stops it as Ctrl-C does
+    (:class:`sumo_ethics.errors.Terminated`): its SUMO runs killed, no dataset written (a signal
+    while the folder is written waits until it is whole); the interrupt's note says which, and how
+    many finished runs are kept."""
+    from sumo_ethics.errors import SimulationError
     from sumo_ethics.interrupt import sigterm_as_interrupt
     from sumo_ethics.predict.dataset import build_dataset
 
@@ -35,8 +39,24 @@ def dataset_main(
                 suite=[Path(s) for s in suite], suite_anchor_every=suite_anchor_every,
             )
         except KeyboardInterrupt as exc:  # the command's one line says what is on disk
-            exc.add_note(f"the dataset was written whole to {out}" if Path(out).exists() else "no dataset is written")
+            done = (Path(out) / "split.json").is_file()
+            exc.add_note(f"the dataset was written whole to {out}" if done else f"no dataset is written{_kept_note(out)}")
             raise
+        except SimulationError as exc:  # a SUMO run failed: the others' work is not lost either
+            note = _kept_note(out)
+            if note:
+                raise SimulationError(f"{exc}{note}") from None
+            raise
+
+
+def _kept_note(out: Path | str) -> str:
+    """What a stopped dataset build keeps, for its one line: ' (K of N runs finished and are kept in
+    OUT/partial: the same command resumes from them)', or '' when no run finished."""
+    from sumo_ethics.predict.runstore import PARTIAL, kept_runs
+
+    kept, planned = kept_runs(Path(out))
+    return (f" ({kept} of {planned} runs finished and are kept in {Path(out) / PARTIAL}: the same command "
+            "resumes from them)" if kept else "")
 
 
 def train_main(

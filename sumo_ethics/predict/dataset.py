@@ -24,6 +24,10 @@ varying by seed), and writes to ``out``:
   (hazard actors may vanish after 1 s: their futures are partly observed).
 - ``split.json``: the seeds of each split; the split is by run seed, never by frame. Suite
   scenarios recorded with their hazards (``suite=``) are split by scenario.
+
+While it builds, each finished run is kept in ``out/partial`` (:mod:`sumo_ethics.predict.runstore`):
+a build stopped by Ctrl-C, SIGTERM, a crash or a kill resumes from them when called again with
+the same arguments, and gives the same bytes as one never stopped.
 """
 
 from __future__ import annotations
@@ -42,8 +46,10 @@ from typing import TypeVar
 import numpy as np
 import pandas as pd
 
+from sumo_ethics import __version__
 from sumo_ethics.interrupt import signals_held
 from sumo_ethics.predict import features as F
+from sumo_ethics.predict.runstore import RunStore
 from sumo_ethics.sim.frames import front_to_centre
 
 log = logging.getLogger(__name__)
@@ -156,7 +162,7 @@ def check_scenarios(scenarios: list[Path]) -> None:
     def crashed(scenario: Path) -> ConfigError:  # SUMO may crash outright on a broken file
         return ConfigError(f"dataset: SUMO crashed while loading {scenario} (a malformed network or route file?)")
 
-    for problem in isolated_map(_probe, scenarios, 1, crashed):
+    for _, problem in isolated_map(_probe, scenarios, 1, crashed):
         if problem:
             raise ConfigError(f"dataset: {problem}")
 
@@ -202,15 +208,16 @@ def _stop(pool) -> None:
         proc.join(timeout=5)
 
 
-def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Callable[[T], Exception]) -> Iterator[R]:
-    """``fn(job)`` for every job, each in a fresh spawned process (libsumo: one simulation per
-    process), at most ``workers`` at a time; results in job order. A process that dies (SUMO
-    crashing) raises ``crashed(job)`` instead of being waited for forever, which is what
+def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Callable[[T], Exception]) -> Iterator[tuple[T, R]]:
+    """``(job, fn(job))`` for every job, each in a fresh spawned process (libsumo: one simulation
+    per process), at most ``workers`` at a time, in the order they finish (of those finished, the
+    first listed), so a finished result is never held back behind a longer job. A process that dies
+    (SUMO crashing) raises ``crashed(job)`` instead of being waited for forever, which is what
     ``multiprocessing.Pool`` does. The next job starts when a result has been taken, so a caller
     that stops at a result starts nothing more. The processes do not see Ctrl-C or SIGTERM: this
     process gets them and kills the running ones (also after a failure or when the caller stops)."""
     from collections import deque
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from concurrent.futures.process import BrokenProcessPool
 
     ctx = mp.get_context("spawn")
@@ -233,14 +240,16 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Cal
         for _ in range(max(1, workers)):
             submit()
         while window:
-            job, pool, future = window[0]
+            finished, _ = wait([future for _, _, future in window], return_when=FIRST_COMPLETED)
+            k = next(i for i, (_, _, future) in enumerate(window) if future in finished)
+            job, pool, future = window[k]
             try:
                 result = future.result()
             except BrokenProcessPool:
                 raise crashed(job) from None
-            window.popleft()
+            del window[k]
             pool.shutdown()
-            yield result
+            yield job, result
             submit()
     finally:
         with signals_held(signal.SIGINT, signal.SIGTERM):  # a second Ctrl-C does not cut the stopping short
@@ -262,25 +271,23 @@ def _scratch_root() -> Iterator[str]:
         shutil.rmtree(root, ignore_errors=True)
 
 
-def simulate_runs(specs: list[RunSpec], workers: int = 1) -> tuple[pd.DataFrame, dict[str, F.LaneGraph]]:
-    """Run every spec in a fresh spawned process (:func:`isolated_map`).
+def simulate_runs(specs: list[RunSpec], store: RunStore, workers: int = 1) -> None:
+    """Run every spec not yet in ``store`` in a fresh spawned process (:func:`isolated_map`) and
+    keep each run's trajectory rows and lane graph there as soon as it ends.
 
-    Returns the trajectory rows and each scenario's lane graph (keyed by the scenario path). The
-    runs' scratch folders (the scenarios' own outputs) go in one temporary folder, removed when
-    this returns or stops, after the processes are gone: a run terminated on Ctrl-C or SIGTERM
-    cannot remove its own."""
-    frames = []
-    graphs: dict[str, F.LaneGraph] = {}
+    The runs' scratch folders (the scenarios' own outputs) go in one temporary folder, removed
+    when this returns or stops, after the processes are gone: a run terminated on Ctrl-C or
+    SIGTERM cannot remove its own."""
+    done = store.done()
+    todo = [spec for spec in specs if spec.run_id not in done]
     crashed = lambda spec: _crashed_run(_run_name(spec))
     with _scratch_root() as root:
-        jobs = [replace(spec, scratch_root=root) for spec in specs]
+        jobs = [replace(spec, scratch_root=root) for spec in todo]
         with closing(isolated_map(_simulate_safely, jobs, workers, crashed)) as results:  # closed: no process runs on
-            for i, (df, graph) in enumerate(results):
-                log.info("run %d/%d: %s seed %d scale %.2f -> %d rows", i + 1, len(specs), specs[i].scenario.name,
-                         specs[i].seed, specs[i].scale, len(df))
-                frames.append(df)
-                graphs.setdefault(str(specs[i].scenario), graph)
-    return pd.concat(frames, ignore_index=True), graphs
+            for i, (spec, (df, graph)) in enumerate(results):
+                store.put(spec.run_id, df, graph)
+                log.info("run %d/%d: %s seed %d scale %.2f -> %d rows", i + 1, len(todo), spec.scenario.name,
+                         spec.seed, spec.scale, len(df))
 
 
 #: manoeuvre labels of a sample (vehicles and cyclists; pedestrians are -1), see :func:`manoeuvre_labels`
@@ -480,19 +487,17 @@ def _simulate_suite(args: tuple[int, Path, str | None]) -> tuple[pd.DataFrame, F
     return df, graph
 
 
-def simulate_suite(scenarios: list[Path], first_run_id: int, workers: int = 1) -> tuple[list[pd.DataFrame], dict[str, F.LaneGraph]]:
-    """Record suite scenarios (hazards included), one spawned process each (:func:`isolated_map`)."""
-    frames, graphs = [], {}
+def simulate_suite(scenarios: list[Path], first_run_id: int, store: RunStore, workers: int = 1) -> None:
+    """Record the suite scenarios not yet in ``store`` (hazards included), one spawned process each
+    (:func:`isolated_map`), numbered from ``first_run_id``; each kept in ``store`` as it ends."""
+    done = store.done()
     crashed = lambda job: _crashed_run(_suite_name(job[1]))
     with _scratch_root() as root:
-        jobs = [(first_run_id + i, Path(s).resolve(), root) for i, s in enumerate(scenarios)]
+        jobs = [(first_run_id + i, Path(s).resolve(), root) for i, s in enumerate(scenarios) if first_run_id + i not in done]
         with closing(isolated_map(_simulate_suite, jobs, workers, crashed)) as results:
-            for (run_id, scen, _), (df, graph) in zip(jobs, results):
+            for (run_id, scen, _), (df, graph) in results:
+                store.put(run_id, df, graph)
                 log.info("suite run %d: %s -> %d rows", run_id, scen.name, len(df))
-                if len(df) and graph is not None:
-                    frames.append(df)
-                    graphs[str(scen)] = graph
-    return frames, graphs
 
 
 def build_dataset(
@@ -525,14 +530,32 @@ def build_dataset(
             specs.append(RunSpec(len(specs), Path(scenario).resolve(), seed, float(scales[i % len(scales)]), sim_seconds))
     if specs:
         check_scenarios(sorted({s.scenario for s in specs}, key=str))
-    traj, graphs = simulate_runs(specs, workers=workers) if specs else (pd.DataFrame(), {})
-    if suite:
-        frames, suite_graphs = simulate_suite(list(suite), len(specs), workers=workers)
-        graphs.update(suite_graphs)
-        traj = pd.concat([traj, *frames], ignore_index=True)
-        for i in range(len(suite)):
-            name = "test" if i % 10 == 9 else "val" if i % 10 == 8 else "train"
-            split[name].append(SUITE_SEED0 + len(specs) + i)
+    suite_dirs = [Path(s).resolve() for s in suite]
+    store = RunStore.open(out, {
+        "runs": [{"run_id": s.run_id, "scenario": str(s.scenario), "seed": s.seed, "scale": s.scale,
+                  "sim_seconds": s.sim_seconds} for s in specs],
+        "suite": [{"run_id": len(specs) + i, "scenario": str(s)} for i, s in enumerate(suite_dirs)],
+        "sumo_ethics": __version__, "map_version": F.MAP_VERSION,
+    })
+    if store.done():
+        log.info("resuming: %d finished runs kept in %s", len(store.done()), store.folder)
+    simulate_runs(specs, store, workers=workers)
+    simulate_suite(suite_dirs, len(specs), store, workers=workers)
+    # every run read back from its file, a resumed one or not: the dataset is the same bytes either way
+    frames, graphs = [], {}
+    for spec in specs:
+        df, graph = store.get(spec.run_id)
+        frames.append(df)
+        graphs.setdefault(str(spec.scenario), graph)
+    for i, scen in enumerate(suite_dirs):
+        df, graph = store.get(len(specs) + i)
+        if len(df) and graph is not None:
+            frames.append(df)
+            graphs[str(scen)] = graph
+        name = "test" if i % 10 == 9 else "val" if i % 10 == 8 else "train"
+        split[name].append(SUITE_SEED0 + len(specs) + i)
+    traj = pd.concat([pd.concat(frames[:len(specs)], ignore_index=True) if specs else pd.DataFrame(),
+                      *frames[len(specs):]], ignore_index=True)
     # the samples first: a run too short for any sample stops here, before anything is written
     samples = build_samples(traj, split, anchor_every=anchor_every, graphs=graphs, suite_anchor_every=suite_anchor_every)
     with signals_held(signal.SIGINT, signal.SIGTERM):  # Ctrl-C or SIGTERM now waits: the folder is written whole
@@ -556,6 +579,7 @@ def build_dataset(
             "n_samples": split_counts(samples),
         }
         (out / "split.json").write_text(json.dumps(meta, indent=2))
+        store.remove()
     return out
 
 

@@ -1,0 +1,106 @@
+"""The finished runs of a prediction dataset being built, kept on disk so a stopped build resumes.
+
+``OUT/partial/`` holds ``plan.json`` (every run of the build: id, scenario, seed, demand scale,
+simulated seconds; the package and map versions) and, per finished run, ``run_NNNNNN.parquet``
+(its trajectory rows, the columns of ``trajectories.parquet``) and ``run_NNNNNN.graph.pkl`` (its
+network's lane graph, None for a suite run that recorded nothing). Each run's pair is written
+whole (a ``.part`` file renamed) as soon as the run ends, so Ctrl-C, SIGTERM, a crashed SUMO run
+or a killed machine loses only the runs still simulating. The same command on the same ``OUT``
+goes on from them; a build of other runs is refused; the finished dataset removes the folder.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from sumo_ethics.errors import ConfigError
+
+PARTIAL = "partial"
+PLAN_FORMAT = "sumo-ethics dataset runs"
+
+
+@dataclass(frozen=True)
+class RunStore:
+    """The ``partial`` folder of a dataset folder (see the module docstring); made by the first
+    :meth:`put`, so a build stopped before any run ends leaves nothing."""
+
+    folder: Path
+    plan: dict[str, Any]
+
+    @classmethod
+    def open(cls, out: Path, plan: dict[str, Any]) -> RunStore:
+        """The store of ``out`` for ``plan`` (a JSON-able dict of the runs).
+
+        ConfigError if ``out`` already holds the finished runs of another plan: its runs are
+        never mixed with this one's (and never deleted)."""
+        folder = Path(out) / PARTIAL
+        plan = json.loads(json.dumps({"format": PLAN_FORMAT, **plan}))  # as read back from plan.json
+        plan_file = folder / "plan.json"
+        if plan_file.is_file():
+            try:
+                old = json.loads(plan_file.read_text())
+            except ValueError:
+                old = None
+            if old != plan:
+                raise ConfigError(f"{out} holds the finished runs of another dataset build ({plan_file}: other "
+                                  "scenarios, seeds, --sim-seconds or sumo-ethics version); give a new --out, or "
+                                  "the same arguments to resume that build")
+            for stale in folder.glob("*.part"):  # a write cut short by a kill
+                stale.unlink()
+        return cls(folder, plan)
+
+    def _paths(self, run_id: int) -> tuple[Path, Path]:
+        stem = self.folder / f"run_{run_id:06d}"
+        return stem.with_suffix(".parquet"), stem.with_suffix(".graph.pkl")
+
+    def done(self) -> set[int]:
+        """Run ids whose rows and lane graph are on disk."""
+        if not self.folder.is_dir():
+            return set()
+        ids = (int(p.stem.removeprefix("run_")) for p in self.folder.glob("run_*.parquet"))
+        return {i for i in ids if self._paths(i)[1].is_file()}
+
+    def put(self, run_id: int, rows: pd.DataFrame, graph: Any) -> None:
+        """Keep a finished run: its lane graph first, then its rows (the rows mark it done)."""
+        if not (self.folder / "plan.json").is_file():
+            self.folder.mkdir(parents=True, exist_ok=True)
+            _write_whole(self.folder / "plan.json", json.dumps(self.plan, indent=2).encode())
+        table, graph_file = self._paths(run_id)
+        _write_whole(graph_file, pickle.dumps(graph))
+        part = table.with_name(table.name + ".part")
+        rows.to_parquet(part, index=False)
+        os.replace(part, table)
+
+    def get(self, run_id: int) -> tuple[pd.DataFrame, Any]:
+        """A finished run's rows and lane graph, as :meth:`put` was given them."""
+        table, graph_file = self._paths(run_id)
+        with open(graph_file, "rb") as fh:
+            return pd.read_parquet(table), pickle.load(fh)
+
+    def remove(self) -> None:
+        """Delete the folder (its runs are in the written dataset)."""
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def kept_runs(out: Path) -> tuple[int, int]:
+    """(finished runs kept, runs planned) in ``out``'s partial folder; (0, 0) without one."""
+    plan_file = Path(out) / PARTIAL / "plan.json"
+    try:
+        plan = json.loads(plan_file.read_text())
+    except (OSError, ValueError):
+        return 0, 0
+    return len(RunStore(plan_file.parent, plan).done()), len(plan.get("runs", [])) + len(plan.get("suite", []))
+
+
+def _write_whole(path: Path, data: bytes) -> None:
+    part = path.with_name(path.name + ".part")
+    part.write_bytes(data)
+    os.replace(part, path)
