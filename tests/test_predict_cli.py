@@ -86,16 +86,23 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
     assert len(err) == 1 and err[0] == (f"error: interrupted; the best epoch so far (1, validation NLL "
                                         f"{log['best_val_nll']:.3f}) is written to {kept}")
     assert LSTMPredictor.from_file(kept).model.kind == "cslstm" and not list(tmp_path.glob("*.part"))
-    # SIGTERM (errors.Terminated, raised by the handler sigterm_as_interrupt installs) likewise, exit 143
+    # SIGTERM (errors.Terminated, raised by the handler sigterm_as_interrupt installs) likewise, exit
+    # 143; --out exists now (kept.pt), and a cut-short training never replaces it: it goes beside it
     from sumo_ethics.errors import Terminated
 
     calls.clear()
     interrupt = Terminated
+    before = kept.read_bytes(), kept.with_suffix(".json").read_bytes()
     assert main(["train", str(data), "--model", "cslstm", "--out", str(kept), "--max-minutes", "5"]) == 143
-    log = json.loads(kept.with_suffix(".json").read_text())
-    assert log["stopped"] == "interrupted (SIGTERM)"
+    assert (kept.read_bytes(), kept.with_suffix(".json").read_bytes()) == before
+    beside = tmp_path / "kept.interrupted.pt"
+    log = json.loads(beside.with_suffix(".json").read_text())
+    assert log["stopped"] == "interrupted (SIGTERM)" and LSTMPredictor.from_file(beside).model.kind == "cslstm"
     assert capsys.readouterr().err.strip() == (f"error: terminated (SIGTERM); the best epoch so far (1, validation NLL "
-                                               f"{log['best_val_nll']:.3f}) is written to {kept}")
+                                               f"{log['best_val_nll']:.3f}) is written to {beside}")
+    from sumo_ethics.predict.train import interrupted_path
+
+    assert interrupted_path(kept) == tmp_path / "kept.interrupted-2.pt"  # the next free name
     calls.clear()
     interrupt = KeyboardInterrupt
     stop_at = 2  # in the first NLL epoch

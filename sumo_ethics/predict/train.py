@@ -140,6 +140,16 @@ def validate(model: TrajectoryLSTM, samples: dict[str, np.ndarray], index: np.nd
     return {"nll": nll_sum / max(n, 1), "ade": ade_sum / max(n, 1)}
 
 
+def interrupted_path(out: Path) -> Path:
+    """Where an interrupted training writes when ``out`` already exists: the first free one of
+    NAME.interrupted.pt, NAME.interrupted-2.pt, ... (with its .json log beside it)."""
+    for k in range(1, 10_000):
+        path = out.with_name(f"{out.stem}.interrupted{'' if k == 1 else f'-{k}'}{out.suffix or '.pt'}")
+        if not path.exists() and not path.with_suffix(".json").exists():
+            return path
+    raise FileExistsError(f"no free name beside {out} for an interrupted training")
+
+
 def train_model(
     dataset: Path,
     kind: str,
@@ -264,6 +274,8 @@ def train_model(
         "history": history,
         "feature_version": F.FEATURE_VERSION,
     }
+    if interrupted is not None and Path(out).exists():  # the file that was there stays: a cut-short one goes beside it
+        out = interrupted_path(Path(out))
     try:
         with signals_held(signal.SIGINT, signal.SIGTERM):  # the file and its log are written whole
             save_model(model, Path(out), info)
