@@ -219,7 +219,7 @@ def test_runs_in_fresh_processes_come_as_they_finish_and_a_crash_is_named():
     import time
 
     from sumo_ethics.errors import SimulationError
-    from sumo_ethics.predict.dataset import isolated_map
+    from sumo_ethics.predict.isolated import isolated_map
 
     def crashed(job: int) -> SimulationError:
         return SimulationError(f"SUMO crashed while simulating job {job}")
@@ -229,6 +229,8 @@ def test_runs_in_fresh_processes_come_as_they_finish_and_a_crash_is_named():
     assert [job for job, _ in isolated_map(time.sleep, [3.0, 0.1, 0.2], 2, crashed)] == [0.1, 0.2, 3.0]
     with pytest.raises(SimulationError, match="SUMO crashed while simulating job 7"):
         list(isolated_map(os._exit, [7], 2, crashed))  # the process dies: exit code 7
+    with pytest.raises(ValueError, match="invalid literal for int"):  # a worker's own exception, raised here
+        list(isolated_map(int, ["12", "x"], 1, crashed))
 
 
 def test_dataset_writes_nothing_next_to_the_scenario(tmp_path):

@@ -181,7 +181,7 @@ def test_isolated_map_terminates_its_running_workers_when_interrupted():
     import signal
     import time
 
-    from sumo_ethics.predict.dataset import isolated_map
+    from sumo_ethics.predict.isolated import isolated_map
 
     class Stop(Exception):
         pass

@@ -34,14 +34,12 @@ from __future__ import annotations
 
 import json
 import logging
-import multiprocessing as mp
 import pickle
 import signal
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import closing, contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TypeVar
 
 import numpy as np
 import pandas as pd
@@ -49,11 +47,11 @@ import pandas as pd
 from sumo_ethics import __version__
 from sumo_ethics.interrupt import signals_held
 from sumo_ethics.predict import features as F
+from sumo_ethics.predict.isolated import isolated_map
 from sumo_ethics.predict.runstore import RunStore
 from sumo_ethics.sim.frames import front_to_centre
 
 log = logging.getLogger(__name__)
-T, R = TypeVar("T"), TypeVar("R")
 
 SIM_DT = 0.1
 DEFAULT_SCALES = (0.7, 1.0, 1.3)
@@ -195,66 +193,6 @@ def _crashed_run(name: str) -> Exception:
     from sumo_ethics.errors import SimulationError
 
     return SimulationError(f"dataset: SUMO crashed while simulating {name}")
-
-
-def _stop(pool) -> None:
-    """Stop a one-worker pool now: no new job, and its running job's process killed (its processes
-    never see Ctrl-C or SIGTERM, see :func:`isolated_map`, so nothing else would end them)."""
-    procs = list((getattr(pool, "_processes", None) or {}).values())  # before shutdown, which forgets them
-    pool.shutdown(wait=False, cancel_futures=True)
-    for proc in procs:
-        proc.kill()  # SIGKILL: they hold SIGTERM blocked; the caller's _scratch_root removes their scratch folders
-    for proc in procs:
-        proc.join(timeout=5)
-
-
-def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Callable[[T], Exception]) -> Iterator[tuple[T, R]]:
-    """``(job, fn(job))`` for every job, each in a fresh spawned process (libsumo: one simulation
-    per process), at most ``workers`` at a time, in the order they finish (of those finished, the
-    first listed), so a finished result is never held back behind a longer job. A process that dies
-    (SUMO crashing) raises ``crashed(job)`` instead of being waited for forever, which is what
-    ``multiprocessing.Pool`` does. The next job starts when a result has been taken, so a caller
-    that stops at a result starts nothing more. The processes do not see Ctrl-C or SIGTERM: this
-    process gets them and kills the running ones (also after a failure or when the caller stops)."""
-    from collections import deque
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-    from concurrent.futures.process import BrokenProcessPool
-
-    ctx = mp.get_context("spawn")
-    todo = iter(jobs)
-    window: deque = deque()
-
-    def submit() -> None:
-        job = next(todo, None)
-        if job is not None:
-            pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx)
-            window.append([job, pool, None])  # in the window first: an interrupt in submit still stops it
-            # the worker process, started in submit, inherits SIGINT and SIGTERM blocked: a terminal's
-            # Ctrl-C (to the whole process group) printed KeyboardInterrupt tracebacks from workers
-            # still starting. This process gets either when the block ends, not half-way through
-            # submit (a process started but not yet listed in the pool would never be stopped)
-            with signals_held(signal.SIGINT, signal.SIGTERM):
-                window[-1][2] = pool.submit(fn, job)
-
-    try:
-        for _ in range(max(1, workers)):
-            submit()
-        while window:
-            finished, _ = wait([future for _, _, future in window], return_when=FIRST_COMPLETED)
-            k = next(i for i, (_, _, future) in enumerate(window) if future in finished)
-            job, pool, future = window[k]
-            try:
-                result = future.result()
-            except BrokenProcessPool:
-                raise crashed(job) from None
-            del window[k]
-            pool.shutdown()
-            yield job, result
-            submit()
-    finally:
-        with signals_held(signal.SIGINT, signal.SIGTERM):  # a second Ctrl-C does not cut the stopping short
-            for _, pool, _ in window:  # after a failure or an interrupt: nothing new starts, nothing runs on
-                _stop(pool)
 
 
 @contextmanager
