@@ -623,13 +623,18 @@ SUITE = ROOT / "scenarios" / "suite"
 @pytest.mark.skipif(not (SUITE / "s0002").is_dir(), reason="bundled suite missing")
 def test_suite_runs_bring_hazard_actors_into_the_data(tmp_path):
     """A suite scenario recorded with its hazards: the hazard actor is in the trajectories, and
-    its samples are labelled 'hazard' with a future observed for at least 1 s."""
+    its samples are labelled 'hazard' with a future observed for at least 1 s. The step the actor
+    is inserted in, SUMO gives it no position yet (-2^30 m): that row used to be recorded, and the
+    actor's first samples had a 1.5e9 m jump in their history."""
     from sumo_ethics.predict.dataset import HAZARD_MIN_FUTURE, MANOEUVRES, build_dataset, load_samples
 
     out = build_dataset([], [], tmp_path / "ds", suite=[SUITE / "s0002"], suite_anchor_every=0.4)
     traj = __import__("pandas").read_parquet(out / "trajectories.parquet")
     assert traj["agent_id"].str.startswith("hazard_").any()
+    # every recorded position is on this network (its junctions lie within 1 km of the origin)
+    assert traj[["x", "y"]].abs().to_numpy().max() < 1000.0 and (traj["speed"] >= 0).all()
     s = load_samples(out)
+    assert np.abs(s["tgt_hist"]).max() < 1000.0 and np.abs(s["nbr_hist"]).max(initial=0.0) < 1000.0
     hz = s["manoeuvre"] == MANOEUVRES.index("hazard")
     assert hz.any()
     assert s["fut_valid"][hz][:, :HAZARD_MIN_FUTURE].all()

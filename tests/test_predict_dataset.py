@@ -312,3 +312,27 @@ def test_a_failed_run_names_the_finished_runs_it_keeps(tmp_path, monkeypatch):
     monkeypatch.setattr(D, "build_dataset", lambda *a, **kw: failing_build(*a, finished=0, **kw))
     with pytest.raises(SimulationError, match=r"^dataset: urban.sumocfg seed 2: SUMO stopped$"):
         dataset_main([URBAN], tmp_path / "other")
+
+
+def test_rows_without_a_position_are_steps_not_seen():
+    """Datasets recorded before sim.recorder.on_road hold SUMO's INVALID_DOUBLE_VALUE (-2^30 m) as
+    the position of a road user SUMO had not placed yet (a suite hazard's first step, a car leaving
+    a parking area): their samples are those of the track without those rows, not a 1.5e9 m jump."""
+    from sumo_ethics.predict.dataset import samples_from_run
+
+    t = np.round(np.arange(0.0, 12.0, 0.1), 1)
+    rows = []
+    for k, (y, v) in enumerate(((0.0, 10.0), (3.5, 8.0))):
+        rows.append(pd.DataFrame({"time": t, "agent_id": f"v{k}", "cls": np.int8(0), "x": v * t, "y": y,
+                                  "yaw": 0.0, "speed": v}))
+    clean = pd.concat(rows, ignore_index=True)
+    clean = clean[~((clean.agent_id == "v1") & (clean.time < 1.0))]  # v1 appears at 1.0 s
+    invalid = -(2.0 ** 30)
+    unplaced = pd.DataFrame({"time": np.round(np.arange(0.0, 1.0, 0.1), 1), "agent_id": "v1", "cls": np.int8(0),
+                             "x": invalid, "y": invalid, "yaw": 0.0, "speed": invalid})
+    a = samples_from_run(clean, anchor_every=1.0)
+    b = samples_from_run(pd.concat([unplaced, clean], ignore_index=True), anchor_every=1.0)
+    assert len(a["tgt_hist"]) > 0 and sorted(a) == sorted(b)
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+    assert np.abs(b["tgt_hist"]).max() < 200.0
+

@@ -54,6 +54,7 @@ from sumo_ethics.sim.frames import front_to_centre
 log = logging.getLogger(__name__)
 
 SIM_DT = 0.1
+NO_POSITION = 1e9  # [m] |x| or |y| at least this: SUMO gave no position (INVALID_DOUBLE_VALUE is -2^30)
 DEFAULT_SCALES = (0.7, 1.0, 1.3)
 
 @dataclass(frozen=True)
@@ -274,7 +275,10 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
     """
     ratio = int(round(F.MODEL_DT / SIM_DT))
     k = np.round(df["time"].to_numpy() / SIM_DT).astype(np.int64)
-    keep = k % ratio == 0
+    # rows without a position (SUMO's INVALID_DOUBLE_VALUE, -2^30 m; the recorder drops them since
+    # sim.recorder.on_road, older datasets have them) are steps the road user was not seen
+    seen = (np.abs(df["x"].to_numpy()) < NO_POSITION) & (np.abs(df["y"].to_numpy()) < NO_POSITION)
+    keep = (k % ratio == 0) & seen
     d = df.loc[keep]
     frame = (k[keep] // ratio)
     frame = frame - frame.min()

@@ -11,7 +11,8 @@ scenario and scale, which the caller adds):
 
 Positions are SUMO's front bumpers, turned into centres (``sim.frames.front_to_centre``) by the
 caller of :func:`record_run` and per road user by :class:`TrafficRecorder`. Riders (persons in
-a vehicle) are left out: they are their vehicle, as at run time.
+a vehicle) are left out: they are their vehicle, as at run time; so are the steps in which SUMO
+gives a road user no position (:func:`on_road`).
 """
 
 from __future__ import annotations
@@ -28,6 +29,13 @@ from sumo_ethics.types import RoadUserClass
 #: the map-context columns and their values on rows between the predictor's steps
 CONTEXT_COLUMNS = {"lane": -1, "lane_pos": 0.0, "tls_dist": np.inf, "tls_state": 0, "next_lane": -1,
                    "tls_switch": np.inf, "blinker": 0, "after_lane": -1}
+
+
+def on_road(pos: tuple[float, float]) -> bool:
+    """Whether SUMO gives the road user a position: not while it is inserted but not yet placed (a
+    suite hazard's first step), parked off the road or teleporting (INVALID_DOUBLE_VALUE, -2^30 m,
+    which became 1e9 m jumps in the samples of every dataset recorded before this check)."""
+    return pos[0] != libsumo.INVALID_DOUBLE_VALUE and pos[1] != libsumo.INVALID_DOUBLE_VALUE
 
 
 class TypeInfo:
@@ -79,6 +87,7 @@ def record_run(cmd: list[str], sim_seconds: float, sim_dt: float = 0.1, model_dt
                                              libsumo.person.getAllSubscriptionResults())):
                 if is_person:  # a rider is in its vehicle, not a pedestrian (as at run time)
                     res = {k: r for k, r in res.items() if not r[libsumo.VAR_VEHICLE]}
+                res = {k: r for k, r in res.items() if on_road(r[libsumo.VAR_POSITION])}
                 ids = list(res)
                 if at_model_rate:
                     ctx = agent_context(graph, ids, np.full(len(ids), bool(is_person)), signals, clock)
@@ -124,7 +133,8 @@ class TrafficRecorder:
         t = libsumo.simulation.getTime()
         at_rate = int(round(t / self.sim_dt)) % self.ratio == 0
         for person, dom in ((False, libsumo.vehicle), (True, libsumo.person)):
-            ids = [k for k in dom.getIDList() if k not in self.skip and not (person and dom.getVehicle(k))]  # no riders
+            ids = [k for k in dom.getIDList() if k not in self.skip and not (person and dom.getVehicle(k))  # no riders
+                   and on_road(dom.getPosition(k))]
             if not ids:
                 continue
             ctx = agent_context(self.graph, ids, np.full(len(ids), person), self.signals, self.clock) if at_rate else None
