@@ -336,3 +336,20 @@ def test_rows_without_a_position_are_steps_not_seen():
     assert all(np.array_equal(a[k], b[k]) for k in a)
     assert np.abs(b["tgt_hist"]).max() < 200.0
 
+
+def test_the_first_worker_of_a_fresh_process_holds_ctrl_c_and_sigterm_too():
+    """multiprocessing starts its resource tracker at a process's first worker start, and that
+    unblocked SIGINT and SIGTERM just before the worker was spawned: the first worker (the
+    dataset's scenario check) printed a KeyboardInterrupt traceback on a terminal's Ctrl-C."""
+    import subprocess
+    import sys
+
+    code = ("import functools, signal\n"
+            "from sumo_ethics.predict.isolated import isolated_map\n"
+            "mask = functools.partial(signal.pthread_sigmask, signal.SIG_BLOCK)\n"
+            "print(sorted(int(s) for _, blocked in isolated_map(mask, [[], []], 1, RuntimeError) for s in blocked))\n"
+            "print(sorted(int(s) for s in signal.pthread_sigmask(signal.SIG_BLOCK, [])))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    workers, caller = out.stdout.split("\n")[:2]
+    assert workers == "[2, 2, 15, 15]" and caller == "[]"  # both workers block SIGINT (2) and SIGTERM (15)

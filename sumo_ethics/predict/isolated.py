@@ -10,6 +10,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import signal
 from collections.abc import Callable, Iterator
+from multiprocessing import resource_tracker
 from multiprocessing.connection import wait
 from typing import Any, TypeVar
 
@@ -57,6 +58,9 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Cal
             return
         recv, send = ctx.Pipe(duplex=False)
         proc = ctx.Process(target=_work, args=(fn, job, send), daemon=True)
+        # multiprocessing starts its resource tracker at the first process start, and that unblocks
+        # SIGINT and SIGTERM in this thread: started here, outside the block below, it cannot
+        resource_tracker.ensure_running()
         # the process inherits SIGINT and SIGTERM blocked: a terminal's Ctrl-C (to the whole process
         # group) printed KeyboardInterrupt tracebacks from workers still starting. This process gets
         # either when the block ends, with the process started and listed, so it is stopped
