@@ -424,3 +424,16 @@ def test_truck_ego_gets_its_own_size_and_limits(tmp_path):
     lim = s.data["ego_limits"]
     assert (lim["length"], lim["width"], lim["max_accel"], lim["comfort_decel"], lim["max_decel"]) == (12, 2.5, 1.1, 3.0, 7)
     assert lim["max_speed"] == 25 and lim["max_lat_accel"] == 4.0  # the car's where the vType says nothing
+
+
+@pytest.mark.sumo
+def test_a_long_vtype_of_the_default_class_is_driven_with_its_own_size(tmp_path):
+    """eclipse-sumo's tools/game/ramp.sumocfg has a 12 m 'truck' vType without a vClass (so a
+    passenger car to SUMO): taken over, it was planned and checked for collisions as a 4.508 x
+    1.610 m car while SUMO simulated 12 m. Now its own size, with a car's limits."""
+    cfg = write_scenario(tmp_path / "s", """<vType id="truck" length="12" width="2.4" maxSpeed="25"/>
+        <vehicle id="t1" type="truck" route="r_main" depart="0" departPos="20"/>""", end=10)
+    s = run(RunConfig(cfg, tmp_path / "o", ego_id="t1", end=3, controller="baseline", progress=False))
+    lim = s.data["ego_limits"]
+    assert (lim["length"], lim["width"]) == (12, 2.4)
+    assert (lim["max_speed"], lim["max_accel"], lim["mass"]) == (36.0, 3.0, 1475.0)  # a car's limits

@@ -90,15 +90,16 @@ def find_ego_route(cfg: RunConfig) -> tuple[str, ...]:
 
 
 def ego_limits(ego_id: str, car: EgoVehicle) -> EgoVehicle:
-    """The limits the planner drives a taken-over vehicle with: a car's (``car``), but for a
-    truck, bus or motorcycle its own size and no more than its vType's top speed,
-    acceleration and decelerations."""
+    """The limits the planner drives a taken-over vehicle with: always its own size (the body SUMO
+    simulates, whatever its vClass: a 12 m vType left at the default vClass was planned and
+    checked for collisions as a 4.5 m car), and a car's limits (``car``), but for a truck, bus or
+    motorcycle no more than its vType's top speed, acceleration and decelerations."""
     v, vt = libsumo.vehicle, libsumo.vehicletype
+    own = replace(car, length=v.getLength(ego_id), width=v.getWidth(ego_id))
     if RoadUserClass.from_vclass(v.getVehicleClass(ego_id)) is RoadUserClass.CAR:
-        return car
+        return own
     t = v.getTypeID(ego_id)
-    return replace(car, length=v.getLength(ego_id), width=v.getWidth(ego_id),
-                   max_speed=min(car.max_speed, v.getMaxSpeed(ego_id)), max_accel=min(car.max_accel, vt.getAccel(t)),
+    return replace(own, max_speed=min(car.max_speed, v.getMaxSpeed(ego_id)), max_accel=min(car.max_accel, vt.getAccel(t)),
                    comfort_decel=min(car.comfort_decel, vt.getDecel(t)),
                    max_decel=min(car.max_decel, vt.getEmergencyDecel(t)))
 
