@@ -12,7 +12,7 @@ from pathlib import Path
 import click
 
 from sumo_ethics.errors import SumoEthicsError, Terminated
-from sumo_ethics.predict import PredictorError
+from sumo_ethics.predict import PREDICTORS, PredictorError
 
 
 def _console():
@@ -65,7 +65,7 @@ def cli() -> None:
               help="Selection rule (default cost: the ethical cost decides unavoidable harms; validity: Origin's).")
 @click.option("--utility", type=click.Choice(["candidate_mean", "literal"]),
               help="Reading of J_mean in J_utility (default candidate_mean).")
-@click.option("--predictor", type=click.Choice(["map_cslstm", "map", "attention", "cslstm", "cv"]),
+@click.option("--predictor", type=click.Choice(PREDICTORS),
               help="Neighbour prediction (default map_cslstm: the CS-LSTM reading lanes and signals too; map: "
                    "the same with the paper's attention).")
 @click.option("--predictor-weights", type=click.Path(path_type=Path),

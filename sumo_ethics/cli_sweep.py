@@ -14,6 +14,8 @@ from pathlib import Path
 
 import click
 
+from sumo_ethics.predict import PREDICTORS
+
 
 @click.command()
 @click.argument("scenario_or_suite", type=click.Path(path_type=Path))
@@ -33,7 +35,8 @@ import click
 @click.option("--ego-from", help="Route of the inserted ego: from this edge ...")
 @click.option("--ego-to", help="... to this edge.")
 @click.option("--controller", type=click.Choice(["ethical", "baseline"]), help="Ego controller (default ethical).")
-@click.option("--predictor", type=click.Choice(["attention", "cslstm", "cv"]), help="Neighbour prediction.")
+@click.option("--predictor", type=click.Choice(PREDICTORS),
+              help="Neighbour prediction (default map_cslstm, as for run).")
 @click.option("--radius", type=float, help="Sensing radius around the ego [m].")
 @click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")

@@ -26,11 +26,11 @@ from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
 from sumo_ethics.plan.controller import Decision, Scene
 from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
+from sumo_ethics.predict import PREDICTORS
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior
 from sumo_ethics.sim.world import EgoCommand
 from sumo_ethics.types import Candidates, DecisionTrace, Observation, Prediction
 
-PREDICTORS = ("map", "map_cslstm", "attention", "cslstm", "cv")
 
 #: validity classes, best first (the selected candidate's class is logged as ``validity``)
 VALIDITY = ("safe", "no_overlap_on_road", "no_overlap", "feasible", "emergency")

@@ -14,6 +14,10 @@ class PredictorError(RuntimeError):
     """A predictor cannot be built: missing, corrupt or incompatible weights file."""
 
 
+#: the planner's predictors: the learned kinds (models.KINDS; map_cslstm the default) and constant velocity
+PREDICTORS = ("map_cslstm", "map", "attention", "cslstm", "cv")
+
+
 _LAZY = {
     "ConstantVelocityPredictor": "sumo_ethics.predict.constant_velocity",
     "LSTMPredictor": "sumo_ethics.predict.predictor",
@@ -25,7 +29,7 @@ _LAZY = {
     "evaluate_main": "sumo_ethics.predict.commands",
 }
 
-__all__ = ["PredictorError", *_LAZY]
+__all__ = ["PREDICTORS", "PredictorError", *_LAZY]
 
 if TYPE_CHECKING:  # pragma: no cover
     from sumo_ethics.predict.commands import dataset_main, evaluate_main, train_main
