@@ -292,6 +292,16 @@ def test_sumo_start_failure_reason_in_summary(tmp_path):
 
 
 @pytest.mark.sumo
+def test_an_unknown_sumo_arg_is_named_with_sumos_reason(tmp_path):
+    """SUMO gives its reason on an indented second line; the error line had only the first
+    ("On processing option '--nosuchopt':")."""
+    cfg = write_scenario(tmp_path / "s", "", end=10)
+    p, _ = cli("run", str(cfg), "--out", str(tmp_path / "o"), "--sumo-arg", "--nosuchopt 1")
+    line = one_error_line(p, "SUMO could not start t.sumocfg", code=3)
+    assert line.endswith("On processing option '--nosuchopt': No option with the name 'nosuchopt' exists."), line
+
+
+@pytest.mark.sumo
 def test_sumo_arg_reaches_sumo(tmp_path):
     cfg = write_scenario(tmp_path / "s", '<vehicle id="ego" type="car" route="r_main" depart="0"/>', end=10)
     out = tmp_path / "o"

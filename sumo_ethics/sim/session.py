@@ -98,9 +98,17 @@ def _stderr_to(f) -> Iterator[None]:
 
 
 def _first_error(text: str) -> str:
-    for line in text.splitlines():
+    """SUMO's first error in what it printed, with its indented continuation lines (an unknown
+    option: "On processing option '--x':" then " No option with the name 'x' exists.")."""
+    lines = text.splitlines()
+    for i, line in enumerate(lines):
         if line.startswith("Error"):
-            return line.removeprefix("Error: ").strip()
+            parts = [line.removeprefix("Error: ").strip()]
+            for more in lines[i + 1:]:
+                if not more[:1].isspace():
+                    break
+                parts.append(more.strip())
+            return " ".join(p for p in parts if p)
     return ""
 
 
