@@ -433,6 +433,8 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
             r.status, r.message, error = RunStatus.ERROR, f"internal error: {type(exc).__name__}: {exc}", exc
         with sigterm_deferred():  # a SIGTERM now waits until the outputs are whole
             data, error = r.finish(wallclock.perf_counter() - t0, error)
+    if isinstance(error, KeyboardInterrupt) and (cfg.out / "summary.json").is_file():  # the command's line says so
+        error.add_note(f"the steps so far and a summary (status interrupted) are written to {cfg.out}")
     if error is not None:
         raise error
     return RunSummary(r.status, r.message, cfg.out, data)

@@ -285,9 +285,10 @@ def test_ctrl_c_stops_cleanly_and_resumes(tmp_path):
         time.sleep(0.05)
     os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does: the sweep and its runs
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130 and err.strip().splitlines()[-1].startswith("error:")
     m = json.loads((out / "manifest.json").read_text())
     finished = [p for p in (out / "runs").iterdir() if not p.name.startswith(".")]
+    assert proc.returncode == 130 and err.strip().splitlines() == [
+        f"error: interrupted; {len(finished)} of 6 runs are finished in {out}: the same command resumes the others"], err
     assert {r["run_id"] for r in m["runs"] if r["status"] != "pending"} == {p.name for p in finished}
     for p in finished:
         assert json.loads((p / "summary.json").read_text())["status"] in ("completed", "collision", "timeout")

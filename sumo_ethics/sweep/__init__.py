@@ -99,6 +99,11 @@ def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None =
             return _run_sweep(sweep, Path(out), workers, scheduler, progress, on_result)
         except OSError as exc:
             raise OutputError(f"cannot write the sweep to {out}: {exc.strerror or exc}") from None
+        except KeyboardInterrupt as exc:  # the command's one line says what is kept
+            finished = sum(1 for p in (Path(out) / "runs").glob("*/summary.json") if not p.parent.name.startswith("."))
+            exc.add_note(f"{finished} of {len(sweep.specs())} runs are finished in {out}: the same command "
+                         "resumes the others")
+            raise
 
 
 def _start(sweep: Sweep, out: Path, specs: list[RunSpec]) -> tuple[float, Path, Manifest, list[RunSpec], int]:
