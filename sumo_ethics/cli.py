@@ -202,13 +202,18 @@ def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: flo
     if scenarios and len(set(parse_seeds(seeds))) < 3:
         raise click.BadParameter(f"--seeds {seeds}: the split is by seed (train, validation, test), so it needs "
                                  "at least 3 seeds, e.g. --seeds 1-3")
-    if not sim_seconds > 0 or workers < 1:
-        raise click.BadParameter("--sim-seconds must be positive and --workers at least 1")
+    if not sim_seconds > 0:
+        raise click.BadParameter(f"--sim-seconds {sim_seconds:g}: give a positive number of seconds")
+    if workers < 1:
+        raise click.BadParameter(f"--workers {workers}: give at least 1")
     if scenarios and sim_seconds < 10.0:
         raise click.BadParameter(f"--sim-seconds {sim_seconds:g}: a sample needs 3 s of history and 4 s ahead "
                                  "of agents already on the road, so simulate at least 10 s")
+    def resuming(kept: int, planned: int) -> None:
+        click.echo(f"resuming: {kept} of {planned} runs finished before and are kept in {out / PARTIAL}", err=True)
+
     _dataset_written(dataset_main(scenarios, out, seeds=parse_seeds(seeds), sim_seconds=sim_seconds,
-                                  workers=workers, suite=suite_dirs))
+                                  workers=workers, suite=suite_dirs, on_resume=resuming))
 
 
 def _dataset_written(path: Path) -> None:

@@ -280,6 +280,7 @@ def test_a_stopped_dataset_keeps_its_finished_runs_and_the_same_command_resumes_
     monkeypatch.setattr(D, "isolated_map", watched)
     assert main([*args, str(out)]) == 0
     assert simulated == [1, 2] and not (out / "partial").exists()
+    assert capsys.readouterr().err.strip() == f"resuming: 1 of 3 runs finished before and are kept in {out / 'partial'}"
     assert main([*args, str(tmp_path / "fresh")]) == 0
     assert simulated == [1, 2, 0, 1, 2]
     for name in ("trajectories.parquet", "lane_graphs.pkl"):

@@ -508,7 +508,7 @@ def collision_snapshots(run: Path, rows: list[dict[str, Any]]) -> list[Path]:
     for r in rows:
         if not is_booked(r) or int(r["step"]) not in have:
             continue
-        title = (f"Collision {r['event']}: ego hit {r['class_b']} '{r['id_b']}' at t = {r['time']:.2f} s, "
+        title = (f"Collision {r['event']}: ego and {r['class_b']} '{r['id_b']}' at t = {r['time']:.2f} s, "
                  f"harm ego {r['harm_ego']:.3f}, third party {r['harm_third_party']:.3f}. "
                  f"The last decision before impact:")
         res = explain(run, int(r["step"]), Path(run) / rec.SNAPSHOTS / f"collision_{r['event']}", title=title,

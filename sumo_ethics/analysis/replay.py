@@ -209,7 +209,7 @@ def _total_steps(run: Path) -> int:
 
 
 def _collisions(run: Path) -> dict[int, str]:
-    """The run's booked ego collisions: step -> a line saying who was hit and the harm booked."""
+    """The run's booked ego collisions: step -> a line naming the other party and the harm booked."""
     from sumo_ethics.collision import is_booked
     from sumo_ethics.record.reader import read_table
 
@@ -221,7 +221,7 @@ def _collisions(run: Path) -> dict[int, str]:
     for r in rows:
         if is_booked(r):
             marks.setdefault(int(r["step"]), []).append(
-                f"COLLISION at t = {r['time']:.1f} s: ego hit {r['class_b']} '{r['id_b']}'\n"
+                f"COLLISION at t = {r['time']:.1f} s: ego and {r['class_b']} '{r['id_b']}'\n"
                 f"harm P(MAIS 3+): ego {r['harm_ego']:.3f}, third party {r['harm_third_party']:.3f}")
     return {k: "\n".join(v) for k, v in marks.items()}
 

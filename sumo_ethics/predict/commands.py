@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Sequence
 
 log = logging.getLogger(__name__)
 
@@ -19,11 +19,12 @@ def dataset_main(
     workers: int = 1,
     suite: Sequence[Path | str] = (),
     suite_anchor_every: float = 0.4,
+    on_resume: Callable[[int, int], None] | None = None,
 ) -> Path:
     """Simulate ``scenarios`` (.sumocfg) x ``seeds`` (and record the ``suite`` scenario folders
     with their hazards) and write a prediction dataset folder to ``out``. Each finished run is kept
     in ``out``/partial as it ends (:mod:`sumo_ethics.predict.runstore`), and the same call on the
-    same ``out`` resumes from them. SIGTERM stops it as Ctrl-C does
+    same ``out`` resumes from them (``on_resume(kept, planned)`` is told first). SIGTERM stops it as Ctrl-C does
     (:class:`sumo_ethics.errors.Terminated`): its SUMO runs killed, no dataset written (a signal
     while the folder is written waits until it is whole); the interrupt's note says which, and how
     many finished runs are kept."""
@@ -36,7 +37,7 @@ def dataset_main(
             return build_dataset(
                 [Path(s) for s in scenarios], list(seeds), Path(out), scales=tuple(scales),
                 sim_seconds=sim_seconds, anchor_every=anchor_every, workers=workers,
-                suite=[Path(s) for s in suite], suite_anchor_every=suite_anchor_every,
+                suite=[Path(s) for s in suite], suite_anchor_every=suite_anchor_every, on_resume=on_resume,
             )
         except KeyboardInterrupt as exc:  # the command's one line says what is on disk
             done = (Path(out) / "split.json").is_file()

@@ -36,7 +36,7 @@ import json
 import logging
 import pickle
 import signal
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import closing, contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -455,13 +455,16 @@ def build_dataset(
     workers: int = 1,
     val_fraction: float = 0.15,
     test_fraction: float = 0.2,
+    on_resume: Callable[[int, int], None] | None = None,
 ) -> Path:
     """Simulate scenarios x seeds (and record the ``suite`` scenarios with their hazards, split
     by scenario, see SUITE_SEED0) and write trajectories.parquet, lane_graphs.pkl,
     samples.npz, split.json.
 
     The demand scale of seed s is ``scales[i % len(scales)]`` where i is the seed's rank,
-    so every split sees every scale when it has enough seeds. Returns ``out``.
+    so every split sees every scale when it has enough seeds. Each finished run is kept in
+    ``out``/partial (:class:`RunStore`); a stopped build of the same runs goes on from them
+    (``on_resume(kept, planned)`` is told first). Returns ``out``.
     """
     out = Path(out)
     seeds = sorted(set(int(s) for s in seeds))
@@ -479,8 +482,8 @@ def build_dataset(
         "suite": [{"run_id": len(specs) + i, "scenario": str(s)} for i, s in enumerate(suite_dirs)],
         "sumo_ethics": __version__, "map_version": F.MAP_VERSION,
     })
-    if store.done():
-        log.info("resuming: %d finished runs kept in %s", len(store.done()), store.folder)
+    if store.done() and on_resume is not None:  # a stopped build of these very runs
+        on_resume(len(store.done()), len(specs) + len(suite_dirs))
     simulate_runs(specs, store, workers=workers)
     simulate_suite(suite_dirs, len(specs), store, workers=workers)
     # every run read back from its file, a resumed one or not: the dataset is the same bytes either way
