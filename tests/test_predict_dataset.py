@@ -354,3 +354,23 @@ def test_the_first_worker_of_a_fresh_process_holds_ctrl_c_and_sigterm_too():
     assert out.returncode == 0, out.stderr
     workers, caller = out.stdout.split("\n")[:2]
     assert workers == "[2, 2, 15, 15]" and caller == "[]"  # both workers block SIGINT (2) and SIGTERM (15)
+
+
+def test_a_track_is_cut_where_the_road_user_was_not_seen_or_jumped():
+    """A pedestrian who rides a bus (not seen as a pedestrian meanwhile) or whom SUMO places 100 m
+    away: its samples after the gap start a new track, instead of a history that bridges the gap
+    (in the shipped data: 66 samples with histories reaching 2.5 km back)."""
+    from sumo_ethics.predict.dataset import samples_from_run, track_pieces
+
+    ids = np.array(["a", "b", "a", "b", "a", "a", "c"], dtype=object)
+    codes, names = track_pieces(ids, np.array([0, 0, 1, 1, 3, 4, 2]), np.array([0, 0, 1, 1, 2, 100, 5.0]), np.zeros(7))
+    # a: frames 0-1, then after a gap frame 3, then 98 m further at frame 4: three pieces
+    assert codes.tolist() == [0, 1, 0, 1, 2, 3, 4] and list(names) == ["a", "b", "a", "a", "c"]
+    t = np.round(np.arange(0.0, 20.0, 0.1), 1)
+    walk = pd.DataFrame({"time": t, "agent_id": "p", "cls": np.int8(5), "x": 1.2 * t, "y": 0.0, "yaw": 0.0, "speed": 1.2})
+    rode = walk[(walk.time < 5.0) | (walk.time >= 8.0)].copy()  # on a bus from 5 to 8 s ...
+    rode.loc[rode.time >= 8.0, "x"] += 150.0  # ... that took it 150 m further than walking would
+    s = samples_from_run(rode, anchor_every=0.2)
+    assert np.abs(s["tgt_hist"]).max() < 1.2 * 3.0 + 0.01  # at most 3 s of walking back
+    steps = np.hypot(*np.diff(s["tgt_hist"], axis=1).transpose(2, 0, 1))
+    assert steps.max() < 1.2 * 0.2 + 1e-3  # no step of any history faster than the walk

@@ -55,6 +55,7 @@ log = logging.getLogger(__name__)
 
 SIM_DT = 0.1
 NO_POSITION = 1e9  # [m] |x| or |y| at least this: SUMO gave no position (INVALID_DOUBLE_VALUE is -2^30)
+MAX_TRACK_SPEED = 70.0  # [m/s] faster between two model steps: SUMO placed the road user elsewhere
 DEFAULT_SCALES = (0.7, 1.0, 1.3)
 
 @dataclass(frozen=True)
@@ -266,6 +267,27 @@ def manoeuvre_labels(group: np.ndarray, fut: np.ndarray, speed: np.ndarray, lane
     return out
 
 
+def track_pieces(agent_id: np.ndarray, frame: np.ndarray, x: np.ndarray, y: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(R,) rows at the model rate -> (R,) piece codes, (P,) agent id of each piece: an agent's
+    track is cut where it is not seen for a model step or more (a pedestrian riding a bus, a car
+    in a parking area) or moves faster than MAX_TRACK_SPEED (SUMO placing it elsewhere), so no
+    sample's history bridges the gap (bridged, it was a jump of hundreds of metres). Codes in
+    order of first appearance, as ``pd.factorize`` gives them for a track without cuts."""
+    codes, names = pd.factorize(agent_id)
+    order = np.lexsort((frame, codes))
+    c, f = codes[order], frame[order]
+    step = np.hypot(np.diff(x[order]), np.diff(y[order]))
+    new = np.ones(len(order), dtype=bool)
+    new[1:] = (c[1:] != c[:-1]) | (f[1:] - f[:-1] > 1) | (step > MAX_TRACK_SPEED * F.MODEL_DT)
+    piece = np.empty(len(order), dtype=np.int64)
+    piece[order] = np.cumsum(new) - 1
+    piece_codes, pieces = pd.factorize(piece)
+    first = np.zeros(len(pieces), dtype=np.int64)
+    first[piece_codes[::-1]] = np.arange(len(piece_codes))[::-1]  # each piece's first row
+    return piece_codes, names[codes[first]]
+
+
 def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: float = 1.0,
                      graph: F.LaneGraph | None = None) -> dict[str, np.ndarray]:
     """Training samples from one run's trajectory rows (see module docstring).
@@ -282,7 +304,7 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
     d = df.loc[keep]
     frame = (k[keep] // ratio)
     frame = frame - frame.min()
-    agent_codes, agent_names = pd.factorize(d["agent_id"])
+    agent_codes, agent_names = track_pieces(d["agent_id"].to_numpy(), frame, d["x"].to_numpy(), d["y"].to_numpy())
     na, nf = len(agent_names), int(frame.max()) + 1
     pos = np.full((na, nf, 2), np.nan)
     yaw = np.zeros((na, nf))
