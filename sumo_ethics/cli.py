@@ -191,7 +191,11 @@ def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: flo
             raise click.BadParameter("--out must be a new folder, not the --samples-from dataset")
     from sumo_ethics.predict.runstore import PARTIAL
 
-    resumable = samples_from is None and out.is_dir() and [p.name for p in out.iterdir()] == [PARTIAL]
+    # a stopped build: its kept runs and, if it was stopped while writing the dataset, some of the
+    # dataset's files (split.json is written last), which the resumed build writes again
+    names = {p.name for p in out.iterdir()} if out.is_dir() else set()
+    resumable = samples_from is None and PARTIAL in names and names <= {
+        PARTIAL, "trajectories.parquet", "lane_graphs.pkl", "samples.npz"}
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not resumable:
         raise click.BadParameter(f"--out {out} is not an empty folder: give a new one (nothing is overwritten)")
     if samples_from is not None:

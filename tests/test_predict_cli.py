@@ -225,8 +225,8 @@ def test_runs_in_fresh_processes_come_as_they_finish_and_a_crash_is_named():
         return SimulationError(f"SUMO crashed while simulating job {job}")
 
     assert sorted(isolated_map(abs, [-3, 1, -2], 2, crashed)) == [(-3, 3), (-2, 2), (1, 1)]
-    # two workers: the 3 s job starts first, the two short ones finish (one after the other) before it
-    assert [job for job, _ in isolated_map(time.sleep, [3.0, 0.1, 0.2], 2, crashed)] == [0.1, 0.2, 3.0]
+    # two workers: the 6 s job starts first, the two short ones finish (one after the other) before it
+    assert [job for job, _ in isolated_map(time.sleep, [6.0, 0.1, 0.2], 2, crashed)] == [0.1, 0.2, 6.0]
     with pytest.raises(SimulationError, match="SUMO crashed while simulating job 7"):
         list(isolated_map(os._exit, [7], 2, crashed))  # the process dies: exit code 7
     with pytest.raises(ValueError, match="invalid literal for int"):  # a worker's own exception, raised here

@@ -229,8 +229,11 @@ def test_run_store_keeps_finished_runs_whole_and_refuses_another_plan(tmp_path):
     with pytest.raises(ConfigError, match="holds the finished runs of another dataset build"):
         RunStore.open(out, other)
     assert store.done() == {1}
+    (store.folder / "run_000001.parquet").write_bytes(b"")  # a disk that lost the file
+    with pytest.raises(ConfigError, match="the kept run .*run_000001.parquet cannot be read .*delete it"):
+        store.get(1)
     store.remove()
-    assert not store.folder.exists() and out.is_dir()
+    assert not store.folder.exists() and sorted(p.name for p in out.iterdir()) == []
 
 
 @pytest.mark.sumo
@@ -264,6 +267,7 @@ def test_a_stopped_dataset_keeps_its_finished_runs_and_the_same_command_resumes_
         "the same command resumes from them)"), err[-2000:]
     kept = first.read_bytes()
     assert sorted(p.name for p in out.iterdir()) == ["partial"]
+    (out / "trajectories.parquet").write_bytes(b"cut short")  # as if stopped while the dataset was written
 
     assert main([*args[:3], "1-4", *args[4:], str(out)]) == 2  # another build (seeds 1-4) into that folder
     err = capsys.readouterr().err.strip().splitlines()
@@ -321,15 +325,16 @@ def test_rows_without_a_position_are_steps_not_seen():
     a parking area): their samples are those of the track without those rows, not a 1.5e9 m jump."""
     from sumo_ethics.predict.dataset import samples_from_run
 
-    t = np.round(np.arange(0.0, 12.0, 0.1), 1)
+    t = np.round(np.arange(0.0, 20.0, 0.1), 1)
     rows = []
     for k, (y, v) in enumerate(((0.0, 10.0), (3.5, 8.0))):
         rows.append(pd.DataFrame({"time": t, "agent_id": f"v{k}", "cls": np.int8(0), "x": v * t, "y": y,
                                   "yaw": 0.0, "speed": v}))
     clean = pd.concat(rows, ignore_index=True)
-    clean = clean[~((clean.agent_id == "v1") & (clean.time < 1.0))]  # v1 appears at 1.0 s
+    clean = clean[~((clean.agent_id == "v1") & (clean.time < 8.0))]  # v1 appears at 8.0 s
     invalid = -(2.0 ** 30)
-    unplaced = pd.DataFrame({"time": np.round(np.arange(0.0, 1.0, 0.1), 1), "agent_id": "v1", "cls": np.int8(0),
+    # 8 s without a position (long enough for samples of its own, standing at -2^30 m, were it kept)
+    unplaced = pd.DataFrame({"time": np.round(np.arange(0.0, 8.0, 0.1), 1), "agent_id": "v1", "cls": np.int8(0),
                              "x": invalid, "y": invalid, "yaw": 0.0, "speed": invalid})
     a = samples_from_run(clean, anchor_every=1.0)
     b = samples_from_run(pd.concat([unplaced, clean], ignore_index=True), anchor_every=1.0)
@@ -374,3 +379,31 @@ def test_a_track_is_cut_where_the_road_user_was_not_seen_or_jumped():
     assert np.abs(s["tgt_hist"]).max() < 1.2 * 3.0 + 0.01  # at most 3 s of walking back
     steps = np.hypot(*np.diff(s["tgt_hist"], axis=1).transpose(2, 0, 1))
     assert steps.max() < 1.2 * 0.2 + 1e-3  # no step of any history faster than the walk
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+def test_a_worker_dies_with_its_killed_parent():
+    """A dataset killed with kill -9 (or by the OOM killer) left its SUMO workers simulating on:
+    they hold SIGINT and SIGTERM blocked, and nothing told them. Now the kernel kills them too."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    code = ("import time\nfrom sumo_ethics.predict.isolated import isolated_map\n"
+            "list(isolated_map(time.sleep, [60.0], 1, RuntimeError))\n")
+    parent = subprocess.Popen([sys.executable, "-c", code])
+    deadline = time.monotonic() + 60
+    workers: set[int] = set()
+    while time.monotonic() < deadline and not workers:
+        workers = _spawned_workers_alive(parent.pid)
+        time.sleep(0.05)
+    assert workers, "no worker started"
+    time.sleep(1.0)  # the worker is in its job now
+    os.kill(parent.pid, signal.SIGKILL)
+    parent.wait(timeout=10)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and _children_alive(sorted(workers)):
+        time.sleep(0.05)
+    assert not _children_alive(sorted(workers)), "a worker outlived its killed parent"

@@ -45,6 +45,7 @@ import numpy as np
 import pandas as pd
 
 from sumo_ethics import __version__
+from sumo_ethics.errors import ConfigError
 from sumo_ethics.interrupt import signals_held
 from sumo_ethics.predict import features as F
 from sumo_ethics.predict.isolated import isolated_map
@@ -56,6 +57,20 @@ log = logging.getLogger(__name__)
 SIM_DT = 0.1
 NO_POSITION = 1e9  # [m] |x| or |y| at least this: SUMO gave no position (INVALID_DOUBLE_VALUE is -2^30)
 MAX_TRACK_SPEED = 70.0  # [m/s] faster between two model steps: SUMO placed the road user elsewhere
+#: what sim.recorder writes; a stopped build resumes only with the same (2: no rows without a position)
+RECORDER_VERSION = 2
+
+
+def sumo_version() -> str:
+    """The installed SUMO's version (its Python package's), without starting SUMO."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    for package in ("eclipse-sumo", "libsumo"):
+        try:
+            return version(package)
+        except PackageNotFoundError:
+            continue
+    return "unknown"
 DEFAULT_SCALES = (0.7, 1.0, 1.3)
 
 @dataclass(frozen=True)
@@ -157,7 +172,6 @@ def check_scenarios(scenarios: list[Path]) -> None:
     """Load every scenario once in SUMO before any run is simulated: one that cannot start (a
     malformed config, an option plain sumo lacks, e.g. a gui-only ``osg-view``) raises ConfigError
     with SUMO's reason, so nothing is simulated in vain; one that crashes SUMO, too."""
-    from sumo_ethics.errors import ConfigError
 
     def crashed(scenario: Path) -> ConfigError:  # SUMO may crash outright on a broken file
         return ConfigError(f"dataset: SUMO crashed while loading {scenario} (a malformed network or route file?)")
@@ -282,9 +296,8 @@ def track_pieces(agent_id: np.ndarray, frame: np.ndarray, x: np.ndarray, y: np.n
     new[1:] = (c[1:] != c[:-1]) | (f[1:] - f[:-1] > 1) | (step > MAX_TRACK_SPEED * F.MODEL_DT)
     piece = np.empty(len(order), dtype=np.int64)
     piece[order] = np.cumsum(new) - 1
-    piece_codes, pieces = pd.factorize(piece)
-    first = np.zeros(len(pieces), dtype=np.int64)
-    first[piece_codes[::-1]] = np.arange(len(piece_codes))[::-1]  # each piece's first row
+    piece_codes, _ = pd.factorize(piece)
+    first = np.unique(piece_codes, return_index=True)[1]  # each piece's first row
     return piece_codes, names[codes[first]]
 
 
@@ -417,8 +430,6 @@ def build_samples(traj: pd.DataFrame, split: dict[str, list[int]], anchor_every:
         s["split"] = np.full(n, split_of.get(seed, 0), dtype=np.int8)
         parts.append(s)
     if not parts:
-        from sumo_ethics.errors import ConfigError
-
         raise ConfigError("the runs gave no prediction samples: a sample needs 3 s of an agent's history and "
                           "up to 4 s of its future, so simulate longer (--sim-seconds) or busier scenarios")
     out = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
@@ -502,7 +513,7 @@ def build_dataset(
         "runs": [{"run_id": s.run_id, "scenario": str(s.scenario), "seed": s.seed, "scale": s.scale,
                   "sim_seconds": s.sim_seconds} for s in specs],
         "suite": [{"run_id": len(specs) + i, "scenario": str(s)} for i, s in enumerate(suite_dirs)],
-        "sumo_ethics": __version__, "map_version": F.MAP_VERSION,
+        "sumo_ethics": __version__, "recorder": RECORDER_VERSION, "sumo": sumo_version(), "map_version": F.MAP_VERSION,
     })
     if store.done() and on_resume is not None:  # a stopped build of these very runs
         on_resume(len(store.done()), len(specs) + len(suite_dirs))
@@ -524,7 +535,12 @@ def build_dataset(
     traj = pd.concat([pd.concat(frames[:len(specs)], ignore_index=True) if specs else pd.DataFrame(),
                       *frames[len(specs):]], ignore_index=True)
     # the samples first: a run too short for any sample stops here, before anything is written
-    samples = build_samples(traj, split, anchor_every=anchor_every, graphs=graphs, suite_anchor_every=suite_anchor_every)
+    try:
+        samples = build_samples(traj, split, anchor_every=anchor_every, graphs=graphs,
+                                suite_anchor_every=suite_anchor_every)
+    except ConfigError as exc:  # the same arguments would fail again: say how to start over
+        raise ConfigError(f"{exc} (the {len(store.done())} finished runs are kept in {store.folder}; delete {out} "
+                          "to simulate with other arguments)") from None
     with signals_held(signal.SIGINT, signal.SIGTERM):  # Ctrl-C or SIGTERM now waits: the folder is written whole
         out.mkdir(parents=True, exist_ok=True)
         traj.to_parquet(out / "trajectories.parquet", index=False)

@@ -8,7 +8,10 @@ itself when it stops, on Ctrl-C, SIGTERM, a failure or a caller that stops early
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
+import pickle
 import signal
+import sys
 from collections.abc import Callable, Iterator
 from multiprocessing import resource_tracker
 from multiprocessing.connection import wait
@@ -19,16 +22,37 @@ from sumo_ethics.interrupt import signals_held
 T, R = TypeVar("T"), TypeVar("R")
 
 
-def _work(fn: Callable[[Any], Any], job: Any, conn: Any) -> None:
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def _die_with(parent: int) -> None:
+    """In a worker: be killed (SIGKILL) when ``parent`` dies, even by ``kill -9`` (Linux; the
+    worker holds SIGINT and SIGTERM blocked, so nothing else would end it, and an orphan would
+    simulate on beside the resumed build)."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # pragma: no cover - no prctl
+            pass
+    if os.getppid() != parent:  # the parent died before that took effect
+        os._exit(1)
+
+
+def _work(fn: Callable[[Any], Any], job: Any, conn: Any, parent: int) -> None:
     """Inside the worker process: ``("ok", fn(job))`` or ``("error", exception)`` down the pipe."""
+    _die_with(parent)
     try:
         reply = ("ok", fn(job))
     except BaseException as exc:  # noqa: BLE001 - every failure goes back to the caller, which raises it
         reply = ("error", exc)
     try:
         conn.send(reply)
-    except Exception as exc:  # noqa: BLE001 - a result or an exception that cannot be pickled
+    except (pickle.PicklingError, TypeError, AttributeError) as exc:  # a result that cannot be pickled
         conn.send(("error", RuntimeError(f"{type(reply[1]).__name__} cannot be sent back from the worker: {exc}")))
+    except OSError:  # the caller is gone (its end of the pipe closed): nobody to tell
+        os._exit(1)
     conn.close()
 
 
@@ -57,7 +81,7 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Cal
         if job is None:
             return
         recv, send = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=_work, args=(fn, job, send), daemon=True)
+        proc = ctx.Process(target=_work, args=(fn, job, send, os.getpid()), daemon=True)
         # multiprocessing starts its resource tracker at the first process start, and that unblocks
         # SIGINT and SIGTERM in this thread: started here, outside the block below, it cannot
         resource_tracker.ensure_running()
@@ -85,6 +109,7 @@ def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Cal
             del running[k]
             recv.close()
             proc.join()
+            proc.close()
             if status == "error":
                 raise value
             yield job, value

@@ -11,6 +11,7 @@ goes on from them; a build of other runs is refused; the finished dataset remove
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import pickle
@@ -48,11 +49,11 @@ class RunStore:
             try:
                 old = json.loads(plan_file.read_text())
             except ValueError:
-                old = None
+                raise ConfigError(f"{plan_file} cannot be read: delete {folder} to start the build over") from None
             if old != plan:
                 raise ConfigError(f"{out} holds the finished runs of another dataset build ({plan_file}: other "
-                                  "scenarios, seeds, --sim-seconds or sumo-ethics version); give a new --out, or "
-                                  "the same arguments to resume that build")
+                                  "scenarios, seeds or --sim-seconds, or another recorder or SUMO version); give a "
+                                  "new --out, or the same arguments to resume that build")
             for stale in folder.glob("*.part"):  # a write cut short by a kill
                 stale.unlink()
         return cls(folder, plan)
@@ -75,19 +76,28 @@ class RunStore:
             _write_whole(self.folder / "plan.json", json.dumps(self.plan, indent=2).encode())
         table, graph_file = self._paths(run_id)
         _write_whole(graph_file, pickle.dumps(graph))
-        part = table.with_name(table.name + ".part")
-        rows.to_parquet(part, index=False)
-        os.replace(part, table)
+        buf = io.BytesIO()
+        rows.to_parquet(buf, index=False)
+        _write_whole(table, buf.getvalue())
 
     def get(self, run_id: int) -> tuple[pd.DataFrame, Any]:
-        """A finished run's rows and lane graph, as :meth:`put` was given them."""
+        """A finished run's rows and lane graph, as :meth:`put` was given them; ConfigError if
+        they cannot be read (a disk that lost them)."""
         table, graph_file = self._paths(run_id)
-        with open(graph_file, "rb") as fh:
-            return pd.read_parquet(table), pickle.load(fh)
+        try:
+            with open(graph_file, "rb") as fh:
+                return pd.read_parquet(table), pickle.load(fh)
+        except Exception as exc:  # noqa: BLE001 - pyarrow's and pickle's errors: the files are damaged
+            raise ConfigError(f"the kept run {table} cannot be read ({type(exc).__name__}: {exc}); delete it and "
+                              "its .graph.pkl, then run the same command again to simulate that run anew") from None
 
     def remove(self) -> None:
-        """Delete the folder (its runs are in the written dataset)."""
-        shutil.rmtree(self.folder, ignore_errors=True)
+        """Delete the folder (its runs are in the written dataset): renamed first, so a kill
+        half-way leaves no partial folder that looks like a stopped build."""
+        if self.folder.is_dir():
+            gone = self.folder.with_name(f".{PARTIAL}-done")
+            os.replace(self.folder, gone)
+            shutil.rmtree(gone, ignore_errors=True)
 
 
 def kept_runs(out: Path) -> tuple[int, int]:
@@ -101,6 +111,16 @@ def kept_runs(out: Path) -> tuple[int, int]:
 
 
 def _write_whole(path: Path, data: bytes) -> None:
+    """``data`` to ``path``, whole or not at all, and on the disk (not only in the page cache)
+    before the name appears: a power cut cannot leave an empty file that counts as a run."""
     part = path.with_name(path.name + ".part")
-    part.write_bytes(data)
+    with open(part, "wb") as fh:
+        fh.write(data)
+        fh.flush()
+        os.fsync(fh.fileno())
     os.replace(part, path)
+    fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(fd)  # the rename itself
+    finally:
+        os.close(fd)

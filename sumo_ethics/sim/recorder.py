@@ -133,14 +133,15 @@ class TrafficRecorder:
         t = libsumo.simulation.getTime()
         at_rate = int(round(t / self.sim_dt)) % self.ratio == 0
         for person, dom in ((False, libsumo.vehicle), (True, libsumo.person)):
-            ids = [k for k in dom.getIDList() if k not in self.skip and not (person and dom.getVehicle(k))  # no riders
-                   and on_road(dom.getPosition(k))]
+            where = {k: dom.getPosition(k) for k in dom.getIDList()
+                     if k not in self.skip and not (person and dom.getVehicle(k))}  # no riders
+            ids = [k for k, pos in where.items() if on_road(pos)]
             if not ids:
                 continue
             ctx = agent_context(self.graph, ids, np.full(len(ids), person), self.signals, self.clock) if at_rate else None
             for i, k in enumerate(ids):
                 length, width, cls = self._info(dom.getTypeID(k), person)
-                fx, fy = dom.getPosition(k)
+                fx, fy = where[k]
                 x, y, yaw = front_to_centre(np.array([fx]), np.array([fy]), np.array([dom.getAngle(k)]), np.array([length]))
                 c = self.cols
                 c["time"].append(round(t, 3))
