@@ -196,7 +196,7 @@ def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: flo
     names = {p.name for p in out.iterdir()} if out.is_dir() else set()
     resumable = samples_from is None and PARTIAL in names and names <= {
         PARTIAL, "trajectories.parquet", "lane_graphs.pkl", "samples.npz"}
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not resumable:
+    if out.exists() and (not out.is_dir() or names) and not resumable:
         raise click.BadParameter(f"--out {out} is not an empty folder: give a new one (nothing is overwritten)")
     if samples_from is not None:
         _dataset_written(rebuild_samples(samples_from, out))

@@ -509,14 +509,15 @@ def build_dataset(
     if specs:
         check_scenarios(sorted({s.scenario for s in specs}, key=str))
     suite_dirs = [Path(s).resolve() for s in suite]
+    runs = [{"run_id": s.run_id, "scenario": str(s.scenario), "seed": s.seed, "scale": s.scale} for s in specs]
     store = RunStore.open(out, {
-        "runs": [{"run_id": s.run_id, "scenario": str(s.scenario), "seed": s.seed, "scale": s.scale,
-                  "sim_seconds": s.sim_seconds} for s in specs],
+        "runs": [{**r, "sim_seconds": sim_seconds} for r in runs],
         "suite": [{"run_id": len(specs) + i, "scenario": str(s)} for i, s in enumerate(suite_dirs)],
         "sumo_ethics": __version__, "recorder": RECORDER_VERSION, "sumo": sumo_version(), "map_version": F.MAP_VERSION,
     })
-    if store.done() and on_resume is not None:  # a stopped build of these very runs
-        on_resume(len(store.done()), len(specs) + len(suite_dirs))
+    kept = store.done()
+    if kept and on_resume is not None:  # a stopped build of these very runs
+        on_resume(len(kept), len(specs) + len(suite_dirs))
     simulate_runs(specs, store, workers=workers)
     simulate_suite(suite_dirs, len(specs), store, workers=workers)
     # every run read back from its file, a resumed one or not: the dataset is the same bytes either way
@@ -532,8 +533,7 @@ def build_dataset(
             graphs[str(scen)] = graph
         name = "test" if i % 10 == 9 else "val" if i % 10 == 8 else "train"
         split[name].append(SUITE_SEED0 + len(specs) + i)
-    traj = pd.concat([pd.concat(frames[:len(specs)], ignore_index=True) if specs else pd.DataFrame(),
-                      *frames[len(specs):]], ignore_index=True)
+    traj = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
     # the samples first: a run too short for any sample stops here, before anything is written
     try:
         samples = build_samples(traj, split, anchor_every=anchor_every, graphs=graphs,
@@ -551,7 +551,7 @@ def build_dataset(
             "split": split,
             "scenarios": [str(Path(s)) for s in scenarios],
             "suite": [str(Path(s)) for s in suite],
-            "runs": [{"run_id": s.run_id, "scenario": str(s.scenario), "seed": s.seed, "scale": s.scale} for s in specs],
+            "runs": runs,
             "feature_version": F.FEATURE_VERSION,
             "map_version": F.MAP_VERSION,
             "anchor_every": anchor_every,

@@ -1,10 +1,10 @@
 """The finished runs of a prediction dataset being built, kept on disk so a stopped build resumes.
 
 ``OUT/partial/`` holds ``plan.json`` (every run of the build: id, scenario, seed, demand scale,
-simulated seconds; the package and map versions) and, per finished run, ``run_NNNNNN.parquet``
+simulated seconds; the package, recorder, SUMO and map versions) and, per finished run, ``run_NNNNNN.parquet``
 (its trajectory rows, the columns of ``trajectories.parquet``) and ``run_NNNNNN.graph.pkl`` (its
 network's lane graph, None for a suite run that recorded nothing). Each run's pair is written
-whole (a ``.part`` file renamed) as soon as the run ends, so Ctrl-C, SIGTERM, a crashed SUMO run
+whole and synced to the disk (a ``.part`` file renamed) as soon as the run ends, so Ctrl-C, SIGTERM, a crashed SUMO run
 or a killed machine loses only the runs still simulating. The same command on the same ``OUT``
 goes on from them; a build of other runs is refused; the finished dataset removes the folder.
 """
