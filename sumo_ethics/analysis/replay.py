@@ -18,13 +18,13 @@ run. The file is written under a temporary name and renamed when complete.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from sumo_ethics import fileio
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.record import decisions as rec
 
@@ -345,13 +345,13 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
 
     from matplotlib.collections import LineCollection
 
-    tmp = out.with_name(f".{out.stem}.part{out.suffix}")
     out.parent.mkdir(parents=True, exist_ok=True)
     # codec h264 gets -pix_fmt yuv420p from matplotlib: plays in browsers and QuickTime (yuv444p would not)
     writer = GifStream(fps, dynamic=ax) if writer_name == "gif" else animation.FFMpegWriter(fps=fps, codec="h264")
     bar = _progress(progress, len(steps))
     try:
-        with writer.saving(fig, tmp, DPI):
+        # the temporary name keeps the suffix: the writer picks the format by it
+        with fileio.replacing(out, f".{out.stem}.part{out.suffix}") as tmp, writer.saving(fig, tmp, DPI):
             for i, s in enumerate(steps):
                 d = load_checked(run, s)
                 ex, ey = float(d.ego[0]), float(d.ego[1])
@@ -384,12 +384,10 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
                         artist.remove()
                 if bar is not None:
                     bar[0].advance(bar[1])
-        os.replace(tmp, out)
     finally:
         if bar is not None:
             bar[0].stop()
         plt.close(fig)
-        tmp.unlink(missing_ok=True)
     return ReplayResult(out, len(steps), writer_name, float(fps), float(speed), len(all_steps), total, tuple(notes),
                         playback)
 

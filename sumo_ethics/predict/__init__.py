@@ -7,6 +7,7 @@ training/evaluation code is first used (attributes resolve lazily).
 from __future__ import annotations
 
 import importlib
+import sys
 from typing import TYPE_CHECKING, Any
 
 
@@ -29,7 +30,20 @@ _LAZY = {
     "evaluate_main": "sumo_ethics.predict.commands",
 }
 
-__all__ = ["PREDICTORS", "PredictorError", *_LAZY]
+__all__ = ["PREDICTORS", "PredictorError", "one_thread", *_LAZY]
+
+
+def one_thread(load: bool = False) -> None:
+    """torch on one thread in this process (runs share the cores, and every executor gives the
+    same numbers); ``load=False`` leaves a process that has not imported torch alone, ``load=True``
+    imports it (a no-op without torch)."""
+    if not load and "torch" not in sys.modules:
+        return
+    try:
+        import torch
+    except ImportError:
+        return
+    torch.set_num_threads(1)
 
 if TYPE_CHECKING:  # pragma: no cover
     from sumo_ethics.predict.commands import dataset_main, evaluate_main, train_main

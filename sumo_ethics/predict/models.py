@@ -92,7 +92,6 @@ scalar, 4 with the blinkers as 9th and 10th scalars and the pedestrian's lane af
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 from typing import Any
 
@@ -100,6 +99,7 @@ import torch
 import torch.nn.functional as Fn
 from torch import nn
 
+from sumo_ethics import fileio
 from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
 
@@ -609,9 +609,8 @@ def save_model(model: TrajectoryLSTM, path: Path, info: dict[str, Any] | None = 
         "info": info or {},
         "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
     }
-    part = path.with_name(path.name + ".part")  # whole or not at all, even if killed while writing
-    torch.save(blob, part)
-    os.replace(part, path)
+    with fileio.replacing(path, tmp_name=path.name + ".part") as part:  # whole or not at all, even if killed
+        torch.save(blob, part)
     return path
 
 

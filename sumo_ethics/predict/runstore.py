@@ -22,6 +22,7 @@ from typing import Any
 
 import pandas as pd
 
+from sumo_ethics import fileio
 from sumo_ethics.errors import ConfigError
 
 PARTIAL = "partial"
@@ -113,14 +114,4 @@ def kept_runs(out: Path) -> tuple[int, int]:
 def _write_whole(path: Path, data: bytes) -> None:
     """``data`` to ``path``, whole or not at all, and on the disk (not only in the page cache)
     before the name appears: a power cut cannot leave an empty file that counts as a run."""
-    part = path.with_name(path.name + ".part")
-    with open(part, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(part, path)
-    fd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(fd)  # the rename itself
-    finally:
-        os.close(fd)
+    fileio.write_bytes(path, data, tmp_name=f"{path.name}.part", durable=True)  # stale *.part: cut short by a kill

@@ -47,7 +47,6 @@ it reads what the planner computed.
 from __future__ import annotations
 
 import io
-import os
 import zipfile
 from collections import deque
 from dataclasses import dataclass
@@ -56,6 +55,7 @@ from typing import Any
 
 import numpy as np
 
+from sumo_ethics import fileio
 from sumo_ethics.types import DecisionTrace
 
 MODES = ("off", "collisions", "risky", "all")
@@ -121,14 +121,12 @@ def encode(trace: DecisionTrace, step: int, time: float, dt: float) -> dict[str,
 def write(path: Path, arrays: dict[str, np.ndarray]) -> int:
     """Write ``arrays`` as a compressed .npz, atomically and byte-reproducibly; returns its size [B]."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as z:
+    with fileio.replacing(path) as tmp, zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as z:
         for name, arr in arrays.items():
             buf = io.BytesIO()
             np.lib.format.write_array(buf, np.ascontiguousarray(arr), allow_pickle=False)
             z.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_TIME), buf.getvalue(),
                        compress_type=zipfile.ZIP_DEFLATED, compresslevel=1)
-    os.replace(tmp, path)
     return path.stat().st_size
 
 

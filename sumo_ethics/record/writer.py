@@ -21,15 +21,14 @@ chunk, not the run. :func:`~sumo_ethics.record.reader.read_table` reads either f
 
 from __future__ import annotations
 
-import json
 import math
-import os
 from pathlib import Path
 from typing import IO, Any, Iterator
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from sumo_ethics import fileio
 from sumo_ethics.record import schema
 
 #: simulated seconds per chunk: a killed run loses at most this much of its rows
@@ -53,9 +52,8 @@ def _extend(base: pa.Schema, rows: list[dict[str, Any]]) -> pa.Schema:
 
 
 def _atomic_parquet(table: pa.Table, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    pq.write_table(table, tmp, compression="zstd")
-    os.replace(tmp, path)
+    with fileio.replacing(path) as tmp:
+        pq.write_table(table, tmp, compression="zstd")
 
 
 def write_table(path: Path, rows: list[dict[str, Any]], base: pa.Schema) -> None:
@@ -65,9 +63,7 @@ def write_table(path: Path, rows: list[dict[str, Any]], base: pa.Schema) -> None
 
 
 def write_json(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=False, default=str) + "\n")
-    os.replace(tmp, path)
+    fileio.write_json(path, data)
 
 
 def chunk_steps(dt: float) -> int:
@@ -173,8 +169,7 @@ def write_batches(path: Path, base: pa.Schema, paths: list[Path]) -> None:
     """Stream segments (in order) -> one Parquet file with fixed-size row groups, holding about
     one row group in memory at a time."""
     sch = union_schema(base, [s for p in paths if (s := read_segment_schema(p)) is not None])
-    tmp = path.with_name(f".{path.name}.tmp")
-    with pq.ParquetWriter(tmp, sch, compression="zstd") as w:
+    with fileio.replacing(path) as tmp, pq.ParquetWriter(tmp, sch, compression="zstd") as w:
         carry: pa.Table | None = None  # rows short of a full row group
 
         def emit(batches: list[pa.RecordBatch], seg_schema: pa.Schema) -> None:
@@ -198,7 +193,6 @@ def write_batches(path: Path, base: pa.Schema, paths: list[Path]) -> None:
                 emit(group, seg_schema)
         if carry is not None and carry.num_rows or not paths:
             w.write_table(carry if carry is not None else sch.empty_table(), row_group_size=ROW_GROUP_ROWS)
-    os.replace(tmp, path)
 
 
 def read_segment_schema(path: Path) -> pa.Schema | None:

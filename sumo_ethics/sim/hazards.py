@@ -244,7 +244,7 @@ class HazardInjector:
 
     # ---- the hazard state machine -------------------------------------------------------
     def _advance(self, st: HazardState, scene: Any, ego_front: float, v_ego: float) -> None:
-        spec, p, dt, t = st.spec, st.spec.params, scene.dt, scene.time
+        spec, dt, t = st.spec, scene.dt, scene.time
         for prop in st.props:
             if prop.added:
                 self._place(scene, prop)

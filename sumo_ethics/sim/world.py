@@ -21,7 +21,6 @@ import libsumo
 import numpy as np
 from libsumo import constants as tc
 
-from sumo_ethics.errors import SimulationError
 from sumo_ethics.ethics.harm import MassModel
 from sumo_ethics.sim.frames import centre_to_front, front_to_centre
 from sumo_ethics.sim.route import JunctionLink, RoutePath, build_route_path

@@ -16,7 +16,6 @@ and a Wilcoxon signed-rank p-value of the per-scenario differences.
 from __future__ import annotations
 
 import json
-import math
 import os
 import time
 from dataclasses import dataclass
@@ -28,6 +27,7 @@ import numpy as np
 from sumo_ethics.analysis.risk import run_risk_file
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.ethics.cost import DEFAULT_OMEGA_U
+from sumo_ethics.predict import one_thread
 
 #: the paper's planner: attention predictor, J_utility at this weight (see README "Suite")
 PAPER_OMEGA_U = DEFAULT_OMEGA_U
@@ -116,12 +116,7 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str, record_decisi
     t0 = time.perf_counter()
     row: dict[str, Any] = {"scenario": Path(scenario_dir).name, "planner": planner.name}
     try:
-        try:
-            import torch
-
-            torch.set_num_threads(1)
-        except ImportError:
-            pass
+        one_thread(load=True)
         from sumo_ethics.runner import make_controller, run
         from sumo_ethics.settings import planner_config
         from sumo_ethics.sim.hazards import HazardInjector

@@ -20,14 +20,13 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.suite import dilemma, networks
-from sumo_ethics.suite.spec import HAZARD_FILE, HAZARD_TYPES, HazardSpec, ScenarioSpec, dumps
-from sumo_ethics.suite.spec import EgoSpec
+from sumo_ethics.suite.spec import HAZARD_FILE, HazardSpec, ScenarioSpec, dumps
 
 STEP_LENGTH = 0.1
 EGO_WINDOW = 60.0  # s from the ego's departure to the run's end: a red light and a slow pass fit

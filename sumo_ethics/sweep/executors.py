@@ -20,16 +20,9 @@ from typing import Any, Iterable
 
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.interrupt import signals_held
+from sumo_ethics.predict import one_thread
 from sumo_ethics.sweep.grid import RunSpec
 from sumo_ethics.sweep.manifest import result_from_folder
-
-def _limit_threads() -> None:
-    """One thread per run for torch (2 runs on 2 cores; also the same numbers on every executor)."""
-    if "torch" in sys.modules:
-        import torch
-
-        torch.set_num_threads(1)
-
 
 def execute_run(spec: dict[str, Any], runs_dir: str) -> dict[str, Any]:
     """Run one grid point into ``runs_dir/<run_id>`` (temp folder, renamed when the run ended on its own).
@@ -52,7 +45,7 @@ def execute_run(spec: dict[str, Any], runs_dir: str) -> dict[str, Any]:
     from sumo_ethics.runner import make_controller, run
 
     controller = make_controller(cfg)
-    _limit_threads()
+    one_thread()
     try:
         run(cfg, controller=controller)
     except (ConfigError, OutputError):  # bad input or a full disk: not a result, retried on the next start

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from sumo_ethics import fileio
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.sweep.grid import RunSpec, Sweep
 
@@ -26,12 +27,6 @@ def result_from_folder(run_id: str, folder: Path, skipped: bool = False) -> dict
     return {"run_id": run_id, "status": status, "message": data.get("message", ""),
             "error": data.get("message") if status == "error" else None, "wall": data.get("wall_time"),
             "path": str(folder), "skipped": skipped}
-
-
-def _write_json_atomic(path: Path, data: Any) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
-    os.replace(tmp, path)
 
 
 class Manifest:
@@ -77,10 +72,11 @@ class Manifest:
         counts: dict[str, int] = {}
         for r in self.runs.values():
             counts[r["status"]] = counts.get(r["status"], 0) + 1
-        _write_json_atomic(self.path, {
+        fileio.write_json(self.path, {
             "version": MANIFEST_VERSION, "definition": self.sweep.definition(),
             "parameters": self.sweep.parameters, "counts": counts,
-            "updated": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "runs": list(self.runs.values())})
+            "updated": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "runs": list(self.runs.values())},
+            tmp_name=f".manifest.json.tmp-{os.getpid()}")  # workers of several processes may write it
 
 
 def check_out(out: Path, sweep: Sweep) -> None:
