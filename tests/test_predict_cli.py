@@ -133,6 +133,14 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
         assert row["n"] == full.loc[(row["model"], row["group"]), "n"]
         assert row["ade"] == pytest.approx(full.loc[(row["model"], row["group"]), "ade"], rel=1e-12)
     assert "| urban | vehicle |" in (tmp_path / "eval3" / "prediction_eval_by_scenario.md").read_text()
+    # the ratios with their run-bootstrap intervals: each ratio is that of the table's two ADEs
+    ci = pd.read_csv(tmp_path / "eval3" / "prediction_eval_ci.csv")
+    assert {("attention", "cslstm"), ("map", "map_cslstm"), ("map_cslstm", "constant_velocity")} <= set(
+        zip(ci["model"], ci["reference"]))
+    for _, row in ci[ci["group"].isin(["vehicle", "pedestrian", "all"])].iterrows():
+        want = full.loc[(row["model"], row["group"]), "ade"] / full.loc[(row["reference"], row["group"]), "ade"]
+        assert row["ratio"] == pytest.approx(want, rel=1e-9) and row["lo"] <= row["ratio"] <= row["hi"]
+    assert "95 % interval" in (tmp_path / "eval3" / "prediction_eval_ci.md").read_text()
     # tools/prediction_breakdown.py on the same samples (the shipped default): its "all" row is the
     # table's vehicle row; the closest mode is never further than the most likely one
     monkeypatch.syspath_prepend(str(ROOT / "tools"))

@@ -4,7 +4,9 @@ On the TEST seeds of a dataset (split by run seed, see dataset.py), for each mod
 agent group (vehicle, cyclist, pedestrian, all): RMSE of the mean at 1, 2, 3, 4 s,
 ADE (mean displacement over the 20 steps of 0.2 s), FDE (at 4 s) [m], and the mean
 bivariate Gaussian NLL per predicted point [nats, positions in metres].
-Written as ``prediction_eval.csv`` and ``prediction_eval.md``.
+Written as ``prediction_eval.csv`` and ``prediction_eval.md``; ``prediction_eval_ci.{csv,md}``
+gives each learned model's ADE as a ratio to constant velocity's (and attention's to its CS-LSTM
+counterpart's) with a 95 % interval from a bootstrap over the runs (:func:`ratio_intervals`).
 """
 
 from __future__ import annotations
@@ -217,6 +219,14 @@ def evaluate(
                 f"cyclist {tuple(round(v, 3) for v in cv_cal.growth_cyclist)}, "
                 f"pedestrian {tuple(round(v, 3) for v in cv_cal.growth_pedestrian)}.")
         (out / "prediction_eval.md").write_text(to_markdown(df) + "\n\n" + note + "\n\n" + improvement_summary(df) + "\n")
+        if "run_id" in batch:
+            ci = ratio_intervals(outputs, fut, valid, batch["run_id"], selections)
+            ci.to_csv(out / "prediction_eval_ci.csv", index=False)
+            (out / "prediction_eval_ci.md").write_text(ci_markdown(ci) + f"\n\nADE of the most likely mode over "
+                f"that of the reference ({what.lower()} of {dataset}, the samples of prediction_eval.md): below 1 "
+                "the model is better. 95 % interval: 2.5th-97.5th percentile over 2,000 resamples of the runs "
+                "(samples of one run are road users seconds apart, not independent); an interval holding 1 "
+                "does not tell the two apart, and one from few runs is rough.\n")
         names = run_scenarios(dataset) if split == "all" else {}
         if names:
             by = by_scenario(outputs, batch, np.array([names.get(int(r), "?") for r in batch["run_id"]]))
@@ -269,6 +279,54 @@ def selection_scores(tables: dict[str, pd.DataFrame], min_samples: int = 500,
     return out.sort_values("score")
 
 
+#: (model, reference) pairs whose ADE ratio :func:`improvement_summary` and :func:`ratio_intervals`
+#: report besides every learned model against constant velocity: the attention ablation
+ABLATION_PAIRS = (("attention", "cslstm"), ("map", "map_cslstm"), ("map_agent", "map_cslstm"), ("map", "attention"),
+                  ("map_cslstm", "cslstm"))
+
+
+def ratio_intervals(outputs: dict[str, tuple[np.ndarray, np.ndarray | None]], fut: np.ndarray, valid: np.ndarray,
+                    run_id: np.ndarray, selections: list[tuple[str, np.ndarray]], n_boot: int = 2000,
+                    seed: int = 0) -> pd.DataFrame:
+    """ADE ratios with 95 % intervals: rows (model, reference, group, n, runs, ade, ade_reference,
+    ratio, lo, hi) for every learned model against constant velocity and for ABLATION_PAIRS.
+
+    outputs as in :func:`evaluate` (the most likely mode, index 0, is scored); fut (S, T, 2),
+    valid (S, T), run_id (S,) each sample's run; selections: (group, (S,) mask). The ratio is
+    that of the two ADEs (point errors summed over valid points); the interval is the 2.5th and
+    97.5th percentile of the ratio over ``n_boot`` resamples of the group's runs with replacement
+    (samples of one run are not independent: the same road users, seconds apart). ratio < 1:
+    the model is better; an interval that holds 1 does not tell the two apart. Few runs give a
+    rough interval (the ``runs`` column says how many)."""
+    names = list(outputs)
+    learned = [m for m in names if not m.startswith("constant_velocity")]
+    pairs = [(m, "constant_velocity") for m in learned if "constant_velocity" in outputs]
+    pairs += [(m, r) for m, r in ABLATION_PAIRS if m in outputs and r in outputs]
+    err = {}
+    for m in {x for pair in pairs for x in pair}:
+        params = outputs[m][0]
+        mean = params[:, 0, :, :2] if params.ndim == 4 else params[..., :2]
+        err[m] = (np.linalg.norm(mean - fut, axis=-1) * valid).sum(axis=1)  # (S,) summed point errors
+    rng = np.random.default_rng(seed)
+    rows = []
+    for gname, sel in selections:
+        if not sel.any():
+            continue
+        runs, inv = np.unique(run_id[sel], return_inverse=True)
+        counts = rng.multinomial(len(runs), np.full(len(runs), 1.0 / len(runs)), size=n_boot)  # (B, R)
+        for m, ref in pairs:
+            a = np.bincount(inv, weights=err[m][sel], minlength=len(runs))  # (R,) per run
+            b = np.bincount(inv, weights=err[ref][sel], minlength=len(runs))
+            pts = valid[sel].sum()
+            ratio = a.sum() / b.sum() if b.sum() > 0 else np.nan
+            with np.errstate(divide="ignore", invalid="ignore"):
+                boot = (counts @ a) / (counts @ b)
+            lo, hi = np.nanpercentile(boot, [2.5, 97.5]) if np.isfinite(boot).any() else (np.nan, np.nan)
+            rows.append({"model": m, "reference": ref, "group": gname, "n": int(sel.sum()), "runs": len(runs),
+                         "ade": a.sum() / pts, "ade_reference": b.sum() / pts, "ratio": ratio, "lo": lo, "hi": hi})
+    return pd.DataFrame(rows)
+
+
 def improvement_summary(df: pd.DataFrame) -> str:
     """ADE improvements per group (Markdown): every learned model over constant velocity, and each
     attention model over its CS-LSTM counterpart (attention/cslstm, map/map_cslstm)."""
@@ -276,9 +334,7 @@ def improvement_summary(df: pd.DataFrame) -> str:
     piv = df.pivot(index="group", columns="model", values="ade")
     learned = [m for m in piv.columns if not m.startswith("constant_velocity")]  # shipped or named by --model
     pairs = [(m, "constant_velocity", "constant velocity") for m in learned]
-    pairs += [("attention", "cslstm", "CS-LSTM"), ("map", "map_cslstm", "map_cslstm"),
-              ("map_agent", "map_cslstm", "map_cslstm"), ("map", "attention", "attention"),
-              ("map_cslstm", "cslstm", "CS-LSTM")]
+    pairs += [(m, ref, "CS-LSTM" if ref == "cslstm" else ref) for m, ref in ABLATION_PAIRS]
     for g in piv.index:
         r = piv.loc[g]
         parts = []
@@ -288,6 +344,15 @@ def improvement_summary(df: pd.DataFrame) -> str:
         if parts:
             lines.append(f"- {g}: " + ", ".join(parts))
     return "\n".join(lines)
+
+
+def ci_markdown(ci: pd.DataFrame) -> str:
+    """:func:`ratio_intervals` rows as a pipe table, the interval in one column."""
+    if ci.empty:
+        return "(no learned model)"
+    t = ci[["model", "reference", "group", "n", "runs", "ade", "ade_reference", "ratio"]].copy()
+    t["95 % interval"] = [f"{lo:.3f}-{hi:.3f}" for lo, hi in zip(ci["lo"], ci["hi"])]
+    return to_markdown(t)
 
 
 def to_markdown(df: pd.DataFrame, digits: int = 3) -> str:
