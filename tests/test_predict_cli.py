@@ -141,6 +141,8 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
         want = full.loc[(row["model"], row["group"]), "ade"] / full.loc[(row["reference"], row["group"]), "ade"]
         assert row["ratio"] == pytest.approx(want, rel=1e-9) and row["lo"] <= row["ratio"] <= row["hi"]
     assert "95 % interval" in (tmp_path / "eval3" / "prediction_eval_ci.md").read_text()
+    one = ci.set_index(["model", "reference", "group"])["ratio"]  # one scenario: its rows are the classes' rows
+    assert one.loc[("map_cslstm", "constant_velocity", "urban/vehicle")] == one.loc[("map_cslstm", "constant_velocity", "vehicle")]
     # tools/prediction_breakdown.py on the same samples (the shipped default): its "all" row is the
     # table's vehicle row; the closest mode is never further than the most likely one
     monkeypatch.syspath_prepend(str(ROOT / "tools"))

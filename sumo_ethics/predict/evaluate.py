@@ -219,17 +219,22 @@ def evaluate(
                 f"cyclist {tuple(round(v, 3) for v in cv_cal.growth_cyclist)}, "
                 f"pedestrian {tuple(round(v, 3) for v in cv_cal.growth_pedestrian)}.")
         (out / "prediction_eval.md").write_text(to_markdown(df) + "\n\n" + note + "\n\n" + improvement_summary(df) + "\n")
+        names = run_scenarios(dataset) if split == "all" else {}
+        scenario = np.array([names.get(int(r), "?") for r in batch["run_id"]]) if names else None
         if "run_id" in batch:
-            ci = ratio_intervals(outputs, fut, valid, batch["run_id"], selections)
+            per_scenario = [] if scenario is None else [
+                (f"{scen}/{g}", (scenario == scen) & (groups == i))
+                for scen in sorted(set(scenario.tolist())) for i, g in enumerate(F.GROUP_NAMES)]
+            ci = ratio_intervals(outputs, fut, valid, batch["run_id"], selections + per_scenario)
             ci.to_csv(out / "prediction_eval_ci.csv", index=False)
             (out / "prediction_eval_ci.md").write_text(ci_markdown(ci) + f"\n\nADE of the most likely mode over "
                 f"that of the reference ({what.lower()} of {dataset}, the samples of prediction_eval.md): below 1 "
                 "the model is better. 95 % interval: 2.5th-97.5th percentile over 2,000 resamples of the runs "
                 "(samples of one run are road users seconds apart, not independent); an interval holding 1 "
-                "does not tell the two apart, and one from few runs is rough.\n")
-        names = run_scenarios(dataset) if split == "all" else {}
-        if names:
-            by = by_scenario(outputs, batch, np.array([names.get(int(r), "?") for r in batch["run_id"]]))
+                "does not tell the two apart, and one from few runs is rough. Groups <scenario>/<class>: the "
+                "samples of one scenario (every suite scenario together as 'suite').\n")
+        if scenario is not None:
+            by = by_scenario(outputs, batch, scenario)
             by.to_csv(out / "prediction_eval_by_scenario.csv", index=False)
             wide = by.pivot_table(index=["scenario", "group", "n"], columns="model", values="ade", sort=False).reset_index()
             (out / "prediction_eval_by_scenario.md").write_text(
