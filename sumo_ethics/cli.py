@@ -278,10 +278,15 @@ def _dataset_folder(path: Path) -> Path:
 @click.option("--map-version", type=int, default=None,
               help="Map features a map model reads (default: the dataset's; an earlier one trains a file of "
                    "that version again, e.g. 3 for the shipped default).")
+@click.option("--pedestrian-speed-scale", type=float, nargs=2, default=None, metavar="LO HI",
+              help="Each time a pedestrian's sample is used, scale its history and future about its current "
+                   "position by a factor drawn log-uniformly from [LO, HI]: it walks that much faster or slower "
+                   "along the same path (the bundled scenarios' pedestrians walk 1.0-1.45 m/s; default: as recorded).")
 def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
           nbr_frame: str | None, modes: int | None, decoder_size: int | None, decoder_steps: str | None,
           cv_mode: bool | None, one_mode_pedestrians: bool | None, stay_mode_pedestrians: bool | None,
-          stay_mode_cyclists: bool | None, stay_speed: float | None, map_version: int | None) -> None:
+          stay_mode_cyclists: bool | None, stay_speed: float | None, map_version: int | None,
+          pedestrian_speed_scale: tuple[float, float] | None) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation; with several modes the
     warm-up is winner-takes-all and the NLL that of the mixture)."""
     from sumo_ethics.predict import train_main
@@ -302,6 +307,8 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
         raise click.BadParameter("--stay-speed needs --stay-mode-pedestrians or --stay-mode-cyclists")
     if stay_speed is not None and not stay_speed > 0:
         raise click.BadParameter("--stay-speed must be positive")
+    if pedestrian_speed_scale is not None and not 0 < pedestrian_speed_scale[0] <= pedestrian_speed_scale[1]:
+        raise click.BadParameter("--pedestrian-speed-scale needs 0 < LO <= HI")
     stay = None
     if stay_mode_pedestrians is not None or stay_mode_cyclists is not None:
         stay = (GROUP_CYCLIST,) * bool(stay_mode_cyclists) + (GROUP_PEDESTRIAN,) * bool(stay_mode_pedestrians)
@@ -309,7 +316,7 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
                         hazard_repeat=hazard_repeat, nbr_frame=nbr_frame, modes=modes, dec=decoder_size,
                         dec_steps=None if decoder_steps is None else int(decoder_steps),
                         cv_mode=cv_mode, single_mode_groups=single, stay_mode_groups=stay, stay_speed=stay_speed,
-                        map_version=map_version)
+                        map_version=map_version, ped_speed_scale=pedestrian_speed_scale)
     click.echo(f"weights written to {out}: {result['kind']}, best epoch {result['best_epoch']} "
                f"(validation NLL {result['best_val_nll']:.3f}), stopped by {result['stopped']} after "
                f"{result['cpu_minutes']:.1f} CPU-minutes; the training log is {Path(out).with_suffix('.json')}")

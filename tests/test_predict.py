@@ -314,3 +314,30 @@ def test_prediction_breakdown_refuses_bad_input_in_one_line(tmp_path):
                         "given twice")):
         r = subprocess.run([sys.executable, str(tool), *args], capture_output=True, text=True)
         assert r.returncode == 2 and says in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_pedestrian_speed_scale_in_training():
+    """TrainConfig.ped_speed_scale: pedestrians' histories and futures scaled about their current
+    position, the other classes untouched; the loss is that of the samples scaled by hand."""
+    from sumo_ethics.predict.train import _loss, speed_factors
+
+    group = np.array([F.GROUP_VEHICLE, F.GROUP_PEDESTRIAN, F.GROUP_CYCLIST, F.GROUP_PEDESTRIAN])
+    assert speed_factors(group, (1.25, 1.25), np.random.default_rng(0)).tolist() == [1.0, 1.25, 1.0, 1.25]
+    k = speed_factors(np.full(1000, F.GROUP_PEDESTRIAN), (0.8, 1.4), np.random.default_rng(0))
+    assert 0.8 <= k.min() < 0.82 and 1.38 < k.max() <= 1.4  # log-uniform: the median at sqrt(0.8 * 1.4)
+    assert np.median(k) == pytest.approx(math.sqrt(0.8 * 1.4), rel=0.03)
+    data = tiny_dataset(8)
+    data["tgt_group"][[1, 3]] = F.GROUP_PEDESTRIAN
+    data["tgt_cls"][[1, 3]] = int(RoadUserClass.PEDESTRIAN)
+    factor = np.array([1, 1.25, 1, 0.8, 1, 1, 1, 1])
+    by_hand = dict(data, tgt_hist=data["tgt_hist"] * factor[:, None, None].astype(np.float32),
+                   fut=data["fut"] * factor[:, None, None].astype(np.float32))
+    torch.manual_seed(0)
+    model = TrajectoryLSTM("cslstm")
+    idx = np.arange(8)
+    with torch.no_grad():
+        scaled = _loss(model, data, idx, use_nll=True, factor=factor)
+        assert scaled.item() == _loss(model, by_hand, idx, use_nll=True).item()
+        assert scaled.item() != _loss(model, data, idx, use_nll=True).item()
+        assert _loss(model, data, idx, True, np.ones(8)).item() == _loss(model, data, idx, True).item()
+    np.testing.assert_allclose(by_hand["tgt_hist"][1, -2], data["tgt_hist"][1, -2] * 1.25)  # the step before "now"

@@ -173,7 +173,9 @@ def test_train_refuses_mode_options_without_modes(tmp_path, capsys):
 
 def test_train_refuses_a_stay_speed_without_a_stay_mode(tmp_path, capsys):
     for args, why in ((["--stay-speed", "0.5"], "--stay-speed needs --stay-mode-pedestrians or --stay-mode-cyclists"),
-                      (["--stay-mode-cyclists", "--stay-speed", "-1"], "--stay-speed must be positive")):
+                      (["--stay-mode-cyclists", "--stay-speed", "-1"], "--stay-speed must be positive"),
+                      (["--pedestrian-speed-scale", "1.4", "0.8"], "--pedestrian-speed-scale needs 0 < LO <= HI"),
+                      (["--pedestrian-speed-scale", "0", "1.2"], "--pedestrian-speed-scale needs 0 < LO <= HI")):
         assert main(["train", str(tmp_path), "--out", str(tmp_path / "w.pt"), *args]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and why in err[0]

@@ -83,6 +83,7 @@ def train_main(
     stay_speed: float | None = None,
     residual_groups: tuple[int, ...] | None = None,
     map_version: int | None = None,
+    ped_speed_scale: tuple[float, float] | None = None,
 ) -> dict:
     """Train ``model`` ("map", "map_cslstm", "attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
 
@@ -98,7 +99,8 @@ def train_main(
                       stay_mode_groups=None if stay_mode_groups is None else tuple(stay_mode_groups),
                       stay_speed=stay_speed,
                       residual_groups=None if residual_groups is None else tuple(residual_groups),
-                      map_version=map_version)
+                      map_version=map_version,
+                      ped_speed_scale=None if ped_speed_scale is None else tuple(ped_speed_scale))
     from sumo_ethics.interrupt import sigterm_as_interrupt
 
     with sigterm_as_interrupt():  # as Ctrl-C: the best epoch so far is written, then the interrupt goes on

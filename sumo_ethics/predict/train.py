@@ -63,7 +63,10 @@ class TrainConfig:
     groups decoded as corrections to the constant-velocity rollout; each None:
     models.default_options; map_version: the map features a map model reads (features.MAP_VERSIONS,
     at most the dataset's; None: the dataset's), so a file of an earlier version can be trained
-    again from a newer dataset."""
+    again from a newer dataset; ped_speed_scale (lo, hi): each time a pedestrian's training sample
+    is used, its history and future are scaled about its current position by a factor drawn
+    log-uniformly from [lo, hi], so it walks that much faster or slower along the same path (the
+    map rows and neighbours stay; None: as recorded)."""
 
     epochs: int = 40
     mse_epochs: int = 4
@@ -90,6 +93,7 @@ class TrainConfig:
     stay_speed: float | None = None
     residual_groups: tuple[int, ...] | None = None
     map_version: int | None = None
+    ped_speed_scale: tuple[float, float] | None = None
 
 
 def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -99,8 +103,23 @@ def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng
     return idx
 
 
-def _loss(model: TrajectoryLSTM, samples: dict[str, np.ndarray], index: np.ndarray, use_nll: bool) -> torch.Tensor:
+def speed_factors(group: np.ndarray, scale: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """(S,) factors for TrainConfig.ped_speed_scale: log-uniform in ``scale`` for pedestrians, 1 for the others."""
+    lo, hi = np.log(scale[0]), np.log(scale[1])
+    k = np.exp(rng.uniform(lo, hi, len(group)))
+    return np.where(group == F.GROUP_PEDESTRIAN, k, 1.0)
+
+
+def _loss(model: TrajectoryLSTM, samples: dict[str, np.ndarray], index: np.ndarray, use_nll: bool,
+          factor: np.ndarray | None = None) -> torch.Tensor:
+    """Training loss of the samples ``index``; ``factor`` (S,): their target's history, future and
+    speed scaled about its current position (:func:`speed_factors`)."""
     batch = subset(samples, index)
+    if factor is not None:
+        f32 = factor.astype(np.float32)
+        batch["tgt_hist"] = batch["tgt_hist"] * f32[:, None, None]
+        batch["fut"] = batch["fut"] * f32[:, None, None]
+        batch["tgt_speed"] = batch["tgt_speed"] * f32
     x = batch_to_tensors(batch, model.pos_scale, with_map=model.kind in MAP_KINDS, map_version=model.map_version)
     scale = model.scale(x["tgt_group"])
     y = torch.as_tensor(batch["fut"], dtype=torch.float32) / scale[:, None, None]
@@ -224,7 +243,9 @@ def train_model(
                 running = 0.0
                 for b in range(n_batches):
                     idx = np.sort(perm[b * config.batch_size: (b + 1) * config.batch_size])
-                    loss = _loss(model, samples, idx, use_nll)
+                    factor = None if config.ped_speed_scale is None else speed_factors(
+                        samples["tgt_group"][idx], config.ped_speed_scale, rng)
+                    loss = _loss(model, samples, idx, use_nll, factor)
                     opt.zero_grad()
                     loss.backward()
                     torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
