@@ -26,17 +26,18 @@ def replacing(path: Path, tmp_name: str | None = None, durable: bool = False) ->
     try:
         yield tmp
         if durable:
-            _fsync(tmp, os.O_RDONLY)
+            _fsync(tmp)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
     if durable:
-        _fsync(path.parent, os.O_RDONLY)  # the rename itself
+        _fsync(path.parent)  # the rename itself
 
 
-def _fsync(path: Path, flags: int) -> None:
-    fd = os.open(path, flags)
+def _fsync(path: Path) -> None:
+    """A file's or a folder's data on the disk (a read-only descriptor serves for both)."""
+    fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)
     finally:

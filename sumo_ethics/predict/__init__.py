@@ -45,6 +45,7 @@ def one_thread(load: bool = False) -> None:
         return
     torch.set_num_threads(1)
 
+
 if TYPE_CHECKING:  # pragma: no cover
     from sumo_ethics.predict.commands import dataset_main, evaluate_main, train_main
     from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor

@@ -223,8 +223,7 @@ def evaluate(
         scenario = np.array([names.get(int(r), "?") for r in batch["run_id"]]) if names else None
         if "run_id" in batch:
             per_scenario = [] if scenario is None else [
-                (f"{scen}/{g}", (scenario == scen) & (groups == i))
-                for scen in sorted(set(scenario.tolist())) for i, g in enumerate(F.GROUP_NAMES)]
+                (f"{scen}/{g}", sel) for scen, g, sel in scenario_selections(scenario, groups)]
             ci = ratio_intervals(outputs, fut, valid, batch["run_id"], selections + per_scenario)
             ci.to_csv(out / "prediction_eval_ci.csv", index=False)
             (out / "prediction_eval_ci.md").write_text(ci_markdown(ci) + f"\n\nADE of the most likely mode over "
@@ -251,14 +250,19 @@ def by_scenario(outputs: dict[str, tuple[np.ndarray, np.ndarray | None]], batch:
     valid = batch["fut_valid"] if "fut_valid" in batch else np.ones(fut.shape[:2], dtype=bool)
     rows = []
     for name, (params, weight) in outputs.items():
-        for scen in sorted(set(scenario.tolist())):
-            for i, g in enumerate(F.GROUP_NAMES):
-                sel = (scenario == scen) & (batch["tgt_group"] == i)
-                if sel.any():
-                    m = metrics(params[sel], fut[sel], valid[sel], None if weight is None else weight[sel])
-                    rows.append({"model": name, "scenario": scen, "group": g, "n": int(sel.sum()),
-                                 "ade": m["ade"], "fde": m["fde"], "nll": m["nll"]})
+        for scen, g, sel in scenario_selections(scenario, batch["tgt_group"]):
+            if sel.any():
+                m = metrics(params[sel], fut[sel], valid[sel], None if weight is None else weight[sel])
+                rows.append({"model": name, "scenario": scen, "group": g, "n": int(sel.sum()),
+                             "ade": m["ade"], "fde": m["fde"], "nll": m["nll"]})
     return pd.DataFrame(rows)
+
+
+def scenario_selections(scenario: np.ndarray, group: np.ndarray) -> list[tuple[str, str, np.ndarray]]:
+    """(scenario, class group name, (S,) mask) for every scenario (sorted) and class group of the
+    samples: scenario (S,) each sample's scenario name, group (S,) its class group."""
+    return [(scen, g, (scenario == scen) & (group == i))
+            for scen in sorted(set(scenario.tolist())) for i, g in enumerate(F.GROUP_NAMES)]
 
 
 #: classes a selection score averages over (docs/predictor_seeds.md, "How a shipped file is chosen")
@@ -319,10 +323,10 @@ def ratio_intervals(outputs: dict[str, tuple[np.ndarray, np.ndarray | None]], fu
             continue
         runs, inv = np.unique(run_id[sel], return_inverse=True)
         counts = rng.multinomial(len(runs), np.full(len(runs), 1.0 / len(runs)), size=n_boot)  # (B, R)
+        pts = valid[sel].sum()
         for m, ref in pairs:
             a = np.bincount(inv, weights=err[m][sel], minlength=len(runs))  # (R,) per run
             b = np.bincount(inv, weights=err[ref][sel], minlength=len(runs))
-            pts = valid[sel].sum()
             ratio = a.sum() / b.sum() if b.sum() > 0 else np.nan
             with np.errstate(divide="ignore", invalid="ignore"):
                 boot = (counts @ a) / (counts @ b)
