@@ -148,12 +148,23 @@ def test_pedestrian_rows_follow_its_heading_along_a_sidewalk():
 def test_pedestrian_waiting_on_a_walking_area_sees_its_crossing_and_the_red_light():
     g = walking_graph()
     # standing at (21, 1.5) facing +y on the walking area, its walk goes on over the crossing,
-    # whose light is red 0.5 m away for 2.5 s more: row 0 is the crossing from its nearer end
-    # (22, 2), world (22, 2 + k); in the pedestrian's frame (+x = world +y, +y = world -x): (0.5 + k, -1)
-    f = F.map_features(g, _walker(1, 2.0, next_lane=2, tls_dist=0.5, tls_state=3, tls_switch=2.5),
-                       np.array([[21.0, 1.5]]), np.array([np.pi / 2]), np.array([0.0]))
-    np.testing.assert_allclose(f["map_pts"][0, 0], [[0.5 + k, -1.0] for k in range(10)], atol=1e-5)
-    assert f["map_valid"][0].tolist() == [True, False, False, False, False, False]
+    # whose light is red 0.5 m away for 2.5 s more. In the pedestrian's frame +x is world +y and
+    # +y is world -x. Version 4: row 0 is the crossing from its nearer end (22, 2), world (22, 2 + k):
+    # (0.5 + k, -1)
+    ctx, args = _walker(1, 2.0, next_lane=2, tls_dist=0.5, tls_state=3, tls_switch=2.5), \
+        (np.array([[21.0, 1.5]]), np.array([np.pi / 2]), np.array([0.0]))
+    f4 = F.map_features(g, ctx, *args, version=4)
+    np.testing.assert_allclose(f4["map_pts"][0, 0], [[0.5 + k, -1.0] for k in range(10)], atol=1e-5)
+    # version 5: the straight walk to (22, 2), sqrt(1^2 + 0.5^2) = 1.118 m, then the crossing. At 1 m:
+    # 1 / 1.118 of (1, 0.5) from (21, 1.5), world (21.894, 1.947): (0.447, -0.894); at k >= 2 m,
+    # k - 1.118 m up the crossing, world (22, 2 + k - 1.118): (0.5 + k - 1.118, -1)
+    f = F.map_features(g, ctx, *args)
+    gap = np.hypot(1.0, 0.5)
+    np.testing.assert_allclose(f["map_pts"][0, 0, :2], [[0, 0], [0.5 / gap, -1 / gap]], atol=1e-5)
+    np.testing.assert_allclose(f["map_pts"][0, 0, 2:], [[0.5 + k - gap, -1.0] for k in range(2, 10)], atol=1e-5)
+    # the version-4 row travels with it, for the models of versions 2-4
+    np.testing.assert_array_equal(f["map_row0_v4"][0], f4["map_pts"][0, 0])
+    assert f["map_valid"][0].tolist() == f4["map_valid"][0].tolist() == [True, False, False, False, False, False]
     # [on a lane, a signalised crossing ahead, 0.5 / 50, green, yellow, red, 0, 2.5 s / 10 s]
     np.testing.assert_allclose(f["map_scalar"][0], [1, 1, 0.01, 0, 0, 1, 0, 0.25, 0, 0], atol=1e-6)
 
@@ -230,7 +241,7 @@ def test_map_version_1_gives_pedestrians_nothing_and_vehicles_the_same():
                        person=np.array([False, True]), next_lane=np.array([-1, -1]))
     xy, yaw, v = np.array([[90.0, 0.0], [50.0, 0.0]]), np.zeros(2), np.array([10.0, 1.0])
     new, old = F.map_features(g, car, xy, yaw, v), F.map_features(g, car, xy, yaw, v, version=1)
-    for key in new:  # the car: the same (version 1 has the first 7 scalars)
+    for key in old:  # the car: the same (version 1 has the first 7 scalars)
         np.testing.assert_array_equal(new[key][0][..., :old[key].shape[-1]] if key == "map_scalar" else new[key][0],
                                       old[key][0])
     assert new["map_valid"][1, 0] and not old["map_valid"][1].any() and not old["map_scalar"][1].any()
@@ -283,10 +294,11 @@ def test_each_target_of_a_mixed_batch_gets_what_it_gets_alone():
     assert batch["map_valid"][1].tolist() == [True, False, True, False, False, False]
 
 
-def test_version_4_samples_give_earlier_models_exactly_their_own_inputs():
-    """Many targets at random places (walkers with a lane after their walking area among them): a
-    version 2-3 model's tensors of version-4 features equal those of its own version's features,
-    bit for bit; so a version-3 file trains the same from a version-4 dataset. (A version-1
+def test_version_5_samples_give_earlier_models_exactly_their_own_inputs():
+    """Many targets at random places (walkers on a walking area and walkers with a lane after
+    their walking area among them): a version 2-4 model's tensors of version-5 features equal
+    those of its own version's features, bit for bit; so a version-4 file trains and is evaluated
+    the same from a version-5 dataset. (A version-1
     model's tensors of later features agree up to float32 rounding only: its features leave the
     pedestrians' rows out of the one sampling pass, which moves the vehicles' rows in it.)"""
     from sumo_ethics.predict.models import batch_to_tensors
@@ -307,11 +319,13 @@ def test_version_4_samples_give_earlier_models_exactly_their_own_inputs():
     base = {"tgt_group": group, "nbr_batch": np.zeros(0, dtype=np.int64), "tgt_hist": np.zeros((n, F.HIST_STEPS, 2)),
             "nbr_hist": np.zeros((0, F.HIST_STEPS, 2)), "nbr_group": np.zeros(0, dtype=np.int64),
             "nbr_cell": np.zeros(0, dtype=np.int64)}
-    v4 = F.map_features(g, ctx, xy, yaw, speed)
-    assert v4["map_valid"][person, F.MAP_ROW_AFTER].sum() > 50  # the second pass has rows
-    for version in (2, 3):
+    v5 = F.map_features(g, ctx, xy, yaw, speed)
+    assert v5["map_valid"][person, F.MAP_ROW_AFTER].sum() > 50  # the second pass has rows
+    across = np.any(v5["map_pts"][:, 0] != v5["map_row0_v4"], axis=-1).any(axis=-1)
+    assert across.sum() > 15 and person[across].all()  # and the third: walkers on the walking area
+    for version in (2, 3, 4):
         own = F.map_features(g, ctx, xy, yaw, speed, version=version)
-        t4 = batch_to_tensors({**base, **v4}, with_map=True, map_version=version)
+        t4 = batch_to_tensors({**base, **v5}, with_map=True, map_version=version)
         tv = batch_to_tensors({**base, **own}, with_map=True, map_version=version)
         for key in ("map_pts", "map_valid", "map_scalar"):
             assert torch.equal(t4[key], tv[key]), (version, key)
@@ -372,7 +386,7 @@ def test_weights_of_another_kind_or_map_version_are_refused(tmp_path):
     blob = torch.load(path, weights_only=True)
     blob["map_version"] = 0
     torch.save(blob, tmp_path / "old_map.pt")
-    with pytest.raises(PredictorError, match="map_version=0, this code reads 1 or 2 or 3 or 4"):
+    with pytest.raises(PredictorError, match="map_version=0, this code reads 1 or 2 or 3 or 4 or 5"):
         load_model(tmp_path / "old_map.pt")
     blob["map_version"], blob["kind"] = F.MAP_VERSION, "transformer"
     torch.save(blob, tmp_path / "other.pt")

@@ -37,17 +37,17 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
     default = LSTMPredictor.from_file(weights, kind="map_cslstm").model
     assert default.nbr_frame == "agent" and default.modes == 3  # as shipped
     assert (default.dec_size, default.cv_mode, default.single_mode_groups) == (64, False, (2,))  # pedestrians: one mode
-    assert default.map_version == 4 and default.n_scalars == 10  # the dataset's map features
+    assert default.map_version == 5 and default.n_scalars == 10  # the dataset's map features
     # a model of an earlier map version from the same dataset (as the shipped default, version 3);
     # a later one than the dataset's is refused in one line
     v3 = tmp_path / "v3.pt"
     assert main(["train", str(data), "--out", str(v3), "--max-minutes", "0.05", "--map-version", "3"]) == 0
     assert LSTMPredictor.from_file(v3).model.map_version == 3
     capsys.readouterr()
-    assert main(["train", str(data), "--out", str(tmp_path / "v5.pt"), "--max-minutes", "0.05", "--map-version", "5"]) == 2
+    assert main(["train", str(data), "--out", str(tmp_path / "v6.pt"), "--max-minutes", "0.05", "--map-version", "6"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "has map version 4, so a model of it reads 1 to 4" in err
-    assert not (tmp_path / "v5.pt").exists()
+    assert err.count("\n") == 1 and "has map version 5, so a model of it reads 1 to 5" in err
+    assert not (tmp_path / "v6.pt").exists()
     assert main(["train", str(data), "--model", "cslstm", "--out", str(tmp_path / "c.pt"), "--map-version", "3"]) == 2
     assert "cslstm reads no map" in capsys.readouterr().err
     # a two-mode model trains (winner-takes-all warm-up, then the mixture NLL) and is evaluated

@@ -19,7 +19,8 @@ varying by seed), and writes to ``out``:
   neighbours in its social grid, all in the target's frame. One anchor every
   ``anchor_every`` s per agent. Neighbours are stored packed (``nbr_*`` arrays, sorted by
   sample, ``nbr_ptr`` offsets).
-  Per sample also its map features (``map_pts``, ``map_valid``, ``map_scalar``), its
+  Per sample also its map features (``map_pts``, ``map_valid``, ``map_scalar``, and
+  ``map_row0_v4``: row 0 as map versions 2-4 build it, for the models of those versions), its
   manoeuvre label (``manoeuvre``, see :data:`MANOEUVRES`) and ``fut_valid`` (T,) bool
   (hazard actors may vanish after 1 s: their futures are partly observed).
 - ``split.json``: the seeds of each split; the split is by run seed, never by frame. Suite
@@ -358,7 +359,7 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
     out: dict[str, list[np.ndarray]] = {key: [] for key in (
         "tgt_hist", "tgt_group", "tgt_cls", "tgt_speed", "fut", "time",
         "nbr_hist", "nbr_group", "nbr_cell", "nbr_yaw", "nbr_count",
-        "map_pts", "map_valid", "map_scalar", "manoeuvre", "fut_valid")}
+        "map_pts", "map_valid", "map_scalar", "map_row0_v4", "manoeuvre", "fut_valid")}
     for f in range(h - 1, nf - fsteps, step):
         here = np.flatnonzero(present[:, f])
         if here.size == 0:
@@ -400,6 +401,7 @@ def samples_from_run(df: pd.DataFrame, anchor_every: float = 1.0, min_history: f
         out["map_pts"].append(mf["map_pts"])
         out["map_valid"].append(mf["map_valid"])
         out["map_scalar"].append(mf["map_scalar"])
+        out["map_row0_v4"].append(mf["map_row0_v4"])
         out["manoeuvre"].append(manoeuvre_labels(
             feats["tgt_group"], fut, speed[ta, f], lane[ta, f: f + 1 + fsteps], tls_dist[ta, f], tls_state[ta, f],
             hazard_agent[ta], graph if has_map else None))
@@ -604,6 +606,8 @@ def rebuild_samples(src: Path, out: Path, anchor_every: float = 2.0, suite_ancho
         graphs = pickle.load(fh)
     meta.setdefault("anchor_every", anchor_every)
     meta.setdefault("suite_anchor_every", suite_anchor_every)
+    if int(meta.get("map_version") or 1) >= 4:  # map version 5 reads no recorded column that version 4 lacks
+        meta["map_version"] = F.MAP_VERSION
     samples = build_samples(traj, meta["split"], anchor_every=meta["anchor_every"], graphs=graphs,
                             suite_anchor_every=meta["suite_anchor_every"])
     np.savez_compressed(out / "samples.npz", **samples)

@@ -280,10 +280,19 @@ def own_frame(hist: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 # the next lane of its walk is a walking area (which has no row), the lane after it toward the
 # walk's next sidewalk (a crossing, or that sidewalk; ``MapContext.after_lane``), from the end
 # nearer to it. Models of earlier versions see neither (``models.batch_to_tensors``).
-MAP_VERSION = 4
+#
+# Version 5 changes row 0 of a pedestrian on a walking area: the straight walk from its position to
+# the next lane's nearer end, then along that lane (before: that lane alone, from its nearer end).
+# On the small walking areas of the bundled networks the two differ little, since a pedestrian
+# there is within a metre or two of the next lane; on a city junction from OSM a walking area
+# spans 15 m or more, and a row that starts far ahead and off to the side made the models predict
+# the pedestrian would stop. Datasets keep the earlier row 0 as well (``map_row0_v4``), so that a
+# model of versions 2-4 reads its own inputs from a version-5 dataset (``models.batch_to_tensors``).
+MAP_VERSION = 5
 #: map versions this code can build (version 1: pedestrians get no map context; version 2: no
-#: time to the light's switch, 7 scalars; version 3: no blinkers and no lane after a walking area)
-MAP_VERSIONS = (1, 2, 3, 4)
+#: time to the light's switch, 7 scalars; version 3: no blinkers and no lane after a walking area;
+#: version 4: a walking-area pedestrian's row 0 starts at the next lane)
+MAP_VERSIONS = (1, 2, 3, 4, 5)
 MAP_AHEAD = 4
 MAP_LANES = MAP_AHEAD + 2
 MAP_POINTS = 10
@@ -519,6 +528,14 @@ def _walk_lines(graph: LaneGraph, lane: int, lane_pos: float, next_lane: int, xy
     return out
 
 
+def walk_across(graph: LaneGraph, next_lane: int, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row 0 of a pedestrian on a walking area (version 5): the straight line from ``xy`` (2,) [m] to
+    the nearer end of ``next_lane``, then that lane's centre line (points (P + 1, 2), arc lengths)."""
+    pts, cum = graph.from_nearer_end(next_lane, xy)
+    gap = float(np.hypot(pts[0, 0] - xy[0], pts[0, 1] - xy[1]))
+    return np.vstack([np.asarray(xy, dtype=float)[None], pts]), np.concatenate([[0.0], cum + gap])
+
+
 def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: np.ndarray,
                  speed: np.ndarray, version: int = MAP_VERSION) -> dict[str, np.ndarray]:
     """Map inputs of N targets (see the layout above): map_pts, map_valid, map_kind, map_scalar.
@@ -528,6 +545,8 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
     and zero scalars, and so do pedestrians for ``version`` 1 (the features of models trained
     before pedestrians had map context); each version gets its own scalars only
     (:func:`map_scalars`), and before version 4 no blinkers and no pedestrian row MAP_ROW_AFTER.
+    From version 5 on, row 0 of a pedestrian on a walking area is :func:`walk_across`, and the
+    result also holds ``map_row0_v4`` (N, MAP_POINTS, 2): row 0 as versions 2-4 build it.
     """
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     n = len(xy)
@@ -561,6 +580,7 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
         # on a row's place among all rows)
         rows: list[tuple] = []  # (target, row, centre line, first arc length, spacing)
         later: list[tuple] = []
+        across: list[tuple] = []  # version 5: row 0 of the pedestrians on a walking area, sampled last
 
         lane_l, pos_l, speed_l = lanes.tolist(), np.asarray(ctx.lane_pos, dtype=float).tolist(), speed.tolist()
         for i in on.tolist():
@@ -568,6 +588,9 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
             if person[i]:
                 for r, line, s0 in _walk_lines(graph, lane, pos_l[i], int(nxt[i]), xy[i], float(yaw[i]), int(after[i])):
                     (later if r == MAP_ROW_AFTER else rows).append((i, r, line, s0, MAP_DS_PERSON))
+                if version >= 5 and nxt[i] >= 0 and nxt[i] != lane and graph.is_walking_area(lane) \
+                        and not graph.is_walking_area(int(nxt[i])):
+                    across.append((i, 0, walk_across(graph, int(nxt[i]), xy[i]), 0.0, MAP_DS_PERSON))
                 continue
             ds = max(MAP_DS_MIN, MAP_DS_PER_SPEED * speed_l[i])
             reach = (MAP_POINTS - 1) * ds
@@ -579,7 +602,9 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
                     s0 = min(start, graph.cum[side][-1])
                     rows.append((i, r, graph.polyline(graph.first_path(side, s0, reach)), s0, ds))
         yaw = np.asarray(yaw, dtype=float)
-        for done in (rows, later):
+        for done in (rows, later, across):
+            if done is across and version >= 5:
+                row0_v4 = pts[:, 0].copy()
             if not done:
                 continue
             who, row, lines, first, spacing = zip(*done)
@@ -591,9 +616,12 @@ def map_features(graph: LaneGraph | None, ctx: MapContext, xy: np.ndarray, yaw: 
             dy = world[..., 1] - xy[who_a, 1][:, None]
             pts[who_a, row_a] = np.stack([c * dx + s_ * dy, -s_ * dx + c * dy], -1)
             valid[who_a, row_a] = True
-    return {
+    out = {
         "map_pts": pts.astype(np.float32),
         "map_valid": valid,
         "map_kind": kind,
         "map_scalar": scalar[:, :map_scalars(version)].astype(np.float32),
     }
+    if version >= 5:
+        out["map_row0_v4"] = (row0_v4 if graph is not None else pts[:, 0]).astype(np.float32)
+    return out

@@ -95,6 +95,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 import torch.nn.functional as Fn
 from torch import nn
@@ -668,7 +669,8 @@ def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE, with_m
     map inputs if ``with_map``; a batch without map arrays then gets an empty map). For a
     ``map_version`` 1 model the pedestrians' map inputs are emptied, as that version built them,
     and before version 4 their row after a walking area; each version gets its own scalars
-    (features.map_scalars)."""
+    (features.map_scalars); before version 5 row 0 comes from ``map_row0_v4`` where the batch
+    has it (a walking-area pedestrian's earlier row 0, features.map_features)."""
     g = torch.as_tensor(batch["tgt_group"], dtype=torch.long)
     nb = torch.as_tensor(batch["nbr_batch"], dtype=torch.long)
     scale = torch.as_tensor(pos_scale, dtype=torch.float32)[g]
@@ -681,7 +683,10 @@ def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE, with_m
         "nbr_cell": torch.as_tensor(batch["nbr_cell"], dtype=torch.long),
     }
     if with_map and "map_pts" in batch:
-        out["map_pts"] = torch.as_tensor(batch["map_pts"], dtype=torch.float32) / scale[:, None, None, None]
+        pts = batch["map_pts"]
+        if map_version < 5 and "map_row0_v4" in batch:  # a version-5 dataset: row 0 as the model's version built it
+            pts = np.concatenate([np.asarray(batch["map_row0_v4"])[:, None], np.asarray(pts)[:, 1:]], axis=1)
+        out["map_pts"] = torch.as_tensor(pts, dtype=torch.float32) / scale[:, None, None, None]
         out["map_valid"] = torch.as_tensor(batch["map_valid"], dtype=torch.bool)
         out["map_scalar"] = torch.as_tensor(batch["map_scalar"], dtype=torch.float32)[:, :F.map_scalars(map_version)]
         ped = g == F.GROUP_PEDESTRIAN
