@@ -155,6 +155,15 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
         metric = "min_ade" if col.endswith("min_ade") else "ade"
         assert br.loc["all", col] == pytest.approx(full.loc[(model, "vehicle"), metric], rel=1e-6)
     assert (br["map_cslstm min_ade"] <= br["map_cslstm"] + 1e-12).all()
+    # --v5-row: a map version-4 file (the shipped 5-step one) also reads version 5's row 0 of the
+    # pedestrians on a walking area; a version-5 file (trained above) reads it anyway: no such column
+    from sumo_ethics.predict.predictor import default_weights
+
+    v4 = default_weights("map_cslstm").parent / "map_cslstm_fast.pt"
+    peds = breakdown(data, "pedestrian", None, models={"v4": str(v4), "new": str(weights)}, v5_row=True).set_index("subset")
+    assert "v4, v5 row" in peds.columns and "new, v5 row" not in peds.columns
+    assert peds.loc["on a walking area", "n"] >= 20 and peds.loc["on a walking area", "v4, v5 row"] != \
+        peds.loc["on a walking area", "v4"]
     # samples derived again from the recorded trajectories, without simulating: the same arrays
     assert main(["dataset", "--samples-from", str(data), "--out", str(tmp_path / "data2")]) == 0
     with np.load(data / "samples.npz") as a, np.load(tmp_path / "data2" / "samples.npz") as b:

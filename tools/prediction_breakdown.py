@@ -2,7 +2,7 @@
 dataset's samples (light ahead and its colour, distance to the stop line, speed, manoeuvre).
 
     python tools/prediction_breakdown.py DATASET [--scenario corridor,square,grid6] [--group vehicle]
-        [--moving | --standing] [--model NAME=FILE ...]
+        [--moving | --standing] [--model NAME=FILE ...] [--v5-row]
 
 DATASET: a folder written by ``sumo-ethics dataset`` (every sample is used, as for scenarios never
 trained on); --scenario keeps the runs of those scenario stems (suite runs are named "suite");
@@ -12,7 +12,11 @@ counts by its points). Besides each model's ADE it prints the ADE of its closest
 the mean weight of its most likely mode and how far that mode ends ahead of the truth along the
 target's heading at the horizon (``along``, metres; negative: short of it), which tell a mixture
 that holds the truth but ranks it second from one that misses it. Subsets of fewer than 20
-samples are left out.
+samples are left out. --v5-row (a map version-5 dataset) adds, for each model of an earlier map
+version, its ADE when it reads the version-5 row 0 of the pedestrians on a walking area (the straight
+walk to the next lane, then that lane) instead of its own version's row: what that row alone does,
+without retraining. The subsets "on a walking area" (the samples whose row 0 version 5 changed) and
+"row 0 over 3 m away" (its first point, as versions 2-4 build it) tell where it matters.
 """
 
 from __future__ import annotations
@@ -42,15 +46,19 @@ def subsets(b: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         out[f"speed {lo}-{hi:g} m/s"] = (speed >= lo) & (speed < hi)
     for i, m in enumerate(MANOEUVRES):
         out[f"m:{m}"] = b["manoeuvre"] == i
+    if "map_row0_v4" in b:  # a map version-5 dataset
+        out["on a walking area"] = np.any(b["map_pts"][:, 0] != b["map_row0_v4"], axis=(1, 2))
+        out["row 0 over 3 m away"] = b["map_valid"][:, 0] & (np.hypot(*b["map_row0_v4"][:, 0].T) > 3.0)
     return out
 
 
 def breakdown(dataset: Path, group: str = "vehicle", scenarios: list[str] | None = None, moving: bool | None = None,
-              models: dict[str, str] | None = None) -> pd.DataFrame:
+              models: dict[str, str] | None = None, v5_row: bool = False) -> pd.DataFrame:
     """Rows per subset (``subsets``, those of 20 samples or more): n and the mean ADE [m] of
     constant velocity and of each model's most likely mode, its closest mode of non-zero weight
     (min_ade) and its most likely mode's weight. ``moving``: None all, True those at 0.5 m/s or
-    faster now, False the others; ``models``: name -> weights file (default: the shipped map_cslstm)."""
+    faster now, False the others; ``models``: name -> weights file (default: the shipped map_cslstm);
+    ``v5_row``: also each earlier-version model reading the version-5 row 0 ("NAME, v5 row")."""
     import torch
 
     from sumo_ethics.predict import features as F
@@ -61,7 +69,7 @@ def breakdown(dataset: Path, group: str = "vehicle", scenarios: list[str] | None
         lstm_outputs,
         metrics,
     )
-    from sumo_ethics.predict.models import load_model
+    from sumo_ethics.predict.models import MAP_KINDS, load_model
     from sumo_ethics.predict.predictor import default_weights
 
     torch.set_num_threads(1)
@@ -77,6 +85,9 @@ def breakdown(dataset: Path, group: str = "vehicle", scenarios: list[str] | None
         keep &= (s["tgt_speed"] >= STANDING_SPEED) if moving else (s["tgt_speed"] < STANDING_SPEED)
     if not keep.any():
         raise ValueError("no samples left after the filters")
+    if v5_row and "map_row0_v4" not in s:
+        raise ValueError(f"--v5-row: {dataset} is not a map version-5 dataset (derive it again with "
+                         f"'sumo-ethics dataset --samples-from {dataset} --out NEW')")
     b = subset(s, np.flatnonzero(keep))
     fut, valid = b["fut"].astype(float), b["fut_valid"].astype(bool)
     last = valid.sum(1) - 1  # each sample's last valid point (futures are valid from the start without a gap)
@@ -86,6 +97,8 @@ def breakdown(dataset: Path, group: str = "vehicle", scenarios: list[str] | None
     for label, path in (models or {"map_cslstm": str(default_weights("map_cslstm"))}).items():
         model, _ = load_model(Path(path))
         outputs[label] = lstm_outputs(model, b)
+        if v5_row and model.kind in MAP_KINDS and 2 <= model.map_version < 5:
+            outputs[f"{label}, v5 row"] = lstm_outputs(model, {k: v for k, v in b.items() if k != "map_row0_v4"})
     # per sample: how far the most likely mode ends ahead of the truth along the heading [m]
     along = {label: (p if w is None else p[:, 0])[rows, last, 0] - fut[rows, last, 0] for label, (p, w) in outputs.items()}
     table = []
@@ -115,6 +128,8 @@ def main() -> None:
     move.add_argument("--moving", action="store_true", help="only those at 0.5 m/s or faster now")
     move.add_argument("--standing", action="store_true", help="only those slower than 0.5 m/s now")
     ap.add_argument("--model", action="append", default=[], metavar="NAME=FILE")
+    ap.add_argument("--v5-row", action="store_true",
+                    help="also each earlier-version model with the map version-5 row 0 of walking-area pedestrians")
     args = ap.parse_args()
     bad = [m for m in args.model if "=" not in m or not Path(m.split("=", 1)[1]).is_file()]
     names = [m.split("=", 1)[0] for m in args.model]
@@ -127,7 +142,7 @@ def main() -> None:
     moving = True if args.moving else False if args.standing else None
     try:
         df = breakdown(args.dataset, args.group, args.scenario.split(",") if args.scenario else None, moving,
-                       dict(m.split("=", 1) for m in args.model) or None)
+                       dict(m.split("=", 1) for m in args.model) or None, args.v5_row)
     except (ValueError, RuntimeError, OSError) as exc:  # bad dataset or filters; a weights file refused (PredictorError)
         print(f"prediction_breakdown: {exc}", file=sys.stderr)
         sys.exit(2)
