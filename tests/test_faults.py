@@ -20,6 +20,7 @@ from sumo_ethics.record.writer import chunk_steps
 
 ROOT = Path(__file__).resolve().parents[1]
 TESTBED = ROOT / "scenarios" / "testbed" / "testbed.sumocfg"
+URBAN = ROOT / "scenarios" / "urban" / "urban.sumocfg"
 CHUNK = chunk_steps(0.1)  # the testbed's 0.1 s steps: 20 steps per chunk
 
 # the real CLI on real SUMO, with the baseline controller slowed down to about 4 ms a step so
@@ -123,7 +124,9 @@ def test_sigkill_leaves_readable_chunks_up_to_the_last_flush(tmp_path, capfd, po
 def test_killed_sweep_parent_leaves_no_run_alive(tmp_path, sig):
     out = tmp_path / "sw"
     code = "import sys; from sumo_ethics.cli import main; sys.exit(main(sys.argv[1:]))"
-    proc = subprocess.Popen([sys.executable, "-c", code, "sweep", str(TESTBED), "--omega-u", "1000", "--seeds", "0-1",
+    # the urban scenario's runs drive for about 8 s of wall time each: on the testbed (2.8 s) both
+    # runs once finished between their start and the signal in a CI run
+    proc = subprocess.Popen([sys.executable, "-c", code, "sweep", str(URBAN), "--omega-u", "1000", "--seeds", "0-1",
                              "--end", "120", "--ego-depart", "2", "--predictor", "cv", "--workers", "2", "--quiet",
                              "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     runs = out / "runs"
