@@ -95,7 +95,6 @@ import math
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 import torch.nn.functional as Fn
 from torch import nn
@@ -683,10 +682,9 @@ def batch_to_tensors(batch: dict[str, Any], pos_scale: Any = F.POS_SCALE, with_m
         "nbr_cell": torch.as_tensor(batch["nbr_cell"], dtype=torch.long),
     }
     if with_map and "map_pts" in batch:
-        pts = batch["map_pts"]
+        out["map_pts"] = torch.as_tensor(batch["map_pts"], dtype=torch.float32) / scale[:, None, None, None]
         if map_version < 5 and "map_row0_v4" in batch:  # a version-5 dataset: row 0 as the model's version built it
-            pts = np.concatenate([np.asarray(batch["map_row0_v4"])[:, None], np.asarray(pts)[:, 1:]], axis=1)
-        out["map_pts"] = torch.as_tensor(pts, dtype=torch.float32) / scale[:, None, None, None]
+            out["map_pts"][:, 0] = torch.as_tensor(batch["map_row0_v4"], dtype=torch.float32) / scale[:, None, None]
         out["map_valid"] = torch.as_tensor(batch["map_valid"], dtype=torch.bool)
         out["map_scalar"] = torch.as_tensor(batch["map_scalar"], dtype=torch.float32)[:, :F.map_scalars(map_version)]
         ped = g == F.GROUP_PEDESTRIAN
