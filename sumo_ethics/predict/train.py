@@ -6,7 +6,6 @@ shuffling from a seeded numpy Generator). One torch thread by default (shared ma
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import signal
@@ -18,6 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from sumo_ethics import fileio
 from sumo_ethics.errors import Terminated
 from sumo_ethics.interrupt import signals_held
 from sumo_ethics.predict import PredictorError
@@ -300,7 +300,7 @@ def train_model(
     try:
         with signals_held(signal.SIGINT, signal.SIGTERM):  # the file and its log are written whole
             save_model(model, Path(out), info)
-            Path(out).with_suffix(".json").write_text(json.dumps(info, indent=2))
+            fileio.write_json(Path(out).with_suffix(".json"), info)  # whole or not at all, as the weights
     except KeyboardInterrupt:  # one more held while writing: the first, with its note, is the one raised
         if interrupted is None:
             raise
