@@ -316,6 +316,34 @@ def test_prediction_breakdown_refuses_bad_input_in_one_line(tmp_path):
         assert r.returncode == 2 and says in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 
+def test_prediction_breakdown_red_and_truth_subsets(monkeypatch):
+    """The subsets by how long a red holds and by where the future really ends, on four samples
+    worked out by hand: red holding 2 s (ends within 4 s), red holding 30 s (clipped at 20 s:
+    8 s or more), green, and no light; futures ending 0.3, 0.6 (then invalid) and 0 m away."""
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "tools"))
+    from prediction_breakdown import subsets
+
+    sc = np.zeros((4, 10), dtype=np.float32)
+    sc[:3, 1] = 1.0  # a light ahead for the first three
+    sc[0, 5], sc[0, 7] = 1.0, 2.0 / F.TLS_SWITCH_SCALE  # red, holds 2 s
+    sc[1, 5], sc[1, 7] = 1.0, 2.0  # red, holds 20 s or more (the clip)
+    sc[2, 3], sc[2, 7] = 1.0, 0.5  # green, holds 5 s
+    fut = np.zeros((4, 20, 2), dtype=np.float32)
+    fut[0, -1] = [0.3, 0.0]  # ends 0.3 m away
+    fut[1, 4] = [0.0, 0.6]  # 0.6 m at its last valid point (the points after it are invalid)
+    fut[2, -1] = [0.3, 0.4]  # 0.5 m: within
+    valid = np.ones((4, 20), dtype=bool)
+    valid[1, 5:] = False
+    b = {"map_scalar": sc, "tgt_speed": np.zeros(4, dtype=np.float32), "manoeuvre": np.zeros(4, dtype=np.int8),
+         "fut": fut, "fut_valid": valid}
+    got = subsets(b)
+    assert got["red ahead, ends within 4 s"].tolist() == [True, False, False, False]
+    assert got["red ahead, holds 8 s or more"].tolist() == [False, True, False, False]
+    assert got["truth: ends within 0.5 m"].tolist() == [True, False, True, True]
+    assert got["truth: ends over 0.5 m away"].tolist() == [False, True, False, False]
+    b["map_scalar"] = sc[:, :7]  # a map version 1-2 dataset: 7 scalars, no switch time
+    assert "red ahead, holds 8 s or more" not in subsets(b)
+
 def test_pedestrian_speed_scale_in_training():
     """TrainConfig.ped_speed_scale: pedestrians' histories and futures scaled about their current
     position, the other classes untouched; the loss is that of the samples scaled by hand."""

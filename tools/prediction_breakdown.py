@@ -1,5 +1,6 @@
 """Where a predictor loses against constant velocity: ADE of the most likely mode on subsets of a
-dataset's samples (light ahead and its colour, distance to the stop line, speed, manoeuvre).
+dataset's samples (light ahead and its colour, distance to the stop line, how long a red holds,
+speed, manoeuvre, and whether the road user really moved).
 
     python tools/prediction_breakdown.py DATASET [--scenario corridor,square,grid6] [--group vehicle]
         [--moving | --standing] [--model NAME=FILE ...] [--v5-row]
@@ -31,7 +32,9 @@ import pandas as pd
 
 def subsets(b: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Named (S,) masks over the samples ``b`` (map scalars as in features.map_features; a light
-    100 m away or more has its distance clipped to 100 m)."""
+    100 m away or more has its distance clipped to 100 m, the time a light's state holds at 20 s).
+    The "truth" subsets split by where the sample's future really ends (its last valid point), to
+    tell the road users who stay from those who leave."""
     from sumo_ethics.predict import features as F
     from sumo_ethics.predict.dataset import MANOEUVRES
 
@@ -42,10 +45,19 @@ def subsets(b: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
            "yellow ahead": sc[:, 4] > 0, "green ahead": sc[:, 3] > 0}
     for lo, hi in ((0, 20), (20, 50), (50, 100), (100, np.inf)):
         out[f"green ahead, {lo}-{hi:g} m"] = (sc[:, 3] > 0) & (dist >= lo) & (dist < hi)
+    if sc.shape[1] > 7:  # map version 3 on: how long the light's state holds (clipped at 20 s)
+        holds = sc[:, 7] * F.TLS_SWITCH_SCALE
+        out["red ahead, ends within 4 s"] = (sc[:, 5] > 0) & (holds < 4.0)
+        out["red ahead, holds 8 s or more"] = (sc[:, 5] > 0) & (holds >= 8.0)
     for lo, hi in ((0, 0.5), (0.5, 5), (5, 10), (10, np.inf)):
         out[f"speed {lo}-{hi:g} m/s"] = (speed >= lo) & (speed < hi)
     for i, m in enumerate(MANOEUVRES):
         out[f"m:{m}"] = b["manoeuvre"] == i
+    # what really happened: the last valid future point within 0.5 m of where the target is now, or not
+    last = np.maximum(b["fut_valid"].sum(1) - 1, 0)
+    end = b["fut"][np.arange(len(speed)), last]
+    out["truth: ends within 0.5 m"] = np.hypot(end[:, 0], end[:, 1]) <= 0.5
+    out["truth: ends over 0.5 m away"] = ~out["truth: ends within 0.5 m"]
     if "map_row0_v4" in b:  # a map version-5 dataset
         out["on a walking area"] = np.any(b["map_pts"][:, 0] != b["map_row0_v4"], axis=(1, 2))
         out["row 0 over 3 m away"] = b["map_valid"][:, 0] & (np.hypot(*b["map_row0_v4"][:, 0].T) > 3.0)
