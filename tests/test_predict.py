@@ -344,6 +344,7 @@ def test_prediction_breakdown_red_and_truth_subsets(monkeypatch):
     b["map_scalar"] = sc[:, :7]  # a map version 1-2 dataset: 7 scalars, no switch time
     assert "red ahead, holds 8 s or more" not in subsets(b)
 
+
 def test_pedestrian_speed_scale_in_training():
     """TrainConfig.ped_speed_scale: pedestrians' histories and futures scaled about their current
     position, the other classes untouched; the loss is that of the samples scaled by hand."""
