@@ -282,11 +282,14 @@ def _dataset_folder(path: Path) -> Path:
               help="Each time a pedestrian's sample is used, scale its history and future about its current "
                    "position by a factor drawn log-uniformly from [LO, HI]: it walks that much faster or slower "
                    "along the same path (the bundled scenarios' pedestrians walk 1.0-1.45 m/s; default: as recorded).")
+@click.option("--ema", type=float, default=None, metavar="DECAY",
+              help="Validate and write an exponential moving average of the weights, updated after every "
+                   "optimiser step with this decay, e.g. 0.999 (default: the weights as trained, as shipped).")
 def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
           nbr_frame: str | None, modes: int | None, decoder_size: int | None, decoder_steps: str | None,
           cv_mode: bool | None, one_mode_pedestrians: bool | None, stay_mode_pedestrians: bool | None,
           stay_mode_cyclists: bool | None, stay_speed: float | None, map_version: int | None,
-          pedestrian_speed_scale: tuple[float, float] | None) -> None:
+          pedestrian_speed_scale: tuple[float, float] | None, ema: float | None) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation; with several modes the
     warm-up is winner-takes-all and the NLL that of the mixture)."""
     from sumo_ethics.predict import train_main
@@ -309,6 +312,8 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
         raise click.BadParameter("--stay-speed must be positive")
     if pedestrian_speed_scale is not None and not 0 < pedestrian_speed_scale[0] <= pedestrian_speed_scale[1]:
         raise click.BadParameter("--pedestrian-speed-scale needs 0 < LO <= HI")
+    if ema is not None and not 0.0 < ema < 1.0:
+        raise click.BadParameter("--ema needs a decay between 0 and 1, e.g. 0.999")
     stay = None
     if stay_mode_pedestrians is not None or stay_mode_cyclists is not None:
         stay = (GROUP_CYCLIST,) * bool(stay_mode_cyclists) + (GROUP_PEDESTRIAN,) * bool(stay_mode_pedestrians)
@@ -316,7 +321,7 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
                         hazard_repeat=hazard_repeat, nbr_frame=nbr_frame, modes=modes, dec=decoder_size,
                         dec_steps=None if decoder_steps is None else int(decoder_steps),
                         cv_mode=cv_mode, single_mode_groups=single, stay_mode_groups=stay, stay_speed=stay_speed,
-                        map_version=map_version, ped_speed_scale=pedestrian_speed_scale)
+                        map_version=map_version, ped_speed_scale=pedestrian_speed_scale, ema=ema)
     click.echo(f"weights written to {out}: {result['kind']}, best epoch {result['best_epoch']} "
                f"(validation NLL {result['best_val_nll']:.3f}), stopped by {result['stopped']} after "
                f"{result['cpu_minutes']:.1f} CPU-minutes; the training log is {Path(out).with_suffix('.json')}")

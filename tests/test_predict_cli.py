@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 
 from sumo_ethics.cli import main
 from sumo_ethics.predict import LSTMPredictor
@@ -54,6 +55,32 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
     modes2 = tmp_path / "m2.pt"
     assert main(["train", str(data), "--out", str(modes2), "--max-minutes", "0.05", "--modes", "2"]) == 0
     assert LSTMPredictor.from_file(modes2).model.modes == 2
+    # --ema: the file holds the moving average of the weights as they were after each optimiser step
+    # (the first step's weights, then e = d e + (1 - d) w) up to the end of the best epoch
+    from torch.optim import swa_utils
+
+    after_step = []
+    real_update = swa_utils.AveragedModel.update_parameters
+
+    def record(self, model):
+        after_step.append(model.output.weight.detach().clone())
+        return real_update(self, model)
+
+    monkeypatch.setattr(swa_utils.AveragedModel, "update_parameters", record)
+    ema = tmp_path / "ema.pt"
+    assert main(["train", str(data), "--out", str(ema), "--max-minutes", "0.05", "--ema", "0.5"]) == 0
+    log = json.loads(ema.with_suffix(".json").read_text())
+    assert log["config"]["ema"] == 0.5
+    steps = min(len(after_step), (log["best_epoch"] + 1) * -(-log["n_train"] // 128))
+    by_hand = after_step[0]
+    for w in after_step[1:steps]:
+        by_hand = 0.5 * by_hand + 0.5 * w
+    written = LSTMPredictor.from_file(ema).model.output.weight.detach()
+    assert steps >= 2 and not torch.equal(written, after_step[steps - 1])  # an average, not the last weights
+    torch.testing.assert_close(written, by_hand, rtol=1e-5, atol=1e-7)
+    capsys.readouterr()
+    assert main(["train", str(data), "--out", str(tmp_path / "e2.pt"), "--max-minutes", "0.05", "--ema", "1"]) == 2
+    assert "--ema needs a decay between 0 and 1" in capsys.readouterr().err
     # the options can be switched (and are kept in the training log as trained)
     plain = tmp_path / "plain.pt"
     assert main(["train", str(data), "--out", str(plain), "--max-minutes", "0.05", "--decoder-size", "32",

@@ -84,11 +84,13 @@ def train_main(
     residual_groups: tuple[int, ...] | None = None,
     map_version: int | None = None,
     ped_speed_scale: tuple[float, float] | None = None,
+    ema: float | None = None,
 ) -> dict:
     """Train ``model`` ("map", "map_cslstm", "attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
 
     max_minutes is a CPU-time budget (one thread); max_wall_minutes caps wall time (default 3x);
-    map_version: the map features a map model reads (None: the dataset's).
+    map_version: the map features a map model reads (None: the dataset's); ema: decay of the
+    weights' moving average that is validated and written (None: none, as shipped).
     """
     from sumo_ethics.predict.train import TrainConfig, train_model
 
@@ -100,7 +102,7 @@ def train_main(
                       stay_speed=stay_speed,
                       residual_groups=None if residual_groups is None else tuple(residual_groups),
                       map_version=map_version,
-                      ped_speed_scale=None if ped_speed_scale is None else tuple(ped_speed_scale))
+                      ped_speed_scale=None if ped_speed_scale is None else tuple(ped_speed_scale), ema=ema)
     from sumo_ethics.interrupt import sigterm_as_interrupt
 
     with sigterm_as_interrupt():  # as Ctrl-C: the best epoch so far is written, then the interrupt goes on

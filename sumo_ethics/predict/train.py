@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch.optim import swa_utils
 
 from sumo_ethics import fileio
 from sumo_ethics.errors import Terminated
@@ -66,7 +67,9 @@ class TrainConfig:
     again from a newer dataset; ped_speed_scale (lo, hi): each time a pedestrian's training sample
     is used, its history and future are scaled about its current position by a factor drawn
     log-uniformly from [lo, hi], so it walks that much faster or slower along the same path (the
-    map rows and neighbours stay; None: as recorded)."""
+    map rows and neighbours stay; None: as recorded); ema: decay of an exponential moving average of
+    the weights, updated after every optimiser step (torch.optim.swa_utils); validation, early
+    stopping and the written file then use the averaged weights (None: the weights as trained)."""
 
     epochs: int = 40
     mse_epochs: int = 4
@@ -94,6 +97,7 @@ class TrainConfig:
     residual_groups: tuple[int, ...] | None = None
     map_version: int | None = None
     ped_speed_scale: tuple[float, float] | None = None
+    ema: float | None = None
 
 
 def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -215,6 +219,9 @@ def train_model(
                            residual_groups=tuple(config.residual_groups),
                            map_version=map_version)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    averaged = None if config.ema is None else swa_utils.AveragedModel(
+        model, multi_avg_fn=swa_utils.get_ema_multi_avg_fn(config.ema))
+    judged = model if averaged is None else averaged.module  # the weights validated and written
     n_batches = math.ceil(len(train_idx) / config.batch_size)
     best, best_state, best_epoch, bad = math.inf, None, -1, 0
     history: list[dict[str, float]] = []
@@ -250,11 +257,13 @@ def train_model(
                     loss.backward()
                     torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
                     opt.step()
+                    if averaged is not None:
+                        averaged.update_parameters(model)
                     running += loss.item()
                     bar.update(task, advance=1, info=f"ep {epoch} {'nll' if use_nll else 'mse'} {running / (b + 1):.3f}")
                     if over_budget():
                         break
-                val = validate(model, samples, val_idx)
+                val = validate(judged, samples, val_idx)
                 history.append({"epoch": epoch, "loss": running / max(b + 1, 1), "val_nll": val["nll"], "val_ade": val["ade"],
                                 "phase": "nll" if use_nll else "mse", "minutes": (time.monotonic() - t0) / 60})
                 bar.update(task, info=f"ep {epoch} val nll {val['nll']:.3f} ade {val['ade']:.2f} m")
@@ -262,7 +271,7 @@ def train_model(
                          history[-1]["phase"], history[-1]["loss"], val["nll"], val["ade"], history[-1]["minutes"])
                 if use_nll:
                     if val["nll"] < best - 1e-4:
-                        state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+                        state = {k: v.detach().clone() for k, v in judged.state_dict().items()}
                         best_state, best, best_epoch, bad = state, val["nll"], epoch, 0  # together, for an interrupt
                     else:
                         bad += 1
