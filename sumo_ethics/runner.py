@@ -202,6 +202,9 @@ class Run:
         snap = world.read()
         if snap is None:
             raise SimulationError(f"the ego '{ego_id}' left the simulation right after the takeover")
+        # the mass the planner and the harm model use: a taken-over vehicle's own (its vType's, or the
+        # class estimate where the vType leaves SUMO's default), not the inserted ego's
+        self.meta["ego_limits"]["mass"] = float(snap.ego.mass[0])
         collisions = CollisionBook(self.rec, cfg.collision_gap, world.party_state)
         half = float(snap.ego.length[0]) / 2
         s, d = route.path.project_point(float(snap.ego.x[0]), float(snap.ego.y[0]))
