@@ -11,6 +11,7 @@ from pathlib import Path
 
 import click
 
+from sumo_ethics.cli_types import SUMO_TIME
 from sumo_ethics.errors import SumoEthicsError, Terminated
 from sumo_ethics.predict import PREDICTORS, PredictorError
 
@@ -44,10 +45,11 @@ def cli() -> None:
 @click.option("--ego", "ego_id", help="Take over this vehicle of the scenario's route files when it departs.")
 @click.option("--ego-from", help="Insert our own ego on a route from this edge ...")
 @click.option("--ego-to", help="... to this edge.")
-@click.option("--ego-depart", type=float,
-              help="Departure time [s] of the inserted ego, a simulation time (default: the scenario's begin).")
+@click.option("--ego-depart", type=SUMO_TIME,
+              help="Departure time of the inserted ego, a simulation time in seconds or SUMO's h:m:s "
+                   "(default: the scenario's begin).")
 @click.option("--seed", type=int, default=42, show_default=True, help="SUMO and route seed.")
-@click.option("--end", type=float, help="Simulation time limit [s], a simulation time like SUMO's --end "
+@click.option("--end", type=SUMO_TIME, help="Simulation time limit, a simulation time like SUMO's --end "
                                         "(default: the scenario's end, else its begin + 3600).")
 @click.option("--step-length", type=float, help="SUMO step [s] (default: the scenario's if it sets one of at most "
                                                 "0.2 s, else 0.1).")

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import click
 
+from sumo_ethics.cli_types import SUMO_TIME
 from sumo_ethics.predict import PREDICTORS
 
 
@@ -29,8 +30,9 @@ from sumo_ethics.predict import PREDICTORS
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Sweep folder (resumed if it exists).")
 @click.option("--workers", type=int, default=None, help="Local processes (default: the number of CPUs).")
 @click.option("--scheduler", metavar="tcp://HOST:PORT", help="Run on an existing Dask distributed cluster.")
-@click.option("--end", type=float, help="Simulation time limit of every run [s], a simulation time.")
-@click.option("--ego-depart", type=float, help="Departure time [s] of the inserted ego (default: the scenario's begin).")
+@click.option("--end", type=SUMO_TIME, help="Simulation time limit of every run, a simulation time in seconds or h:m:s.")
+@click.option("--ego-depart", type=SUMO_TIME, help="Departure time of the inserted ego in seconds or h:m:s "
+                                                   "(default: the scenario's begin).")
 @click.option("--step-length", type=float, help="SUMO step [s] (default: the scenario's if at most 0.2 s, else 0.1).")
 @click.option("--ego-from", help="Route of the inserted ego: from this edge ...")
 @click.option("--ego-to", help="... to this edge.")

@@ -113,6 +113,12 @@ def test_end_before_the_begin_is_refused_at_once(tmp_path, bridge_net):
     assert seconds < 1.0 and not out.exists()  # no simulation, no heavy imports, nothing written
     p, _ = cli("run", str(cfg), "--ego-depart", "60", "--out", str(out))
     one_error_line(p, "--ego-depart 60 s is before the scenario's begin (50000 s)")
+    # the options take SUMO's time formats as the config does: 0:0:1:0 is 60 s, refused the same way
+    p, _ = cli("run", str(cfg), "--ego-depart", "0:0:1:0", "--out", str(out))
+    one_error_line(p, "--ego-depart 60 s is before the scenario's begin (50000 s)")
+    p, _ = cli("run", str(cfg), "--end", "13:53:40x", "--out", str(out))
+    one_error_line(p, "Invalid value for '--end': '13:53:40x' is not a SUMO time (seconds, h:m:s or d:h:m:s)")
+    assert not out.exists()
 
 
 @pytest.mark.sumo
