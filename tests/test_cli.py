@@ -180,3 +180,18 @@ def test_run_and_sweep_offer_every_predictor_the_planner_knows(tmp_path, capsys)
         PlannerConfig(predictor=kind)  # each is a predictor the planner accepts
     assert main(["sweep", str(SCENARIOS / "urban" / "urban.sumocfg"), "--predictor", "kalman", "--out", str(tmp_path / "s")]) == 2
     assert "'kalman' is not one of 'map_cslstm', 'map', 'attention', 'cslstm', 'cv'" in capsys.readouterr().err
+
+
+@pytest.mark.sumo
+def test_sumo_stays_silent_whatever_the_scenario_asks(tmp_path):
+    """A config asking for SUMO's verbose loading log and end-of-run statistics (eclipse-sumo's and
+    DLR's scenarios do) printed 20-60 lines into a --quiet run; the run's own summary is all now."""
+    cfg = write_scenario(tmp_path / "s", '<vehicle id="v" type="car" route="r_main" depart="0"/>', end=8)
+    cfg.write_text(cfg.read_text().replace(
+        "</configuration>", '<report><verbose value="true"/><duration-log.statistics value="true"/></report>'
+                            "</configuration>"))
+    p = cli("run", str(cfg), "--controller", "baseline", "--quiet", "--out", str(tmp_path / "o"))
+    assert p.returncode == 0, p.stderr
+    for sumo_says in ("Loading net-file", "Statistics (avg", "Performance:", "Vehicles:"):
+        assert sumo_says not in p.stdout + p.stderr
+    assert "timeout: time limit 8 s reached" in p.stdout

@@ -50,8 +50,12 @@ def start(files: ScenarioFiles, seed: int, error_log: Path, extra: tuple[str, ..
     own reason: SUMO prints config errors to stderr before its error log exists, so stderr
     is captured while it starts (passed on if SUMO started; else its reason is in the error).
     """
+    # SUMO stays silent on the console whatever the scenario asks for (its verbose loading log and
+    # end-of-run statistics, e.g. eclipse-sumo's scenarios with duration-log.statistics): the run
+    # prints its own summary, and --quiet means quiet
     cmd = [sumo_binary(), "-c", str(files.config), "--seed", str(seed), "--no-step-log", "true",
-           "--duration-log.disable", "true", "--no-warnings", "true", "--error-log", str(error_log)]
+           "--duration-log.disable", "true", "--duration-log.statistics", "false", "--verbose", "false",
+           "--no-warnings", "true", "--error-log", str(error_log)]
     for key, value in FORCED_OPTIONS.items():
         cmd += [f"--{key}", value]
     if step_length is not None:
