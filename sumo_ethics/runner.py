@@ -194,7 +194,7 @@ class Run:
         route = world.takeover()
         self.notes = notes = RunNotes(tight_bends(route, cfg.ego.max_curvature), cfg.ego.max_curvature,
                                       ROAD_CURVATURE_TOL)
-        self.meta.update(step_length=dt, ego_limits=asdict(cfg.ego), route_edges=list(edges), route_length=route.length,
+        self.meta.update(step_length=dt, route_edges=list(edges), route_length=route.length,
                          takeover_time=session.sim_time(), controller=self.controller.name,
                          predictor=getattr(self.controller, "predictor_info", None),
                          takeover_wall=wallclock.perf_counter() - self.t_start)
@@ -202,9 +202,10 @@ class Run:
         snap = world.read()
         if snap is None:
             raise SimulationError(f"the ego '{ego_id}' left the simulation right after the takeover")
-        # the mass the planner and the harm model use: a taken-over vehicle's own (its vType's, or the
-        # class estimate where the vType leaves SUMO's default), not the inserted ego's
-        self.meta["ego_limits"]["mass"] = float(snap.ego.mass[0])
+        # the limits drive with the mass the planner and the harm model read off the scene: a taken-over
+        # vehicle's own (its vType's, or the class estimate where the vType leaves SUMO's default)
+        self.cfg = cfg = replace(cfg, ego=replace(cfg.ego, mass=float(snap.ego.mass[0])))
+        self.meta["ego_limits"] = asdict(cfg.ego)
         collisions = CollisionBook(self.rec, cfg.collision_gap, world.party_state)
         half = float(snap.ego.length[0]) / 2
         s, d = route.path.project_point(float(snap.ego.x[0]), float(snap.ego.y[0]))
