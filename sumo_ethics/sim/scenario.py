@@ -426,9 +426,8 @@ def plan(scenario: Path, end: float | None, ego_depart: float | None, step_lengt
         step, source = files.step_length, "scenario"
     else:
         step = DEFAULT_STEP
-        source = (f"default {DEFAULT_STEP:g} s (the scenario sets none, SUMO's default is 1 s)"
-                  if files.step_length is None else
-                  f"default {DEFAULT_STEP:g} s (the scenario's {files.step_length:g} s is above {MAX_TRUSTED_STEP:g} s)")
+        source = ("the default: the scenario sets none, SUMO's own default is 1 s" if files.step_length is None else
+                  f"the default: the scenario's {files.step_length:g} s is above {MAX_TRUSTED_STEP:g} s")
     if ego_id is not None:
         check_ego_id(files, ego_id)
     if ego_edges:
