@@ -287,15 +287,22 @@ def _dataset_folder(path: Path) -> Path:
 @click.option("--ema", type=float, default=None, metavar="DECAY",
               help="Validate and write an exponential moving average of the weights, updated after every "
                    "optimiser step with this decay, e.g. 0.999 (default: the weights as trained, as shipped).")
+@click.option("--extra-dataset", type=click.Path(path_type=Path), default=None, metavar="DIR",
+              help="Also train on this dataset's training-split samples (of --extra-groups); validation stays "
+                   "DATASET's (the shipped default adds the long-red runs' cyclists and pedestrians).")
+@click.option("--extra-groups", default=None, metavar="GROUPS",
+              help="Comma-separated classes of --extra-dataset to train on: vehicle, cyclist, pedestrian "
+                   "(default: all).")
 def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: int, hazard_repeat: int,
           nbr_frame: str | None, modes: int | None, decoder_size: int | None, decoder_steps: str | None,
           cv_mode: bool | None, one_mode_pedestrians: bool | None, stay_mode_pedestrians: bool | None,
           stay_mode_cyclists: bool | None, stay_speed: float | None, map_version: int | None,
-          pedestrian_speed_scale: tuple[float, float] | None, ema: float | None) -> None:
+          pedestrian_speed_scale: tuple[float, float] | None, ema: float | None, extra_dataset: Path | None,
+          extra_groups: str | None) -> None:
     """Train a predictor (MSE warm-up, then Gaussian NLL, early stopping on validation; with several modes the
     warm-up is winner-takes-all and the NLL that of the mixture)."""
     from sumo_ethics.predict import train_main
-    from sumo_ethics.predict.features import GROUP_CYCLIST, GROUP_PEDESTRIAN
+    from sumo_ethics.predict.features import GROUP_CYCLIST, GROUP_NAMES, GROUP_PEDESTRIAN
     from sumo_ethics.predict.models import default_modes
 
     if not max_minutes > 0:
@@ -316,6 +323,15 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
         raise click.BadParameter("--pedestrian-speed-scale needs 0 < LO <= HI")
     if ema is not None and not 0.0 < ema < 1.0:
         raise click.BadParameter("--ema needs a decay between 0 and 1, e.g. 0.999")
+    groups = None
+    if extra_groups is not None:
+        if extra_dataset is None:
+            raise click.BadParameter("--extra-groups needs --extra-dataset")
+        names = [g.strip() for g in extra_groups.split(",") if g.strip()]
+        unknown = [g for g in names if g not in GROUP_NAMES]
+        if unknown or not names:
+            raise click.BadParameter(f"--extra-groups {extra_groups!r}: give classes out of {', '.join(GROUP_NAMES)}")
+        groups = tuple(sorted({GROUP_NAMES.index(g) for g in names}))
     stay = None
     if stay_mode_pedestrians is not None or stay_mode_cyclists is not None:
         stay = (GROUP_CYCLIST,) * bool(stay_mode_cyclists) + (GROUP_PEDESTRIAN,) * bool(stay_mode_pedestrians)
@@ -323,7 +339,9 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
                         hazard_repeat=hazard_repeat, nbr_frame=nbr_frame, modes=modes, dec=decoder_size,
                         dec_steps=None if decoder_steps is None else int(decoder_steps),
                         cv_mode=cv_mode, single_mode_groups=single, stay_mode_groups=stay, stay_speed=stay_speed,
-                        map_version=map_version, ped_speed_scale=pedestrian_speed_scale, ema=ema)
+                        map_version=map_version, ped_speed_scale=pedestrian_speed_scale, ema=ema,
+                        extra_dataset=None if extra_dataset is None else _dataset_folder(extra_dataset),
+                        extra_groups=groups)
     click.echo(f"weights written to {out}: {result['kind']}, best epoch {result['best_epoch']} "
                f"(validation NLL {result['best_val_nll']:.3f}), stopped by {result['stopped']} after "
                f"{result['cpu_minutes']:.1f} CPU-minutes; the training log is {Path(out).with_suffix('.json')}")

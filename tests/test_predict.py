@@ -93,6 +93,29 @@ def test_samples_from_synthetic_run():
     assert s["nbr_count"].sum() == 0
 
 
+def test_add_train_samples_takes_only_the_extra_training_samples_of_the_groups():
+    from sumo_ethics.predict.dataset import add_train_samples
+
+    # base: 2 samples with 1 and 2 neighbours; extra: 4 samples (vehicle/cyclist/pedestrian in
+    # train, a cyclist in val) with 1, 0, 2 and 1 neighbours, told apart by their nbr_cell
+    base = {"split": np.array([0, 1], np.int8), "tgt_group": np.array([0, 2]), "tgt_speed": np.float32([1, 2]),
+            "nbr_cell": np.array([10, 20, 21]), "nbr_ptr": np.array([0, 1, 3])}
+    extra = {"split": np.array([0, 0, 0, 1], np.int8), "tgt_group": np.array([0, 1, 2, 1]),
+             "tgt_speed": np.float64([3, 4, 5, 6]), "nbr_cell": np.array([30, 50, 51, 60]),
+             "nbr_ptr": np.array([0, 1, 1, 3, 4])}
+    out = add_train_samples(base, extra, (1, 2))
+    # the cyclist (no neighbour) and the pedestrian (2) of the training split, after the base's
+    np.testing.assert_array_equal(out["tgt_speed"], [1, 2, 4, 5])
+    assert out["tgt_speed"].dtype == np.float32  # the base's dtypes
+    np.testing.assert_array_equal(out["split"], [0, 1, 0, 0])
+    np.testing.assert_array_equal(out["nbr_cell"], [10, 20, 21, 50, 51])
+    np.testing.assert_array_equal(out["nbr_ptr"], [0, 1, 3, 3, 5])
+    np.testing.assert_array_equal(subset(out, np.array([3]))["nbr_cell"], [50, 51])
+    assert len(add_train_samples(base, extra)["split"]) == 5  # all groups: the three training samples
+    with pytest.raises(ValueError, match="nbr_yaw in one only"):
+        add_train_samples(base, {**extra, "nbr_yaw": np.zeros(4)})
+
+
 # ---------------------------------------------------------------- NLL
 def test_nll_matches_torch_distributions():
     g = torch.Generator().manual_seed(0)

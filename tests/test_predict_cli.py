@@ -81,6 +81,20 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
     capsys.readouterr()
     assert main(["train", str(data), "--out", str(tmp_path / "e2.pt"), "--max-minutes", "0.05", "--ema", "1"]) == 2
     assert "--ema needs a decay between 0 and 1" in capsys.readouterr().err
+    # --extra-dataset: another dataset's training samples of the given classes join the training
+    # samples (here this dataset's own training pedestrians, a second time); validation is unchanged
+    more = tmp_path / "more.pt"
+    assert main(["train", str(data), "--out", str(more), "--max-minutes", "0.05", "--extra-dataset", str(data),
+                 "--extra-groups", "pedestrian"]) == 0
+    samples = np.load(data / "samples.npz")
+    peds = int(((samples["split"] == 0) & (samples["tgt_group"] == 2)).sum())
+    logs = [json.loads(p.with_suffix(".json").read_text()) for p in (tmp_path / "mc.pt", more)]
+    assert peds > 0 and logs[1]["n_train"] == logs[0]["n_train"] + peds and logs[1]["n_val"] == logs[0]["n_val"]
+    assert logs[1]["config"]["extra_groups"] == [2] and logs[1]["config"]["extra_dataset"] == str(data)
+    capsys.readouterr()
+    assert main(["train", str(data), "--out", str(tmp_path / "x.pt"), "--extra-dataset", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{tmp_path} is not a prediction dataset" in err and not (tmp_path / "x.pt").exists()
     # the options can be switched (and are kept in the training log as trained)
     plain = tmp_path / "plain.pt"
     assert main(["train", str(data), "--out", str(plain), "--max-minutes", "0.05", "--decoder-size", "32",
@@ -211,7 +225,10 @@ def test_train_refuses_a_stay_speed_without_a_stay_mode(tmp_path, capsys):
     for args, why in ((["--stay-speed", "0.5"], "--stay-speed needs --stay-mode-pedestrians or --stay-mode-cyclists"),
                       (["--stay-mode-cyclists", "--stay-speed", "-1"], "--stay-speed must be positive"),
                       (["--pedestrian-speed-scale", "1.4", "0.8"], "--pedestrian-speed-scale needs 0 < LO <= HI"),
-                      (["--pedestrian-speed-scale", "0", "1.2"], "--pedestrian-speed-scale needs 0 < LO <= HI")):
+                      (["--pedestrian-speed-scale", "0", "1.2"], "--pedestrian-speed-scale needs 0 < LO <= HI"),
+                      (["--extra-groups", "pedestrian"], "--extra-groups needs --extra-dataset"),
+                      (["--extra-dataset", str(tmp_path), "--extra-groups", "bikes"],
+                       "--extra-groups 'bikes': give classes out of vehicle, cyclist, pedestrian")):
         assert main(["train", str(tmp_path), "--out", str(tmp_path / "w.pt"), *args]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and why in err[0]

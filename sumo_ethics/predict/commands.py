@@ -85,12 +85,16 @@ def train_main(
     map_version: int | None = None,
     ped_speed_scale: tuple[float, float] | None = None,
     ema: float | None = None,
+    extra_dataset: Path | None = None,
+    extra_groups: tuple[int, ...] | None = None,
 ) -> dict:
     """Train ``model`` ("map", "map_cslstm", "attention" or "cslstm") on a dataset folder; write weights to ``out`` (.pt).
 
     max_minutes is a CPU-time budget (one thread); max_wall_minutes caps wall time (default 3x);
     map_version: the map features a map model reads (None: the dataset's); ema: decay of the
-    weights' moving average that is validated and written (None: none, as shipped).
+    weights' moving average that is validated and written (None: none, as shipped); extra_dataset,
+    extra_groups: a second dataset whose training samples of those class groups (None: all) are
+    trained on as well (TrainConfig).
     """
     from sumo_ethics.predict.train import TrainConfig, train_model
 
@@ -102,7 +106,9 @@ def train_main(
                       stay_speed=stay_speed,
                       residual_groups=None if residual_groups is None else tuple(residual_groups),
                       map_version=map_version,
-                      ped_speed_scale=None if ped_speed_scale is None else tuple(ped_speed_scale), ema=ema)
+                      ped_speed_scale=None if ped_speed_scale is None else tuple(ped_speed_scale), ema=ema,
+                      extra_dataset=None if extra_dataset is None else str(extra_dataset),
+                      extra_groups=None if extra_groups is None else tuple(extra_groups))
     from sumo_ethics.interrupt import sigterm_as_interrupt
 
     with sigterm_as_interrupt():  # as Ctrl-C: the best epoch so far is written, then the interrupt goes on

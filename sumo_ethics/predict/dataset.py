@@ -574,6 +574,25 @@ def map_version_of(dataset: Path) -> int:
     return int(json.loads(meta.read_text()).get("map_version") or 1) if meta.is_file() else 1
 
 
+def add_train_samples(samples: dict[str, np.ndarray], extra: dict[str, np.ndarray],
+                      groups: tuple[int, ...] | None = None) -> dict[str, np.ndarray]:
+    """``samples`` followed by ``extra``'s training-split samples of the class groups ``groups``
+    (features.GROUP_*; None: all), neighbours repacked, in ``samples``' dtypes: training data
+    from other runs (e.g. only their cyclists and pedestrians) without touching the validation
+    and test splits. ValueError when the two hold different arrays (other layouts)."""
+    if set(samples) != set(extra):
+        raise ValueError(f"the samples hold other arrays ({', '.join(sorted(set(samples) ^ set(extra)))} in one only)")
+    keep = extra["split"] == 0
+    if groups is not None:
+        keep &= np.isin(extra["tgt_group"], groups)
+    add = subset(extra, np.flatnonzero(keep))
+    out = {}
+    for k, v in samples.items():
+        tail = add[k][1:] + v[-1] if k == "nbr_ptr" else add[k]
+        out[k] = np.concatenate([v, tail.astype(v.dtype)])
+    return out
+
+
 def split_counts(samples: dict[str, np.ndarray]) -> dict[str, int]:
     """Number of samples in each split (train, val, test)."""
     return {name: int((samples["split"] == i).sum()) for i, name in enumerate(("train", "val", "test"))}

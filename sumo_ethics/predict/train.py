@@ -23,7 +23,7 @@ from sumo_ethics.errors import Terminated
 from sumo_ethics.interrupt import signals_held
 from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
-from sumo_ethics.predict.dataset import load_samples, map_version_of, require_nbr_yaw, subset
+from sumo_ethics.predict.dataset import add_train_samples, load_samples, map_version_of, require_nbr_yaw, subset
 from sumo_ethics.predict.models import (
     TrajectoryLSTM,
     batch_to_tensors,
@@ -69,7 +69,10 @@ class TrainConfig:
     log-uniformly from [lo, hi], so it walks that much faster or slower along the same path (the
     map rows and neighbours stay; None: as recorded); ema: decay of an exponential moving average of
     the weights, updated after every optimiser step (torch.optim.swa_utils); validation, early
-    stopping and the written file then use the averaged weights (None: the weights as trained)."""
+    stopping and the written file then use the averaged weights (None: the weights as trained);
+    extra_dataset: a second dataset folder (same map version) whose training-split samples of the
+    class groups ``extra_groups`` (None: all) join the training samples (dataset.add_train_samples;
+    validation stays the first dataset's)."""
 
     epochs: int = 40
     mse_epochs: int = 4
@@ -98,6 +101,8 @@ class TrainConfig:
     map_version: int | None = None
     ped_speed_scale: tuple[float, float] | None = None
     ema: float | None = None
+    extra_dataset: str | None = None
+    extra_groups: tuple[int, ...] | None = None
 
 
 def _split_index(samples: dict[str, np.ndarray], name: str, cap: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -196,6 +201,17 @@ def train_model(
         raise PredictorError(f"map version {map_version}: dataset {dataset} has map version {data_version}, so a "
                              f"model of it reads {' to '.join(map(str, (min(F.MAP_VERSIONS), data_version)))}")
     samples = load_samples(dataset)
+    if config.extra_dataset is not None:
+        extra = Path(config.extra_dataset)
+        if not (extra / "samples.npz").is_file():
+            raise PredictorError(f"extra dataset {extra}: no samples.npz (not a dataset folder)")
+        if map_version_of(extra) != data_version:
+            raise PredictorError(f"extra dataset {extra} has map version {map_version_of(extra)}, {dataset} has "
+                                 f"{data_version}: build both with the same sumo-ethics")
+        try:
+            samples = add_train_samples(samples, load_samples(extra), config.extra_groups)
+        except ValueError as exc:
+            raise PredictorError(f"extra dataset {extra}: {exc}") from None
     nbr_frame = config.nbr_frame or default_nbr_frame(kind)
     if nbr_frame == "agent":
         require_nbr_yaw(samples, dataset)
