@@ -13,6 +13,9 @@ Stages:
   eclipse-sumo's tools/game, 3 seeds x 300 s, and suite scenarios s0100-s0139);
 - "evaluate" writes prediction_eval.{csv,md} (test seeds/scenarios) and
   heldout/prediction_eval{,_by_scenario}.{csv,md} (the held-out dataset) there;
+- "long_red" records WORK_long_red: urban_grid with lights whose reds hold 119 s (LONG_RED_FACTOR),
+  seeds 1-7 x 600 s, for `train --extra-dataset` (its cyclists' and pedestrians' training samples;
+  docs/predictor_seeds.md, "Long reds in the training data"; 5.8 min with one worker beside two trainings);
 - "selection" records the selection dataset (SELECT_GAME x seeds 1-3 x 300 s and suite
   s0176-s0195: never trained on, not in the held-out table nor in the predictor study);
 - "select" scores the shipped file and each --candidate by the rule of docs/predictor_seeds.md
@@ -86,6 +89,46 @@ BUDGET = {"map_cslstm": 45.0, "map_cslstm_fast": 45.0}
 VARIANTS = {"map_cslstm_fast": ("map_cslstm", {**TRAIN["map_cslstm"], "seed": 2, "map_version": 4, "dec_steps": 5, "ema": None})}
 
 
+#: the long-red runs (stage "long_red"): urban_grid with every green phase of 30 s or more three times
+#: as long (37 -> 111 s, so a red holds 119 s), seeds 1-7 x 600 s; long queues of cyclists and
+#: pedestrians wait at red, most of them back from the stop line, as at real city lights and the
+#: game configs' lights that never switch. Only their cyclists' and pedestrians' training samples
+#: are trained on (train --extra-dataset WORK_long_red --extra-groups cyclist,pedestrian)
+LONG_RED_FACTOR, LONG_RED_MIN_PHASE = 3.0, 30.0
+LONG_RED_GROUPS = ("cyclist", "pedestrian")
+
+
+def long_red_scenario(folder: Path) -> Path:
+    """Write the long-red variant of the bundled urban_grid into ``folder`` (its net and routes,
+    plus an additional file with each light's program, green phases of LONG_RED_MIN_PHASE s or more
+    LONG_RED_FACTOR times as long, which replaces the net's) and return its .sumocfg."""
+    import xml.etree.ElementTree as ET
+
+    net = ROOT / "networks" / "urban_grid" / "urban_grid.net.xml"
+    routes = ROOT / "scenarios" / "urban_grid" / "urban_grid.rou.xml"
+    lines = ["<additional>"]
+    for tl in ET.parse(net).getroot().iter("tlLogic"):
+        lines.append(f'    <tlLogic id="{tl.get("id")}" type="static" programID="long_red" offset="{tl.get("offset")}">')
+        for ph in tl.iter("phase"):
+            d = float(ph.get("duration"))
+            lines.append(f'        <phase duration="{d * LONG_RED_FACTOR if d >= LONG_RED_MIN_PHASE else d:g}" '
+                         f'state="{ph.get("state")}"/>')
+        lines.append("    </tlLogic>")
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "urban_grid_long_red.add.xml").write_text("\n".join(lines + ["</additional>"]) + "\n")
+    cfg = folder / "urban_grid_long_red.sumocfg"
+    cfg.write_text(f"""<configuration>
+    <input>
+        <net-file value="{net}"/>
+        <route-files value="{routes}"/>
+        <additional-files value="urban_grid_long_red.add.xml"/>
+    </input>
+    <time><begin value="0"/><end value="600"/><step-length value="0.1"/></time>
+</configuration>
+""")
+    return cfg
+
+
 def record_never_trained(game: tuple[str, ...], first: int, count: int, out: Path, workers: int, what: str) -> None:
     """A dataset of scenarios never trained on: the tools/game configs ``game`` (seeds 1-3 x 300 s)
     and suite scenarios ``first``..``first + count - 1``, written to ``out``. A game config missing
@@ -155,6 +198,11 @@ def main() -> None:
         else:
             for c in cmds:
                 subprocess.run(c, check=True)
+    if "long_red" in stages:
+        t0 = time.time()
+        cfg = long_red_scenario(Path(str(work) + "_long_red_scenario"))
+        dataset_main([cfg], Path(str(work) + "_long_red"), seeds=SEEDS, workers=args.workers)
+        logging.info("long-red dataset: %.1f min", (time.time() - t0) / 60)
     heldout = Path(str(work) + "_heldout")
     if "heldout" in stages:
         # never trained on: eclipse-sumo's tools/game scenarios (vehicles only) and the suite
