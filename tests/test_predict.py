@@ -339,6 +339,34 @@ def test_prediction_breakdown_refuses_bad_input_in_one_line(tmp_path):
         assert r.returncode == 2 and says in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 
+def test_long_red_scenario_holds_each_red_119_s(tmp_path, monkeypatch):
+    """tools/train_shipped's long-red urban_grid: each light's greens of 30 s or more three times as
+    long (37 -> 111 s; the 5 s green and the 3 s yellow kept), so a red holds 111 + 5 + 3 = 119 s.
+    SUMO runs the config with that program: J00's link 4 (red in the first three phases) is red
+    from 0 to 119 s, green from then until 119 + 111 + 5 = 235 s, then yellow for 3 s."""
+    import xml.etree.ElementTree as ET
+
+    import sumo
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "tools"))
+    from train_shipped import long_red_scenario
+
+    cfg = long_red_scenario(tmp_path / "scen")
+    add = ET.parse(cfg.with_name("urban_grid_long_red.add.xml")).getroot()
+    durations = {tl.get("id"): [float(p.get("duration")) for p in tl.iter("phase")] for tl in add.iter("tlLogic")}
+    assert durations == {j: [111, 5, 3, 111, 5, 3] for j in ("J00", "J01", "J10", "J11")}
+    (tmp_path / "save.add.xml").write_text(
+        f'<additional><timedEvent type="SaveTLSStates" source="J00" dest="{tmp_path / "tls.xml"}"/></additional>')
+    subprocess.run([str(Path(sumo.SUMO_HOME) / "bin" / "sumo"), "-c", str(cfg), "--end", "240", "--step-length", "1",
+                    "--additional-files", f"{cfg.with_name('urban_grid_long_red.add.xml')},{tmp_path / 'save.add.xml'}",
+                    "--no-step-log", "--no-warnings"], check=True, capture_output=True)
+    states = {float(e.get("time")): e.get("state") for e in ET.parse(tmp_path / "tls.xml").getroot().iter("tlsState")}
+    red = [t for t, st in sorted(states.items()) if st[4] == "r"]
+    assert red[0] == 0.0 and max(t for t in red if t < 200) == 118.0  # red 0-119 s
+    assert all(states[t][4] in "gG" for t in np.arange(119.0, 235.0)) and states[235.0][4] == "y"
+    assert states[238.0][4] == "r"
+
+
 def test_prediction_breakdown_red_and_truth_subsets(monkeypatch):
     """The subsets by how long a red holds and by where the future really ends, on four samples
     worked out by hand: red holding 2 s (ends within 4 s), red holding 30 s (clipped at 20 s:
