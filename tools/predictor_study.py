@@ -5,9 +5,11 @@ scenarios that no predictor was trained or evaluated on.
 
 Planners (the paper's planner, only the predictor or the priors changed): cv, cslstm,
 attention, map (attention + lanes), map_cslstm (CS-LSTM + lanes, 3 trajectory modes, pedestrians
-with one mode, map version 5, a moving average of the weights: the default), map_cslstm_fast (map
-version 4 with a 5-step decoder, weights/map_cslstm_fast.pt), map_cslstm_v7 (the same without the moving
-average, the default before, weights/map_cslstm_v7.pt), map_cslstm_v6 (map version 4, the default before that,
+with one mode, map version 5, a moving average of the weights, the long-red runs' cyclists and pedestrians
+in training: the default), map_cslstm_fast (map version 4 with a 5-step decoder, weights/map_cslstm_fast.pt),
+map_cslstm_v8 (the same without the long-red runs, the default before, weights/map_cslstm_v8.pt),
+map_cslstm_v7 (without the moving average too, the default before that, weights/map_cslstm_v7.pt),
+map_cslstm_v6 (map version 4, the default before that,
 weights/map_cslstm_v6.pt), map_cslstm_v5 (map version 3, the default before those,
 weights/map_cslstm_v5.pt), map_cslstm_v4 (map version 1, the default before that,
 weights/map_cslstm_v4.pt), map_cslstm_v3 (with the last mode constant velocity, the default
@@ -37,6 +39,7 @@ PLANNERS = (
     "map=predictor=map",
     "map_cslstm=predictor=map_cslstm",
     f"map_cslstm_fast=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_fast.pt'}",
+    f"map_cslstm_v8=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v8.pt'}",
     f"map_cslstm_v7=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v7.pt'}",
     f"map_cslstm_v6=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v6.pt'}",
     f"map_cslstm_v5=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v5.pt'}",

@@ -1,11 +1,12 @@
 """Rebuild the shipped predictor weights: dataset -> train -> evaluate.
 
-    python tools/train_shipped.py [--work DIR] [--stages dataset,heldout,train,evaluate] [--models map]
+    python tools/train_shipped.py [--work DIR] [--stages dataset,long_red,heldout,train,evaluate] [--models map]
     python tools/train_shipped.py --work DIR --stages selection,select --candidate mine=mine.pt
 
 Data: the bundled scenarios (scenarios/{urban,rural,highway,urban_grid}, seeds 1-7, 600 s,
 anchors every 2 s, split by seed) and the first SUITE_TRAIN suite scenarios recorded with
-their hazards (anchors every 0.4 s, split by scenario). Writes the weights to
+their hazards (anchors every 0.4 s, split by scenario); the default also trains on the cyclists and
+pedestrians of the long-red runs (stage "long_red"). Writes the weights to
 sumo_ethics/predict/weights/<model>.pt (+ .json training logs).
 
 Stages:
@@ -32,12 +33,12 @@ a second training, best epoch 30 of 30).
 
 Wall time on this shared 2-core machine (one worker, one thread): dataset 19.0 min (14.2 min
 with two workers, map version 4; deriving version-5 samples from it, ``sumo-ethics dataset --samples-from``, 65 s);
-training of the shipped map_cslstm 49.2 min beside a second training (45.0 CPU-minutes, best epoch 24, cut by the
-budget), of map 22.2 min (best epoch 6 of 9);
+long-red dataset 2.5 min (two workers); training of the shipped map_cslstm 50.3 min beside a second training
+(45.0 CPU-minutes, best epoch 29, cut by the budget), of map 22.2 min (best epoch 6 of 9);
 held-out dataset 5.7 min, selection dataset 5.4 min (two workers); evaluation of the ten models about 10 min on the test split and 2 min on the held-out one: about 100 min in all
 for both map models, one after the other (``--parallel`` trains them at once).
 
-    python tools/train_shipped.py --work /tmp/pred --stages dataset,train,heldout,evaluate --workers 1
+    python tools/train_shipped.py --work /tmp/pred --stages dataset,long_red,train,heldout,evaluate --workers 1
 """
 
 from __future__ import annotations
@@ -63,20 +64,23 @@ SELECT_GAME = ("fokr_bs_demo", "A10KW")  # bs3d cannot start in plain sumo (its 
 SUITE_SELECT_FIRST, SUITE_SELECT = 176, 20
 #: per-model train_main options (others: defaults); map_cslstm (the default) encodes every agent once in its
 #: own frame with 3 trajectory modes (models.default_options: a 64-state decoder, pedestrians with one mode);
-#: seed 0 of map version 5 (the straight walk across a walking area) with a 45 CPU-minute budget and a moving
-#: average of the weights (decay 0.999) is the file the selection rule chose (docs/predictor_seeds.md,
-#: "A moving average of the weights");
+#: seed 0 of map version 5 (the straight walk across a walking area) with a 45 CPU-minute budget, a moving
+#: average of the weights (decay 0.999) and the long-red runs' cyclists and pedestrians ("extra": stage
+#: long_red's dataset, LONG_RED_GROUPS) is the file the selection rule chose (docs/predictor_seeds.md,
+#: "Long reds in the training data");
 #: map (attention) per target as CS-LSTM with one mode
-#: earlier defaults kept in the weights folder, evaluated beside the shipped models: map_cslstm_v7 (the same
-#: without the moving average: train it with {"ema": None}), map_cslstm_v6 (map
+#: earlier defaults kept in the weights folder, evaluated beside the shipped models: map_cslstm_v8 (the same
+#: without the long-red runs: train it with {"extra": None}), map_cslstm_v7 (without those and without the
+#: moving average: {"extra": None, "ema": None}), map_cslstm_v6 (map
 #: version 4, seed 2, 45 CPU-minutes: train it with {"map_version": 4, "seed": 2}), map_cslstm_v5 (map
 #: version 3, seed 0, 45 CPU-minutes: train it with {"map_version": 3, "seed": 0}; a version-4 dataset
 #: gives a version-3 model bit for bit the inputs of the version-3 dataset, models.batch_to_tensors),
 #: map_cslstm_v4 (map version 1, seed 2, 20 CPU-minutes), map_cslstm_v3 (the same with the last mode
 #: constant velocity), map_cslstm_v2 (3 free modes, a 128-state decoder, seed 0) and map_cslstm_1mode (one mode)
-PREVIOUS = ("map_cslstm_v7", "map_cslstm_v6", "map_cslstm_v5", "map_cslstm_v4", "map_cslstm_v3", "map_cslstm_v2", "map_cslstm_1mode")
+PREVIOUS = ("map_cslstm_v8", "map_cslstm_v7", "map_cslstm_v6", "map_cslstm_v5", "map_cslstm_v4", "map_cslstm_v3", "map_cslstm_v2", "map_cslstm_1mode")
 TRAIN = {"map": {"hazard_repeat": 4, "nbr_frame": "target", "modes": 1},
-         "map_cslstm": {"hazard_repeat": 4, "nbr_frame": "agent", "modes": 3, "seed": 0, "ema": 0.999}}
+         "map_cslstm": {"hazard_repeat": 4, "nbr_frame": "agent", "modes": 3, "seed": 0, "ema": 0.999,
+                        "extra": "long_red"}}
 #: CPU-minute training budget per model (--max-minutes overrides it): the default model (map version 3,
 #: seed 0) was still improving when 20 minutes stopped it; 45 minutes is the shipped file's (map version 5,
 #: seed 0 with the moving average: best epoch 28, cut by the budget, 60 min wall beside a second training and
@@ -86,7 +90,8 @@ BUDGET = {"map_cslstm": 45.0, "map_cslstm_fast": 45.0}
 #: shipped files that are not a model kind's default: name -> (kind, train_main options). map_cslstm_fast
 #: is map_cslstm with a 5-step decoder (each step emits 0.8 s), 17 % faster at run time, for users who
 #: need the speed; the selection rule kept the default (docs/predictor_seeds.md, "Fewer decoder steps")
-VARIANTS = {"map_cslstm_fast": ("map_cslstm", {**TRAIN["map_cslstm"], "seed": 2, "map_version": 4, "dec_steps": 5, "ema": None})}
+VARIANTS = {"map_cslstm_fast": ("map_cslstm", {**TRAIN["map_cslstm"], "seed": 2, "map_version": 4, "dec_steps": 5, "ema": None,
+                                              "extra": None})}
 
 
 #: the long-red runs (stage "long_red"): urban_grid with every green phase of 30 s or more three times
@@ -150,7 +155,7 @@ def record_never_trained(game: tuple[str, ...], first: int, count: int, out: Pat
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--work", default="/tmp/sumo_ethics_predict_data")
-    ap.add_argument("--stages", default="dataset,train,evaluate")
+    ap.add_argument("--stages", default="dataset,long_red,train,evaluate")
     ap.add_argument("--parallel", action="store_true", help="train both models at once (one thread each)")
     ap.add_argument("--max-minutes", type=float, default=None,
                     help=f"CPU-time budget per model [min] (default: {BUDGET} for these, {BUDGET_DEFAULT} for the others)")
@@ -173,7 +178,15 @@ def main() -> None:
     if args.model:
         t0 = time.time()
         minutes = args.max_minutes or BUDGET.get(args.model, BUDGET_DEFAULT)
-        kind, options = VARIANTS.get(args.model, (args.model, TRAIN.get(args.model, {})))
+        kind, options = VARIANTS.get(args.model, (args.model, dict(TRAIN.get(args.model, {}))))
+        extra = options.pop("extra", None)
+        if extra is not None:  # another dataset's cyclists and pedestrians (stage long_red)
+            from sumo_ethics.predict.features import GROUP_NAMES
+
+            options.update(extra_dataset=Path(f"{work}_{extra}"),
+                           extra_groups=tuple(GROUP_NAMES.index(g) for g in LONG_RED_GROUPS))
+            if not (options["extra_dataset"] / "samples.npz").is_file():
+                raise SystemExit(f"{args.model}: no {options['extra_dataset']}: run --stages long_red first")
         info = train_main(work, kind, Path(args.out_dir) / f"{args.model}.pt", max_minutes=minutes,
                           max_wall_minutes=args.max_wall_minutes, progress=False, **options)
         logging.info("%s: %.1f min, best epoch %s, val nll %.3f, %s", args.model, (time.time() - t0) / 60,
