@@ -199,6 +199,12 @@ def main() -> None:
         suite = [] if args.no_suite else sorted((ROOT / "scenarios" / "suite").glob("s[0-9]*"))[:SUITE_TRAIN]
         dataset_main(scen, work, seeds=SEEDS, workers=args.workers, suite=suite)
         logging.info("dataset: %.1f min", (time.time() - t0) / 60)
+    # before training: the default trains on its cyclists and pedestrians as well
+    if "long_red" in stages:
+        t0 = time.time()
+        cfg = long_red_scenario(Path(str(work) + "_long_red_scenario"))
+        dataset_main([cfg], Path(str(work) + "_long_red"), seeds=SEEDS, workers=args.workers)
+        logging.info("long-red dataset: %.1f min", (time.time() - t0) / 60)
     if "train" in stages:
         budget = (["--max-minutes", str(args.max_minutes)] if args.max_minutes else []) + (
             ["--max-wall-minutes", str(args.max_wall_minutes)] if args.max_wall_minutes else [])
@@ -211,11 +217,6 @@ def main() -> None:
         else:
             for c in cmds:
                 subprocess.run(c, check=True)
-    if "long_red" in stages:
-        t0 = time.time()
-        cfg = long_red_scenario(Path(str(work) + "_long_red_scenario"))
-        dataset_main([cfg], Path(str(work) + "_long_red"), seeds=SEEDS, workers=args.workers)
-        logging.info("long-red dataset: %.1f min", (time.time() - t0) / 60)
     heldout = Path(str(work) + "_heldout")
     if "heldout" in stages:
         # never trained on: eclipse-sumo's tools/game scenarios (vehicles only) and the suite

@@ -205,8 +205,9 @@ def train_model(
         extra = Path(config.extra_dataset)
         if not (extra / "samples.npz").is_file():
             raise PredictorError(f"extra dataset {extra}: no samples.npz (not a dataset folder)")
-        if map_version_of(extra) != data_version:
-            raise PredictorError(f"extra dataset {extra} has map version {map_version_of(extra)}, {dataset} has "
+        extra_version = map_version_of(extra)
+        if extra_version != data_version:
+            raise PredictorError(f"extra dataset {extra} has map version {extra_version}, {dataset} has "
                                  f"{data_version}: build both with the same sumo-ethics")
         try:
             samples = add_train_samples(samples, load_samples(extra), config.extra_groups)
