@@ -570,6 +570,46 @@ def test_a_person_riding_a_car_gets_no_walking_context(tmp_path):
 
 @pytest.mark.sumo
 @pytest.mark.skipif(not URBAN.exists(), reason="bundled urban scenario missing")
+def test_a_person_waiting_for_a_ride_stands_on_the_pavement_of_its_edge(tmp_path):
+    """SUMO gives a person waiting for a bus no lane; its context is its edge's sidewalk (lane 0
+    of W_in, the only one of its two lanes that allows pedestrians), at its stop's position."""
+    import libsumo
+
+    from sumo_ethics.sim.lanes import agent_context, lane_graph
+
+    (tmp_path / "stops.add.xml").write_text('<additional><busStop id="bs" lane="W_in_1" startPos="60" endPos="80"/>'
+                                            '<busStop id="bs2" lane="E_out_1" startPos="20" endPos="40"/></additional>')
+    routes = tmp_path / "wait.rou.xml"
+    routes.write_text('<routes><vType id="walker" vClass="pedestrian"/>'
+                      # waits where it departs, 50 m into W_in, for a line that never comes
+                      '<person id="waiter" type="walker" depart="0" departPos="50">'
+                      '<ride from="W_in" to="E_out" lines="nobus"/></person>'
+                      # walks from 20 m to the stop's end (80 m) at ~1 m/s, then waits there
+                      '<person id="walker" type="walker" depart="0" departPos="20"><walk from="W_in" busStop="bs"/>'
+                      '<ride busStop="bs2" lines="nobus"/></person></routes>')
+    libsumo.start(["sumo", "-n", str(ROOT / "networks" / "urban" / "urban.net.xml"), "-r", str(routes),
+                   "-a", str(tmp_path / "stops.add.xml"), "--no-step-log", "--no-warnings"])
+    try:
+        for _ in range(5):
+            libsumo.simulationStep()
+        graph = lane_graph()
+        walking = agent_context(graph, ["waiter", "walker"], np.array([True, True]))
+        for _ in range(115):
+            libsumo.simulationStep()
+        both_wait = agent_context(graph, ["waiter", "walker"], np.array([True, True]))
+        raw = [libsumo.person.getLaneID(k) for k in ("waiter", "walker")]
+    finally:
+        libsumo.close()
+    sidewalk = graph.index["W_in_0"]
+    assert raw == ["", ""]  # what SUMO says of both while they wait
+    assert walking.lane.tolist() == [sidewalk, sidewalk] and walking.lane_pos[0] == pytest.approx(50.0)
+    assert both_wait.lane.tolist() == [sidewalk, sidewalk]
+    assert both_wait.lane_pos.tolist() == pytest.approx([50.0, 80.0], abs=0.5)  # where each waits along W_in
+    assert both_wait.next_lane.tolist() == [-1, -1] and not np.isfinite(both_wait.tls_dist).any()
+
+
+@pytest.mark.sumo
+@pytest.mark.skipif(not URBAN.exists(), reason="bundled urban scenario missing")
 def test_dataset_carries_map_context_from_sumo(tmp_path):
     from sumo_ethics.predict.dataset import MANOEUVRES, build_dataset, load_samples
 

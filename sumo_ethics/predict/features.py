@@ -342,9 +342,9 @@ class LaneGraph:
         self._rev: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def __getstate__(self) -> dict:
-        """Pickled without the walking-area caches of sim.lanes.after_walking_area (an answer of
-        that code as it was must not come back with a lane graph stored in a dataset)."""
-        return {k: v for k, v in self.__dict__.items() if k not in ("_after", "_walk_adj")}
+        """Pickled without the caches of sim.lanes.after_walking_area and sim.lanes.pavement (an
+        answer of that code as it was must not come back with a lane graph stored in a dataset)."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("_after", "_walk_adj", "_pavement")}
 
     @classmethod
     def build(cls, ids, shapes, speed, links, lengths=None) -> "LaneGraph":

@@ -129,6 +129,29 @@ def crossing_signals() -> CrossingSignals:
     return out
 
 
+def pavement(graph: LaneGraph, edge: str) -> str:
+    """The lane a person stands on who is on ``edge`` but, by SUMO, on no lane: the edge's
+    rightmost lane that allows pedestrians ("" when it has none).
+
+    A person waiting at a stop for a ride (stage "waiting for ANY") has an empty
+    ``person.getLaneID`` but its stop's edge and position along it (``getRoadID``,
+    ``getLanePosition``); SUMO puts it on the pavement beside the stop (DLR's Bologna
+    ``acosta``: each of 237 waiting persons 1.0 m from the centre line of its edge's sidewalk,
+    ``simulation.convertRoad(x, y, vClass="pedestrian")``). Without a lane the predictor saw a
+    standing pedestrian with no map context, which the training data never has. Cached on the
+    graph per edge.
+    """
+    cache = graph.__dict__.setdefault("_pavement", {})
+    if edge not in cache:
+        cache[edge] = ""
+        for i in range(libsumo.edge.getLaneNumber(edge) if edge else 0):
+            allowed = libsumo.lane.getAllowed(f"{edge}_{i}")
+            if not allowed or "pedestrian" in allowed:  # () allows every class
+                cache[edge] = f"{edge}_{i}"
+                break
+    return cache[edge]
+
+
 def _is_internal_walk(lane_id: str) -> bool:
     return WALKING_AREA.fullmatch(lane_id) is not None or CROSSING.fullmatch(lane_id) is not None
 
@@ -194,7 +217,7 @@ def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, 
     p = libsumo.person
     if p.getVehicle(k):  # riding: getLaneID is its vehicle's lane
         return
-    lane_id = p.getLaneID(k)
+    lane_id = p.getLaneID(k) or pavement(graph, p.getRoadID(k))
     j = graph.index.get(lane_id, -1)
     if j < 0:  # on a lane this graph does not know
         return
