@@ -68,8 +68,8 @@ def cli() -> None:
 @click.option("--utility", type=click.Choice(["candidate_mean", "literal"]),
               help="Reading of J_mean in J_utility (default candidate_mean).")
 @click.option("--predictor", type=click.Choice(PREDICTORS),
-              help="Neighbour prediction (default map_cslstm: the CS-LSTM reading lanes and signals too; map: "
-                   "the same with the paper's attention).")
+              help="Neighbour prediction (default map: the paper's attention LSTM reading lanes and signals "
+                   "too; map_cslstm: the same without the attention).")
 @click.option("--predictor-weights", type=click.Path(path_type=Path),
               help="Weights file for the LSTM predictor (default: the one shipped in the package).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")
@@ -244,21 +244,22 @@ def _dataset_folder(path: Path) -> Path:
 
 @cli.command()
 @click.argument("dataset_dir", metavar="DATASET", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--model", type=click.Choice(["map_cslstm", "map", "attention", "cslstm"]), default="map_cslstm",
-              show_default=True)
+@click.option("--model", type=click.Choice(["map_cslstm", "map", "attention", "cslstm"]), default="map",
+              show_default=True, help="map: the paper's attention with lanes and signals (the planner's default); "
+                                      "map_cslstm: the same without the attention.")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Weights file to write (.pt).")
 @click.option("--max-minutes", type=float, default=14.0, show_default=True, help="CPU-time budget [min].")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--hazard-repeat", type=int, default=1, show_default=True,
               help="Use each hazard actor's training sample this many times per epoch.")
 @click.option("--nbr-frame", type=click.Choice(["agent", "target"]), default=None,
-              help="Neighbour encoding: once per agent in its own frame (default of map_cslstm) or per target "
-                   "in the target's frame (default of the others, as CS-LSTM).")
+              help="Neighbour encoding: once per agent in its own frame (default of map and map_cslstm) or per "
+                   "target in the target's frame (default of the others, as CS-LSTM).")
 @click.option("--modes", type=click.IntRange(1, 8), default=None,
-              help="Gaussian trajectory modes per agent (1: a single Gaussian; default: 3 for map_cslstm, "
-                   "1 for the others, as shipped).")
+              help="Gaussian trajectory modes per agent (1: a single Gaussian; default: 3 for map and "
+                   "map_cslstm, 1 for the others, as shipped).")
 @click.option("--decoder-size", type=click.IntRange(8, 512), default=None,
-              help="Decoder LSTM states (default: 64 for map_cslstm, 128 for the others, as shipped).")
+              help="Decoder LSTM states (default: 64 for map and map_cslstm, 128 for the others, as shipped).")
 @click.option("--decoder-steps", type=click.Choice(["1", "2", "4", "5", "10", "20"]), default=None,
               help="Decoder LSTM steps over the 4 s horizon; each emits 20 / N output steps of 0.2 s (default: 20, "
                    "one per output step; fewer are faster at run time).")
@@ -267,8 +268,8 @@ def _dataset_folder(path: Path) -> Path:
                    "(pedestrians, decoded in absolute positions, get 'stands still' there; default: off, as "
                    "shipped; the earlier default map_cslstm_v3 had it).")
 @click.option("--one-mode-pedestrians/--all-modes-pedestrians", default=None,
-              help="Give pedestrians the first mode only, with weight 1 (default: on for map_cslstm with several "
-                   "modes, as shipped).")
+              help="Give pedestrians the first mode only, with weight 1 (default: on for map and map_cslstm with "
+                   "several modes, as shipped).")
 @click.option("--stay-mode-pedestrians/--no-stay-mode-pedestrians", default=None,
               help="Give pedestrians two modes: the first and one that stays where it is (mean 0, spread "
                    "sigma_min), only the two weights learned (instead of one mode).")

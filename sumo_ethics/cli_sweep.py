@@ -38,7 +38,7 @@ from sumo_ethics.predict import PREDICTORS
 @click.option("--ego-to", help="... to this edge.")
 @click.option("--controller", type=click.Choice(["ethical", "baseline"]), help="Ego controller (default ethical).")
 @click.option("--predictor", type=click.Choice(PREDICTORS),
-              help="Neighbour prediction (default map_cslstm, as for run).")
+              help="Neighbour prediction (default map, as for run).")
 @click.option("--radius", type=float, help="Sensing radius around the ego [m].")
 @click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")

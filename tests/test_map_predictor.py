@@ -427,7 +427,7 @@ def _observation(n: int = 5) -> Observation:
 
 def test_default_shipped_model_loads_and_predicts():
     p = LSTMPredictor.default()
-    assert p.kind == "map_cslstm" and p.uses_map and p.model.nbr_frame == "agent"
+    assert p.kind == "map" and p.uses_map and p.model.nbr_frame == "agent" and p.model.modes == 3
     assert default_weights("map_cslstm").stat().st_size < 5e6 and default_weights("map").stat().st_size < 5e6
     obs = _observation()
     pred = p.predict(obs, 40, 0.1)  # no map source: histories only
@@ -708,9 +708,9 @@ def test_runs_with_the_default_map_predictor_are_byte_identical_for_one_seed(tmp
                            cwd=ROOT, timeout=300)
         assert p.returncode == 0, p.stderr
         outs.append(out)
-    assert '"predictor": "map_cslstm"' in (outs[0] / "config.json").read_text()
+    assert '"predictor": "map"' in (outs[0] / "config.json").read_text()
     used = __import__("json").loads((outs[0] / "summary.json").read_text())["predictor"]
-    assert used["kind"] == "map_cslstm" and used["weights"] == str(default_weights("map_cslstm"))
+    assert used["kind"] == "map" and used["weights"] == str(default_weights("map"))
     assert (outs[0] / "steps.parquet").read_bytes() == (outs[1] / "steps.parquet").read_bytes()
 
 

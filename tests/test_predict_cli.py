@@ -32,14 +32,18 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
     weights = tmp_path / "w.pt"
     assert main(["train", str(data), "--model", "cslstm", "--out", str(weights), "--max-minutes", "0.05"]) == 0
     assert LSTMPredictor.from_file(weights, kind="cslstm").kind == "cslstm"
-    # the default model encodes every agent in its own frame: trains on the samples' nbr_yaw
+    # the default model (map: attention with lanes) encodes every agent in its own frame: trains on
+    # the samples' nbr_yaw; map_cslstm gets the same recipe
     weights = tmp_path / "mc.pt"
     assert main(["train", str(data), "--out", str(weights), "--max-minutes", "0.05"]) == 0
-    default = LSTMPredictor.from_file(weights, kind="map_cslstm").model
+    default = LSTMPredictor.from_file(weights, kind="map").model
     assert default.nbr_frame == "agent" and default.modes == 3  # as shipped
+    assert main(["train", str(data), "--model", "map_cslstm", "--out", str(tmp_path / "cs.pt"), "--max-minutes", "0.05"]) == 0
+    cs = LSTMPredictor.from_file(tmp_path / "cs.pt", kind="map_cslstm").model
+    assert (cs.nbr_frame, cs.modes, cs.dec_size, cs.single_mode_groups) == ("agent", 3, 64, (2,))
     assert (default.dec_size, default.cv_mode, default.single_mode_groups) == (64, False, (2,))  # pedestrians: one mode
     assert default.map_version == 5 and default.n_scalars == 10  # the dataset's map features
-    # a model of an earlier map version from the same dataset (as the shipped default, version 3);
+    # a model of an earlier map version from the same dataset (as map_cslstm_v5, version 3);
     # a later one than the dataset's is refused in one line
     v3 = tmp_path / "v3.pt"
     assert main(["train", str(data), "--out", str(v3), "--max-minutes", "0.05", "--map-version", "3"]) == 0
@@ -190,12 +194,11 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
     from prediction_breakdown import breakdown
 
     br = breakdown(data, "vehicle", ["urban"]).set_index("subset")
-    assert br.loc["all", "n"] == full.loc[("map_cslstm", "vehicle"), "n"]
-    for col, model in (("constant velocity", "constant_velocity"), ("map_cslstm", "map_cslstm"),
-                       ("map_cslstm min_ade", "map_cslstm")):
+    assert br.loc["all", "n"] == full.loc[("map", "vehicle"), "n"]
+    for col, model in (("constant velocity", "constant_velocity"), ("map", "map"), ("map min_ade", "map")):
         metric = "min_ade" if col.endswith("min_ade") else "ade"
         assert br.loc["all", col] == pytest.approx(full.loc[(model, "vehicle"), metric], rel=1e-6)
-    assert (br["map_cslstm min_ade"] <= br["map_cslstm"] + 1e-12).all()
+    assert (br["map min_ade"] <= br["map"] + 1e-12).all()
     # --v5-row: a map version-4 file (the shipped 5-step one) also reads version 5's row 0 of the
     # pedestrians on a walking area; a version-5 file (trained above) reads it anyway: no such column
     from sumo_ethics.predict.predictor import default_weights

@@ -1,14 +1,14 @@
 """Median latency of one LSTMPredictor.predict call: 32 agents, 3 s history at 0.1 s, one core.
 
-    python tools/bench_predictor.py [--kind map_cslstm|map|attention|cslstm] [--weights PATH] [--agents 32] [--repeats 200]
-    python tools/bench_predictor.py --compare map_cslstm attention old=/path/old.pt   # interleaved
-    python tools/bench_predictor.py --compare map_cslstm --parts   # + the model's forward pass alone
+    python tools/bench_predictor.py [--kind map|map_cslstm|attention|cslstm] [--weights PATH] [--agents 32] [--repeats 200]
+    python tools/bench_predictor.py --compare map map_cslstm old=/path/old.pt   # interleaved
+    python tools/bench_predictor.py --compare map --parts   # + the model's forward pass alone
 
 ``--parts`` also times each model's forward pass alone (its inputs captured from one call), in the
 same round robin; the rest of a call is numpy: history resampling, neighbour and map features,
 the world frame and the resampling to the planner's steps.
 
-For the map-aware model (the default) the call includes building every agent's map features
+For the map-aware models (map, the default, and map_cslstm) the call includes building every agent's map features
 from a synthetic lane graph: a 4-lane road (lanes r_0..r_3, 600 m) whose lanes each branch into
 a straight and a turning successor at x = 100 m, so each agent has its current lane, two
 branches ahead and its left/right neighbours (the libsumo reads of a real run, about 3 calls per
@@ -93,7 +93,7 @@ def captured_forward(pred, obs, horizon: int):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--kind", default="map_cslstm", help="a shipped model (map_cslstm, map, attention, cslstm)")
+    ap.add_argument("--kind", default="map", help="a shipped model (map, map_cslstm, attention, cslstm)")
     ap.add_argument("--weights", default=None, help="a weights file instead of the shipped one")
     ap.add_argument("--compare", nargs="+", metavar="NAME=FILE|KIND",
                     help="several models, timed in turn (round robin) so machine load hits them alike")

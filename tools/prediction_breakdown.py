@@ -7,7 +7,7 @@ speed, manoeuvre, and whether the road user really moved).
 
 DATASET: a folder written by ``sumo-ethics dataset`` (every sample is used, as for scenarios never
 trained on); --scenario keeps the runs of those scenario stems (suite runs are named "suite");
---model: weights files (default: the shipped map_cslstm). ADE and min_ade are averaged over the
+--model: weights files (default: the shipped map, the planner's default). ADE and min_ade are averaged over the
 valid future points, as ``sumo-ethics evaluate-predictor`` does (a sample with a partial future
 counts by its points). Besides each model's ADE it prints the ADE of its closest mode (min_ade),
 the mean weight of its most likely mode and how far that mode ends ahead of the truth along the
@@ -69,7 +69,7 @@ def breakdown(dataset: Path, group: str = "vehicle", scenarios: list[str] | None
     """Rows per subset (``subsets``, those of 20 samples or more): n and the mean ADE [m] of
     constant velocity and of each model's most likely mode, its closest mode of non-zero weight
     (min_ade) and its most likely mode's weight. ``moving``: None all, True those at 0.5 m/s or
-    faster now, False the others; ``models``: name -> weights file (default: the shipped map_cslstm);
+    faster now, False the others; ``models``: name -> weights file (default: the shipped map);
     ``v5_row``: also each earlier-version model reading the version-5 row 0 ("NAME, v5 row")."""
     import torch
 
@@ -106,7 +106,7 @@ def breakdown(dataset: Path, group: str = "vehicle", scenarios: list[str] | None
     rows = np.arange(len(fut))
     # (S, [M,] T, 5) Gaussians and (S, M) mode weights (None: one mode), as evaluate-predictor has them
     outputs = {"constant velocity": (cv_outputs(b), None)}
-    for label, path in (models or {"map_cslstm": str(default_weights("map_cslstm"))}).items():
+    for label, path in (models or {"map": str(default_weights("map"))}).items():
         model, _ = load_model(Path(path))
         outputs[label] = lstm_outputs(model, b)
         if v5_row and model.kind in MAP_KINDS and 2 <= model.map_version < 5:

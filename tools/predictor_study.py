@@ -4,10 +4,12 @@ scenarios that no predictor was trained or evaluated on.
     python tools/predictor_study.py [--first 140] [--count 20] [--workers 1] [--out runs/predictor_study] [--resume]
 
 Planners (the paper's planner, only the predictor or the priors changed): cv, cslstm,
-attention, map (attention + lanes), map_cslstm (CS-LSTM + lanes, 3 trajectory modes, pedestrians
-with one mode, map version 5, a moving average of the weights, the long-red runs' cyclists and pedestrians
-in training: the default), map_cslstm_fast (map version 4 with a 5-step decoder, weights/map_cslstm_fast.pt),
-map_cslstm_v8 (the same without the long-red runs, the default before, weights/map_cslstm_v8.pt),
+attention, map (attention + lanes, 3 trajectory modes, pedestrians with one mode, map version 5, a
+moving average of the weights, the long-red runs' cyclists and pedestrians in training: the
+default), map_v1 (the one-mode map file with map version 1 shipped before, weights/map_v1.pt),
+map_cslstm (the same recipe and seed as map without the attention: the default before),
+map_cslstm_fast (map version 4 with a 5-step decoder, weights/map_cslstm_fast.pt),
+map_cslstm_v8 (map_cslstm without the long-red runs, the default before, weights/map_cslstm_v8.pt),
 map_cslstm_v7 (without the moving average too, the default before that, weights/map_cslstm_v7.pt),
 map_cslstm_v6 (map version 4, the default before that,
 weights/map_cslstm_v6.pt), map_cslstm_v5 (map version 3, the default before those,
@@ -15,8 +17,9 @@ weights/map_cslstm_v5.pt), map_cslstm_v4 (map version 1, the default before that
 weights/map_cslstm_v4.pt), map_cslstm_v3 (with the last mode constant velocity, the default
 before that, weights/map_cslstm_v3.pt), map_cslstm_v2 (3 free modes, a 128-state decoder, the
 default before), map_cslstm_1mode (the one-mode map_cslstm before that,
-weights/map_cslstm_1mode.pt) and map_cslstm_nopriors (map_cslstm with braking_prior =
-lateral_prior = 0).
+weights/map_cslstm_1mode.pt) and map_nopriors (the default with braking_prior =
+lateral_prior = 0). The paired columns compare each planner with map (the default; the first
+planner when --planner leaves it out).
 Scenarios s<first>..s<first+count-1> of scenarios/suite (tools/train_shipped.py trains on
 s0000-s0099 and evaluates prediction on s0100-s0139). Writes the suite's table1.md,
 paired.csv and results.csv to --out.
@@ -37,6 +40,7 @@ PLANNERS = (
     "cslstm=predictor=cslstm",
     "attention=predictor=attention",
     "map=predictor=map",
+    f"map_v1=predictor=map;predictor_weights={WEIGHTS / 'map_v1.pt'}",
     "map_cslstm=predictor=map_cslstm",
     f"map_cslstm_fast=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_fast.pt'}",
     f"map_cslstm_v8=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v8.pt'}",
@@ -47,7 +51,7 @@ PLANNERS = (
     f"map_cslstm_v3=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v3.pt'}",
     f"map_cslstm_v2=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v2.pt'}",
     f"map_cslstm_1mode=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_1mode.pt'}",
-    "map_cslstm_nopriors=predictor=map_cslstm;braking_prior=0;lateral_prior=0",
+    "map_nopriors=predictor=map;braking_prior=0;lateral_prior=0",
 )
 
 
@@ -68,13 +72,14 @@ def main() -> None:
     planners = parse_planners(args.planner or PLANNERS)
     out = Path(args.out)
     t0 = time.perf_counter()
+    reference = "map" if any(p.name == "map" for p in planners) else planners[0].name
     rows = run_suite([s.folder for s in specs], planners, out, args.workers, None, args.resume)
     names = [s.folder.name for s in specs]
     meta = {"suite": f"scenarios/suite {names[0]}-{names[-1]}" if names else str(suite), "scenarios": len(names),
             "scenario_names": names, "workers": args.workers,
             "wall_s": time.perf_counter() - t0, "planners": {p.name: p.describe() for p in planners},
-            "reference": "map_cslstm"}
-    write_outputs(rows, planners, out, "map_cslstm", meta)
+            "reference": reference}
+    write_outputs(rows, planners, out, reference, meta)
     print((out / "table1.md").read_text())
     print(json.dumps({"wall_s": round(meta["wall_s"], 1), "scenarios": len(specs)}))
 

@@ -22,21 +22,20 @@ Stages:
 - "select" scores the shipped file and each --candidate by the rule of docs/predictor_seeds.md
   ("How a shipped file is chosen") into DIR_selection/selection_scores.csv.
 
-``--models`` picks what is trained: "map_cslstm" (the shipped default, feature version 1 + map
-version 5: the lights' switch times, blinkers, the pedestrians' lane after a walking area, and the
-straight walk across a walking area) and "map" (its shipped file has map version 1, from the
-dataset of that version; a dataset written now has version 5), both by default, and/or the
-ablation's "attention", "cslstm" (their shipped files were trained on the version-1 dataset without map columns or suite
-runs: ``--stages dataset --no-suite`` and then ``--models attention,cslstm`` rebuild them), and
-"map_cslstm_fast" (map_cslstm with a 5-step decoder, map version 4, seed 2, 45 CPU-minutes: 49.1 min wall beside
-a second training, best epoch 30 of 30).
+``--models`` picks what is trained: "map" (the planner's default: the paper's attention with lanes,
+feature version 1 + map version 5: the lights' switch times, blinkers, the pedestrians' lane after a
+walking area, and the straight walk across a walking area) and "map_cslstm" (the same recipe without
+the attention), both by default, and/or the ablation's "attention", "cslstm" (their shipped files were
+trained on the version-1 dataset without map columns or suite runs: ``--stages dataset --no-suite`` and
+then ``--models attention,cslstm`` rebuild them), and "map_cslstm_fast" (map_cslstm with a 5-step
+decoder, map version 4, seed 2, 45 CPU-minutes: 49.1 min wall beside a second training, best epoch 30 of 30).
 
 Wall time on this shared 2-core machine (one worker, one thread): dataset 19.0 min (14.2 min
 with two workers, map version 4; deriving version-5 samples from it, ``sumo-ethics dataset --samples-from``, 65 s);
-long-red dataset 2.5 min (two workers); training of the shipped map_cslstm 50.3 min beside a second training
-(45.0 CPU-minutes, best epoch 29, cut by the budget), of map 22.2 min (best epoch 6 of 9);
-held-out dataset 5.7 min, selection dataset 5.4 min (two workers); evaluation of the ten models about 10 min on the test split and 2 min on the held-out one: about 100 min in all
-for both map models, one after the other (``--parallel`` trains them at once).
+long-red dataset 2.5 min (two workers); training of the shipped map 50.8 min and map_cslstm 50.3 min, the two at once (45.0 CPU-minutes each,
+best epoch 29 of both, cut by the budget);
+held-out dataset 5.7 min, selection dataset 5.4 min (two workers); evaluation of the fourteen learned models and constant velocity about 12 min: about 130 min in all
+with the two map models trained one after the other (``--parallel`` trains them at once: about 85 min).
 
     python tools/train_shipped.py --work /tmp/pred --stages dataset,long_red,train,heldout,evaluate --workers 1
 """
@@ -62,14 +61,16 @@ GAME = ("cross", "square", "grid6", "corridor", "fkk_in", "ramp")  # eclipse-sum
 #: tools/game configs and suite s0176..s0195
 SELECT_GAME = ("fokr_bs_demo", "A10KW")  # bs3d cannot start in plain sumo (its gui-only osg-view)
 SUITE_SELECT_FIRST, SUITE_SELECT = 176, 20
-#: per-model train_main options (others: defaults); map_cslstm (the default) encodes every agent once in its
-#: own frame with 3 trajectory modes (models.default_options: a 64-state decoder, pedestrians with one mode);
-#: seed 0 of map version 5 (the straight walk across a walking area) with a 45 CPU-minute budget, a moving
-#: average of the weights (decay 0.999) and the long-red runs' cyclists and pedestrians ("extra": stage
-#: long_red's dataset, LONG_RED_GROUPS) is the file the selection rule chose (docs/predictor_seeds.md,
-#: "Long reds in the training data");
-#: map (attention) per target as CS-LSTM with one mode
-#: earlier defaults kept in the weights folder, evaluated beside the shipped models: map_cslstm_v8 (the same
+#: per-model train_main options (others: defaults). map (the paper's attention over neighbours, plus lanes;
+#: the planner's default) and map_cslstm (the same without the attention) share one recipe: every agent
+#: encoded once in its own frame, 3 trajectory modes, a 64-state decoder, pedestrians with one mode; seed 0
+#: of map version 5 (the straight walk across a walking area) with a 45 CPU-minute budget, a moving average
+#: of the weights (decay 0.999) and the long-red runs' cyclists and pedestrians ("extra": stage long_red's
+#: dataset, LONG_RED_GROUPS). map's file is the one the selection rule chose (docs/predictor_seeds.md,
+#: "Attention with the default's recipe"), map_cslstm's the default before it ("Long reds in the training data").
+#: Earlier files kept in the weights folder, evaluated beside the shipped models: map_v1 (map per target as
+#: CS-LSTM with one mode, map version 1, 20 CPU-minutes: {"nbr_frame": "target", "modes": 1} on a version-1
+#: dataset), map_cslstm_v8 (map_cslstm
 #: without the long-red runs: train it with {"extra": None}), map_cslstm_v7 (without those and without the
 #: moving average: {"extra": None, "ema": None}), map_cslstm_v6 (map
 #: version 4, seed 2, 45 CPU-minutes: train it with {"map_version": 4, "seed": 2}), map_cslstm_v5 (map
@@ -77,16 +78,16 @@ SUITE_SELECT_FIRST, SUITE_SELECT = 176, 20
 #: gives a version-3 model bit for bit the inputs of the version-3 dataset, models.batch_to_tensors),
 #: map_cslstm_v4 (map version 1, seed 2, 20 CPU-minutes), map_cslstm_v3 (the same with the last mode
 #: constant velocity), map_cslstm_v2 (3 free modes, a 128-state decoder, seed 0) and map_cslstm_1mode (one mode)
-PREVIOUS = ("map_cslstm_v8", "map_cslstm_v7", "map_cslstm_v6", "map_cslstm_v5", "map_cslstm_v4", "map_cslstm_v3", "map_cslstm_v2", "map_cslstm_1mode")
-TRAIN = {"map": {"hazard_repeat": 4, "nbr_frame": "target", "modes": 1},
-         "map_cslstm": {"hazard_repeat": 4, "nbr_frame": "agent", "modes": 3, "seed": 0, "ema": 0.999,
-                        "extra": "long_red"}}
+PREVIOUS = ("map_v1", "map_cslstm_v8", "map_cslstm_v7", "map_cslstm_v6", "map_cslstm_v5", "map_cslstm_v4", "map_cslstm_v3",
+            "map_cslstm_v2", "map_cslstm_1mode")
+_RECIPE = {"hazard_repeat": 4, "nbr_frame": "agent", "modes": 3, "seed": 0, "ema": 0.999, "extra": "long_red"}
+TRAIN = {"map": dict(_RECIPE), "map_cslstm": dict(_RECIPE)}
 #: CPU-minute training budget per model (--max-minutes overrides it): the default model (map version 3,
-#: seed 0) was still improving when 20 minutes stopped it; 45 minutes is the shipped file's (map version 5,
-#: seed 0 with the moving average: best epoch 28, cut by the budget, 60 min wall beside a second training and
-#: other work)
+#: seed 0) was still improving when 20 minutes stopped it; 45 minutes is the shipped files' (map version 5,
+#: seed 0, the moving average: map best epoch 29 and map_cslstm best epoch 29, both cut by the budget, 51 and
+#: 50 min wall beside a second training)
 BUDGET_DEFAULT = 20.0
-BUDGET = {"map_cslstm": 45.0, "map_cslstm_fast": 45.0}
+BUDGET = {"map": 45.0, "map_cslstm": 45.0, "map_cslstm_fast": 45.0}
 #: shipped files that are not a model kind's default: name -> (kind, train_main options). map_cslstm_fast
 #: is map_cslstm with a 5-step decoder (each step emits 0.8 s), 17 % faster at run time, for users who
 #: need the speed; the selection rule kept the default (docs/predictor_seeds.md, "Fewer decoder steps")
@@ -163,11 +164,11 @@ def main() -> None:
     ap.add_argument("--out-dir", default=str(WEIGHTS), help="where weights and the evaluation go")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--model", default=None, help="(internal) train only this model")
-    ap.add_argument("--models", default="map_cslstm,map",
-                    help="comma-separated models to train (map_cslstm, map, attention, cslstm, map_cslstm_fast)")
+    ap.add_argument("--models", default="map,map_cslstm",
+                    help="comma-separated models to train (map, map_cslstm, attention, cslstm, map_cslstm_fast)")
     ap.add_argument("--no-suite", action="store_true", help="dataset without the suite's hazard runs")
     ap.add_argument("--candidate", action="append", default=[], metavar="NAME=FILE",
-                    help="stage select: a weights file to score beside the shipped map_cslstm (repeatable)")
+                    help="stage select: a weights file to score beside the shipped default, map (repeatable)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     sys.path.insert(0, str(ROOT))
@@ -228,7 +229,7 @@ def main() -> None:
     if "select" in stages:
         from sumo_ethics.predict.evaluate import evaluate, selection_scores
 
-        weights = {"map_cslstm (shipped)": Path(args.out_dir) / "map_cslstm.pt"}
+        weights = {"map (shipped)": Path(args.out_dir) / "map.pt"}
         bad = [c for c in args.candidate if "=" not in c or not Path(c.split("=", 1)[1]).is_file()]
         if bad:
             raise SystemExit(f"--candidate {bad[0]!r}: give NAME=FILE with an existing weights file")

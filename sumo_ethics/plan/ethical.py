@@ -53,9 +53,9 @@ class PlannerConfig:
     """Everything the ethical planner decides with.
 
     max_risk: a candidate is "safe" when its largest risk against any party (ego's plus the
-    other's) stays below this [-]; predictor: "map_cslstm" (the CS-LSTM that also reads lanes and
-    signals, the default), "map" (the same with the paper's attention), "attention" (the paper's),
-    "cslstm" or "cv" (constant velocity);
+    other's) stays below this [-]; predictor: "map" (the paper's attention LSTM that also reads lanes
+    and signals, the default), "map_cslstm" (the same without the attention), "attention" (the
+    paper's), "cslstm" or "cv" (constant velocity);
     braking_prior: agents decelerating at least this hard [m/s^2] are predicted to keep braking
     until they stand; lateral_prior: agents moving across their straight predicted path keep
     their lateral speed for this long [s] (both ``sumo_ethics.predict.braking``; 0 = off);
@@ -73,7 +73,7 @@ class PlannerConfig:
     sampling: SamplingConfig = field(default_factory=lambda: SamplingConfig(horizons=(1.0, 2.0, 3.0, 4.0),
                                                                             n_offsets=17))
     probability: ProbabilityConfig = field(default_factory=ProbabilityConfig)
-    predictor: str = "map_cslstm"
+    predictor: str = "map"
     predictor_weights: str | None = None  # a weights file for the LSTM predictors (default: shipped)
     max_risk: float = 0.01
     braking_prior: float = 3.0

@@ -15,7 +15,7 @@ class PredictorError(RuntimeError):
     """A predictor cannot be built: missing, corrupt or incompatible weights file."""
 
 
-#: the planner's predictors: the learned kinds (models.KINDS; map_cslstm the default) and constant velocity
+#: the planner's predictors: the learned kinds (models.KINDS; map the default) and constant velocity
 PREDICTORS = ("map_cslstm", "map", "attention", "cslstm", "cv")
 
 

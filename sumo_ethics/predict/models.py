@@ -115,25 +115,25 @@ NBR_FRAMES = ("target", "agent")
 
 def default_nbr_frame(kind: str) -> str:
     """The neighbour encoding a new model of ``kind`` gets: that of its shipped file ("agent" for
-    map_cslstm, "target" for the others; an agent-frame "map" trained with the same recipe was
-    worse, see README "Trajectory prediction")."""
-    return "agent" if kind == "map_cslstm" else "target"
+    the map-aware kinds, "target" for the others, kept as they were for the ablation; the first
+    map file, weights/map_v1.pt, had "target")."""
+    return "agent" if kind in MAP_KINDS else "target"
 
 
 def default_modes(kind: str) -> int:
     """The number of trajectory modes a new model of ``kind`` gets: that of its shipped file (3 for
-    map_cslstm, whose single-Gaussian version averaged "stays" and "pulls away"; 1 for the others,
-    kept as they were for the ablation)."""
-    return 3 if kind == "map_cslstm" else 1
+    the map-aware kinds, whose single-Gaussian versions averaged "stays" and "pulls away"; 1 for
+    the others, kept as they were for the ablation)."""
+    return 3 if kind in MAP_KINDS else 1
 
 
 def default_options(kind: str, modes: int) -> dict[str, Any]:
     """Decoder size, constant-velocity mode and one-mode class groups of a new model of ``kind``
-    with ``modes`` modes: those of its shipped file (map_cslstm: a 64-state decoder, no
+    with ``modes`` modes: those of its shipped file (the map-aware kinds: a 64-state decoder, no
     constant-velocity mode, pedestrians with one mode; the others as they were, for the
     ablation). The mode options need modes > 1."""
     residual = (F.GROUP_VEHICLE, F.GROUP_CYCLIST)
-    if kind != "map_cslstm":
+    if kind not in MAP_KINDS:
         return {"dec": 128, "cv_mode": False, "single_mode_groups": (), "stay_mode_groups": (),
                 "residual_groups": residual}
     multi = modes > 1

@@ -1,6 +1,6 @@
 """LSTMPredictor: Observation (numpy) -> Prediction (numpy) with a trained CS-LSTM / attention / map model.
 
-The map-aware models (kinds "map_cslstm", the default, and "map") also read each target's lane polylines and signal state
+The map-aware models (kinds "map", the default, and "map_cslstm") also read each target's lane polylines and signal state
 (:func:`features.map_features`), asked of its ``map_source`` (in a run:
 :class:`sumo_ethics.sim.lanes.SumoMapSource`, wired by the planner); without a source it
 predicts from the histories alone, as if no agent were on a lane.
@@ -79,7 +79,7 @@ class LSTMPredictor:
         return cls(model, header, Path(path), map_source=map_source)
 
     @classmethod
-    def default(cls, kind: str = "map_cslstm", map_source: MapSource | None = None) -> "LSTMPredictor":
+    def default(cls, kind: str = "map", map_source: MapSource | None = None) -> "LSTMPredictor":
         """The weights shipped with the package (sumo_ethics/predict/weights/<kind>.pt)."""
         if kind not in KINDS:
             raise PredictorError(f"unknown predictor kind {kind!r}: expected one of {', '.join(KINDS)}")
