@@ -352,7 +352,7 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
 @click.argument("dataset_dir", metavar="DATASET", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(path_type=Path), default=Path("prediction_eval"), show_default=True)
 @click.option("--model", "models", multiple=True, metavar="NAME=FILE",
-              help="A weights file to evaluate under NAME (repeat; default: the shipped map_cslstm, map, "
+              help="A weights file to evaluate under NAME (repeat; default: the shipped map, map_cslstm, "
                    "attention and cslstm; constant velocity is always evaluated).")
 @click.option("--split", type=click.Choice(["test", "val", "train", "all"]), default="test", show_default=True,
               help="Samples evaluated: a split of the seeds/scenarios, or all (a dataset never trained on).")

@@ -39,7 +39,7 @@ cosines sum to ~0 and gives negative weights; we use the guarded form
 projected 64 -> 80 without bias and added to the pooled grid: ``E = cs_pool + P W_H``;
 ``[E, dyn]`` goes to the decoder, as in CS-LSTM.
 
-Map (kind="map"): the attention model plus a lane context. Each of the MAP_LANES polylines
+Map (kind="map", the planner's default): the attention model plus a lane context. Each of the MAP_LANES polylines
 (MAP_POINTS x 2 points, flattened, with a one-hot of its row kind: ahead / left / right) is
 encoded by a 2-layer MLP (-> 64); the query is a linear map of [target encoding, map
 scalars]; scaled dot-product attention over the valid polylines (none valid: zero) gives a
@@ -48,14 +48,14 @@ distance and state, speed limit): ``[E, dyn, lane context, scalars]`` goes to th
 Map CS-LSTM (kind="map_cslstm"): the same lane context on CS-LSTM without the attention,
 the counterpart of "map" in the attention ablation.
 
-Modes (``modes`` = M > 1, the shipped "map_cslstm" has M = 3): the output layer gives M
+Modes (``modes`` = M > 1, the shipped "map" and "map_cslstm" have M = 3): the output layer gives M
 Gaussians per step and a linear head on the decoder's input gives M mode probabilities
 (log-softmax). ``model(...)`` returns the most likely mode, ``model(..., all_modes=True)``
 ((B, M, FUT_STEPS, 5), (B, M) log weights); every mode is residual to constant velocity.
 Trained with the winner-takes-all MSE of the closest mode (+ cross-entropy of the weights)
 as warm-up, then the mixture NLL of whole trajectories (:func:`mixture_nll`). A standing car
 can then be "stays" and "pulls away" at once instead of one Gaussian averaging the two.
-Options (``default_options``; the shipped map_cslstm has the last two): ``cv_mode``, the last
+Options (``default_options``; the shipped map and map_cslstm have the last two): ``cv_mode``, the last
 mode's mean is the constant-velocity rollout itself (a standing agent stays), only its spread and
 weight learned (for the groups decoded in absolute positions, pedestrians, it is "stands
 still"); ``single_mode_groups``, class groups (pedestrians) that get mode 0 with weight 1 and
@@ -72,9 +72,9 @@ instead of 20 make a call about 1 ms faster, tools/bench_predictor.py). An earli
 (weights/map_cslstm_v3.pt) had ``cv_mode`` too; the selection rule of docs/predictor_seeds.md
 chose the file without it.
 
-Neighbour encoding (``nbr_frame``). "target" (cslstm, attention, the first map model): each
+Neighbour encoding (``nbr_frame``). "target" (cslstm, attention, the first map model map_v1): each
 neighbour's history is encoded in its target's frame, once per (target, neighbour) pair, as
-CS-LSTM does; a 32-agent scene had 271 pairs. "agent" (the shipped map_cslstm): every agent's
+CS-LSTM does; a 32-agent scene had 271 pairs. "agent" (the shipped map and map_cslstm): every agent's
 history is encoded once in its own frame (origin now, +x its heading, normalised by its own
 class scale) and placed into a target's grid with its pose there, ``act(H + W_pose [x, y,
 cos dyaw, sin dyaw])`` (x, y by the target's scale). Training still feeds per-pair rows and
