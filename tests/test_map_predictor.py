@@ -409,7 +409,15 @@ def test_cli_refuses_a_map_file_for_the_attention_predictor_before_sumo_starts(t
     assert p.returncode == 2, p.stderr
     lines = p.stderr.strip().splitlines()
     assert len(lines) == 1 and "holds a 'map' model, expected 'attention'" in lines[0]
+    assert "--predictor map," in lines[0]  # how to run it
     assert not (out / "summary.json").exists() and not (out / "steps.parquet").exists()
+    # a file of the earlier default's kind, given without --predictor (the default is map now)
+    cs = save_model(TrajectoryLSTM(kind="map_cslstm", nbr_frame="agent", modes=3), tmp_path / "cs.pt")
+    p = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "run", str(URBAN), "--predictor-weights", str(cs),
+                        "--out", str(tmp_path / "o2")], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1, p.stderr
+    assert "holds a 'map_cslstm' model, expected 'map' (choose its kind: --predictor map_cslstm" in lines[0]
 
 
 def _observation(n: int = 5) -> Observation:

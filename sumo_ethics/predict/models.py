@@ -633,7 +633,9 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
     if not isinstance(blob, dict) or blob.get("format") != FILE_FORMAT:
         raise PredictorError(f"not a sumo-ethics predictor weights file: {path}")
     if kind is not None and blob.get("kind") != kind:
-        raise PredictorError(f"predictor weights file {path} holds a {blob.get('kind')!r} model, expected {kind!r}")
+        raise PredictorError(f"predictor weights file {path} holds a {blob.get('kind')!r} model, expected {kind!r} "
+                             f"(choose its kind: --predictor {blob.get('kind')}, or predictor = \"{blob.get('kind')}\" "
+                             f"in [planner])")
     checks = {
         "feature_version": F.FEATURE_VERSION,
         "hist_steps": F.HIST_STEPS,
