@@ -632,10 +632,10 @@ def load_model(path: Path, kind: str | None = None) -> tuple[TrajectoryLSTM, dic
         raise PredictorError(f"predictor weights file is corrupt or unreadable: {path} ({type(exc).__name__})") from None
     if not isinstance(blob, dict) or blob.get("format") != FILE_FORMAT:
         raise PredictorError(f"not a sumo-ethics predictor weights file: {path}")
-    if kind is not None and blob.get("kind") != kind:
-        raise PredictorError(f"predictor weights file {path} holds a {blob.get('kind')!r} model, expected {kind!r} "
-                             f"(choose its kind: --predictor {blob.get('kind')}, or predictor = \"{blob.get('kind')}\" "
-                             f"in [planner])")
+    found = blob.get("kind")
+    if kind is not None and found != kind:
+        raise PredictorError(f"predictor weights file {path} holds a {found!r} model, expected {kind!r} "
+                             f"(choose its kind: --predictor {found}, or predictor = \"{found}\" in [planner])")
     checks = {
         "feature_version": F.FEATURE_VERSION,
         "hist_steps": F.HIST_STEPS,

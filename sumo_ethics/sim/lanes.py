@@ -26,6 +26,7 @@ import libsumo
 import numpy as np
 
 from sumo_ethics.predict.features import MAP_VERSION, TLS_CODES, WALKING_AREA, LaneGraph, MapContext
+from sumo_ethics.sim.route import lane_allows
 
 CROSSING = re.compile(r":.+_c\d+_0")
 
@@ -143,12 +144,8 @@ def pavement(graph: LaneGraph, edge: str) -> str:
     """
     cache = graph.__dict__.setdefault("_pavement", {})
     if edge not in cache:
-        cache[edge] = ""
-        for i in range(libsumo.edge.getLaneNumber(edge) if edge else 0):
-            allowed = libsumo.lane.getAllowed(f"{edge}_{i}")
-            if not allowed or "pedestrian" in allowed:  # () allows every class
-                cache[edge] = f"{edge}_{i}"
-                break
+        lanes = (f"{edge}_{i}" for i in range(libsumo.edge.getLaneNumber(edge) if edge else 0))
+        cache[edge] = next((lane for lane in lanes if lane_allows(lane, "pedestrian")), "")
     return cache[edge]
 
 
