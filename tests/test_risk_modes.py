@@ -66,7 +66,10 @@ W = np.array([[0.7, 0.3], [0.4, 0.6]])  # a0: stays 0.7 / pulls away 0.3; a1: st
 
 
 def risk(pred: Prediction) -> RiskTerms:
-    return assess_risk(candidates(), pred, AGENTS, EGO_M, RoadUserClass.CAR, EGO_L, EGO_W)
+    """The scene was laid out for Origin's three-point score (its margins reach the pedestrian's
+    path); the integration over modes under test does not depend on the method."""
+    return assess_risk(candidates(), pred, AGENTS, EGO_M, RoadUserClass.CAR, EGO_L, EGO_W,
+                       prob_cfg=ProbabilityConfig(method="origin"))
 
 
 def with_modes(main: Prediction, alts: tuple[Prediction, ...], weight: np.ndarray) -> Prediction:

@@ -22,7 +22,6 @@ from sumo_ethics.errors import ConfigError
 from sumo_ethics.ethics.cost import CostConfig, UtilityMode, score
 from sumo_ethics.ethics.probability import ProbabilityConfig
 from sumo_ethics.ethics.risk import RiskTerms, assess_risk
-from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
 from sumo_ethics.plan.controller import Decision, Scene
 from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
@@ -128,8 +127,8 @@ def make_predictor(name: str, weights: str | None = None) -> Predictor:
     return predictor
 
 
-def first_overlap(cand: Candidates, pred: Prediction, risk: RiskTerms, length: np.ndarray,
-                  width: np.ndarray, ego_length: float, ego_width: float, brake: float | None = None) -> np.ndarray:
+def first_overlap(cand: Candidates, pred: Prediction, length: np.ndarray, width: np.ndarray, ego_length: float,
+                  ego_width: float, brake: float | None = None) -> np.ndarray:
     """(K,) int: the first step at which the ego box meets an agent's box at its predicted mean
     (T if never). length, width: (N,) the agents' boxes [m] (pass them with safety margins).
 
@@ -141,25 +140,20 @@ def first_overlap(cand: Candidates, pred: Prediction, risk: RiskTerms, length: n
     brake [m/s^2]: if given, the ego box at each step is stretched forward by its stopping
     distance v^2 / (2 brake), so a candidate also "meets" a road user it could no longer stop
     for (a candidate that ends its horizon too close behind a slower leader is not safe).
-    Only (k, n, t) with a non-zero collision probability can overlap, so only those are tested
-    (``risk.sparse``: with modes, the union of every mode's entries, a superset of the main mode's
-    except where its weighted probability w p falls below ``p_min``).
+    Which (k, n, t) are tested is decided by distance alone (both boxes' half-diagonals, the
+    stretch included; :func:`sumo_ethics.ethics.shapes.envelope_first_hit`), never by a
+    collision probability.
     """
+    from sumo_ethics.ethics.shapes import envelope_first_hit
+
     K, T = cand.x.shape
-    sp = risk.sparse
-    k, n, t = sp.k, sp.n, sp.t
-    first = np.full(K, T, dtype=np.int64)
-    if len(k):
-        x, y, yaw, ego_l = cand.x[k, t], cand.y[k, t], cand.yaw[k, t], ego_length
-        if brake is not None:
-            ext = cand.speed[k, t] ** 2 / (2.0 * brake)
-            x, y, ego_l = x + 0.5 * ext * np.cos(yaw), y + 0.5 * ext * np.sin(yaw), ego_length + ext
-        ov = boxes_overlap(
-            OrientedBoxes(x, y, yaw, ego_l, ego_width),
-            OrientedBoxes(pred.mean[n, t, 0], pred.mean[n, t, 1], pred.yaw[n, t], length[n], width[n]),
-        )
-        np.minimum.at(first, k[ov], t[ov])
-    return first
+    tp = min(T, pred.mean.shape[1])
+    if len(pred.ids) == 0 or tp == 0 or K == 0:
+        return np.full(K, T, dtype=np.int64)
+    first = envelope_first_hit(cand.x[:, :tp], cand.y[:, :tp], cand.yaw[:, :tp], cand.speed[:, :tp],
+                               cand.valid[:, :tp], pred.mean[:, :tp, 0], pred.mean[:, :tp, 1], pred.yaw[:, :tp],
+                               length, width, ego_length, ego_width, brake)
+    return np.where(first >= tp, T, first)
 
 
 def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: np.ndarray) -> Candidates:
@@ -303,7 +297,7 @@ class EthicalPlanner:
                            ego_length=ego_length, ego_width=ego_width, prob_cfg=self.cfg.probability,
                            off_road=~on_road, rule_breaker=breakers)
         pc = self.cfg.probability  # Origin's safety margins (+1.0 m length, +0.5 m width)
-        first_hit = first_overlap(fc, pred, risk, agents.length + pc.length_margin,
+        first_hit = first_overlap(fc, pred, agents.length + pc.length_margin,
                                   agents.width + pc.width_margin, ego_length, ego_width, brake=veh.max_decel)
         overlap = first_hit < horizon_steps
         legal = np.ones(len(fc), dtype=bool)
