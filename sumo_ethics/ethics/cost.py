@@ -20,7 +20,8 @@ boundary harm b (K,) from :class:`~sumo_ethics.ethics.risk.RiskTerms`:
 - ``J(s) = sum_n ego_risk + sum_n other_risk + b``: leaving the road is an ego risk with
   probability 1, as in Bayes and Ego;
 - ``J_mean``: UtilityMode.CANDIDATE_MEAN (default) the mean of J over the feasible candidates of
-  this step (all candidates if ``feasible`` is None or selects none); UtilityMode.LITERAL
+  this step (all candidates if ``feasible`` is None or selects none), candidates with a
+  non-finite J left out (0 if none is finite); UtilityMode.LITERAL
   ``J / N_r`` with N_r = N + 1 parties (the ego and the N agents);
 - ``J_utility = 0 if J <= J_mean else J`` (J counts as <= J_mean within a relative 1e-9, so
   candidates tied at the mean are not penalised by rounding);
@@ -219,9 +220,10 @@ def score(
         pool = np.ones(K, bool) if feasible is None else np.asarray(feasible, dtype=bool)
         if pool.shape != (K,):
             raise ValueError(f"feasible must have shape ({K},), got {pool.shape}")
+        pool = pool & np.isfinite(j_total)  # one non-finite J must not switch J_utility off for all
         if not pool.any():
-            pool = np.ones(K, bool)
-        j_mean = np.full(K, j_total[pool].mean() if K else 0.0)
+            pool = np.isfinite(j_total)
+        j_mean = np.full(K, j_total[pool].mean() if pool.any() else 0.0)
     above = j_total > j_mean + _TIE_RTOL * np.abs(j_mean)
     j_utility = np.where(above, cfg.utility_scale * j_total, 0.0)
     j_risk = cfg.omega_o * j_origin + cfg.omega_u * j_utility
