@@ -193,3 +193,5 @@ def test_run_sums_the_fallbacks_in_its_summary(tmp_path):
     assert (steps.n_fallback == 1.0).all() and len(steps) >= 20
     assert summary["n_fallback"] == len(steps)
     assert np.isfinite(steps.cost_selection).all()
+    # N of the principles (normalise in_range, the default): the one road user in range
+    assert (steps.cost_n_norm == 1.0).all()
