@@ -339,7 +339,8 @@ class EthicalPlanner:
                    "select_ms": 1e3 * (w4 - w3)}
         info: dict[str, Any] = {f"cost_{name}": v for name, v in cost.row(j).items()}
         info.update(cost_envelope=float(envelope[j]), cost_entry=float(entry[j]), cost_selection=float(total[j]),
-                    n_rule_breakers=float(breakers.sum()), n_fallback=float(n_fallback), validity=float(cls), n_candidates=float(len(cand)),
+                    n_rule_breakers=float(breakers.sum()), n_fallback=float(n_fallback), validity=float(cls),
+                    n_candidates=float(len(cand)),
                     n_feasible=float(feas.feasible.sum()), horizon=float(cand.horizon[k]),
                     utility_literal=float(self.cfg.cost.utility is UtilityMode.LITERAL))
         d0 = scene.d
