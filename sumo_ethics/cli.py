@@ -67,6 +67,9 @@ def cli() -> None:
               help="Selection rule (default cost: the ethical cost decides unavoidable harms; validity: Origin's).")
 @click.option("--utility", type=click.Choice(["candidate_mean", "literal"]),
               help="Reading of J_mean in J_utility (default candidate_mean).")
+@click.option("--normalise", type=click.Choice(["in_range", "at_risk"]),
+              help="What Bayes, equality and responsibility divide by: every road user in range (default, Origin's) "
+                   "or the road users at risk from the candidate.")
 @click.option("--predictor", type=click.Choice(PREDICTORS),
               help="Neighbour prediction (default map: the paper's attention LSTM reading lanes and signals "
                    "too; map_cslstm: the same without the attention).")
@@ -84,7 +87,7 @@ def cli() -> None:
 def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float | None,
         seed: int, end: float | None, step_length: float | None, sumo_arg: tuple[str, ...], out: Path | None,
         controller: str, omega_u: float | None, omega_o: float | None, weights: str | None, selection: str | None,
-        utility: str | None, predictor: str | None, predictor_weights: Path | None, config_file: Path | None,
+        utility: str | None, normalise: str | None, predictor: str | None, predictor_weights: Path | None, config_file: Path | None,
         continue_after_collision: bool, radius: float, overwrite: bool, record_decisions: str, quiet: bool) -> None:
     """Run SCENARIO (a .sumocfg) with one vehicle taken over by the ego controller."""
     from dataclasses import replace
@@ -111,7 +114,7 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
 
     table = load_toml(config_file) if config_file is not None else None
     planner = planner_config(table, omega_u=omega_u, omega_o=omega_o, weights=weights, utility=utility,
-                             predictor=predictor, predictor_weights=predictor_weights, selection=selection)
+                             normalise=normalise, predictor=predictor, predictor_weights=predictor_weights, selection=selection)
     if (scenario.parent / "hazards.json").is_file():  # a suite scenario: run does not inject hazards
         click.echo(f"note: {scenario.parent / 'hazards.json'} is not used by 'run' (no hazards, your ego); "
                    f"'sumo-ethics evaluate {scenario.parent}' runs the scenario as the suite defines it", err=True)

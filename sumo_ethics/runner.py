@@ -135,6 +135,7 @@ class Run:
         self.meta: dict[str, Any] = {}
         self.notes: RunNotes | None = None  # tight bends and a lonely standstill (sumo_ethics.notes)
         self.step = 0
+        self.n_fallback = 0  # predicted agents replaced by constant velocity (non-finite prediction), summed
         self.t_start = wallclock.perf_counter()
 
     def stop_line(self, s_front: float) -> float | None:
@@ -232,6 +233,7 @@ class Run:
                               rule_breakers=rules.breakers(snap.others) if rules is not None else frozenset())
                 # act
                 decision = self.controller.act(scene)
+                self.n_fallback += int(decision.info.get("n_fallback", 0))
                 w1 = wallclock.perf_counter()
                 # step
                 world.step(decision.command)
@@ -355,6 +357,7 @@ class Run:
                            "others": sum(not r["involves_ego"] for r in self.rec.collisions)},
             "seed": self.cfg.seed,
             "steps": self.rec.n_steps,
+            "n_fallback": self.n_fallback,
             "distance": float(last["s"] - first["s"]) if last is not None else 0.0,
             "sim_time": float(last["time"]) if last is not None else None,
             "wall_time": wall,

@@ -1,6 +1,6 @@
 """Planner settings from the command line and TOML files, validated before SUMO starts.
 
-A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, predictor,
+A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, normalise, predictor,
 predictor_weights, max_risk, braking_prior, lateral_prior, selection, envelope, entry) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
 ``[planner.principles]`` (custom J_origin weights); unknown keys are errors.
 """
@@ -82,7 +82,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
         raise ConfigError(f"[planner] must be a table, got {table!r}")
     t = dict(table or {})
     t.update({k: v for k, v in overrides.items() if v is not None})
-    simple = {"omega_u", "omega_o", "weights", "utility", "predictor", "predictor_weights", "max_risk",
+    simple = {"omega_u", "omega_o", "weights", "utility", "normalise", "predictor", "predictor_weights", "max_risk",
               "braking_prior", "lateral_prior", "selection", "envelope", "entry"}
     _known(t, simple | {"sampling", "probability", "principles"}, "[planner]")
     for sub in ("sampling", "probability", "principles"):
@@ -97,7 +97,8 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
                                           **{k: _weight(f"principles.{k}", v) for k, v in p.items()}})
         utility = t.get("utility", UtilityMode.CANDIDATE_MEAN.value)
         cost = CostConfig(weights=weights, omega_o=_weight("omega_o", t.get("omega_o", 1.0)),
-                          omega_u=_weight("omega_u", t.get("omega_u", DEFAULT_OMEGA_U)), utility=utility)
+                          omega_u=_weight("omega_u", t.get("omega_u", DEFAULT_OMEGA_U)), utility=utility,
+                          normalise=t.get("normalise", "in_range"))
         sampling = dict(t.get("sampling", {}))  # the caller's table stays as it was
         _known(sampling, {f.name for f in fields(SamplingConfig)}, "[planner.sampling]")
         if "horizons" in sampling:

@@ -293,3 +293,80 @@ def test_assess_risk_without_agents_and_boundary_harm():
     with pytest.raises(ValueError, match="same agents"):
         other_agents, _ = agents_and_prediction([[0.0, 0.0]], [0.0], [1.0], [0], [4.5], [1.8], [1500.0], T)
         assess_risk(cand, pred, other_agents, EGO_M, RoadUserClass.CAR, EGO_L, EGO_W)
+
+
+# ------------------------------------------------------------------ normalise: in_range | at_risk
+def _one_risk(n_agents: int, extra_at_risk: tuple[int, ...] = ()) -> RiskTerms:
+    """2 candidates x n_agents: both put ego risk 0.02 and other risk 0.02 on agent 0 and nothing on
+    anyone else; candidate 1 also comes within a non-zero collision probability (no harm) of the
+    agents ``extra_at_risk``."""
+    from sumo_ethics.ethics.probability import SparseProbability
+
+    er = np.zeros((2, n_agents))
+    er[:, 0] = 0.02
+    k = np.array([0, 1] + [1] * len(extra_at_risk))
+    n = np.array([0, 0, *extra_at_risk])
+    z = np.zeros(len(k))
+    return RiskTerms(ego_risk=er, other_risk=er.copy(), ego_harm_max=np.zeros((2, n_agents)),
+                     other_harm_max=np.zeros((2, n_agents)), vulnerable=np.zeros(n_agents, bool),
+                     boundary_harm=np.zeros(2), sparse=SparseProbability(k, n, np.zeros(len(k), int), z + 0.1,
+                                                                         (2, n_agents, 3)),
+                     ego_harm_at=z, other_harm_at=z)
+
+
+def test_the_same_risk_costs_the_same_under_at_risk_whatever_the_traffic():
+    cand = candidates(x=np.zeros((2, 3)), y=0.0, yaw=0.0, speed=10.0)  # no progress or lateral cost
+    # "bayes": 250 x 100 x B, B = (0.02 + 0.02) / (2N).
+    # in_range, 1 road user around: N = 1, B = 0.02 -> 500; with 20: N = 20, B = 0.001 -> 25
+    one = score(cand, _one_risk(1), CostConfig(weights="bayes"), 10.0).terms
+    twenty = score(cand, _one_risk(20), CostConfig(weights="bayes"), 10.0).terms
+    np.testing.assert_allclose(one["j_origin"], [500.0, 500.0])
+    np.testing.assert_allclose(twenty["j_origin"], [25.0, 25.0])
+    np.testing.assert_array_equal(twenty["n_norm"], [20.0, 20.0])
+    # at_risk: only agent 0 is at risk, N = 1 -> 500 with 1 or with 20 road users around
+    for n in (1, 20):
+        c = score(cand, _one_risk(n), CostConfig(weights="bayes", normalise="at_risk"), 10.0).terms
+        np.testing.assert_allclose(c["j_origin"], [500.0, 500.0])
+        np.testing.assert_array_equal(c["n_norm"], [1.0, 1.0])
+    # candidate 1 also comes near agents 3 and 7 (P > 0, no harm): N = 3, B = 0.04 / 6 -> 166.67
+    c = score(cand, _one_risk(20, (3, 7)), CostConfig(weights="bayes", normalise="at_risk"), 10.0).terms
+    np.testing.assert_array_equal(c["n_norm"], [1.0, 3.0])
+    np.testing.assert_allclose(c["j_origin"], [500.0, 166.666667], rtol=1e-8)
+
+
+def test_at_risk_divides_equality_and_responsibility_too_but_not_ego_or_maximin():
+    # one candidate, 20 agents; ego risk 0.03 and other risk 0.01 against agent 0 alone
+    er, orr = np.zeros((1, 20)), np.zeros((1, 20))
+    er[0, 0], orr[0, 0] = 0.03, 0.01
+    risk = risk_terms(er, orr, np.full((1, 20), 0.0), np.full((1, 20), 0.0), [0.0])
+    cand = candidates(x=np.zeros((1, 3)), y=0.0, yaw=0.0, speed=10.0)
+    wide = score(cand, risk, CostConfig(), 10.0).terms
+    near = score(cand, risk, CostConfig(normalise="at_risk"), 10.0).terms
+    # equality |0.03 - 0.01| / N: 0.02 / 20 = 0.001 | 0.02 / 1; responsibility 0.01 / 20 | 0.01
+    assert (wide["equality"][0], near["equality"][0]) == pytest.approx((0.001, 0.02))
+    assert (wide["responsibility"][0], near["responsibility"][0]) == pytest.approx((0.0005, 0.01))
+    # ego = 0.03 and maximin = 0 ** 10 either way
+    assert wide["ego"][0] == near["ego"][0] == pytest.approx(0.03)
+    assert wide["maximin"][0] == near["maximin"][0] == 0.0
+
+
+def test_at_risk_with_nobody_at_risk_divides_by_one():
+    # 2 agents, no risk, boundary harm 0.4: in_range B = 0.4 / 4 = 0.1; at_risk B = 0.4 / 2 = 0.2;
+    # no agents at all: in_range B = b = 0.4 (Origin's), at_risk 0.4 / 2 = 0.2
+    cand = candidates(x=np.zeros((1, 3)), y=0.0, yaw=0.0, speed=10.0)
+    for n, want in ((2, (0.1, 0.2)), (0, (0.4, 0.2))):
+        risk = risk_terms(np.zeros((1, n)), np.zeros((1, n)), np.zeros((1, n)), np.zeros((1, n)), [0.4])
+        got = tuple(score(cand, risk, CostConfig(normalise=m), 10.0).terms["bayes"][0] for m in ("in_range", "at_risk"))
+        assert got == pytest.approx(want)
+
+
+def test_normalise_setting_from_toml_and_sweep_and_its_errors():
+    from sumo_ethics.errors import ConfigError
+    from sumo_ethics.settings import planner_config
+    from sumo_ethics.sweep.grid import parse_set
+
+    assert planner_config({"normalise": "at_risk"}).cost.normalise == "at_risk"
+    assert planner_config({}).cost.normalise == "in_range"
+    assert parse_set(["normalise=in_range,at_risk"]) == {"normalise": ["in_range", "at_risk"]}
+    with pytest.raises(ConfigError, match="^normalise must be one of in_range, at_risk, got 'everyone'$"):
+        planner_config({"normalise": "everyone"})

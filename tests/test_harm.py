@@ -56,12 +56,13 @@ def test_type_mass_preference():
     cls = np.array([C.CAR, C.CAR, C.CAR, C.CAR, C.TRUCK, C.BICYCLE, C.PEDESTRIAN, C.BUS])
     length = np.full(8, 4.5)
     width = np.full(8, 1.8)
-    tm = np.array([np.nan, 1500.0, 1300.0, 0.0, 4500.0, 10.0, 70.0, 12000.0])
+    # type masses as given by the scenario (ethics.harm.vtype_mass: NaN where it gives none)
+    tm = np.array([np.nan, 1500.0, 1300.0, 0.0, 18000.0, 10.0, 70.0, 12000.0])
     m = mm.mass(cls, length, width, tm)
-    # NaN, SUMO's passenger default 1500 and 0 -> formula; explicit 1300 used; truck/bus type masses
-    # used; vulnerable classes keep their constants (SUMO excludes the rider)
-    np.testing.assert_allclose(m, [CAR_MASS, CAR_MASS, 1300, CAR_MASS, 4500, 90, 75, 12000], atol=1e-3)
-    assert MassModel(ignored_type_masses=()).mass(C.CAR, 4.5, 1.8, 1500.0) == 1500.0
+    # NaN and 0 -> formula; given 1500 and 1300 used; truck/bus given masses used; vulnerable
+    # classes keep their constants (SUMO excludes the rider)
+    np.testing.assert_allclose(m, [CAR_MASS, 1500, 1300, CAR_MASS, 18000, 90, 75, 12000], atol=1e-3)
+    assert MassModel(ignored_type_masses=(1500.0,)).mass(C.CAR, 4.5, 1.8, 1500.0) == pytest.approx(CAR_MASS)
 
 
 # --------------------------------------------------------------------------- impact area

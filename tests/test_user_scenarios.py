@@ -440,7 +440,7 @@ def test_truck_ego_gets_its_own_size_and_limits(tmp_path):
     lim = s.data["ego_limits"]
     assert (lim["length"], lim["width"], lim["max_accel"], lim["comfort_decel"], lim["max_decel"]) == (12, 2.5, 1.1, 3.0, 7)
     assert lim["max_speed"] == 25 and lim["max_lat_accel"] == 4.0  # the car's where the vType says nothing
-    assert lim["mass"] == 4500.0  # the mass the planner's harm uses: SUMO's truck default (no mass in the vType)
+    assert lim["mass"] == 25000.0  # the mass the planner's harm uses: METHOD.md's truck (no mass in the vType)
 
 
 @pytest.mark.sumo

@@ -3,6 +3,14 @@
 Definitions, per candidate k, with N predicted agents, ego_risk / other_risk (K, N) and
 boundary harm b (K,) from :class:`~sumo_ethics.ethics.risk.RiskTerms`:
 
+- the divisor N of Bayes, Equality and Responsibility (``n_norm``, recorded per candidate) is
+  chosen by ``CostConfig.normalise``: "in_range" (Origin's, the default) every predicted road
+  user, i.e. everyone within the sensing radius; "at_risk" the parties the candidate has a
+  non-zero collision probability with (``ego_risk + other_risk > 0`` or an entry in
+  ``RiskTerms.sparse``), at least 1. Under "in_range" the same risk against one party costs
+  20x less with 20 road users in range than with one (parked cars far away dilute the ethics
+  against progress); under "at_risk" it costs the same, and with nobody at risk B = b / 2.
+  Ego and Maximin are sums and maxima and divide by nothing under either;
 - Bayes ``B = (sum_n ego_risk + sum_n other_risk + b) / (2N)``;
 - Equality ``E = sum_n |ego_risk - other_risk| / N``;
 - Maximin ``M = h_max ** maximin_exponent`` with h_max the largest harm among the parties the
@@ -20,7 +28,8 @@ boundary harm b (K,) from :class:`~sumo_ethics.ethics.risk.RiskTerms`:
 - ``J(s) = sum_n ego_risk + sum_n other_risk + b``: leaving the road is an ego risk with
   probability 1, as in Bayes and Ego;
 - ``J_mean``: UtilityMode.CANDIDATE_MEAN (default) the mean of J over the feasible candidates of
-  this step (all candidates if ``feasible`` is None or selects none); UtilityMode.LITERAL
+  this step (all candidates if ``feasible`` is None or selects none), candidates with a
+  non-finite J left out (0 if none is finite); UtilityMode.LITERAL
   ``J / N_r`` with N_r = N + 1 parties (the ego and the N agents);
 - ``J_utility = 0 if J <= J_mean else J`` (J counts as <= J_mean within a relative 1e-9, so
   candidates tied at the mean are not penalised by rounding);
@@ -34,7 +43,7 @@ Ex-ante risk of each candidate per class (recorded for the chosen one): ``ego_ri
 ``other_risk_sum/max`` (third parties) and ``vru_risk_sum/max`` (the VRUs among them), sums and
 maxima over the parties.
 
-With N = 0: B = b, E = 0, R = 0, M = b ** exponent, Ego = J = b.
+With N = 0: B = b ("in_range"; b / 2 under "at_risk", N = 1), E = 0, R = 0, M = b ** exponent, Ego = J = b.
 """
 
 from __future__ import annotations
@@ -49,7 +58,7 @@ from sumo_ethics.ethics.probability import EthicsConfigError, _check_number
 from sumo_ethics.ethics.risk import RiskTerms
 from sumo_ethics.types import Candidates, CostBreakdown
 
-__all__ = ["PrincipleWeights", "PRESETS", "UtilityMode", "CostConfig", "score", "TERMS"]
+__all__ = ["PrincipleWeights", "PRESETS", "UtilityMode", "NORMALISE", "CostConfig", "score", "TERMS"]
 
 _TIE_RTOL = 1e-9
 
@@ -89,9 +98,13 @@ class PrincipleWeights:
 
 #: Named weight sets. "ethical": Origin's (responsibility 0, as in Origin's "ethical" file).
 #: "standard": Origin's with every principle 0, so risk is ignored (``risk`` keeps 250 but
-#: multiplies zero). "ego", "bayes", "maximin": one principle alone at 100 = about the sum of the
-#: ethical principle weights (99.9), so the risk scale matches "ethical". "responsible": the
-#: ethical weights plus responsibility 33.3.
+#: multiplies zero). "ego", "bayes", "maximin": one principle alone at 100, about the sum of the
+#: ethical principle weights (99.9). Their scales do NOT match: Ego and Maximin divide by nothing,
+#: Bayes (and Equality, Responsibility) divide by N, so under normalise="in_range" one risk r
+#: against one party costs 25,000 r under "ego" but 25,000 r / (2N) under "bayes" (12,500 r with
+#: one road user in range, 625 r with twenty); normalise="at_risk" makes N the parties at risk,
+#: so that ratio no longer depends on the traffic around. "responsible": the ethical weights
+#: plus responsibility 33.3.
 PRESETS: dict[str, PrincipleWeights] = {
     "ethical": PrincipleWeights(),
     "standard": PrincipleWeights(bayes=0.0, equality=0.0, maximin=0.0, ego=0.0),
@@ -114,6 +127,9 @@ class UtilityMode(enum.Enum):
 DEFAULT_OMEGA_U = 0.5
 #: cost units per unit of J(s) in J_utility (CostConfig.utility_scale)
 UTILITY_SCALE = 1e4
+#: divisors of Bayes, Equality and Responsibility (CostConfig.normalise): every predicted road
+#: user in range (Origin's), or the parties with a non-zero collision probability (at least 1)
+NORMALISE = ("in_range", "at_risk")
 
 
 @dataclass(frozen=True)
@@ -123,7 +139,8 @@ class CostConfig:
     weights: J_origin's weights (a PrincipleWeights or a preset name); omega_o, omega_u [-];
     utility: UtilityMode (or its value string); desired_speed: default v_desired [m/s] for
     :func:`score`; maximin_exponent: M = h_max ** exponent [-]; utility_scale: cost units per
-    unit of risk in J_utility [-].
+    unit of risk in J_utility [-]; normalise: the N that Bayes, Equality and Responsibility divide
+    by, one of :data:`NORMALISE` (see the module doc).
     """
 
     weights: PrincipleWeights = PrincipleWeights()
@@ -133,8 +150,11 @@ class CostConfig:
     desired_speed: float | None = None
     maximin_exponent: float = 10.0
     utility_scale: float = UTILITY_SCALE
+    normalise: str = "in_range"
 
     def __post_init__(self) -> None:
+        if self.normalise not in NORMALISE:
+            raise EthicsConfigError(f"normalise must be one of {', '.join(NORMALISE)}, got {self.normalise!r}")
         if isinstance(self.weights, str):
             object.__setattr__(self, "weights", PrincipleWeights.preset(self.weights))
         if not isinstance(self.weights, PrincipleWeights):
@@ -158,7 +178,7 @@ TERMS = (
     "bayes", "equality", "maximin", "ego", "responsibility", "progress", "lateral", "j_origin",
     "j_total_risk", "j_mean", "j_utility", "j_risk",
     "ego_risk_sum", "other_risk_sum", "vru_risk_sum", "ego_risk_max", "other_risk_max", "vru_risk_max",
-    "boundary_harm", "max_harm",
+    "boundary_harm", "max_harm", "n_norm",
 )
 
 
@@ -188,14 +208,22 @@ def score(
     vru_risk = orr * risk.vulnerable
     vru = vru_risk.sum(axis=1)
     j_total = se + so + bh
+    if cfg.normalise == "at_risk":
+        at_risk = (er + orr) > 0.0
+        sp = risk.sparse
+        at_risk[sp.k, sp.n] = True
+        n_norm = np.maximum(at_risk.sum(axis=1), 1).astype(float)
+    else:
+        n_norm = np.full(K, float(N))
     if N:
-        bayes = j_total / (2 * N)
-        equality = np.abs(er - orr).sum(axis=1) / N
-        responsibility = (orr * ~risk.rule_breaker).sum(axis=1) / N
+        bayes = j_total / (2 * n_norm)
+        equality = np.abs(er - orr).sum(axis=1) / n_norm
+        responsibility = (orr * ~risk.rule_breaker).sum(axis=1) / n_norm
         h_max = np.maximum(np.maximum(risk.ego_harm_max.max(axis=1), risk.other_harm_max.max(axis=1)), bh)
         maxes = er.max(axis=1), orr.max(axis=1), vru_risk.max(axis=1)
     else:
-        bayes, equality, h_max = bh.copy(), np.zeros(K), bh.copy()
+        bayes = bh / (2 * n_norm) if cfg.normalise == "at_risk" else bh.copy()
+        equality, h_max = np.zeros(K), bh.copy()
         responsibility = np.zeros(K)
         maxes = np.zeros(K), np.zeros(K), np.zeros(K)
     maximin = h_max**cfg.maximin_exponent
@@ -219,9 +247,10 @@ def score(
         pool = np.ones(K, bool) if feasible is None else np.asarray(feasible, dtype=bool)
         if pool.shape != (K,):
             raise ValueError(f"feasible must have shape ({K},), got {pool.shape}")
+        pool = pool & np.isfinite(j_total)  # one non-finite J must not switch J_utility off for all
         if not pool.any():
-            pool = np.ones(K, bool)
-        j_mean = np.full(K, j_total[pool].mean() if K else 0.0)
+            pool = np.isfinite(j_total)
+        j_mean = np.full(K, j_total[pool].mean() if pool.any() else 0.0)
     above = j_total > j_mean + _TIE_RTOL * np.abs(j_mean)
     j_utility = np.where(above, cfg.utility_scale * j_total, 0.0)
     j_risk = cfg.omega_o * j_origin + cfg.omega_u * j_utility
@@ -229,6 +258,6 @@ def score(
     values = (
         bayes, equality, maximin, ego, responsibility, progress, lateral, j_origin,
         j_total, j_mean, j_utility, j_risk,
-        se, so, vru, *maxes, bh, h_max,
+        se, so, vru, *maxes, bh, h_max, n_norm,
     )
     return CostBreakdown(terms=dict(zip(TERMS, values)), total=j_risk)

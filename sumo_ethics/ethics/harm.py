@@ -25,6 +25,8 @@ from sumo_ethics.types import VULNERABLE, RoadUserClass
 __all__ = [
     "HarmCoefficients",
     "MassModel",
+    "SUMO_CLASS_MASS",
+    "vtype_mass",
     "ImpactArea",
     "Party",
     "CrashOutcome",
@@ -70,15 +72,11 @@ class MassModel:
     ~4.75 m^2; the floor keeps tiny vTypes physical). TRUCK, BUS, MOTORCYCLE, BICYCLE, PEDESTRIAN: the constants below, which
     include the rider for two-wheelers.
 
-    SUMO type masses (``type_mass``) are preferred for protected classes (CAR, TRUCK, BUS,
-    OTHER) where finite, > 0 and not in ``ignored_type_masses``. SUMO cannot tell an
-    explicit ``mass`` from its vClass default; its passenger default (1500 kg, also used
-    for taxi, evehicle and any vType without a vClass) is the one default that would
-    override our size-based formula for most traffic, so it is ignored by default. The
-    other SUMO 1.28 vClass defaults (truck 4500, delivery/emergency 5000, bus 12000,
-    trailer 13000, coach 25000, tram 37900, rail 79500 kg) are class-specific and kept.
-    Vulnerable classes always use the constants: SUMO's masses exclude the rider
-    (bicycle 10 kg, moped 80 kg, motorcycle 200 kg) and pedestrians are 70 kg vs our 75.
+    A vType's own mass (``type_mass``, from :func:`vtype_mass`: NaN where the scenario gives
+    none) is preferred for protected classes (CAR, TRUCK, BUS, OTHER) where finite, > 0 and not in
+    ``ignored_type_masses`` (none by default: :func:`vtype_mass` has already told a given mass
+    from SUMO's class default). Vulnerable classes always use the constants: SUMO's masses exclude
+    the rider (bicycle 10 kg, moped 80 kg, motorcycle 200 kg) and pedestrians are 70 kg vs our 75.
     """
 
     car_offset: float = -1333.5  # [kg]
@@ -90,7 +88,7 @@ class MassModel:
     motorcycle: float = 250.0  # [kg] incl. rider
     bicycle: float = 90.0  # [kg] incl. rider
     pedestrian: float = 75.0  # [kg]
-    ignored_type_masses: tuple[float, ...] = (1500.0,)  # [kg] SUMO defaults treated as "unknown"
+    ignored_type_masses: tuple[float, ...] = ()  # [kg] type masses treated as "not given"
 
     def mass(
         self,
@@ -122,6 +120,49 @@ class MassModel:
                 usable &= tm != ignored
             m = np.where(usable, tm, m)
         return m
+
+
+#: SUMO 1.28's default ``mass`` [kg] per vClass, measured with libsumo on vTypes that set only
+#: ``vClass`` (tests/test_masses.py checks it against the running SUMO). A vClass not listed
+#: (and a vType without a vClass) gets SUMO's passenger default, 1500 kg.
+SUMO_CLASS_MASS: dict[str, float] = {
+    "delivery": 5000.0, "emergency": 5000.0, "truck": 4500.0, "trailer": 13000.0, "bus": 12000.0,
+    "coach": 25000.0, "tram": 37900.0, "rail_urban": 59000.0, "subway": 59000.0, "rail": 79500.0,
+    "rail_electric": 83000.0, "rail_fast": 409000.0, "motorcycle": 200.0, "moped": 80.0, "bicycle": 10.0,
+    "scooter": 10.0, "pedestrian": 70.0, "wheelchair": 90.0, "ship": 100000.0,
+}
+#: SUMO's mass for every vClass not in SUMO_CLASS_MASS [kg]
+SUMO_DEFAULT_MASS = 1500.0
+
+
+def vtype_mass(vclass: str, sumo_mass: float, param: str = "") -> float:
+    """The mass [kg] a scenario gives a SUMO vType itself, NaN where it gives none.
+
+    SUMO reports a mass for every vType and cannot say whether the scenario set it, so:
+
+    1. a ``<param key="mass" value="..."/>`` of the vType (``param``, a positive number) is given;
+    2. else a ``mass`` that differs from SUMO's default for the vType's vClass
+       (:data:`SUMO_CLASS_MASS`) is given;
+    3. else, for a vClass this project has no class mass for (RoadUserClass OTHER: rail, tram,
+       ship, ...), SUMO's class default is used where it is not the generic 1500 kg: a tram's
+       37,900 kg beats a car's size formula;
+    4. else NaN: METHOD.md's class mass applies (truck 25,000, bus 13,000, a car from its size).
+
+    So a mass attribute equal to SUMO's default for the class counts as not given; to state
+    exactly that mass, use the param (rule 1).
+    """
+    try:
+        explicit = float(param) if param else float("nan")
+    except ValueError:
+        explicit = float("nan")
+    if np.isfinite(explicit) and explicit > 0.0:
+        return explicit
+    default = SUMO_CLASS_MASS.get(vclass, SUMO_DEFAULT_MASS)
+    if sumo_mass != default:
+        return float(sumo_mass)
+    if RoadUserClass.from_vclass(vclass) is RoadUserClass.OTHER and default != SUMO_DEFAULT_MASS:
+        return float(default)
+    return float("nan")
 
 
 class ImpactArea(enum.IntEnum):

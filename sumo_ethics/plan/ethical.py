@@ -27,6 +27,7 @@ from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
 from sumo_ethics.predict import PREDICTORS
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior
+from sumo_ethics.predict.constant_velocity import replace_non_finite
 from sumo_ethics.sim.world import EgoCommand
 from sumo_ethics.types import Candidates, DecisionTrace, Observation, Prediction
 
@@ -196,9 +197,12 @@ def select(classes: list[np.ndarray], total: np.ndarray, first_hit: np.ndarray |
     With first_hit and travel given ("validity_ttc"), in a class whose members all enter a road
     user's safety envelope (first_hit < steps), the ones that enter it latest come first, and
     among those the ones that travel least: time to collision, then caution, before cost.
+    A candidate whose total is non-finite (NaN counts as +inf) belongs to no class;
     (-1, len(classes)) if every class is empty.
     """
+    finite = np.isfinite(total)
     for c, members in enumerate(classes):
+        members = members & finite
         if members.any():
             if first_hit is not None and travel is not None:
                 hits = first_hit[members]
@@ -270,6 +274,8 @@ class EthicalPlanner:
             pred = apply_lateral_prior(pred, obs.current, horizon=self.cfg.lateral_prior)
         if self.cfg.braking_prior > 0.0:
             pred = apply_braking_prior(pred, obs.current, self.cfg.braking_prior)
+        # an agent with a non-finite mean, covariance or yaw in any mode is predicted at constant velocity
+        pred, n_fallback = replace_non_finite(pred, obs, horizon_steps, sc.dt)
         w1 = time.perf_counter()
         route = scene.route
         i = route.vertex_at(scene.s)
@@ -289,7 +295,9 @@ class EthicalPlanner:
         # only physically feasible candidates can be chosen: risk and cost are for those alone
         keep = np.flatnonzero(feas.feasible)
         if len(keep) == 0:
-            return self._emergency(scene, {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1)})
+            dec = self._emergency(scene, {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1)})
+            dec.info["n_fallback"] = float(n_fallback)
+            return dec
         fc = cand.take(keep)
         on_road = feas.on_road[keep]
         breakers = np.array([i in scene.rule_breakers for i in agents.ids], dtype=bool)
@@ -315,13 +323,18 @@ class EthicalPlanner:
         entry = self.cfg.entry * np.maximum(horizon_steps - first_hit, 0) / horizon_steps
         total, j, cls = self.choose(cost, classes, envelope + entry, legal, on_road, first_hit, horizon_steps,
                                     fc.s[:, -1] - scene.s)
+        if j < 0:  # every candidate's total is non-finite: none can be weighed
+            dec = self._emergency(scene, {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1)})
+            dec.info["n_fallback"] = float(n_fallback)
+            return dec
         k = int(keep[j])
         w4 = time.perf_counter()
         timings = {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1), "risk_cost_ms": 1e3 * (w3 - w2),
                    "select_ms": 1e3 * (w4 - w3)}
         info: dict[str, Any] = {f"cost_{name}": v for name, v in cost.row(j).items()}
         info.update(cost_envelope=float(envelope[j]), cost_entry=float(entry[j]), cost_selection=float(total[j]),
-                    n_rule_breakers=float(breakers.sum()), validity=float(cls), n_candidates=float(len(cand)),
+                    n_rule_breakers=float(breakers.sum()), n_fallback=float(n_fallback), validity=float(cls),
+                    n_candidates=float(len(cand)),
                     n_feasible=float(feas.feasible.sum()), horizon=float(cand.horizon[k]),
                     utility_literal=float(self.cfg.cost.utility is UtilityMode.LITERAL))
         d0 = scene.d
@@ -358,11 +371,17 @@ class EthicalPlanner:
 
         "cost": the lowest J_risk + penalty (the envelope and entry terms) within
         :func:`hard_pool`; "validity"/"validity_ttc": the class rule (see :data:`SELECTIONS`).
+        A non-finite total is never chosen (NaN counts as +inf; the pools are taken over the finite
+        candidates); chosen candidate -1 when no total is finite.
         """
         mode = self.cfg.selection
         if mode == "cost":
             total = cost.total + penalty
-            j = int(np.argmin(np.where(hard_pool(legal, on_road), total, np.inf)))
+            finite = np.isfinite(total)
+            pool = hard_pool(legal & finite, on_road & finite) & finite
+            if not pool.any():
+                return total, -1, len(classes)
+            j = int(np.argmin(np.where(pool, total, np.inf)))
             return total, j, class_of(classes, j)
         ttc = mode == "validity_ttc"
         j, cls = select(classes, cost.total, first_hit if ttc else None, steps, travel if ttc else None)

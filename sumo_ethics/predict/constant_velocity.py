@@ -67,3 +67,36 @@ class ConstantVelocityPredictor:
         diag[..., 1, 1] = sig[..., 1] ** 2
         cov = rot[:, None] @ diag @ np.swapaxes(rot, -1, -2)[:, None]
         return Prediction(ids=tuple(ids), dt=dt, mean=mean, cov=cov, yaw=np.repeat(yaw[:, None], tn, axis=1))
+
+
+def replace_non_finite(pred: Prediction, obs: Observation, horizon_steps: int, dt: float,
+                       fallback: ConstantVelocityPredictor | None = None) -> tuple[Prediction, int]:
+    """(prediction, number of agents replaced): every agent whose mean, covariance or yaw is
+    non-finite in any mode (or whose mode weights are) gets the constant-velocity prediction from
+    its current state in every mode, with weights (1, 0, ...). Agents already finite are returned
+    as they were (the same arrays when none is replaced)."""
+    bad = np.zeros(len(pred.ids), dtype=bool)
+    for m, _ in pred.by_mode():
+        bad |= ~(np.isfinite(m.mean).all(axis=(1, 2)) & np.isfinite(m.cov).all(axis=(1, 2, 3))
+                 & np.isfinite(m.yaw).all(axis=1))
+    if pred.weight is not None:
+        bad |= ~np.isfinite(pred.weight).all(axis=1)
+    if not bad.any():
+        return pred, 0
+    cv = (fallback or ConstantVelocityPredictor()).predict(obs, horizon_steps, dt)
+    row = {agent: i for i, agent in enumerate(cv.ids)}
+    idx = np.flatnonzero(bad)
+    src = np.array([row[pred.ids[i]] for i in idx], dtype=int)
+
+    def fix(m: Prediction) -> Prediction:
+        mean, cov, yaw = m.mean.copy(), m.cov.copy(), m.yaw.copy()
+        mean[idx], cov[idx], yaw[idx] = cv.mean[src], cv.cov[src], cv.yaw[src]
+        return Prediction(m.ids, m.dt, mean, cov, yaw)
+
+    out = pred.map_modes(fix)
+    if pred.weight is None:
+        return out, int(bad.sum())
+    w = pred.weight.copy()
+    w[idx] = 0.0
+    w[idx, 0] = 1.0
+    return Prediction(out.ids, out.dt, out.mean, out.cov, out.yaw, out.alternatives, w), int(bad.sum())

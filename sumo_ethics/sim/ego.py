@@ -112,6 +112,7 @@ def insert_ego(cfg: RunConfig, ego_id: str, depart: float) -> tuple[str, ...]:
     vt.setLength(EGO_TYPE, cfg.ego.length)
     vt.setWidth(EGO_TYPE, cfg.ego.width)
     vt.setMass(EGO_TYPE, cfg.ego.mass)
+    vt.setParameter(EGO_TYPE, "mass", repr(float(cfg.ego.mass)))  # given, even if it equals SUMO's 1500 kg
     vt.setMaxSpeed(EGO_TYPE, cfg.ego.max_speed)
     vt.setAccel(EGO_TYPE, cfg.ego.max_accel)
     vt.setDecel(EGO_TYPE, cfg.ego.comfort_decel)

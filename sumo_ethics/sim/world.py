@@ -21,7 +21,7 @@ import libsumo
 import numpy as np
 from libsumo import constants as tc
 
-from sumo_ethics.ethics.harm import MassModel
+from sumo_ethics.ethics.harm import MassModel, vtype_mass
 from sumo_ethics.sim.frames import centre_to_front, front_to_centre
 from sumo_ethics.sim.route import JunctionLink, RoutePath, build_route_path
 from sumo_ethics.types import AgentStates, RoadUserClass
@@ -90,14 +90,18 @@ class SumoWorld:
 
     # ---- types -------------------------------------------------------------------------
     def type_info(self, type_id: str, person: bool = False) -> TypeInfo:
-        """Class, size and mass of a vType; a person is a pedestrian whatever its vType says."""
+        """Class, size and mass of a vType; a person is a pedestrian whatever its vType says. The
+        mass: the vType's own where the scenario gives one (:func:`~sumo_ethics.ethics.harm.vtype_mass`),
+        else the class's (MassModel)."""
         info = (self._person_types if person else self._types).get(type_id)
         if info is None:
             vt = libsumo.vehicletype
-            cls = RoadUserClass.PEDESTRIAN if person else RoadUserClass.from_vclass(vt.getVehicleClass(type_id))
+            vclass = vt.getVehicleClass(type_id)
+            cls = RoadUserClass.PEDESTRIAN if person else RoadUserClass.from_vclass(vclass)
             length, width = vt.getLength(type_id), vt.getWidth(type_id)
+            given = vtype_mass(vclass, vt.getMass(type_id), vt.getParameter(type_id, "mass"))  # NaN: not given
             mass = float(self.masses.mass(np.array([int(cls)]), np.array([length]), np.array([width]),
-                                          np.array([vt.getMass(type_id)]))[0])
+                                          np.array([given]))[0])
             info = (self._person_types if person else self._types)[type_id] = TypeInfo(cls, length, width, mass)
         return info
 

@@ -33,11 +33,14 @@ from sumo_ethics.predict import one_thread
 PAPER_OMEGA_U = DEFAULT_OMEGA_U
 
 #: origin: Origin's weights, predictor class (CS-LSTM) and selection rule (validity levels);
-#: paper: this project's planner (attention, J_utility, selection by cost)
+#: paper: this project's planner (attention, J_utility, selection by cost); both divide Bayes,
+#: equality and responsibility by every road user in range, as published (normalise "in_range")
 BUILTIN: dict[str, dict[str, Any] | None] = {
     "baseline": None,  # the route-following controller
-    "origin": {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0, "selection": "validity"},
-    "paper": {"weights": "ethical", "predictor": "attention", "omega_u": PAPER_OMEGA_U, "selection": "cost"},
+    "origin": {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0, "selection": "validity",
+               "normalise": "in_range"},
+    "paper": {"weights": "ethical", "predictor": "attention", "omega_u": PAPER_OMEGA_U, "selection": "cost",
+              "normalise": "in_range"},
 }
 METRICS = ("completed", "total", "ego", "third_party", "vru")
 LABELS = {"completed": "Completed (%)", "total": "Total harm", "ego": "Ego", "third_party": "Third party",

@@ -44,7 +44,7 @@ RUN_KEYS: dict[str, tuple[str, type]] = {
 #: decisions a sweep's runs keep unless --record-decisions says otherwise (not part of the
 #: sweep's definition then, so sweeps made before it resume as they were)
 SWEEP_RECORD_DECISIONS = "risky"
-PLANNER_SIMPLE = ("omega_o", "weights", "utility", "predictor", "max_risk", "selection", "envelope", "entry")
+PLANNER_SIMPLE = ("omega_o", "weights", "utility", "normalise", "predictor", "max_risk", "selection", "envelope", "entry")
 
 
 def planner_keys() -> list[str]:
