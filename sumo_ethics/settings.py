@@ -2,7 +2,8 @@
 
 A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, normalise, predictor,
 predictor_weights, max_risk, braking_prior, lateral_prior, selection, envelope, entry) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
-``[planner.principles]`` (custom J_origin weights); unknown keys are errors.
+``[planner.principles]`` (custom J_origin weights); unknown keys are errors. ``probability =
+"origin"`` (or ``"shapes"``) is short for ``[planner.probability] method = ...``.
 """
 
 from __future__ import annotations
@@ -85,6 +86,8 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
     simple = {"omega_u", "omega_o", "weights", "utility", "normalise", "predictor", "predictor_weights", "max_risk",
               "braking_prior", "lateral_prior", "selection", "envelope", "entry"}
     _known(t, simple | {"sampling", "probability", "principles"}, "[planner]")
+    if isinstance(t.get("probability"), str):  # probability = "origin" is short for [planner.probability] method
+        t["probability"] = {"method": t["probability"]}
     for sub in ("sampling", "probability", "principles"):
         if not isinstance(t.get(sub, {}), dict):
             raise ConfigError(f"[planner.{sub}] must be a table, got {t[sub]!r}")

@@ -37,7 +37,7 @@ import numpy as np
 
 __all__ = ["shapes_sparse", "envelope_first_hit", "polygon_mass", "octagon"]
 
-_GLX, _GLW = (tuple(float(v) for v in a) for a in np.polynomial.legendre.leggauss(6))
+_GLX, _GLW = np.polynomial.legendre.leggauss(6)  # global arrays are constants to numba
 _TWO_PI = 2.0 * math.pi
 _H_FAR = 8.3  # standard units: T(h, a) < Phi(-h) / 2 < 1e-16 beyond
 _SQRT1_2 = 1.0 / math.sqrt(2.0)
@@ -164,18 +164,13 @@ def _octagon(ea: float, eb: float, oa: float, ob: float, cr: float, sr: float, v
         oa, ob = ob, oa
     ux, uy = oa * cr, oa * sr
     px, py = -ob * sr, ob * cr
-    x = -ea - ux - px
-    y = -eb - uy - py
     # edges by direction: ego 0, other r, ego pi/2, other r + pi/2; then the mirror image
-    steps_x = (2.0 * ea, 2.0 * ux, 0.0, 2.0 * px)
-    steps_y = (0.0, 2.0 * uy, 2.0 * eb, 2.0 * py)
-    for i in range(4):
-        vx[i] = x
-        vy[i] = y
-        vx[i + 4] = -x
-        vy[i + 4] = -y
-        x += steps_x[i]
-        y += steps_y[i]
+    x0, y0 = -ea - ux - px, -eb - uy - py
+    x1, y1 = x0 + 2.0 * ea, y0
+    x2, y2 = x1 + 2.0 * ux, y1 + 2.0 * uy
+    x3, y3 = x2, y2 + 2.0 * eb
+    vx[0], vy[0], vx[1], vy[1], vx[2], vy[2], vx[3], vy[3] = x0, y0, x1, y1, x2, y2, x3, y3
+    vx[4], vy[4], vx[5], vy[5], vx[6], vy[6], vx[7], vy[7] = -x0, -y0, -x1, -y1, -x2, -y2, -x3, -y3
 
 
 @_jit

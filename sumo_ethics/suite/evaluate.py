@@ -32,16 +32,22 @@ from sumo_ethics.predict import one_thread
 #: the paper's planner: attention predictor, J_utility at this weight (see README "Suite")
 PAPER_OMEGA_U = DEFAULT_OMEGA_U
 
-#: origin: Origin's weights, predictor class (CS-LSTM) and selection rule (validity levels);
-#: paper: this project's planner (attention, J_utility, selection by cost); both divide Bayes,
-#: equality and responsibility by every road user in range, as published (normalise "in_range")
+#: origin: Origin's weights, predictor class (CS-LSTM), collision probability (three-point score)
+#: and selection rule (validity levels); paper: the paper's method (attention, J_utility, selection
+#: by cost) on Origin's probability; both divide Bayes, equality and responsibility by every road
+#: user in range, as published (normalise "in_range"); ours: this project's planner, what ``run``
+#: and ``sweep`` use by default (PlannerConfig's defaults: the map-aware attention predictor,
+#: the collision probability over true shapes, principles on one scale); "default" names it too.
 BUILTIN: dict[str, dict[str, Any] | None] = {
     "baseline": None,  # the route-following controller
     "origin": {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0, "selection": "validity",
-               "normalise": "in_range"},
+               "normalise": "in_range", "probability": "origin"},
     "paper": {"weights": "ethical", "predictor": "attention", "omega_u": PAPER_OMEGA_U, "selection": "cost",
-              "normalise": "in_range"},
+              "normalise": "in_range", "probability": "origin"},
+    "ours": {},
 }
+#: other names of built-in planners
+ALIASES = {"default": "ours"}
 METRICS = ("completed", "total", "ego", "third_party", "vru")
 LABELS = {"completed": "Completed (%)", "total": "Total harm", "ego": "Ego", "third_party": "Third party",
           "vru": "VRU"}
@@ -57,6 +63,8 @@ class PlannerSpec:
     def describe(self) -> str:
         if self.options is None:
             return "baseline (route following, IDM)"
+        if not self.options:
+            return "the defaults of run and sweep"
         return ";".join(f"{k}={v}" for k, v in self.options.items())
 
 
@@ -73,12 +81,13 @@ def _value(text: str) -> Any:
 
 
 def parse_planner(text: str) -> PlannerSpec:
-    """``origin`` | ``paper`` | ``baseline`` | ``NAME=key=value;key=value`` (options of
+    """``origin`` | ``paper`` | ``ours`` (or ``default``) | ``baseline`` | ``NAME=key=value;key=value`` (options of
     ``planner_config``, applied over the paper's defaults, e.g. ``fast=predictor=cv;omega_u=0.3``).
     Validated at once: an unknown name or key is a ConfigError."""
     from sumo_ethics.settings import planner_config
 
     text = text.strip()
+    text = ALIASES.get(text, text)
     if "=" not in text:
         if text not in BUILTIN:
             raise ConfigError(f"unknown planner '{text}'; known: {', '.join(BUILTIN)}, "
