@@ -174,3 +174,21 @@ def test_shipped_weights_carry_a_matching_calibration(kind: str):
     assert cal is not None, f"no calibration fitted for {weights}"
     assert np.all((cal.scale >= C.SCALE_MIN) & (cal.scale <= C.SCALE_MAX))
     assert cal.n_points[F.GROUP_VEHICLE].sum() > 0
+
+
+def test_planner_config_switches_the_calibration():
+    pytest.importorskip("torch")
+    from sumo_ethics.errors import ConfigError
+    from sumo_ethics.plan.ethical import PlannerConfig, make_predictor
+    from sumo_ethics.settings import planner_config
+    from sumo_ethics.suite.evaluate import parse_planner
+
+    assert PlannerConfig().calibrated is True
+    assert make_predictor("map").calibration is not None
+    assert make_predictor("map", calibrated=False).calibration is None
+    for name in ("origin", "paper"):  # the baselines stay as published
+        cfg = planner_config(None, **parse_planner(name).options)
+        assert cfg.calibrated is False
+    assert planner_config({"calibrated": False}).calibrated is False
+    with pytest.raises(ConfigError):
+        planner_config({"calibrated": "yes"})

@@ -102,8 +102,9 @@ def test_unknown_planner_is_a_clear_error():
     p = parse_planner("fast=predictor=cv;omega_u=0.3")
     assert p.name == "fast" and p.options["predictor"] == "cv" and p.options["omega_u"] == 0.3
     assert parse_planner("origin").options == {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0,
-                                               "selection": "validity"}
+                                               "selection": "validity", "calibrated": False}
     assert parse_planner("paper").options["selection"] == "cost"
+    assert parse_planner("paper").options["calibrated"] is False  # as published: no covariance calibration
     assert parse_planner("baseline").options is None
 
 

@@ -36,8 +36,10 @@ PAPER_OMEGA_U = DEFAULT_OMEGA_U
 #: paper: this project's planner (attention, J_utility, selection by cost)
 BUILTIN: dict[str, dict[str, Any] | None] = {
     "baseline": None,  # the route-following controller
-    "origin": {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0, "selection": "validity"},
-    "paper": {"weights": "ethical", "predictor": "attention", "omega_u": PAPER_OMEGA_U, "selection": "cost"},
+    # as published: their predictors' own spreads, without the calibration (predict/calibration.py)
+    "origin": {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0, "selection": "validity", "calibrated": False},
+    "paper": {"weights": "ethical", "predictor": "attention", "omega_u": PAPER_OMEGA_U, "selection": "cost",
+              "calibrated": False},
 }
 METRICS = ("completed", "total", "ego", "third_party", "vru")
 LABELS = {"completed": "Completed (%)", "total": "Total harm", "ego": "Ego", "third_party": "Third party",
