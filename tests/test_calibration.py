@@ -61,7 +61,7 @@ def test_half_sigma_predictor_gets_factor_two_and_nominal_coverage():
     params, w, g, fut = synthetic(6000, 1.2, 0.3, 0.5, seed=3)
     before = C.coverage(params[:, 0], fut, levels=(C.TARGET,))[0]
     assert before == pytest.approx(0.393, abs=0.01)
-    cal = C.fit(params, w, g, fut)
+    cal = C.fit(params, w, g, fut, level=C.TARGET)
     fitted = cal.scale[F.GROUP_VEHICLE, 0]  # the steady state: the means do not move sideways
     assert np.allclose(fitted, 2.0, rtol=0.05)
     assert (cal.n_points[F.GROUP_VEHICLE, 0] > 0).all()
@@ -73,11 +73,33 @@ def test_half_sigma_predictor_gets_factor_two_and_nominal_coverage():
     assert after == pytest.approx(0.865, abs=0.01)
 
 
+def test_fit_level_sets_the_share_inside_the_2_sigma_ellipse():
+    # fitted to hold 91 % (the shipped FIT_LEVEL), the predicted 2-sigma ellipse must be the truth's
+    # k-sigma ellipse with 1 - exp(-k^2/2) = 0.91, k = sqrt(-2 ln 0.09) = 2.194; predicted sigma = true / 2,
+    # so 2 * factor * sigma_true / 2 = k * sigma_true: factor = 2 * k / 2 = 2.194
+    params, w, g, fut = synthetic(6000, 1.0, 0.5, 0.5, seed=8)
+    cal = C.fit(params, w, g, fut)
+    assert C.FIT_LEVEL == 0.91
+    assert np.allclose(cal.scale[F.GROUP_VEHICLE, 0], 2.0 * math.sqrt(-2 * math.log(0.09)) / 2.0, rtol=0.05)
+    p2, w2, g2, fut2 = synthetic(6000, 1.0, 0.5, 0.5, seed=9)
+    assert C.coverage(cal.apply(p2, w2, g2)[:, 0], fut2, levels=(C.TARGET,))[0] == pytest.approx(0.91, abs=0.01)
+
+
+def test_balanced_weights_give_each_manoeuvre_the_same_total():
+    group = np.array([0] * 1000 + [0] * 600 + [0] * 10 + [2] * 7)
+    man = np.array([0] * 1000 + [3] * 600 + [1] * 10 + [-1] * 7)
+    w = C.balanced_weights(group, man)
+    assert w[:1000].sum() == pytest.approx(1.0) and w[1000:1600].sum() == pytest.approx(1.0)
+    assert w[1600:1610].sum() == pytest.approx(10 / 500)  # fewer than BALANCE_MIN: proportionally less
+    assert C.weighted_quantile(np.array([3.0, 1.0, 2.0, 4.0]), np.array([1.0, 1.0, 1.0, 1.0]), 0.5) == 2.0
+    assert C.weighted_quantile(np.array([3.0, 1.0, 2.0, 4.0]), np.array([0.1, 0.1, 0.1, 10.0]), 0.5) == 4.0
+
+
 def test_too_wide_lateral_shrinks_and_axes_are_fitted_separately():
     # lateral sigma predicted 4x too wide, longitudinal right: factors about 1 and 0.25
     params, w, g, fut = synthetic(6000, 1.0, 0.2, 1.0, seed=5)
     params[..., 3] = 0.8
-    cal = C.fit(params, w, g, fut)
+    cal = C.fit(params, w, g, fut, level=C.TARGET)
     assert np.allclose(cal.scale[F.GROUP_VEHICLE, 0, :, 0], 1.0, rtol=0.06)
     assert np.allclose(cal.scale[F.GROUP_VEHICLE, 0, :, 1], 0.25, rtol=0.06)
 

@@ -74,7 +74,10 @@ def cmd_fit(args: argparse.Namespace) -> None:
         meta = {"fitted_on": f"split {args.split!r} of a dataset of {Path(args.dataset).name}",
                 "samples": int(len(fut)), "points": int(valid.sum()), "seed": args.seed,
                 "tool": "tools/calibrate_predictor.py fit"}
-        cal = C.fit(params, weight, batch["tgt_group"], fut, valid, meta=meta, weights_sha256=C.file_sha256(path))
+        sw = C.balanced_weights(batch["tgt_group"], batch["manoeuvre"])  # each future manoeuvre weighs the same
+        meta["sample_weight"] = f"balanced over the future manoeuvres of each class group (at least {C.BALANCE_MIN})"
+        cal = C.fit(params, weight, batch["tgt_group"], fut, valid, sample_weight=sw, meta=meta,
+                    weights_sha256=C.file_sha256(path))
         out = cal.write(C.calibration_path(path))
         print(f"{name}: {out}")
         for g, gname in enumerate(F.GROUP_NAMES):
