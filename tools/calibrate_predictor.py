@@ -16,7 +16,8 @@ file (sumo_ethics/predict/calibration.py says what is fitted, and how).
   the most likely mode's ellipse of nominal mass 10 %, 20 %, ..., 95 % (cov_<level>), in_1sigma,
   in_2sigma, ADE of the most likely mode [m] and the mixture NLL per point [nats];
 - ``coverage.md``: the 1- and 2-sigma columns before and after, with NLL and ADE;
-- ``coverage.png``: the coverage curves (observed against nominal) before (dashed) and after.
+- ``coverage.png``: the coverage curves (observed against nominal) before (dashed) and after, and
+  ``coverage_by_horizon.png`` for vehicles at 1, 2 and 4 s.
 Deterministic: the same datasets, models and seed give the same bytes.
 """
 
@@ -151,7 +152,7 @@ def cmd_report(args: argparse.Namespace) -> None:
     df.to_csv(out / "coverage.csv", index=False, float_format="%.4f")
     (out / "coverage.md").write_text(markdown(df, notes) + "\n")
     plot(df, out / "coverage.png", args.models.split(",")[0].partition("=")[0])
-    print(f"wrote {out}/coverage.csv, coverage.md, coverage.png")
+    print(f"wrote {out}/coverage.csv, coverage.md, coverage.png, coverage_by_horizon.png")
 
 
 def markdown(df: pd.DataFrame, notes: list[str]) -> str:
@@ -197,7 +198,7 @@ def plot(df: pd.DataFrame, path: Path, model: str) -> None:
     levels = np.asarray(C.LEVELS)
     cols = [f"cov_{int(round(100 * p))}" for p in C.LEVELS]
     series = [("vehicle", "all", "vehicles", "tab:blue"), ("vehicle", "lane_change", "vehicles, lane change", "tab:red"),
-              ("vehicle", "turn", "vehicles, turn", "tab:orange"), ("vehicle", "hazard", "hazard actors", "tab:purple"),
+              ("vehicle", "turn", "vehicles, turn", "tab:orange"), ("vehicle", "hazard", "hazard actors (vehicles)", "tab:purple"),
               ("cyclist", "all", "cyclists", "tab:green"), ("pedestrian", "all", "pedestrians", "tab:brown")]
     datasets = list(dict.fromkeys(df["dataset"]))
     fig, axes = plt.subplots(1, len(datasets), figsize=(6.2 * len(datasets), 6.0), squeeze=False)
@@ -222,6 +223,31 @@ def plot(df: pd.DataFrame, path: Path, model: str) -> None:
     fig.suptitle("Coverage of the most likely mode's ellipses, all steps 0.2-4 s (dashed: before, solid: after)")
     fig.tight_layout()
     fig.savefig(path, dpi=110, metadata={"Software": None})
+    plt.close(fig)
+    # by horizon: vehicles, their lane changes and turns, at 1, 2 and 4 s, one row per dataset
+    fig, axes = plt.subplots(len(datasets), len(HORIZONS), figsize=(4.6 * len(HORIZONS), 4.4 * len(datasets)),
+                             squeeze=False)
+    for row, dname in zip(axes, datasets):
+        for ax, h in zip(row, HORIZONS):
+            d = df[(df["dataset"] == dname) & (df["model"] == model) & (df["horizon"] == f"{h:g}s")]
+            ax.plot([0, 1], [0, 1], color="0.6", lw=1, label="nominal")
+            for g, m, label, colour in series[:3]:
+                for variant, style in (("uncalibrated", "--"), ("calibrated", "-")):
+                    r = d[(d["group"] == g) & (d["manoeuvre"] == m) & (d["variant"] == variant)]
+                    if r.empty or int(r["points"].iloc[0]) < 50:
+                        continue
+                    ax.plot(levels, r[cols].to_numpy()[0], style, color=colour, marker="o", ms=3,
+                            label=f"{label} ({'after' if variant == 'calibrated' else 'before'})")
+            ax.set_title(f"{model}: {dname}, {h:g} s ahead")
+            ax.set_xlabel("nominal mass of the ellipse")
+            ax.set_ylabel("share of true positions inside")
+            ax.set_xlim(0, 1)
+            ax.set_ylim(0, 1)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7, loc="lower right")
+    fig.suptitle("Coverage by horizon (dashed: before, solid: after)")
+    fig.tight_layout()
+    fig.savefig(path.with_name(path.stem + "_by_horizon.png"), dpi=100, metadata={"Software": None})
     plt.close(fig)
 
 
