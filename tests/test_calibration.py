@@ -214,3 +214,21 @@ def test_planner_config_switches_the_calibration():
     assert planner_config({"calibrated": False}).calibrated is False
     with pytest.raises(ConfigError):
         planner_config({"calibrated": "yes"})
+
+
+def test_cap_keeps_a_factor_from_blowing_up_a_wide_spread():
+    # cap 1 m: sigma 0.1 x 4 = 0.4 stays; sigma 0.8 x 4 = 3.2 is capped at 1; sigma 2 (model wider than the
+    # cap) stays 2: the cap never narrows the model's own spread
+    cal = C.Calibration.identity()
+    scale = np.full(cal.scale.shape, 4.0)
+    cap = np.ones((F.N_GROUPS, len(C.BINS), 2))
+    cal = C.Calibration(scale, cal.n_points, cap=cap)
+    sx = np.array([0.1, 0.8, 2.0])[:, None, None] * np.ones((3, 1, T))
+    mu_y = np.zeros((3, 1, T))
+    out_x, out_y = cal.sigmas(np.zeros(3, dtype=int), mu_y, np.ones((3, 1)), sx, sx)
+    assert np.allclose(out_x[:, 0, 0], [0.4, 1.0, 2.0]) and np.allclose(out_y, out_x)
+    # fitted caps are the 99.5th percentile of the absolute errors: N(0, 1) -> 2.807
+    params, w, g, fut = synthetic(8000, 1.0, 1.0, 1.0, seed=10)
+    fitted = C.fit(params, w, g, fut, level=C.TARGET)
+    assert np.allclose(fitted.cap[F.GROUP_VEHICLE], 2.807, rtol=0.05)
+    assert C.Calibration.from_dict(fitted.to_dict()).cap.tolist() == fitted.cap.tolist()

@@ -44,6 +44,16 @@ the lane changes of the validation split reach 80 % inside the 2-sigma ellipse. 
 inner ellipses of straight driving hold far more than nominal (1-sigma well above 39 %) and the
 mixture NLL per point rises (docs/predictor_calibration/coverage.md has the numbers).
 
+A cap keeps a factor from blowing up a spread the model already made wide: a calibrated sigma is
+at most the CAP_QUANTILE (99.5 %) of the absolute validation errors along that axis, for the class
+group and horizon bin (so no 1-sigma band is wider than what 99.5 % of the errors needed; half of
+it, tried first, cost the lane changes 4 points of 2-sigma coverage), or the model's own sigma
+where that is larger (the cap never narrows a spread):
+``sigma' = min(c sigma, max(sigma, cap))``. Without it, the factors fitted on the common case (a
+lateral sigma at its 0.1 m floor needs x10-x25) took a 14 m/s car without map input from 11 m to
+87 m longitudinal sigma at 4 s, which spreads the Gaussian so thin that the collision probability
+near its mean falls: wider is not always safer.
+
 A cell with fewer than ``min_points`` points takes the pooled fit of its group and bin over
 all states, and with fewer still the factor 1. Factors are clipped to
 [SCALE_MIN, SCALE_MAX]. Between bin centres the factors are interpolated linearly in t (held
@@ -62,6 +72,7 @@ import hashlib
 import json
 import logging
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -88,6 +99,8 @@ BALANCE_MIN = 500
 #: normal quantile of the marginal percentile that sets the ellipse's shape (90 %: 1.6449)
 SHAPE_Q, SHAPE_Z = 0.9, 1.6448536269514722
 SCALE_MIN, SCALE_MAX = 0.25, 50.0
+#: quantile of the absolute validation errors that caps a calibrated sigma
+CAP_QUANTILE = 0.995
 MIN_POINTS = 300
 
 
@@ -133,38 +146,56 @@ def mahalanobis2(params: np.ndarray, fut: np.ndarray) -> np.ndarray:
 @dataclass(frozen=True)
 class Calibration:
     """Factors on sigma_x (lon) and sigma_y (lat): scale (N_GROUPS, len(STATES), len(BINS), 2),
-    n_points (the same without the last axis: points the cell was fitted on; 0 = fallback)."""
+    n_points (the same without the last axis: points the cell was fitted on; 0 = fallback), cap
+    (N_GROUPS, len(BINS), 2) [m] the largest sigma a factor may raise a spread to (inf: none)."""
 
     scale: np.ndarray
     n_points: np.ndarray
     weights_sha256: str | None = None
     meta: dict | None = None
+    cap: np.ndarray | None = None
+
+    def _interp(self, table: np.ndarray) -> np.ndarray:
+        """(..., len(BINS), 2) values at the bin centres -> (..., FUT_STEPS, 2) at the model's steps."""
+        t = (np.arange(F.FUT_STEPS) + 1) * F.MODEL_DT
+        c = bin_centres()
+        flat = table.reshape(-1, len(BINS), 2)
+        out = np.empty((len(flat), F.FUT_STEPS, 2))
+        for i in range(len(flat)):
+            for a in range(2):
+                out[i, :, a] = np.interp(t, c, flat[i, :, a])
+        return out.reshape(table.shape[:-2] + (F.FUT_STEPS, 2))
+
+    @cached_property
+    def _tables(self) -> tuple[np.ndarray, np.ndarray]:
+        cap = np.full((F.N_GROUPS, len(BINS), 2), np.inf) if self.cap is None else self.cap
+        return self._interp(self.scale), self._interp(cap)
 
     def per_step(self) -> np.ndarray:
         """(N_GROUPS, len(STATES), FUT_STEPS, 2) factors at the model's steps (0.2 ... 4 s)."""
-        t = (np.arange(F.FUT_STEPS) + 1) * F.MODEL_DT
-        c = bin_centres()
-        g, s = self.scale.shape[:2]
-        out = np.empty((g, s, F.FUT_STEPS, 2))
-        for i in range(g):
-            for j in range(s):
-                for a in range(2):
-                    out[i, j, :, a] = np.interp(t, c, self.scale[i, j, :, a])
-        return out
+        return self._tables[0]
 
     def factors(self, group: np.ndarray, mu_y: np.ndarray, weight: np.ndarray) -> np.ndarray:
         """(S, FUT_STEPS, 2) factors on (sigma_x, sigma_y) of each agent: group (S,) class group,
         mu_y (S, M, FUT_STEPS) lateral means in its heading frame, weight (S, M)."""
-        table = self.per_step()
-        return table[np.asarray(group, dtype=np.int64), state_of(mu_y, weight)]
+        return self._tables[0][np.asarray(group, dtype=np.int64), state_of(mu_y, weight)]
+
+    def sigmas(self, group: np.ndarray, mu_y: np.ndarray, weight: np.ndarray, sx: np.ndarray,
+               sy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Calibrated (sigma_x, sigma_y), each (S, M, FUT_STEPS) [m], of agents with class ``group``
+        (S,), lateral means mu_y (S, M, FUT_STEPS) in their heading frame now and mode weights
+        (S, M): ``min(c sigma, max(sigma, cap))``."""
+        g = np.asarray(group, dtype=np.int64)
+        f = self.factors(g, mu_y, weight)[:, None]  # (S, 1, T, 2)
+        cap = self._tables[1][g][:, None]
+        return (np.minimum(sx * f[..., 0], np.maximum(sx, cap[..., 0])),
+                np.minimum(sy * f[..., 1], np.maximum(sy, cap[..., 1])))
 
     def apply(self, params: np.ndarray, weight: np.ndarray, group: np.ndarray) -> np.ndarray:
         """Calibrated copy of params (S, M, FUT_STEPS, 5) in each agent's heading frame [m]
         (modes by falling weight, weight (S, M)); means, rho and weights untouched."""
-        f = self.factors(group, params[..., 1], weight)  # (S, T, 2)
         out = np.array(params, dtype=float, copy=True)
-        out[..., 2] *= f[:, None, :, 0]
-        out[..., 3] *= f[:, None, :, 1]
+        out[..., 2], out[..., 3] = self.sigmas(group, params[..., 1], weight, out[..., 2], out[..., 3])
         return out
 
     # ---------------------------------------------------------------- file
@@ -176,6 +207,8 @@ class Calibration:
             "bin_centres_s": [round(float(v), 6) for v in bin_centres()], "step_s": F.MODEL_DT,
             "scale_lon": np.round(self.scale[..., 0], 4).tolist(), "scale_lat": np.round(self.scale[..., 1], 4).tolist(),
             "n_points": self.n_points.astype(int).tolist(),
+            "cap_lon_m": None if self.cap is None else np.round(self.cap[..., 0], 4).tolist(),
+            "cap_lat_m": None if self.cap is None else np.round(self.cap[..., 1], 4).tolist(),
             "weights_sha256": self.weights_sha256, "meta": self.meta or {},
         }
 
@@ -190,7 +223,12 @@ class Calibration:
         scale = np.stack([np.asarray(d["scale_lon"], dtype=float), np.asarray(d["scale_lat"], dtype=float)], -1)
         if scale.shape != (F.N_GROUPS, len(STATES), len(BINS), 2) or not np.all(np.isfinite(scale) & (scale > 0)):
             raise ValueError(f"calibration factors of shape {scale.shape} or not finite and positive")
-        return cls(scale, np.asarray(d["n_points"], dtype=np.int64), d.get("weights_sha256"), d.get("meta") or {})
+        cap = None
+        if d.get("cap_lon_m") is not None:
+            cap = np.stack([np.asarray(d["cap_lon_m"], dtype=float), np.asarray(d["cap_lat_m"], dtype=float)], -1)
+            if cap.shape != (F.N_GROUPS, len(BINS), 2) or not np.all(cap > 0):
+                raise ValueError(f"calibration caps of shape {cap.shape} or not positive")
+        return cls(scale, np.asarray(d["n_points"], dtype=np.int64), d.get("weights_sha256"), d.get("meta") or {}, cap)
 
     def write(self, path: Path | str) -> Path:
         path = Path(path)
@@ -293,6 +331,7 @@ def fit(params: np.ndarray, weight: np.ndarray, group: np.ndarray, fut: np.ndarr
     shape = (F.N_GROUPS, len(STATES), len(BINS))
     scale = np.ones(shape + (2,))
     n_points = np.zeros(shape, dtype=np.int64)
+    cap = np.full((F.N_GROUPS, len(BINS), 2), np.inf)
     for g in range(F.N_GROUPS):
         for b, (first, last) in enumerate(BINS):
             steps = np.zeros(F.FUT_STEPS, dtype=bool)
@@ -301,6 +340,8 @@ def fit(params: np.ndarray, weight: np.ndarray, group: np.ndarray, fut: np.ndarr
             pooled = (1.0, 1.0)
             if sel_g.sum() >= min_points:
                 pooled = fit_cell(main[sel_g], fut[sel_g], sw[sel_g], level)
+                err = np.abs(fut[sel_g] - main[sel_g][:, :2])
+                cap[g, b] = np.maximum(np.quantile(err, CAP_QUANTILE, axis=0), 1e-3)
             for s in range(len(STATES)):
                 sel = sel_g & (state == s)[:, None]
                 n = int(sel.sum())
@@ -310,7 +351,8 @@ def fit(params: np.ndarray, weight: np.ndarray, group: np.ndarray, fut: np.ndarr
                 else:
                     scale[g, s, b] = pooled
     scale = np.clip(scale, SCALE_MIN, SCALE_MAX)
-    return Calibration(np.round(scale, 4), n_points, weights_sha256, {"fit_level": level, **(meta or {})})
+    cap = np.where(np.isfinite(cap), np.round(cap, 4), 1e6)
+    return Calibration(np.round(scale, 4), n_points, weights_sha256, {"fit_level": level, **(meta or {})}, cap)
 
 
 # ----------------------------------------------------------------- coverage

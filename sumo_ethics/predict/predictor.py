@@ -166,8 +166,7 @@ class LSTMPredictor:
         sx, sy, rho = out[..., 2] * s[:, None, None], out[..., 3] * s[:, None, None], out[..., 4]
         w = w / w.sum(axis=1, keepdims=True)
         if self.calibration is not None:  # factors along / across the heading now (calibration.py)
-            f = self.calibration.factors(g, mu[..., 1], w)  # (N, FUT_STEPS, 2)
-            sx, sy = sx * f[:, None, :, 0], sy * f[:, None, :, 1]
+            sx, sy = self.calibration.sigmas(g, mu[..., 1], w, sx, sy)
         # to the world frame: mean = xy + R mu, cov = R [[a, b], [b, d]] R^T with R = R(yaw), written
         # out elementwise (numpy's matmul over stacks of 2 x 2 matrices took 5x longer)
         c, s_ = np.cos(yaw)[:, None, None], np.sin(yaw)[:, None, None]
