@@ -39,8 +39,9 @@ FAVOURING THE TAIL. SUMO's lane changes are a lateral jump of a lane width at a 
 histories, blinkers (38 % of them blink) and modes mostly do not announce: the lateral errors
 are a mixture of "stays in lane" (centimetres) and "changed lane" (3 m). One Gaussian per mode
 cannot fit both core and tail. The fit favours the tail, by choice: FIT_LEVEL = 0.91 instead of
-the nominal 0.865 on the balanced points, the smallest level (0.865, 0.90, 0.91 tried) at which
-the lane changes of the validation split reach 80 % inside the 2-sigma ellipse. The price: the
+the nominal 0.865 on the balanced points, the smallest level (0.865, 0.90, 0.91 tried, before the
+cap below) at which the lane changes of the validation split reached 80 % inside the 2-sigma
+ellipse. The price: the
 inner ellipses of straight driving hold far more than nominal (1-sigma well above 39 %) and the
 mixture NLL per point rises (docs/predictor_calibration/coverage.md has the numbers).
 
