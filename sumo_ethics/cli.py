@@ -359,7 +359,10 @@ def train(dataset_dir: Path, model: str, out: Path, max_minutes: float, seed: in
                    "attention and cslstm; constant velocity is always evaluated).")
 @click.option("--split", type=click.Choice(["test", "val", "train", "all"]), default="test", show_default=True,
               help="Samples evaluated: a split of the seeds/scenarios, or all (a dataset never trained on).")
-def evaluate_predictor(dataset_dir: Path, out: Path, models: tuple[str, ...], split: str) -> None:
+@click.option("--calibrated", is_flag=True,
+              help="Also a row NAME_calibrated for every model with a covariance calibration beside its weights "
+                   "(<stem>.calibration.json): the same means, calibrated spreads.")
+def evaluate_predictor(dataset_dir: Path, out: Path, models: tuple[str, ...], split: str, calibrated: bool) -> None:
     """RMSE at 1-4 s, ADE, FDE, NLL and 1-/2-sigma calibration of constant velocity and the learned models,
     per agent class and per manoeuvre."""
     from sumo_ethics.predict import evaluate_main
@@ -370,7 +373,8 @@ def evaluate_predictor(dataset_dir: Path, out: Path, models: tuple[str, ...], sp
         if not sep or not name or not path:
             raise click.BadParameter(f"--model expects NAME=FILE, got {text!r}")
         weights[name] = Path(path)
-    table = evaluate_main(_dataset_folder(dataset_dir), out, weights=weights or None, split=split)
+    table = evaluate_main(_dataset_folder(dataset_dir), out, weights=weights or None, split=split,
+                          calibrated=calibrated)
     click.echo(table.to_string(index=False))
     extra = " (and prediction_eval_by_scenario.csv and .md)" if (Path(out) / "prediction_eval_by_scenario.csv").is_file() \
         and split == "all" else ""

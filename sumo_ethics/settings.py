@@ -1,7 +1,7 @@
 """Planner settings from the command line and TOML files, validated before SUMO starts.
 
 A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, normalise, predictor,
-predictor_weights, max_risk, braking_prior, lateral_prior, selection, envelope, entry) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
+predictor_weights, calibrated, max_risk, braking_prior, lateral_prior, selection, envelope, entry) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
 ``[planner.principles]`` (custom J_origin weights); unknown keys are errors. ``probability =
 "origin"`` (or ``"shapes"``) is short for ``[planner.probability] method = ...``.
 """
@@ -83,7 +83,8 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
         raise ConfigError(f"[planner] must be a table, got {table!r}")
     t = dict(table or {})
     t.update({k: v for k, v in overrides.items() if v is not None})
-    simple = {"omega_u", "omega_o", "weights", "utility", "normalise", "predictor", "predictor_weights", "max_risk",
+    simple = {"omega_u", "omega_o", "weights", "utility", "normalise", "predictor", "predictor_weights", "calibrated",
+              "max_risk",
               "braking_prior", "lateral_prior", "selection", "envelope", "entry"}
     _known(t, simple | {"sampling", "probability", "principles"}, "[planner]")
     if isinstance(t.get("probability"), str):  # probability = "origin" is short for [planner.probability] method
@@ -111,7 +112,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
         # keys not set keep PlannerConfig's own defaults (its grid, not SamplingConfig's bare one)
         grid = replace(PlannerConfig().sampling, **sampling)
         check_grid_bounds(grid)
-        given = {k: t[k] for k in ("predictor", "max_risk", "braking_prior", "lateral_prior", "selection", "envelope",
+        given = {k: t[k] for k in ("predictor", "calibrated", "max_risk", "braking_prior", "lateral_prior", "selection", "envelope",
                                    "entry") if k in t}
         if t.get("predictor_weights") is not None:
             given["predictor_weights"] = str(t["predictor_weights"])

@@ -168,6 +168,14 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
     two = pd.read_csv(tmp_path / "eval2" / "prediction_eval.csv").set_index(["model", "group"])
     assert np.isfinite(two.loc[("two", "all"), "nll"]) and two.loc[("two", "all"), "min_ade"] <= two.loc[("two", "all"), "ade"]
     assert {"vehicle:standing", "vehicle:moving"} <= set(table["group"])
+    # --calibrated: a row with the shipped calibration beside the weights, the same means (same ADE)
+    from sumo_ethics.predict.predictor import default_weights
+
+    assert main(["evaluate-predictor", str(data), "--out", str(tmp_path / "evalc"), "--model",
+                 f"map={default_weights('map')}", "--calibrated"]) == 0
+    cal = pd.read_csv(tmp_path / "evalc" / "prediction_eval.csv").set_index(["model", "group"])
+    assert cal.loc[("map_calibrated", "all"), "ade"] == cal.loc[("map", "all"), "ade"]
+    assert cal.loc[("map_calibrated", "all"), "nll"] != cal.loc[("map", "all"), "nll"]
     # every sample (a dataset never trained on): also a table per scenario and class; one scenario
     # here, so its rows are the classes' rows of the main table
     assert main(["evaluate-predictor", str(data), "--out", str(tmp_path / "eval3"), "--split", "all"]) == 0

@@ -102,11 +102,14 @@ def test_unknown_planner_is_a_clear_error():
     p = parse_planner("fast=predictor=cv;omega_u=0.3")
     assert p.name == "fast" and p.options["predictor"] == "cv" and p.options["omega_u"] == 0.3
     assert parse_planner("origin").options == {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0,
-                                               "selection": "validity", "normalise": "in_range"}
+                                               "selection": "validity", "normalise": "in_range",
+                                               "probability": "origin", "calibrated": False}
     assert parse_planner("paper").options["selection"] == "cost"
+    assert parse_planner("paper").options["calibrated"] is False  # as published: no covariance calibration
     # both published planners divide by everyone in range; a planner built on paper's options can change it
     assert parse_planner("paper").options["normalise"] == "in_range"
     assert parse_planner("scaled=normalise=at_risk").options["normalise"] == "at_risk"
+    assert parse_planner("default").name == "ours" and parse_planner("ours").options == {}
     assert parse_planner("baseline").options is None
 
 

@@ -59,6 +59,8 @@ class PlannerConfig:
     braking_prior: agents decelerating at least this hard [m/s^2] are predicted to keep braking
     until they stand; lateral_prior: agents moving across their straight predicted path keep
     their lateral speed for this long [s] (both ``sumo_ethics.predict.braking``; 0 = off);
+    calibrated: apply the covariance calibration shipped beside the LSTM's weights file
+    (``predict/calibration.py``; False: the model's own spreads, as published; no effect on "cv");
     selection: one of :data:`SELECTIONS`; envelope: the cost of entering a road user's predicted
     envelope (its box at the predicted mean with Origin's margins, the ego's box stretched by its
     braking distance) in "cost" selection [-], about 100x a typical progress term, so the ego keeps
@@ -75,6 +77,7 @@ class PlannerConfig:
     probability: ProbabilityConfig = field(default_factory=ProbabilityConfig)
     predictor: str = "map"
     predictor_weights: str | None = None  # a weights file for the LSTM predictors (default: shipped)
+    calibrated: bool = True
     max_risk: float = 0.01
     braking_prior: float = 3.0
     lateral_prior: float = 1.5
@@ -94,6 +97,8 @@ class PlannerConfig:
         if self.predictor == "cv" and self.predictor_weights:
             raise ConfigError("predictor_weights is a weights file for an LSTM predictor; predictor 'cv' "
                               "(constant velocity) has none")
+        if not isinstance(self.calibrated, bool):
+            raise ConfigError(f"calibrated must be true or false, got {self.calibrated!r}")
         if not (isinstance(self.max_risk, (int, float)) and 0.0 < self.max_risk <= 1.0):
             raise ConfigError(f"max_risk must be in (0, 1], got {self.max_risk!r}")
         if not (isinstance(self.lateral_prior, (int, float)) and 0.0 <= self.lateral_prior < 1e3):
@@ -113,14 +118,16 @@ def keep_heap_warm(pad: int = 64 << 20) -> None:
         pass
 
 
-def make_predictor(name: str, weights: str | None = None) -> Predictor:
+def make_predictor(name: str, weights: str | None = None, calibrated: bool = True) -> Predictor:
     """"cv", or an LSTM ("map", "map_cslstm", "attention", "cslstm") from ``weights`` or the shipped
-    file; the map-aware ones read lanes and signals from the running simulation (sim.lanes.SumoMapSource)."""
+    file, with the calibration shipped beside it unless ``calibrated=False``; the map-aware ones read
+    lanes and signals from the running simulation (sim.lanes.SumoMapSource)."""
     from sumo_ethics.predict import ConstantVelocityPredictor, LSTMPredictor
 
     if name == "cv":
         return ConstantVelocityPredictor()
-    predictor = LSTMPredictor.from_file(weights, kind=name) if weights else LSTMPredictor.default(name)
+    predictor = (LSTMPredictor.from_file(weights, kind=name, calibrated=calibrated) if weights
+                 else LSTMPredictor.default(name, calibrated=calibrated))
     if predictor.uses_map:
         from sumo_ethics.sim.lanes import SumoMapSource
 
@@ -238,7 +245,7 @@ class EthicalPlanner:
 
     def __init__(self, cfg: PlannerConfig = PlannerConfig(), predictor: Predictor | None = None) -> None:
         self.cfg = cfg
-        self.predictor = predictor or make_predictor(cfg.predictor, cfg.predictor_weights)
+        self.predictor = predictor or make_predictor(cfg.predictor, cfg.predictor_weights, cfg.calibrated)
         keep_heap_warm()
         self._lateral = (0.0, 0.0)  # d', d'' of the last chosen candidate at the next step
         self._accel = 0.0
@@ -246,12 +253,13 @@ class EthicalPlanner:
 
     @property
     def predictor_info(self) -> dict:
-        """What predicted the neighbours (summary.json ``predictor``): kind, weights file (absolute path) and
-        number of trajectory modes."""
+        """What predicted the neighbours (summary.json ``predictor``): kind, weights file (absolute path),
+        number of trajectory modes and whether its covariance calibration was applied."""
         path = getattr(self.predictor, "path", None)
         model = getattr(self.predictor, "model", None)
         return {"kind": getattr(self.predictor, "kind", self.cfg.predictor),
-                "weights": str(Path(path).resolve()) if path else None, "modes": int(getattr(model, "modes", 1))}
+                "weights": str(Path(path).resolve()) if path else None, "modes": int(getattr(model, "modes", 1)),
+                "calibrated": getattr(self.predictor, "calibration", None) is not None}
 
     @property
     def needs_rules(self) -> bool:

@@ -124,6 +124,7 @@ def evaluate_main(
     split: str = "test",
     calibration_dataset: Path | str | None = None,
     title: str | None = None,
+    calibrated: bool = False,
 ) -> "object":
     """Evaluate constant velocity and the LSTM models on the test seeds of ``dataset``.
 
@@ -133,4 +134,5 @@ def evaluate_main(
     from sumo_ethics.predict.evaluate import evaluate
 
     return evaluate(Path(dataset), Path(out), weights=weights, max_samples=max_samples, seed=seed, split=split,
-                    calibration_dataset=None if calibration_dataset is None else Path(calibration_dataset), title=title)
+                    calibration_dataset=None if calibration_dataset is None else Path(calibration_dataset), title=title,
+                    calibrated=calibrated)

@@ -149,11 +149,14 @@ def evaluate(
     split: str = "test",
     calibration_dataset: Path | None = None,
     title: str | None = None,
+    calibrated: bool = False,
 ) -> pd.DataFrame:
     """Table of metrics (rows: model x group, group = a class or, for vehicles and cyclists, a
     manoeuvre ``m:<name>``) on the ``split`` seeds ("all": every sample, for a dataset of
     scenarios never trained on); written to ``out`` if given. The calibrated constant velocity
-    is fitted on the train split of ``calibration_dataset`` (default: ``dataset``)."""
+    is fitted on the train split of ``calibration_dataset`` (default: ``dataset``). ``calibrated``:
+    also a row ``<name>_calibrated`` for every model with a covariance calibration beside its
+    weights file (predict/calibration.py: the same means, other spreads)."""
     from sumo_ethics.predict.dataset import MANOEUVRES
     from sumo_ethics.predict.models import KINDS, MAP_KINDS, load_model
     from sumo_ethics.predict.predictor import default_weights
@@ -183,6 +186,13 @@ def evaluate(
         if model.nbr_frame == "agent":
             require_nbr_yaw(batch, dataset, who=f"{name} ({path})")
         outputs[name] = lstm_outputs(model, batch)
+        if calibrated:
+            from sumo_ethics.predict.calibration import load_for
+
+            cal = load_for(path)
+            if cal is not None:
+                params, weight = outputs[name]
+                outputs[f"{name}_calibrated"] = (cal.apply(params, weight, batch["tgt_group"]), weight)
     fut = batch["fut"].astype(float)
     valid = batch["fut_valid"] if "fut_valid" in batch else np.ones(fut.shape[:2], dtype=bool)
     groups = batch["tgt_group"]

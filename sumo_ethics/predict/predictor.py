@@ -20,6 +20,11 @@ Run-time path, per call, one batched forward pass for all N agents:
    the covariance grows as ``cov_end * (t / t_end)^2`` (standard deviations linear in t).
 5. Yaw along the prediction is the direction of motion of the mean path, kept at the
    previous value while the mean moves slower than 0.3 m/s.
+
+Calibration: a weights file's ``<stem>.calibration.json`` (:mod:`sumo_ethics.predict.calibration`)
+scales each agent's sigma along and across its heading by class, horizon and the lateral motion
+its modes foresee, before step 4; ``calibrated=False`` (``from_file``, ``default``) loads the
+model's own spreads, as published.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ import torch
 
 from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
+from sumo_ethics.predict.calibration import Calibration, load_for
 from sumo_ethics.predict.models import KINDS, MAP_KINDS, load_model, rank_modes
 from sumo_ethics.types import AgentStates, Observation, Prediction
 
@@ -58,7 +64,7 @@ class LSTMPredictor:
     """A trained TrajectoryLSTM behind the ``predict(obs, horizon_steps, dt)`` interface."""
 
     def __init__(self, model: torch.nn.Module, header: dict, path: Path | None = None, sigma0: float = 0.1,
-                 map_source: MapSource | None = None) -> None:
+                 map_source: MapSource | None = None, calibration: Calibration | None = None) -> None:
         self.model = model.eval()
         # one batched forward pass of a small LSTM per step: extra threads only add contention
         # (measured on 2 busy cores: 4.6 ms with 1 thread, 800 ms with 2)
@@ -71,22 +77,30 @@ class LSTMPredictor:
         self.uses_map = self.kind in MAP_KINDS
         #: (ids, is_person) -> (LaneGraph, MapContext) of the agents; None: no map (all rows invalid)
         self.map_source = map_source
+        #: sigma factors applied to every output (None: the model's own spreads)
+        self.calibration = calibration
 
     @classmethod
-    def from_file(cls, path: Path | str, kind: str | None = None, map_source: MapSource | None = None) -> "LSTMPredictor":
-        """Load weights; ``kind`` (optional) must match the file's. Problems -> PredictorError."""
+    def from_file(cls, path: Path | str, kind: str | None = None, map_source: MapSource | None = None,
+                  calibrated: bool = True) -> "LSTMPredictor":
+        """Load weights; ``kind`` (optional) must match the file's. Problems -> PredictorError.
+        ``calibrated``: apply the calibration shipped beside the file (``<stem>.calibration.json``),
+        if there is one fitted for these weights; False: the model's own spreads."""
         model, header = load_model(Path(path), kind=kind)
-        return cls(model, header, Path(path), map_source=map_source)
+        cal = load_for(path) if calibrated else None
+        return cls(model, header, Path(path), map_source=map_source, calibration=cal)
 
     @classmethod
-    def default(cls, kind: str = "map", map_source: MapSource | None = None) -> "LSTMPredictor":
-        """The weights shipped with the package (sumo_ethics/predict/weights/<kind>.pt)."""
+    def default(cls, kind: str = "map", map_source: MapSource | None = None, calibrated: bool = True) -> "LSTMPredictor":
+        """The weights shipped with the package (sumo_ethics/predict/weights/<kind>.pt), calibrated
+        unless ``calibrated=False``."""
         if kind not in KINDS:
             raise PredictorError(f"unknown predictor kind {kind!r}: expected one of {', '.join(KINDS)}")
-        return cls.from_file(default_weights(kind), kind=kind, map_source=map_source)
+        return cls.from_file(default_weights(kind), kind=kind, map_source=map_source, calibrated=calibrated)
 
     def __repr__(self) -> str:
-        return f"LSTMPredictor(kind={self.kind!r}, path={str(self.path)!r})"
+        return (f"LSTMPredictor(kind={self.kind!r}, path={str(self.path)!r}, "
+                f"calibrated={self.calibration is not None})")
 
     # ------------------------------------------------------------------ run-time
     def model_outputs(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
@@ -150,6 +164,9 @@ class LSTMPredictor:
         out, w = out.numpy().astype(float), np.exp(log_w.numpy().astype(float))
         mu = out[..., :2] * s[:, None, None, None]
         sx, sy, rho = out[..., 2] * s[:, None, None], out[..., 3] * s[:, None, None], out[..., 4]
+        w = w / w.sum(axis=1, keepdims=True)
+        if self.calibration is not None:  # factors along / across the heading now (calibration.py)
+            sx, sy = self.calibration.sigmas(g, mu[..., 1], w, sx, sy)
         # to the world frame: mean = xy + R mu, cov = R [[a, b], [b, d]] R^T with R = R(yaw), written
         # out elementwise (numpy's matmul over stacks of 2 x 2 matrices took 5x longer)
         c, s_ = np.cos(yaw)[:, None, None], np.sin(yaw)[:, None, None]
@@ -161,7 +178,7 @@ class LSTMPredictor:
         cov[..., 0, 0] = c * c * a - 2.0 * cs * b + s_ * s_ * d
         cov[..., 1, 1] = s_ * s_ * a + 2.0 * cs * b + c * c * d
         cov[..., 0, 1] = cov[..., 1, 0] = cs * (a - d) + (c * c - s_ * s_) * b
-        return mean, cov, w / w.sum(axis=1, keepdims=True)
+        return mean, cov, w
 
     def _scene_outputs(self, hist: np.ndarray, cls: np.ndarray, yaw: np.ndarray, feats: dict, s: np.ndarray,
                        extra: dict) -> tuple[torch.Tensor, torch.Tensor]:

@@ -40,10 +40,12 @@ PAPER_OMEGA_U = DEFAULT_OMEGA_U
 #: the collision probability over true shapes, principles on one scale); "default" names it too.
 BUILTIN: dict[str, dict[str, Any] | None] = {
     "baseline": None,  # the route-following controller
+    # as published: Origin's probability and normalisation, their predictors' own spreads without the
+    # calibration (predict/calibration.py)
     "origin": {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0, "selection": "validity",
-               "normalise": "in_range", "probability": "origin"},
+               "normalise": "in_range", "probability": "origin", "calibrated": False},
     "paper": {"weights": "ethical", "predictor": "attention", "omega_u": PAPER_OMEGA_U, "selection": "cost",
-              "normalise": "in_range", "probability": "origin"},
+              "normalise": "in_range", "probability": "origin", "calibrated": False},
     "ours": {},
 }
 #: other names of built-in planners
