@@ -32,8 +32,8 @@ import pandas as pd
 
 from sumo_ethics.predict import calibration as C
 from sumo_ethics.predict import features as F
-from sumo_ethics.predict.dataset import MANOEUVRES, load_samples, subset
-from sumo_ethics.predict.evaluate import lstm_outputs, mixture_nll_points, to_markdown
+from sumo_ethics.predict.dataset import MANOEUVRES
+from sumo_ethics.predict.evaluate import load_split, lstm_outputs, mixture_nll_points, to_markdown
 
 HORIZONS = (1.0, 2.0, 4.0)
 
@@ -43,17 +43,6 @@ def weights_of(spec: str) -> tuple[str, Path]:
 
     name, eq, path = spec.partition("=")
     return (name, Path(path)) if eq else (name, default_weights(name))
-
-
-def load_split(dataset: Path, split: str, max_samples: int | None, seed: int) -> dict[str, np.ndarray]:
-    samples = load_samples(dataset)
-    if split == "all":
-        idx = np.arange(len(samples["split"]))
-    else:
-        idx = np.flatnonzero(samples["split"] == {"train": 0, "val": 1, "test": 2}[split])
-    if max_samples is not None and len(idx) > max_samples:
-        idx = np.sort(np.random.default_rng(seed).choice(idx, size=max_samples, replace=False))
-    return subset(samples, idx)
 
 
 def model_outputs(path: Path, batch: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -202,24 +191,28 @@ def plot(df: pd.DataFrame, path: Path, model: str) -> None:
               ("cyclist", "all", "cyclists", "tab:green"), ("pedestrian", "all", "pedestrians", "tab:brown")]
     datasets = list(dict.fromkeys(df["dataset"]))
     fig, axes = plt.subplots(1, len(datasets), figsize=(6.2 * len(datasets), 6.0), squeeze=False)
-    for ax, dname in zip(axes[0], datasets):
-        d = df[(df["dataset"] == dname) & (df["model"] == model) & (df["horizon"] == "all")]
+    def panel(ax, d: pd.DataFrame, rows: list, title: str) -> None:
+        """Coverage curves of ``rows`` (before dashed, after solid) against the nominal diagonal."""
         ax.plot([0, 1], [0, 1], color="0.6", lw=1, label="nominal")
-        ax.axvline(C.TARGET, color="0.85", lw=1)
-        for g, m, label, colour in series:
+        for g, m, label, colour in rows:
             for variant, style in (("uncalibrated", "--"), ("calibrated", "-")):
                 r = d[(d["group"] == g) & (d["manoeuvre"] == m) & (d["variant"] == variant)]
                 if r.empty or int(r["points"].iloc[0]) < 50:
                     continue
                 ax.plot(levels, r[cols].to_numpy()[0], style, color=colour, marker="o", ms=3,
                         label=f"{label} ({'after' if variant == 'calibrated' else 'before'})")
-        ax.set_title(f"{model}: {dname}")
+        ax.set_title(title)
         ax.set_xlabel("nominal mass of the ellipse")
         ax.set_ylabel("share of true positions inside")
         ax.set_xlim(0, 1)
         ax.set_ylim(0, 1)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="lower right")
+
+    for ax, dname in zip(axes[0], datasets):
+        d = df[(df["dataset"] == dname) & (df["model"] == model) & (df["horizon"] == "all")]
+        ax.axvline(C.TARGET, color="0.85", lw=1)
+        panel(ax, d, series, f"{model}: {dname}")
     fig.suptitle("Coverage of the most likely mode's ellipses, all steps 0.2-4 s (dashed: before, solid: after)")
     fig.tight_layout()
     fig.savefig(path, dpi=110, metadata={"Software": None})
@@ -230,21 +223,7 @@ def plot(df: pd.DataFrame, path: Path, model: str) -> None:
     for row, dname in zip(axes, datasets):
         for ax, h in zip(row, HORIZONS):
             d = df[(df["dataset"] == dname) & (df["model"] == model) & (df["horizon"] == f"{h:g}s")]
-            ax.plot([0, 1], [0, 1], color="0.6", lw=1, label="nominal")
-            for g, m, label, colour in series[:3]:
-                for variant, style in (("uncalibrated", "--"), ("calibrated", "-")):
-                    r = d[(d["group"] == g) & (d["manoeuvre"] == m) & (d["variant"] == variant)]
-                    if r.empty or int(r["points"].iloc[0]) < 50:
-                        continue
-                    ax.plot(levels, r[cols].to_numpy()[0], style, color=colour, marker="o", ms=3,
-                            label=f"{label} ({'after' if variant == 'calibrated' else 'before'})")
-            ax.set_title(f"{model}: {dname}, {h:g} s ahead")
-            ax.set_xlabel("nominal mass of the ellipse")
-            ax.set_ylabel("share of true positions inside")
-            ax.set_xlim(0, 1)
-            ax.set_ylim(0, 1)
-            ax.grid(alpha=0.3)
-            ax.legend(fontsize=7, loc="lower right")
+            panel(ax, d, series[:3], f"{model}: {dname}, {h:g} s ahead")
     fig.suptitle("Coverage by horizon (dashed: before, solid: after)")
     fig.tight_layout()
     fig.savefig(path.with_name(path.stem + "_by_horizon.png"), dpi=100, metadata={"Software": None})

@@ -76,24 +76,31 @@ def _owens_t(h: float, a: float, ph: float) -> float:
 
 
 @_jit
+def _edge(wx, wy, i: int):
+    """Edge i -> i + 1 of the polygon wx, wy as seen from the origin: (length, the origin's signed
+    distance inside the edge's line (the polygon counter-clockwise), the along-edge position of
+    vertex i measured from the foot of the perpendicular); length < 1e-13: a degenerate edge."""
+    j = i + 1 if i + 1 < len(wx) else 0
+    ex = wx[j] - wx[i]
+    ey = wy[j] - wy[i]
+    ln = math.sqrt(ex * ex + ey * ey)
+    if ln < 1e-13:
+        return ln, 0.0, 0.0
+    ux = ex / ln
+    uy = ey / ln
+    return ln, wx[i] * uy - wy[i] * ux, wx[i] * ux + wy[i] * uy
+
+
+@_jit
 def _angle_sum(wx, wy) -> float:
     """Sum over the polygon's edges (skipping those whose line holds the origin) of the signed
     angle each subtends at the origin [rad]: 2 pi inside, 0 outside, between on the boundary."""
     nv = len(wx)
     angle = 0.0
     for i in range(nv):
-        j = i + 1 if i + 1 < nv else 0
-        ex = wx[j] - wx[i]
-        ey = wy[j] - wy[i]
-        ln = math.sqrt(ex * ex + ey * ey)
-        if ln < 1e-13:
+        ln, h, ta = _edge(wx, wy, i)
+        if ln < 1e-13 or abs(h) < 1e-12:
             continue
-        ux = ex / ln
-        uy = ey / ln
-        h = wx[i] * uy - wy[i] * ux
-        if abs(h) < 1e-12:
-            continue
-        ta = wx[i] * ux + wy[i] * uy
         d = math.atan2(ta + ln, abs(h)) - math.atan2(ta, abs(h))
         angle += d if h > 0.0 else -d
     return angle
@@ -122,22 +129,15 @@ def _poly_mass(vx, vy, wx, wy, mx: float, my: float, sxx: float, sxy: float, syy
     on_line = False  # the mean on an edge's line: the winding number is ambiguous there
     total = 0.0
     for i in range(nv):
-        j = i + 1 if i + 1 < nv else 0
-        ex = wx[j] - wx[i]
-        ey = wy[j] - wy[i]
-        ln = math.sqrt(ex * ex + ey * ey)
+        ln, h, ta = _edge(wx, wy, i)
         if ln < 1e-13:
             continue
-        ux = ex / ln
-        uy = ey / ln
-        h = wx[i] * uy - wy[i] * ux  # the mean's signed distance inside this edge's line
         ah = abs(h)
         if ah < 1e-12:  # a degenerate triangle (mean, v_i, v_i+1): no mass
             on_line = True
             continue
         if h < 0.0:
             inside = False
-        ta = wx[i] * ux + wy[i] * uy
         tb = ta + ln
         sh = 1.0 if h > 0.0 else -1.0
         if ah >= _H_FAR:
