@@ -32,8 +32,8 @@ import pandas as pd
 
 from sumo_ethics.predict import calibration as C
 from sumo_ethics.predict import features as F
-from sumo_ethics.predict.dataset import MANOEUVRES
-from sumo_ethics.predict.evaluate import load_split, lstm_outputs, mixture_nll_points, to_markdown
+from sumo_ethics.predict.dataset import MANOEUVRES, load_samples, subset
+from sumo_ethics.predict.evaluate import lstm_outputs, mixture_nll_points, split_indices, to_markdown
 
 HORIZONS = (1.0, 2.0, 4.0)
 
@@ -228,6 +228,11 @@ def plot(df: pd.DataFrame, path: Path, model: str) -> None:
     fig.tight_layout()
     fig.savefig(path.with_name(path.stem + "_by_horizon.png"), dpi=100, metadata={"Software": None})
     plt.close(fig)
+
+
+def load_split(dataset: Path, split: str, max_samples: int | None, seed: int) -> dict[str, np.ndarray]:
+    samples = load_samples(dataset)
+    return subset(samples, split_indices(samples, split, max_samples, seed))
 
 
 def main(argv: list[str] | None = None) -> None:

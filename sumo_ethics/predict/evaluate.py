@@ -140,17 +140,17 @@ def metrics(params: np.ndarray, fut: np.ndarray, valid: np.ndarray | None = None
 STANDING_SPEED = 0.5
 
 
-def load_split(dataset: Path, split: str, max_samples: int | None = None, seed: int = 0) -> dict[str, np.ndarray]:
-    """The samples of one split ("train", "val", "test" or "all") of a dataset folder, at most
+def split_indices(samples: dict[str, np.ndarray], split: str, max_samples: int | None = None,
+                  seed: int = 0) -> np.ndarray:
+    """Indices of one split ("train", "val", "test" or "all") of a dataset's samples, at most
     ``max_samples`` of them (a seeded draw, kept in order)."""
-    samples = load_samples(dataset)
     if split == "all":
         idx = np.arange(len(samples["split"]))
     else:
         idx = np.flatnonzero(samples["split"] == {"train": 0, "val": 1, "test": 2}[split])
     if max_samples is not None and len(idx) > max_samples:
         idx = np.sort(np.random.default_rng(seed).choice(idx, size=max_samples, replace=False))
-    return subset(samples, idx)
+    return idx
 
 
 def evaluate(
@@ -174,7 +174,9 @@ def evaluate(
     from sumo_ethics.predict.models import KINDS, MAP_KINDS, load_model
     from sumo_ethics.predict.predictor import default_weights
 
-    batch = load_split(dataset, split, max_samples, seed)
+    samples = load_samples(dataset)
+    idx = split_indices(samples, split, max_samples, seed)
+    batch = subset(samples, idx)
     if weights is None:
         weights = {k: default_weights(k) for k in KINDS if default_weights(k).is_file()}
     cal = samples if calibration_dataset is None else load_samples(calibration_dataset)
