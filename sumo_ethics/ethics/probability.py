@@ -392,12 +392,7 @@ def sparse_collision_probability(
     psi = np.asarray(pred.yaw[:, :tp], dtype=float)
     half = (ol + cfg.length_margin) / 2.0
     ox, oy = half[:, None] * np.cos(psi), half[:, None] * np.sin(psi)
-    cov = np.asarray(pred.cov[:, :tp], dtype=float)
-    sxx, syy = cov[..., 0, 0].copy(), cov[..., 1, 1].copy()
-    sxy = 0.5 * (cov[..., 0, 1] + cov[..., 1, 0])
-    zero = ~np.any(cov.reshape(N, tp, 4), axis=2)
-    sxx[zero] = cfg.zero_cov_var
-    syy[zero] = cfg.zero_cov_var
+    sxx, sxy, syy = _agent_cov(pred, tp, cfg)
 
     # ---- coarse gate on (K, N, block): boxes around the ego centres and the agents' three points + R
     R = cfg.gate_radius
@@ -450,6 +445,17 @@ def sparse_collision_probability(
     return SparseProbability(ie // tp, ia // tp, ia % tp, p, (K, N, T))
 
 
+def _agent_cov(pred: Prediction, tp: int, cfg: ProbabilityConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(N, tp) sxx, sxy (symmetrised), syy of the agents' covariances; an all-zero one -> zero_cov_var I."""
+    cov = np.asarray(pred.cov[:, :tp], dtype=float)
+    sxx, syy = cov[..., 0, 0].copy(), cov[..., 1, 1].copy()
+    sxy = 0.5 * (cov[..., 0, 1] + cov[..., 1, 0])
+    zero = ~np.any(cov.reshape(len(pred.ids), tp, 4), axis=2)
+    sxx[zero] = cfg.zero_cov_var
+    syy[zero] = cfg.zero_cov_var
+    return sxx, sxy, syy
+
+
 def _shapes(cand: Candidates, pred: Prediction, ol: np.ndarray, ow: np.ndarray, ego_length: float,
             ego_width: float, cfg: ProbabilityConfig, tp: int) -> SparseProbability:
     """The "shapes" method: :func:`sumo_ethics.ethics.shapes.shapes_sparse` on floored covariances
@@ -458,14 +464,10 @@ def _shapes(cand: Candidates, pred: Prediction, ol: np.ndarray, ow: np.ndarray, 
 
     K, T = cand.x.shape
     N = len(pred.ids)
-    cov = np.asarray(pred.cov[:, :tp], dtype=float)
-    sxx = np.maximum(cov[..., 0, 0], cfg.min_var)
-    syy = np.maximum(cov[..., 1, 1], cfg.min_var)
-    zero = ~np.any(cov.reshape(N, tp, 4), axis=2)
-    sxx[zero] = cfg.zero_cov_var
-    syy[zero] = cfg.zero_cov_var
+    sxx, sxy, syy = _agent_cov(pred, tp, cfg)
+    sxx, syy = np.maximum(sxx, cfg.min_var), np.maximum(syy, cfg.min_var)
     lim = 0.999 * np.sqrt(sxx * syy)
-    sxy = np.clip(0.5 * (cov[..., 0, 1] + cov[..., 1, 0]), -lim, lim)
+    sxy = np.clip(sxy, -lim, lim)
     k, n, t, p = shapes_sparse(
         cand.x[:, :tp], cand.y[:, :tp], cand.yaw[:, :tp], cand.valid[:, :tp], pred.mean[:, :tp, 0],
         pred.mean[:, :tp, 1], pred.yaw[:, :tp], sxx, sxy, syy, ol + cfg.shape_margin, ow + cfg.shape_margin,

@@ -21,7 +21,7 @@ import numpy as np
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.ethics.cost import CostConfig, UtilityMode, score
 from sumo_ethics.ethics.probability import ProbabilityConfig
-from sumo_ethics.ethics.risk import RiskTerms, assess_risk
+from sumo_ethics.ethics.risk import assess_risk
 from sumo_ethics.plan.controller import Decision, Scene
 from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
@@ -161,7 +161,7 @@ def first_overlap(cand: Candidates, pred: Prediction, length: np.ndarray, width:
     first = envelope_first_hit(cand.x[:, :tp], cand.y[:, :tp], cand.yaw[:, :tp], cand.speed[:, :tp],
                                cand.valid[:, :tp], pred.mean[:, :tp, 0], pred.mean[:, :tp, 1], pred.yaw[:, :tp],
                                length, width, ego_length, ego_width, brake)
-    return np.where(first >= tp, T, first)
+    return np.where(first >= tp, T, first)  # the kernel sees tp steps: "never" comes back as tp
 
 
 def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: np.ndarray) -> Candidates:
