@@ -189,7 +189,10 @@ def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: flo
 
         if scenarios or suite_dirs:
             raise click.BadParameter("--samples-from takes no scenarios or --suite: it simulates nothing")
-        missing = [f for f in ("trajectories.parquet", "lane_graphs.pkl", "split.json") if not (samples_from / f).is_file()]
+        from sumo_ethics.predict.graph_files import DATASET_GRAPHS, has_graphs
+
+        missing = [f for f in ("trajectories.parquet", "split.json") if not (samples_from / f).is_file()]
+        missing += [] if has_graphs(samples_from) else [DATASET_GRAPHS]
         if missing:
             raise click.BadParameter(f"{samples_from} has no {', '.join(missing)}: not a dataset folder")
         if out.exists() and out.resolve() == samples_from.resolve():
@@ -200,7 +203,7 @@ def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: flo
     # dataset's files (split.json is written last), which the resumed build writes again
     names = {p.name for p in out.iterdir()} if out.is_dir() else set()
     resumable = samples_from is None and PARTIAL in names and names <= {
-        PARTIAL, "trajectories.parquet", "lane_graphs.pkl", "samples.npz"}
+        PARTIAL, "trajectories.parquet", "lane_graphs.json.gz", "samples.npz"}
     if out.exists() and (not out.is_dir() or names) and not resumable:
         raise click.BadParameter(f"--out {out} is not an empty folder: give a new one (nothing is overwritten)")
     if samples_from is not None:

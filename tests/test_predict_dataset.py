@@ -217,11 +217,16 @@ def test_run_store_keeps_finished_runs_whole_and_refuses_another_plan(tmp_path):
     assert store.done() == set() and not out.exists() and kept_runs(out) == (0, 0)
     rows = pd.DataFrame({"run_id": np.int32([1, 1]), "agent_id": ["a", "b"], "x": [0.5, -1.25],
                          "speed": np.float32([3.0, 0.0]), "cls": np.int8([0, 5])})
-    store.put(1, rows, {"lanes": np.arange(3)})
+    from sumo_ethics.predict.features import LaneGraph
+
+    lane_graph = LaneGraph.build(["e_0", "e_1"], [np.array([[0.0, 0.0], [50.0, 0.1]]), np.array([[0.0, 3.2], [50.0, 3.2]])],
+                                 [13.89, 13.89], [(), ()])
+    store.put(1, rows, lane_graph)
     assert store.done() == {1} and kept_runs(out) == (1, 2)
     back, graph = RunStore.open(out, plan).get(1)
     pd.testing.assert_frame_equal(back, rows)
-    assert list(back.dtypes) == list(rows.dtypes) and np.array_equal(graph["lanes"], [0, 1, 2])
+    assert list(back.dtypes) == list(rows.dtypes) and graph.ids == ("e_0", "e_1")
+    assert np.array_equal(graph.shapes[0], lane_graph.shapes[0]) and graph.left.tolist() == [1, -1]
     (store.folder / "run_000000.parquet.part").write_bytes(b"cut short")
     assert RunStore.open(out, plan).done() == {1}
     assert not list(store.folder.glob("*.part"))
@@ -287,7 +292,7 @@ def test_a_stopped_dataset_keeps_its_finished_runs_and_the_same_command_resumes_
     assert capsys.readouterr().err.strip() == f"resuming: 1 of 3 runs finished before and are kept in {out / 'partial'}"
     assert main([*args, str(tmp_path / "fresh")]) == 0
     assert simulated == [1, 2, 0, 1, 2]
-    for name in ("trajectories.parquet", "lane_graphs.pkl"):
+    for name in ("trajectories.parquet", "lane_graphs.json.gz"):
         assert (out / name).read_bytes() == (tmp_path / "fresh" / name).read_bytes(), name
     with np.load(out / "samples.npz") as a, np.load(tmp_path / "fresh" / "samples.npz") as b:
         assert sorted(a.files) == sorted(b.files) and all(np.array_equal(a[k], b[k]) for k in a.files)

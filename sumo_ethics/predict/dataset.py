@@ -13,7 +13,8 @@ varying by seed), and writes to ``out``:
   no lanes for pedestrians), tls_switch (how long the light's state holds [s], inf none or no
   change; from map version 3), blinker (a vehicle's signal bits, features.BLINKER_*) and
   after_lane (a pedestrian's lane after a walking area, -1 none; both from map version 4).
-- ``lane_graphs.pkl``: scenario path -> :class:`features.LaneGraph` of its network.
+- ``lane_graphs.json.gz``: scenario path -> :class:`features.LaneGraph` of its network
+  (:mod:`sumo_ethics.predict.graph_files`; older folders: ``lane_graphs.pkl``, converted on first read).
 - ``samples.npz``: training samples at the model rate (5 Hz, see
   :mod:`sumo_ethics.predict.features`): a target with 3 s history and 4 s future,
   neighbours in its social grid, all in the target's frame. One anchor every
@@ -35,7 +36,6 @@ from __future__ import annotations
 
 import json
 import logging
-import pickle
 import signal
 from collections.abc import Callable, Iterator
 from contextlib import closing, contextmanager
@@ -49,6 +49,7 @@ from sumo_ethics import __version__
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.interrupt import signals_held
 from sumo_ethics.predict import features as F
+from sumo_ethics.predict.graph_files import read_dataset_graphs, write_dataset_graphs
 from sumo_ethics.predict.isolated import isolated_map
 from sumo_ethics.predict.runstore import RunStore
 from sumo_ethics.sim.frames import front_to_centre
@@ -235,7 +236,9 @@ def simulate_runs(specs: list[RunSpec], store: RunStore, workers: int = 1) -> No
     SIGTERM cannot remove its own."""
     done = store.done()
     todo = [spec for spec in specs if spec.run_id not in done]
-    crashed = lambda spec: _crashed_run(_run_name(spec))
+    def crashed(spec: RunSpec) -> Exception:
+        return _crashed_run(_run_name(spec))
+
     with _scratch_root() as root:
         jobs = [replace(spec, scratch_root=root) for spec in todo]
         with closing(isolated_map(_simulate_safely, jobs, workers, crashed)) as results:  # closed: no process runs on
@@ -468,7 +471,9 @@ def simulate_suite(scenarios: list[Path], first_run_id: int, store: RunStore, wo
     """Record the suite scenarios not yet in ``store`` (hazards included), one spawned process each
     (:func:`isolated_map`), numbered from ``first_run_id``; each kept in ``store`` as it ends."""
     done = store.done()
-    crashed = lambda job: _crashed_run(_suite_name(job[1]))
+    def crashed(job: tuple) -> Exception:
+        return _crashed_run(_suite_name(job[1]))
+
     with _scratch_root() as root:
         jobs = [(first_run_id + i, Path(s).resolve(), root) for i, s in enumerate(scenarios) if first_run_id + i not in done]
         with closing(isolated_map(_simulate_suite, jobs, workers, crashed)) as results:
@@ -493,7 +498,7 @@ def build_dataset(
     on_resume: Callable[[int, int], None] | None = None,
 ) -> Path:
     """Simulate scenarios x seeds (and record the ``suite`` scenarios with their hazards, split
-    by scenario, see SUITE_SEED0) and write trajectories.parquet, lane_graphs.pkl,
+    by scenario, see SUITE_SEED0) and write trajectories.parquet, lane_graphs.json.gz,
     samples.npz, split.json.
 
     The demand scale of seed s is ``scales[i % len(scales)]`` where i is the seed's rank,
@@ -546,8 +551,7 @@ def build_dataset(
     with signals_held(signal.SIGINT, signal.SIGTERM):  # Ctrl-C or SIGTERM now waits: the folder is written whole
         out.mkdir(parents=True, exist_ok=True)
         traj.to_parquet(out / "trajectories.parquet", index=False)
-        with open(out / "lane_graphs.pkl", "wb") as fh:
-            pickle.dump(graphs, fh)
+        write_dataset_graphs(out, graphs)
         np.savez_compressed(out / "samples.npz", **samples)
         meta = {
             "split": split,
@@ -621,8 +625,7 @@ def rebuild_samples(src: Path, out: Path, anchor_every: float = 2.0, suite_ancho
     out.mkdir(parents=True, exist_ok=True)
     meta = json.loads((src / "split.json").read_text())
     traj = pd.read_parquet(src / "trajectories.parquet")
-    with open(src / "lane_graphs.pkl", "rb") as fh:
-        graphs = pickle.load(fh)
+    graphs = read_dataset_graphs(src)
     meta.setdefault("anchor_every", anchor_every)
     meta.setdefault("suite_anchor_every", suite_anchor_every)
     if int(meta.get("map_version") or 1) >= 4:  # map version 5 reads no recorded column that version 4 lacks
@@ -630,8 +633,8 @@ def rebuild_samples(src: Path, out: Path, anchor_every: float = 2.0, suite_ancho
     samples = build_samples(traj, meta["split"], anchor_every=meta["anchor_every"], graphs=graphs,
                             suite_anchor_every=meta["suite_anchor_every"])
     np.savez_compressed(out / "samples.npz", **samples)
-    for name in ("trajectories.parquet", "lane_graphs.pkl"):
-        shutil.copyfile(src / name, out / name)
+    shutil.copyfile(src / "trajectories.parquet", out / "trajectories.parquet")
+    write_dataset_graphs(out, graphs)
     meta["n_samples"] = split_counts(samples)
     (out / "split.json").write_text(json.dumps(meta, indent=2))
     return out

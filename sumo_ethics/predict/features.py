@@ -346,6 +346,25 @@ class LaneGraph:
         answer of that code as it was must not come back with a lane graph stored in a dataset)."""
         return {k: v for k, v in self.__dict__.items() if k not in ("_after", "_walk_adj", "_pavement")}
 
+    def to_dict(self) -> dict:
+        """The graph as plain JSON values (no caches); :meth:`from_dict` gives it back exactly
+        (Python writes floats with their shortest round-trip repr)."""
+        return {"ids": list(self.ids), "shapes": [s.tolist() for s in self.shapes], "speed": self.speed.tolist(),
+                "succ": [list(s) for s in self.succ], "left": self.left.tolist(), "right": self.right.tolist(),
+                "lengths": self.lengths.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "LaneGraph":
+        """Inverse of :meth:`to_dict`; ValueError when a field is missing or the lanes disagree."""
+        try:
+            ids, shapes = d["ids"], [np.asarray(s, dtype=float).reshape(-1, 2) for s in d["shapes"]]
+            fields = (d["speed"], d["succ"], d["left"], d["right"], d["lengths"])
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"not a lane graph ({type(exc).__name__}: {exc})") from None
+        if any(len(f) != len(ids) for f in (shapes, *fields)):
+            raise ValueError("not a lane graph (its per-lane fields differ in length)")
+        return cls(ids, shapes, *fields)
+
     @classmethod
     def build(cls, ids, shapes, speed, links, lengths=None) -> "LaneGraph":
         """From lane ids, shapes, limits and successor ids; lane ``edge_i``'s left neighbour is

@@ -2,8 +2,9 @@
 
 ``OUT/partial/`` holds ``plan.json`` (every run of the build: id, scenario, seed, demand scale,
 simulated seconds; the package, recorder, SUMO and map versions) and, per finished run, ``run_NNNNNN.parquet``
-(its trajectory rows, the columns of ``trajectories.parquet``) and ``run_NNNNNN.graph.pkl`` (its
-network's lane graph, None for a suite run that recorded nothing). Each run's pair is written
+(its trajectory rows, the columns of ``trajectories.parquet``) and ``run_NNNNNN.graph.json.gz`` (its
+network's lane graph as gzip-compressed JSON, None for a suite run that recorded nothing; a build
+stopped by an older version kept ``.graph.pkl`` files, which are not read: those runs are simulated again). Each run's pair is written
 whole and synced to the disk (a ``.part`` file renamed) as soon as the run ends, so Ctrl-C, SIGTERM, a crashed SUMO run
 or a killed machine loses only the runs still simulating. The same command on the same ``OUT``
 goes on from them; a build of other runs is refused; the finished dataset removes the folder.
@@ -14,7 +15,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import pickle
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +24,7 @@ import pandas as pd
 
 from sumo_ethics import fileio
 from sumo_ethics.errors import ConfigError
+from sumo_ethics.predict.graph_files import decode_graph, encode_graph
 
 PARTIAL = "partial"
 PLAN_FORMAT = "sumo-ethics dataset runs"
@@ -61,7 +62,7 @@ class RunStore:
 
     def _paths(self, run_id: int) -> tuple[Path, Path]:
         stem = self.folder / f"run_{run_id:06d}"
-        return stem.with_suffix(".parquet"), stem.with_suffix(".graph.pkl")
+        return stem.with_suffix(".parquet"), stem.with_suffix(".graph.json.gz")
 
     def done(self) -> set[int]:
         """Run ids whose rows and lane graph are on disk."""
@@ -76,7 +77,7 @@ class RunStore:
             self.folder.mkdir(parents=True, exist_ok=True)
             _write_whole(self.folder / "plan.json", json.dumps(self.plan, indent=2).encode())
         table, graph_file = self._paths(run_id)
-        _write_whole(graph_file, pickle.dumps(graph))
+        _write_whole(graph_file, encode_graph(graph))
         buf = io.BytesIO()
         rows.to_parquet(buf, index=False)
         _write_whole(table, buf.getvalue())
@@ -86,11 +87,10 @@ class RunStore:
         they cannot be read (a disk that lost them)."""
         table, graph_file = self._paths(run_id)
         try:
-            with open(graph_file, "rb") as fh:
-                return pd.read_parquet(table), pickle.load(fh)
-        except Exception as exc:  # noqa: BLE001 - pyarrow's and pickle's errors: the files are damaged
+            return pd.read_parquet(table), decode_graph(graph_file.read_bytes())
+        except Exception as exc:  # noqa: BLE001 - pyarrow's and the graph file's errors: the files are damaged
             raise ConfigError(f"the kept run {table} cannot be read ({type(exc).__name__}: {exc}); delete it and "
-                              "its .graph.pkl, then run the same command again to simulate that run anew") from None
+                              "its .graph.json.gz, then run the same command again to simulate that run anew") from None
 
     def remove(self) -> None:
         """Delete the folder (its runs are in the written dataset): renamed first, so a kill
