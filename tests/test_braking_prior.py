@@ -5,7 +5,7 @@ import pytest
 
 from sumo_ethics.predict.braking import apply_braking_prior, stopping_progress
 from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor
-from sumo_ethics.types import AgentStates
+from sumo_ethics.types import AgentStates, Prediction
 
 
 def _agents(accel: list[float]) -> AgentStates:
@@ -41,9 +41,7 @@ def test_no_braker_returns_same_prediction():
     assert apply_braking_prior(pred, cur) is pred
 
 
-def _one(yaw: float, speed: float, mean: np.ndarray) -> tuple[AgentStates, "Prediction"]:
-    from sumo_ethics.types import Prediction
-
+def _one(yaw: float, speed: float, mean: np.ndarray) -> tuple[AgentStates, Prediction]:
     cur = AgentStates(ids=("a",), x=np.zeros(1), y=np.zeros(1), yaw=np.array([yaw]), speed=np.array([speed]),
                       accel=np.zeros(1), length=np.array([4.5]), width=np.array([1.8]), mass=np.array([1500.0]),
                       cls=np.zeros(1, dtype=np.int8))

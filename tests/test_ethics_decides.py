@@ -271,7 +271,7 @@ def test_red_light_clause_in_sumo(tmp_path):
                 lane = libsumo.vehicle.getLaneID(v)
                 before = last_lane.get(v, "")
                 if lane.startswith(":") and before and not before.startswith(":"):
-                    state = next(l[5] for l in libsumo.lane.getLinks(before) if l[4] == lane)
+                    state = next(link[5] for link in libsumo.lane.getLinks(before) if link[4] == lane)
                     entered[v] = state
                     flagged_at_entry[v] = v in breakers
                 elif not lane.startswith(":"):

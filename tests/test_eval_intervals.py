@@ -27,7 +27,6 @@ def scene():
     run = np.array([0, 0, 1, 1])
     model = np.array([[1, 1], [1, 1], [2, 2], [2, 2]], float)
     cv = np.full((4, 2), 2.0)
-    fut = np.zeros((4, 2, 2))
     valid = np.ones((4, 2), dtype=bool)
     model3, cv3 = np.concatenate([model, [[100], [100], [100], [100]]], 1), np.concatenate([cv, np.zeros((4, 1))], 1)
     fut3, valid3 = np.zeros((4, 3, 2)), np.concatenate([valid, np.zeros((4, 1), bool)], 1)

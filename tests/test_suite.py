@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from sumo_ethics.errors import ConfigError
-from sumo_ethics.suite.spec import HazardSpec, ScenarioSpec, load
+from sumo_ethics.suite.spec import HazardSpec, load
 
 ROOT = Path(__file__).resolve().parent.parent
 TESTBED = ROOT / "scenarios" / "testbed" / "testbed.sumocfg"

@@ -53,7 +53,7 @@ def main() -> None:
             walls = {m: [] for m in modes}
             size = {}
             ref = None
-            for r in range(args.repeats):
+            for _ in range(args.repeats):
                 for m in modes:
                     w, b, n, steps = one(spec, Path(tmp) / f"{spec.name}-{m}", m)
                     walls[m].append(w)

@@ -412,7 +412,7 @@ def build_urban_grid() -> None:
         sy = "S" if j == 0 else "N"
         outer[f"{wx}{j}"] = (n, (ox, j * s))
         outer[f"{sy}{i}"] = (n, (i * s, oy))
-    for o, (n, (x, y)) in sorted(outer.items()):
+    for o, (_, (x, y)) in sorted(outer.items()):
         net.node(o, x, y)
     road = dict(numLanes=2, speed=13.89, width=3.2, sidewalkWidth=2.0, priority=2)
     arms = {n: [] for n in J.values()}
@@ -445,7 +445,7 @@ def build_urban_grid() -> None:
     # minutes and the number walking levels off after warm-up)
     ped_per_hour = 600
     ppairs = [(n, a_, b_) for n in sorted(arms) for a_ in arms[n] for b_ in arms[n] if a_ != b_]
-    for n, (a_in, _), (_, b_out) in ppairs:
+    for _n, (a_in, _), (_, b_out) in ppairs:
         r.person_flow(f"ped_{a_in}_{b_out}", a_in, b_out, ped_per_hour / len(ppairs))
     write_scenario("urban_grid", "urban_grid", r)
 

@@ -231,7 +231,7 @@ def tradeoff(runs: pd.DataFrame, folder: Path, by: Sequence[str] = ("omega_u",))
                                             for k, g in runs.groupby(rest, sort=True, dropna=False)]
     xs_all, ys_all = [], []
     handles = []
-    for gi, (gkey, g) in enumerate(groups):
+    for gi, (_gkey, g) in enumerate(groups):
         marker = MARKERS[gi % len(MARKERS)]
         for v in values:
             sub = g if v is None else g[g[key] == v]

@@ -494,6 +494,6 @@ if __name__ == "__main__":  # timing: python -m sumo_ethics.plan.sampling
     for v in (12.0, 1.0):
         st = FrenetState(s=20.0, d=0.3, s_dot=v, s_ddot=0.5, d_dot=0.1)
         sample(p, st, c, 14.0, left=3.0, right=-4.0, margin=0.8)
-        ts = timeit.repeat(lambda: sample(p, st, c, 14.0, left=3.0, right=-4.0, margin=0.8), number=1, repeat=200)
+        ts = timeit.repeat(lambda st=st: sample(p, st, c, 14.0, left=3.0, right=-4.0, margin=0.8), number=1, repeat=200)
         print(f"v0={v}: K={c.n_candidates} T={c.n_steps}: median {1e3 * float(np.median(ts)):.3f} ms, "
               f"min {1e3 * min(ts):.3f} ms")

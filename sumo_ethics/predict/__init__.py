@@ -46,13 +46,13 @@ def one_thread(load: bool = False) -> None:
     torch.set_num_threads(1)
 
 
-if TYPE_CHECKING:  # pragma: no cover
-    from sumo_ethics.predict.commands import dataset_main, evaluate_main, train_main
-    from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor
-    from sumo_ethics.predict.dataset import build_dataset
-    from sumo_ethics.predict.evaluate import evaluate
-    from sumo_ethics.predict.predictor import LSTMPredictor
-    from sumo_ethics.predict.train import train_model
+if TYPE_CHECKING:  # pragma: no cover - the lazy attributes of _LAZY, for type checkers
+    from sumo_ethics.predict.commands import dataset_main, evaluate_main, train_main  # noqa: F401
+    from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor  # noqa: F401
+    from sumo_ethics.predict.dataset import build_dataset  # noqa: F401
+    from sumo_ethics.predict.evaluate import evaluate  # noqa: F401
+    from sumo_ethics.predict.predictor import LSTMPredictor  # noqa: F401
+    from sumo_ethics.predict.train import train_model  # noqa: F401
 
 
 def __getattr__(name: str) -> Any:

@@ -295,7 +295,7 @@ def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, wor
                 proc.join()
                 done(row)
     finally:
-        for conn, (proc, _) in running.items():
+        for proc, _ in running.values():
             if proc.pid is not None:  # started
                 proc.kill()
                 proc.join()

@@ -297,7 +297,7 @@ def dilemma_scenario(seed: int, i: int) -> tuple[ScenarioSpec, str]:
     lane = 1 if variant == "pedestrian" or rng.random() < 0.5 else 2
     road = dilemma.road_of(lane, 2, ARTERIAL.lane_width)
     pos = float(rng.uniform(170, 240))
-    for attempt in range(DILEMMA_TRIES):
+    for attempt in range(DILEMMA_TRIES):  # noqa: B007 - read after the loop (the draws it took)
         hazards = _dilemma_hazards(rng, variant, lane, pos)
         outs = dilemma.scenario_outcomes({"hazards": [HazardSpec.parse("h", h).to_dict() for h in hazards]},
                                          ARTERIAL.speed, road)
