@@ -110,3 +110,10 @@ def test_mkdocs_build_strict(tmp_path: Path):
     assert proc.returncode == 0, f"mkdocs build --strict failed:\n{proc.stdout}\n{proc.stderr}"
     assert (tmp_path / "site" / "index.html").is_file()
     assert (tmp_path / "site" / "outputs" / "index.html").is_file()
+
+
+def test_test_extra_brings_the_docs_packages():
+    """CI installs '.[test]' only: it builds the site because the test extra holds the docs packages."""
+    tomllib = pytest.importorskip("tomllib", reason="tomllib is in the standard library from Python 3.11")
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]["optional-dependencies"]
+    assert set(extras["docs"]) <= set(extras["test"])
