@@ -59,7 +59,7 @@ def cli() -> None:
 @click.option("--controller", type=click.Choice(["ethical", "baseline"]), default="ethical", show_default=True,
               help="Ego controller: the ethical planner, or the naive route-following baseline.")
 @click.option("--omega-u", type=float, help="Weight w_u of the utility term J_utility, 0..1 in the paper's sense, larger values "
-              "accepted (default 0.5, see README).")
+              "accepted (default 0.5, see docs/method.md).")
 @click.option("--omega-o", type=float, help="Weight w_o of Origin's cost J_origin (default 1.0).")
 @click.option("--weights", help="J_origin principle weights: ethical (default), standard, ego, bayes, maximin "
               "or responsible.")

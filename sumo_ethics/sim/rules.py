@@ -36,7 +36,7 @@ RED = frozenset("rR")
 
 
 def heading_error(yaw: float, lane_yaw: float) -> float:
-    """|yaw - lane_yaw| wrapped to [0, pi] [rad]."""
+    """|yaw - lane_yaw| wrapped to [0, pi], in radians."""
     return abs(float(wrap_angle(yaw - lane_yaw)))
 
 

@@ -29,7 +29,7 @@ from sumo_ethics.errors import ConfigError
 from sumo_ethics.ethics.cost import DEFAULT_OMEGA_U
 from sumo_ethics.predict import one_thread
 
-#: the paper's planner: attention predictor, J_utility at this weight (see README "Suite")
+#: the paper's planner: attention predictor, J_utility at this weight (see docs/suite.md, "The planners of evaluate")
 PAPER_OMEGA_U = DEFAULT_OMEGA_U
 
 #: origin: Origin's weights, predictor class (CS-LSTM), collision probability (three-point score)

@@ -118,7 +118,7 @@ def _pick(rng: np.random.Generator, weights: dict[str, float]) -> str:
 
 def _hazard(rng: np.random.Generator, rt: RoadType, kind: str, route: tuple[str, str], hid: str) -> dict[str, Any]:
     """One hazard of ``kind`` with timing drawn so that some but not all candidate
-    trajectories collide (the ranges are listed in the README's hazard table)."""
+    trajectories collide (the ranges are listed in the hazard table of docs/suite.md)."""
     fr, to = route
     v = rt.speed
     L = EDGE_LENGTH[rt.network]
