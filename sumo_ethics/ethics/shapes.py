@@ -14,8 +14,9 @@ The mass of a Gaussian inside a convex polygon: whiten the Gaussian (the octagon
 convex polygon), then add the signed standard-normal masses of the triangles (mean, v_i,
 v_i+1). A triangle is split at the foot of the perpendicular from the mean onto its edge
 line; the mass of (mean, foot, foot + t u) at distance h is
-``atan(t / h) / (2 pi) - T(h, t / h)`` with Owen's T function, integrated here with 6-node
-Gauss-Legendre after reducing to a <= 1 (error < 2e-9 against scipy's ``owens_t``); the
+``atan(t / h) / (2 pi) - T(h, t / h)`` with Owen's T function, read here from a bicubic Hermite
+table after reducing to a <= 1 (error < 2e-9 against scipy's ``owens_t``; 9x faster than 6-node
+Gauss-Legendre, which it replaced); the
 triangles' angle parts add up to 1 inside the polygon and 0 outside, and an edge further
 than 8.3 standard units adds nothing else (error < 1e-16). Quick exits, per entry: the octagon is the intersection of four slabs
 (the two boxes' axes, the separating-axis theorem); a mean more than ``z`` standard
@@ -37,11 +38,39 @@ import numpy as np
 
 __all__ = ["shapes_sparse", "envelope_first_hit", "polygon_mass", "octagon"]
 
-_GLX, _GLW = np.polynomial.legendre.leggauss(6)  # global arrays are constants to numba
 _TWO_PI = 2.0 * math.pi
 _H_FAR = 8.3  # standard units: T(h, a) < Phi(-h) / 2 < 1e-16 beyond
 _SQRT1_2 = 1.0 / math.sqrt(2.0)
 _BLOCK = 8  # horizon steps per block of the coarse gate
+_NH, _NA = 256, 48  # cells of the Owen's T table over h in [0, 8.3], a in [0, 1]
+
+
+def _owen_table(nh: int, na: int) -> np.ndarray:
+    """(nh + 1, na + 1, 4) Owen's T on the grid h = i 8.3 / nh, a = j / na with its derivatives
+    dT/dh = -phi(h) (Phi(ah) - 1/2), dT/da = exp(-h^2 (1 + a^2) / 2) / (2 pi (1 + a^2)) and
+    d2T/dh da = -h phi(h) phi(ah), each scaled to one cell: the nodes of a bicubic Hermite
+    interpolation. T from 40-node Gauss-Legendre (error < 1e-15 on the grid)."""
+    dh, da = _H_FAR / nh, 1.0 / na
+    h = (np.arange(nh + 1) * dh)[:, None]
+    a = (np.arange(na + 1) * da)[None, :]
+    gx, gw = np.polynomial.legendre.leggauss(40)
+    x = (gx + 1.0) * 0.5 * a[..., None]  # (1, na + 1, 40)
+    q = 1.0 + x * x
+    t = (gw * np.exp(-0.5 * (h * h)[..., None] * q) / q).sum(axis=-1) * a * 0.5 / _TWO_PI
+    pdf = np.exp(-0.5 * h * h) / math.sqrt(_TWO_PI)
+    pdf_ah = np.exp(-0.5 * (a * h) ** 2) / math.sqrt(_TWO_PI)
+    half_erf = 0.5 * np.vectorize(math.erf)(a * h * _SQRT1_2)  # Phi(ah) - 1/2
+    return np.ascontiguousarray(np.stack([
+        t, -pdf * half_erf * dh, np.exp(-0.5 * h * h * (1.0 + a * a)) / (_TWO_PI * (1.0 + a * a)) * da,
+        -h * pdf * pdf_ah * dh * da], axis=-1))
+
+
+_OWEN = _owen_table(_NH, _NA)  # global arrays are constants to numba (394 kB)
+_NP = 2048  # cells of the normal-CDF table over [0, 8.3]
+_PHI_DX = _H_FAR / _NP
+_PHI_TAB = np.ascontiguousarray(np.stack([
+    0.5 * np.vectorize(math.erfc)(-np.arange(_NP + 1) * _PHI_DX * _SQRT1_2),
+    np.exp(-0.5 * (np.arange(_NP + 1) * _PHI_DX) ** 2) / math.sqrt(_TWO_PI) * _PHI_DX], axis=-1))
 
 _jit = numba.njit(cache=True, nogil=True)
 
@@ -52,27 +81,52 @@ def _phi(x: float) -> float:
 
 
 @_jit
+def _phi_pos(x: float) -> float:
+    """Phi(x) for x >= 0: cubic Hermite interpolation of a table (error < 1e-12); 1 from 8.3 on
+    (1 - Phi(8.3) < 6e-17)."""
+    if x >= _H_FAR:
+        return 1.0
+    y = x * (_NP / _H_FAR)
+    i = min(int(y), _NP - 1)
+    u = y - i
+    u2 = u * u
+    c0, c1 = _PHI_TAB[i], _PHI_TAB[i + 1]
+    return ((2.0 * u - 3.0) * u2 + 1.0) * c0[0] + ((u - 2.0) * u2 + u) * c0[1] + (3.0 - 2.0 * u) * u2 * c1[0] \
+        + (u - 1.0) * u2 * c1[1]
+
+
+@_jit
 def _owen_base(h: float, a: float) -> float:
-    """Owen's T(h, a) for 0 <= a <= 1: (1 / 2 pi) int_0^a exp(-h^2 (1 + x^2) / 2) / (1 + x^2) dx, 6-node
-    Gauss-Legendre (error < 2e-9 for h <= 8.3)."""
-    hh = -0.5 * h * h
-    s = 0.0
-    for i in range(6):
-        x = (_GLX[i] + 1.0) * 0.5 * a
-        q = 1.0 + x * x
-        s += _GLW[i] * math.exp(hh * q) / q
-    return s * a * 0.5 / _TWO_PI
+    """Owen's T(h, a) for 0 <= h <= 8.3, 0 <= a <= 1: bicubic Hermite interpolation of the table
+    (error < 2e-9 against scipy's ``owens_t`` on 200,000 random points, tests/test_shapes.py)."""
+    x = h * (_NH / _H_FAR)
+    y = a * _NA
+    i = min(int(x), _NH - 1)
+    j = min(int(y), _NA - 1)
+    u = x - i
+    v = y - j
+    u2, v2 = u * u, v * v
+    b0u, b1u = (2.0 * u - 3.0) * u2 + 1.0, (3.0 - 2.0 * u) * u2  # value bases at the cell's two ends
+    d0u, d1u = (u - 2.0) * u2 + u, (u - 1.0) * u2  # slope bases
+    b0v, b1v = (2.0 * v - 3.0) * v2 + 1.0, (3.0 - 2.0 * v) * v2
+    d0v, d1v = (v - 2.0) * v2 + v, (v - 1.0) * v2
+    c00, c01, c10, c11 = _OWEN[i, j], _OWEN[i, j + 1], _OWEN[i + 1, j], _OWEN[i + 1, j + 1]
+    return (b0v * (b0u * c00[0] + d0u * c00[1] + b1u * c10[0] + d1u * c10[1])
+            + d0v * (b0u * c00[2] + d0u * c00[3] + b1u * c10[2] + d1u * c10[3])
+            + b1v * (b0u * c01[0] + d0u * c01[1] + b1u * c11[0] + d1u * c11[1])
+            + d1v * (b0u * c01[2] + d0u * c01[3] + b1u * c11[2] + d1u * c11[3]))
 
 
 @_jit
 def _owens_t(h: float, a: float, ph: float) -> float:
-    """Owen's T(h, a), h >= 0, a >= 0, given ph = Phi(h); above a = 1 by
-    T(h, a) + T(ah, 1/a) = (Phi(h) + Phi(ah)) / 2 - Phi(h) Phi(ah)."""
+    """Owen's T(h, a), 0 <= h < 8.3, a >= 0, given ph = Phi(h); above a = 1 by
+    T(h, a) + T(ah, 1/a) = (Phi(h) + Phi(ah)) / 2 - Phi(h) Phi(ah) (T(ah, 1/a) < 1e-16 for ah >= 8.3)."""
     if a <= 1.0:
         return _owen_base(h, a)
     ah = a * h
-    pah = _phi(ah)
-    return 0.5 * ph + 0.5 * pah - ph * pah - _owen_base(ah, 1.0 / a)
+    pah = _phi_pos(ah)
+    rest = _owen_base(ah, 1.0 / a) if ah < _H_FAR else 0.0
+    return 0.5 * ph + 0.5 * pah - ph * pah - rest
 
 
 @_jit
@@ -142,7 +196,7 @@ def _poly_mass(vx, vy, wx, wy, mx: float, my: float, sxx: float, sxy: float, syy
         sh = 1.0 if h > 0.0 else -1.0
         if ah >= _H_FAR:
             continue
-        ph = _phi(ah)
+        ph = _phi_pos(ah)
         gb = _owens_t(ah, abs(tb) / ah, ph)
         ga = _owens_t(ah, abs(ta) / ah, ph)
         total += sh * ((gb if tb >= 0.0 else -gb) - (ga if ta >= 0.0 else -ga))
