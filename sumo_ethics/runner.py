@@ -36,6 +36,7 @@ from sumo_ethics.sim import preflight, scenario as scenario_files, session
 from sumo_ethics.sim.ego import start_ego
 from sumo_ethics.sim.route import tight_bends
 from sumo_ethics.sim.rules import RuleMonitor
+from sumo_ethics.sim.scenario import format_time
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld
 from sumo_ethics.types import VULNERABLE, RunStatus
 
@@ -218,7 +219,7 @@ class Run:
                 t = snap.time
                 self.meta["last_time"] = t
                 if t >= end - 1e-9:
-                    self.status, self.message = RunStatus.TIMEOUT, f"time limit {end:g} s reached"
+                    self.status, self.message = RunStatus.TIMEOUT, f"time limit {format_time(end)} reached"
                     return
                 w0 = wallclock.perf_counter()
                 for hook in self.hooks:  # e.g. hazards injected relative to the ego
@@ -245,7 +246,7 @@ class Run:
                     # of our goal that is arrival, anywhere else a failure
                     reach = s + half + max(float(snap.ego.speed[0]), decision.command.speed) * dt + 1.0
                     if reach >= route.length - 0.5:
-                        self.status, self.message = RunStatus.COMPLETED, f"goal reached at t={t + dt:g} s"
+                        self.status, self.message = RunStatus.COMPLETED, f"goal reached at t={format_time(t + dt)}"
                         return
                     raise SimulationError(f"the ego '{world.ego_id}' left the simulation at t={t + dt:g} s "
                                           f"{route.length - s - half:.1f} m before its goal")
@@ -268,10 +269,10 @@ class Run:
                 if ego_hit and cfg.stop_at_collision:
                     first = collisions.first_booked()
                     self.status = RunStatus.COLLISION
-                    self.message = f"ego collided with {first['class_b']} '{first['id_b']}' at t={first['time']:g} s"
+                    self.message = f"ego collided with {first['class_b']} '{first['id_b']}' at t={format_time(first['time'])}"
                     return
                 if s + half >= route.length - 0.5:
-                    self.status, self.message = RunStatus.COMPLETED, f"goal reached at t={snap.time:g} s"
+                    self.status, self.message = RunStatus.COMPLETED, f"goal reached at t={format_time(snap.time)}"
                     return
         finally:
             self.meta["loop_wall"] = wallclock.perf_counter() - self.t_start  # s, before outputs are written
@@ -434,7 +435,7 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
         except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated)
             r.status, error = RunStatus.INTERRUPTED, exc
             how = "SIGTERM" if isinstance(exc, Terminated) else "Ctrl-C"
-            r.message = f"interrupted by {how} at t={r.meta['last_time']:g} s" if "last_time" in r.meta else \
+            r.message = f"interrupted by {how} at t={format_time(r.meta['last_time'])}" if "last_time" in r.meta else \
                 f"interrupted by {how} before the ego's first step"
         except Exception as exc:  # a bug: the outputs and a summary are still written, then it is raised
             r.status, r.message, error = RunStatus.ERROR, f"internal error: {type(exc).__name__}: {exc}", exc

@@ -151,3 +151,13 @@ def test_manifest_json_lists_every_run(fake_sweep):
     m = json.loads((fake_sweep / "manifest.json").read_text())
     assert len(m["runs"]) == 24 and m["parameters"] == ["scenario", "omega_u", "seed", "weights"]
     assert all({"run_id", "params", "status", "error", "path"} <= set(r) for r in m["runs"])
+
+
+def test_a_sweep_without_collisions_gets_one_message_in_the_harm_figure(tmp_path, monkeypatch):
+    import sumo_ethics.analysis.plots as P
+
+    figs = []
+    monkeypatch.setattr(P, "_save", lambda fig, folder, stem: figs.append(fig) or [])
+    P.harm_per_collision(pd.DataFrame(), tmp_path)
+    texts = [t.get_text() for t in figs[0].axes[0].texts]
+    assert texts == ["no ego collisions in this sweep"]  # not also "none" under each class, over it

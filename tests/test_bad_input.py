@@ -83,6 +83,8 @@ SWEEP_FAST = ["--omega-u", "1000", "--seeds", "0", "--end", "5", "--controller",
 # (id, command builder(tmp) -> args, exit code, fragment of the error line)
 CASES = [
     ("missing-scenario", lambda t: ["run", str(t / "nope.sumocfg")], 2, "scenario file not found"),
+    ("scenario-folder", lambda t: ["run", str(_scenario(t / "s").parent)], 2, "is a folder, not a SUMO config: give the "
+     ".sumocfg file; it holds"),
     ("net-malformed", lambda t: ["run", str(_scenario(t / "s", net=TESTBED_NET.read_text()[:3000]))], 2,
      "malformed net file"),
     ("net-empty-file", lambda t: ["run", str(_scenario(t / "s", net=""))], 2, "malformed net file"),

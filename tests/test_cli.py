@@ -194,3 +194,12 @@ def test_sumo_stays_silent_whatever_the_scenario_asks(tmp_path):
     for sumo_says in ("Loading net-file", "Statistics (avg", "Performance:", "Vehicles:"):
         assert sumo_says not in p.stdout + p.stderr
     assert "timeout: time limit 8 s reached" in p.stdout
+
+
+def test_times_from_one_hour_on_are_printed_in_sumos_clock_form_too():
+    from sumo_ethics.sim.scenario import format_time, parse_time
+
+    assert format_time(8.0) == "8 s" and format_time(3599.5) == "3599.5 s"
+    assert format_time(parse_time("15:07:00", "--end")) == "54420 s (15:07:00)"  # as the user gave it
+    assert format_time(parse_time("1:01:01:01", "--end")) == "90061 s (1:01:01:01)"
+    assert format_time(54420.5) == "54420.5 s (15:07:00.50)"

@@ -194,7 +194,7 @@ def harm_per_collision(collisions: pd.DataFrame, folder: Path) -> list[Path]:
                        medianprops={"color": CLASS_COLOURS[c], "lw": 2})
             ax.scatter(i + rng.uniform(-0.15, 0.15, len(d)), d, s=14, color=CLASS_COLOURS[c], alpha=0.7,
                        zorder=3)
-        else:
+        elif not long.empty:  # with no collision at all, one message says so (below), not three
             ax.text(i, 0.5, "none", transform=ax.get_xaxis_transform(), ha="center", va="center", color="0.5")
     ax.set_xticks(range(len(classes)), [f"{c}\n(n={len(d)})" for c, d in zip(classes, data)])
     ax.set_xlim(-0.6, len(classes) - 0.4)

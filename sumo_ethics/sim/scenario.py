@@ -64,6 +64,21 @@ def parse_time(value: str, what: str) -> float:
     return seconds
 
 
+def format_time(seconds: float) -> str:
+    """A simulation time for messages: ``75 s``; from one hour on with SUMO's clock form too,
+    ``54420 s (15:07:00)`` (d:hh:mm:ss from a day), as a user gives --end or --ego-depart."""
+    text = f"{seconds:g} s"
+    if not math.isfinite(seconds) or seconds < 3600.0:
+        return text
+    whole = int(seconds)
+    days, rest = divmod(whole, 86400)
+    h, rest = divmod(rest, 3600)
+    m, sec = divmod(rest, 60)
+    frac = seconds - whole
+    clock = f"{h:02d}:{m:02d}:{sec:02d}" + (f"{frac:.2f}".lstrip("0") if frac >= 0.005 else "")
+    return f"{text} ({days}:{clock})" if days else f"{text} ({clock})"
+
+
 def is_output_option(key: str) -> bool:
     """True for SUMO options that name a file SUMO writes (tripinfo-output, log, ...)."""
     return key.endswith("-output") or key.endswith(".output") or key in _OUTPUT_OPTIONS
@@ -114,6 +129,11 @@ def read_scenario(path: Path) -> ScenarioFiles:
     """Parse a .sumocfg and check that every file it names exists and its times are readable
     (ConfigError otherwise)."""
     path = Path(path)
+    if path.is_dir():
+        found = sorted(path.glob("*.sumocfg")) + sorted(path.glob("*.sumocfg.gz"))
+        hint = (f"; it holds {', '.join(p.name for p in found[:3])}{' ...' if len(found) > 3 else ''}" if found
+                else "; it holds no .sumocfg")
+        raise ConfigError(f"{path} is a folder, not a SUMO config: give the .sumocfg file{hint}")
     if not path.is_file():
         raise ConfigError(f"scenario file not found: {path}")
     try:
