@@ -308,6 +308,10 @@ class CostBreakdown:
         return {name: float(v[k]) for name, v in self.terms.items()} | {"total": float(self.total[k])}
 
 
+#: why a candidate could not be chosen although it may score lower (DecisionTrace.excluded; explain)
+EXCLUSIONS = ("", "crosses a red/yellow stop line", "leaves the road", "enters a predicted envelope (others stay out)")
+
+
 @dataclass(frozen=True)
 class DecisionTrace:
     """What one planning step weighed, kept so the decision can be explained afterwards.
@@ -320,7 +324,9 @@ class DecisionTrace:
     validity: (K,) int8 index of each candidate's validity class (``plan.ethical.VALIDITY``);
     eligible: (K,) bool, the candidates the rule could choose (the hard pool, or the chosen class);
     first_hit: (K,) int first step entering a predicted envelope (T if never); risk: (K,) summed
-    ex-ante risk over every party (ego's and the others') [-]; chosen: index of the chosen one.
+    ex-ante risk over every party (ego's and the others') [-]; chosen: index of the chosen one;
+    excluded: (K,) int8 the hard constraint that kept a candidate from being chosen
+    (:data:`EXCLUSIONS`; 0 none), None where not known.
     """
 
     ego: AgentStates
@@ -334,3 +340,4 @@ class DecisionTrace:
     first_hit: np.ndarray
     risk: np.ndarray
     chosen: int
+    excluded: np.ndarray | None = None

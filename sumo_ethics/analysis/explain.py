@@ -22,7 +22,7 @@ import numpy as np
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.record import decisions as rec
 from sumo_ethics.record.decisions import RecordedDecision
-from sumo_ethics.types import RoadUserClass
+from sumo_ethics.types import EXCLUSIONS, RoadUserClass
 
 #: box and prediction colour per road-user class
 CLASS_COLOURS = {
@@ -313,6 +313,13 @@ def _fmt(v: float) -> str:
     return f"{v:.3g}" if 1e-3 <= abs(v) < 1e5 else f"{v:.2e}"
 
 
+def excluded_note(d: RecordedDecision, k: int) -> str:
+    """'\\nexcluded: <the hard constraint>' for a candidate a hard constraint kept from being
+    chosen (DecisionTrace.excluded), else ''."""
+    code = 0 if d.excluded is None else int(d.excluded[k])
+    return f"\nexcluded: {EXCLUSIONS[code]}" if code else ""
+
+
 def cost_panel(ax: Any, d: RecordedDecision, alt: int | None, weights: dict[str, float] | None = None) -> None:
     """A table of the chosen candidate's named cost terms beside the alternative's; with the
     run's principle ``weights`` the J_origin rows are weighted (they then add up to J_origin)."""
@@ -322,7 +329,7 @@ def cost_panel(ax: Any, d: RecordedDecision, alt: int | None, weights: dict[str,
                 ha="center", va="bottom", fontsize=9, transform=ax.transAxes)
     head = ["term", f"chosen\n{VALIDITY_LABELS[int(d.validity[d.chosen])]}"]
     if alt is not None:
-        head.append(f"best of another class:\n{VALIDITY_LABELS[int(d.validity[alt])]}")
+        head.append(f"best of another class:\n{VALIDITY_LABELS[int(d.validity[alt])]}{excluded_note(d, alt)}")
     def label_of(name: str, label: str) -> str:
         if weights is None:
             return label

@@ -226,6 +226,23 @@ def hard_pool(legal: np.ndarray, on_road: np.ndarray) -> np.ndarray:
     return next((m for m in (legal & on_road, on_road) if m.any()), np.ones_like(on_road))
 
 
+def exclusion_codes(legal: np.ndarray, on_road: np.ndarray, overlap: np.ndarray, selection: str) -> np.ndarray:
+    """(K,) int8 index into :data:`sumo_ethics.types.EXCLUSIONS`: the hard constraint that keeps each candidate out of
+    :func:`hard_pool` (a red/yellow stop line, then the road edge; only where some candidate keeps
+    it) and, under "cost" selection, out of the envelope-free pool when that is not empty; 0 none."""
+    code = np.zeros(len(legal), dtype=np.int8)
+    if (legal & on_road).any():
+        code[~legal] = 1
+        code[legal & ~on_road] = 2
+    elif on_road.any():
+        code[~on_road] = 2
+    if selection == "cost":
+        pool = hard_pool(legal, on_road)
+        if (pool & ~overlap).any():
+            code[pool & overlap] = 3
+    return code
+
+
 def validity_classes(classes: list[np.ndarray]) -> np.ndarray:
     """(K,) int8: the index of the first class each candidate belongs to (len(classes) if none)."""
     member = np.vstack(classes + [np.ones_like(classes[0])])
@@ -357,7 +374,7 @@ class EthicalPlanner:
             ego=scene.ego, agents=agents, prediction=pred, candidates=fc, cost=cost, selection=total,
             validity=validity_classes(classes), eligible=eligible, first_hit=first_hit,
             risk=(risk.ego_risk.sum(axis=1) + risk.other_risk.sum(axis=1)) if len(agents) else np.zeros(len(fc)),
-            chosen=j)
+            chosen=j, excluded=exclusion_codes(legal, on_road, overlap, self.cfg.selection))
         return Decision(cmd, info=info, timings_ms=timings, trace=trace)
 
     def pool(self, classes: list[np.ndarray], legal: np.ndarray, on_road: np.ndarray,

@@ -28,6 +28,8 @@ time, so float32 keeps millimetres):
 ``validity``           (K,) int8        validity class (``plan.ethical.VALIDITY``)
 ``eligible``           (K,) bool        could be chosen (hard pool / chosen class)
 ``first_hit``          (K,) int16       first step entering a predicted envelope (T: never)
+``excluded``           (K,) int8        the hard constraint that kept it from being chosen
+                                        (``types.EXCLUSIONS``, 0 none; absent in older files)
 ``term_names``         (M,) str         the named cost terms
 ``term_rows``          (R,) int32       the candidates whose terms are kept: the chosen one, then
                                         the best (lowest selection) of every other validity class
@@ -111,6 +113,7 @@ def encode(trace: DecisionTrace, step: int, time: float, dt: float) -> dict[str,
         "validity": np.asarray(trace.validity, dtype=np.int8),
         "eligible": np.asarray(trace.eligible, dtype=bool),
         "first_hit": np.minimum(trace.first_hit, np.iinfo(np.int16).max).astype(np.int16),
+        **({} if trace.excluded is None else {"excluded": np.asarray(trace.excluded, dtype=np.int8)}),
         "term_names": np.array(names, dtype=str),
         "term_rows": np.array(rows, dtype=np.int32),
         "terms": np.stack([trace.cost.terms[n][rows] for n in names], axis=-1).astype(f32)
@@ -207,7 +210,8 @@ class RecordedDecision:
     candidates; ego: (8,) x, y, yaw, speed, length, width, mass, class; agent_ids: (N,);
     agents: (N, 7) x, y, yaw, speed, length, width, class; pred_mean: (N, T, 2); pred_cov:
     (N, T, 2, 2); cand_xy: (K, S, 2); cand_t: (S,); selection, j_risk, risk: (K,);
-    validity: (K,) int8; eligible: (K,) bool; first_hit: (K,); terms: name -> (K,), NaN but for
+    validity: (K,) int8; eligible: (K,) bool; first_hit: (K,); excluded: (K,) int8 or None (files
+    recorded before it); terms: name -> (K,), NaN but for
     the chosen candidate and the best one of every other validity class (the ones kept);
     pred_weight: (N, Q) mode weights and pred_alt_mean: (Q-1, N, T, 2) the other modes' centres,
     None for a single-mode prediction (pred_mean / pred_cov are then the most likely mode).
@@ -233,6 +237,7 @@ class RecordedDecision:
     terms: dict[str, np.ndarray]
     pred_weight: np.ndarray | None = None
     pred_alt_mean: np.ndarray | None = None
+    excluded: np.ndarray | None = None
 
     @property
     def n_candidates(self) -> int:
@@ -258,7 +263,8 @@ def load(run: Path, step: int) -> RecordedDecision:
         eligible=d["eligible"], first_hit=d["first_hit"],
         terms=_terms(d, len(d["j_risk"])),
         pred_weight=d["pred_weight"].astype(np.float64) if "pred_weight" in d else None,
-        pred_alt_mean=d["pred_alt_mean"].astype(np.float64) + origin if "pred_alt_mean" in d else None)
+        pred_alt_mean=d["pred_alt_mean"].astype(np.float64) + origin if "pred_alt_mean" in d else None,
+        excluded=d.get("excluded"))
 
 
 def _terms(d: dict[str, np.ndarray], k: int) -> dict[str, np.ndarray]:
