@@ -777,13 +777,11 @@ def test_shipped_default_keeps_a_queue_at_a_red_light_standing_until_the_light_c
 
 
 def test_fast_file_has_five_decoder_steps_and_keeps_a_red_queue():
-    """weights/map_cslstm_fast.pt: the default's recipe with a 5-step decoder (each step emits 0.8 s).
+    """models/superseded/map_cslstm_fast.pt: the default's recipe with a 5-step decoder (each step emits 0.8 s).
     Cars on a straight lane go about 40 m in 4 s; a queue at a red that holds 20 s more stays in its
     most likely mode, and at green the other modes pull away. Unlike the default, its most likely
     mode still stays 1 s before the red ends (docs/predictor_seeds.md, "Fewer decoder steps")."""
-    from sumo_ethics.predict.predictor import WEIGHTS_DIR
-
-    path = WEIGHTS_DIR / "map_cslstm_fast.pt"
+    path = Path(__file__).resolve().parents[1] / "models" / "superseded" / "map_cslstm_fast.pt"
     assert path.stat().st_size < 5e6
     fast = LSTMPredictor.from_file(path, kind="map_cslstm")
     assert (fast.model.dec_steps, fast.model.modes, fast.model.map_version) == (5, 3, 4)

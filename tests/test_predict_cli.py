@@ -209,9 +209,7 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
     assert (br["map min_ade"] <= br["map"] + 1e-12).all()
     # --v5-row: a map version-4 file (the shipped 5-step one) also reads version 5's row 0 of the
     # pedestrians on a walking area; a version-5 file (trained above) reads it anyway: no such column
-    from sumo_ethics.predict.predictor import default_weights
-
-    v4 = default_weights("map_cslstm").parent / "map_cslstm_fast.pt"
+    v4 = Path(__file__).resolve().parents[1] / "models" / "superseded" / "map_cslstm_fast.pt"
     peds = breakdown(data, "pedestrian", None, models={"v4": str(v4), "new": str(weights)}, v5_row=True).set_index("subset")
     assert "v4, v5 row" in peds.columns and "new, v5 row" not in peds.columns
     assert peds.loc["on a walking area", "n"] >= 20 and peds.loc["on a walking area", "v4, v5 row"] != \

@@ -6,18 +6,18 @@ scenarios that no predictor was trained or evaluated on.
 Planners (the paper's planner, only the predictor or the priors changed): cv, cslstm,
 attention, map (attention + lanes, 3 trajectory modes, pedestrians with one mode, map version 5, a
 moving average of the weights, the long-red runs' cyclists and pedestrians in training: the
-default), map_v1 (the one-mode map file with map version 1 shipped before, weights/map_v1.pt),
+default), map_v1 (the one-mode map file with map version 1 shipped before, models/superseded/map_v1.pt),
 map_cslstm (the same recipe and seed as map without the attention: the default before),
-map_cslstm_fast (map version 4 with a 5-step decoder, weights/map_cslstm_fast.pt),
-map_cslstm_v8 (map_cslstm without the long-red runs, the default before, weights/map_cslstm_v8.pt),
-map_cslstm_v7 (without the moving average too, the default before that, weights/map_cslstm_v7.pt),
+map_cslstm_fast (map version 4 with a 5-step decoder, models/superseded/map_cslstm_fast.pt),
+map_cslstm_v8 (map_cslstm without the long-red runs, the default before, models/superseded/map_cslstm_v8.pt),
+map_cslstm_v7 (without the moving average too, the default before that, models/superseded/map_cslstm_v7.pt),
 map_cslstm_v6 (map version 4, the default before that,
-weights/map_cslstm_v6.pt), map_cslstm_v5 (map version 3, the default before those,
-weights/map_cslstm_v5.pt), map_cslstm_v4 (map version 1, the default before that,
-weights/map_cslstm_v4.pt), map_cslstm_v3 (with the last mode constant velocity, the default
-before that, weights/map_cslstm_v3.pt), map_cslstm_v2 (3 free modes, a 128-state decoder, the
+models/superseded/map_cslstm_v6.pt), map_cslstm_v5 (map version 3, the default before those,
+models/superseded/map_cslstm_v5.pt), map_cslstm_v4 (map version 1, the default before that,
+models/superseded/map_cslstm_v4.pt), map_cslstm_v3 (with the last mode constant velocity, the default
+before that, models/superseded/map_cslstm_v3.pt), map_cslstm_v2 (3 free modes, a 128-state decoder, the
 default before), map_cslstm_1mode (the one-mode map_cslstm before that,
-weights/map_cslstm_1mode.pt) and map_nopriors (the default with braking_prior =
+models/superseded/map_cslstm_1mode.pt) and map_nopriors (the default with braking_prior =
 lateral_prior = 0). The paired columns compare each planner with map (the default; the first
 planner when --planner leaves it out).
 Scenarios s<first>..s<first+count-1> of scenarios/suite (tools/train_shipped.py trains on
@@ -35,22 +35,23 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 WEIGHTS = ROOT / "sumo_ethics" / "predict" / "weights"
+OLD = ROOT / "models" / "superseded"  # the files that left the package (models/superseded/README.md)
 PLANNERS = (
     "cv=predictor=cv",
     "cslstm=predictor=cslstm",
     "attention=predictor=attention",
     "map=predictor=map",
-    f"map_v1=predictor=map;predictor_weights={WEIGHTS / 'map_v1.pt'}",
+    f"map_v1=predictor=map;predictor_weights={OLD / 'map_v1.pt'}",
     "map_cslstm=predictor=map_cslstm",
-    f"map_cslstm_fast=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_fast.pt'}",
-    f"map_cslstm_v8=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v8.pt'}",
-    f"map_cslstm_v7=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v7.pt'}",
-    f"map_cslstm_v6=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v6.pt'}",
-    f"map_cslstm_v5=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v5.pt'}",
-    f"map_cslstm_v4=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v4.pt'}",
-    f"map_cslstm_v3=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v3.pt'}",
-    f"map_cslstm_v2=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_v2.pt'}",
-    f"map_cslstm_1mode=predictor=map_cslstm;predictor_weights={WEIGHTS / 'map_cslstm_1mode.pt'}",
+    f"map_cslstm_fast=predictor=map_cslstm;predictor_weights={OLD / 'map_cslstm_fast.pt'}",
+    f"map_cslstm_v8=predictor=map_cslstm;predictor_weights={OLD / 'map_cslstm_v8.pt'}",
+    f"map_cslstm_v7=predictor=map_cslstm;predictor_weights={OLD / 'map_cslstm_v7.pt'}",
+    f"map_cslstm_v6=predictor=map_cslstm;predictor_weights={OLD / 'map_cslstm_v6.pt'}",
+    f"map_cslstm_v5=predictor=map_cslstm;predictor_weights={OLD / 'map_cslstm_v5.pt'}",
+    f"map_cslstm_v4=predictor=map_cslstm;predictor_weights={OLD / 'map_cslstm_v4.pt'}",
+    f"map_cslstm_v3=predictor=map_cslstm;predictor_weights={OLD / 'map_cslstm_v3.pt'}",
+    f"map_cslstm_v2=predictor=map_cslstm;predictor_weights={OLD / 'map_cslstm_v2.pt'}",
+    f"map_cslstm_1mode=predictor=map_cslstm;predictor_weights={OLD / 'map_cslstm_1mode.pt'}",
     "map_nopriors=predictor=map;braking_prior=0;lateral_prior=0",
 )
 
