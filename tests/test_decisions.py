@@ -159,9 +159,9 @@ def test_modes_keep_the_steps_they_promise(tmp_path, mode, want):
     assert rec.recorded_steps(tmp_path) == want == log.written
     d = rec.load(tmp_path, want[-1])
     assert d.chosen == 0 and d.n_candidates == 2 and d.step == want[-1] and d.time == want[-1] * 0.5
-    # the next step, then every 0.2 s (every 2nd sample at 0.1 s), and always the horizon's end
-    np.testing.assert_allclose(d.cand_t, [0.1, 0.2, 0.4], rtol=1e-6)
-    np.testing.assert_allclose(d.cand_xy[0, :, 0], [1.0, 2.0, 4.0])
+    # the next step, then every 0.5 s (none within this 0.4 s horizon), and always the horizon's end
+    np.testing.assert_allclose(d.cand_t, [0.1, 0.4], rtol=1e-6)
+    np.testing.assert_allclose(d.cand_xy[0, :, 0], [1.0, 4.0])
 
 
 def test_bad_mode_is_one_line_exit_2(tmp_path):
@@ -225,3 +225,12 @@ def test_unreadable_or_empty_recordings_are_one_line_errors(urban_runs, tmp_path
     quiet.mkdir()
     (quiet / "summary.json").write_text(json.dumps({"decisions": {"mode": "risky", "steps": 0, "bytes": 0}}))
     assert_one_line_error(sumo_ethics("explain", str(quiet), "--step", "1"), "--record-decisions all", 2)
+
+
+def test_predictions_are_kept_every_half_second_and_ellipses_fall_on_whole_seconds(urban_runs):
+    """A 4 s prediction at 0.1 s is kept at 0.5, 1.0, ..., 4.0 s (8 samples, not 40): explain and
+    replay draw its ellipses every second, at the samples 1, 2, 3 and 4 s."""
+    d = rec.load(urban_runs["all"], rec.recorded_steps(urban_runs["all"])[10])
+    np.testing.assert_allclose(d.pred_t, np.arange(1, 9) * 0.5, rtol=1e-6)
+    assert d.pred_mean.shape[1] == d.pred_cov.shape[1] == 8
+    assert d.whole_seconds().tolist() == [1, 3, 5, 7]

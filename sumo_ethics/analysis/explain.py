@@ -240,8 +240,7 @@ def draw_agents(ax: Any, d: RecordedDecision, predictions: bool = True) -> list[
         if predictions and d.pred_mean.shape[0] > i:
             m = d.pred_mean[i]
             ax.plot(np.r_[x, m[:, 0]], np.r_[y, m[:, 1]], color=colour, lw=1.2, zorder=4)
-            per_s = max(1, int(round(1.0 / d.dt)))
-            for t in range(per_s - 1, len(m), per_s):
+            for t in d.whole_seconds():
                 e1, e2 = _ellipse(m[t], d.pred_cov[i, t], 1.0), _ellipse(m[t], d.pred_cov[i, t], 2.0)
                 ax.fill(e1[:, 0], e1[:, 1], color=colour, alpha=0.22, lw=0, zorder=3)
                 ax.plot(e2[:, 0], e2[:, 1], color=colour, alpha=0.5, lw=0.6, ls="--", zorder=3)

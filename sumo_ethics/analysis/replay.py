@@ -165,8 +165,7 @@ def _scene(ax: Any, d: rec.RecordedDecision, class_colours: dict[str, str], ego_
     if n and d.pred_mean.shape[1]:
         paths = np.concatenate([a[:n, None, :2], d.pred_mean[:n]], axis=1)
         ax.add_collection(LineCollection(list(paths), colors=colours[:n], linewidths=1.2, zorder=4))
-        per_s = max(1, round(1.0 / d.dt))
-        ts = np.arange(per_s - 1, d.pred_mean.shape[1], per_s)
+        ts = d.whole_seconds()
         if len(ts):
             m = d.pred_mean[:n, ts].reshape(-1, 2)
             cov = d.pred_cov[:n, ts].reshape(-1, 2, 2)

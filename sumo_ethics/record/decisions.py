@@ -13,11 +13,14 @@ time, so float32 keeps millimetres):
 ``ego``                (8,) float64     x, y, yaw, speed, length, width, mass, class of the ego
 ``agent_ids``          (N,) str         the neighbours' SUMO ids
 ``agents``             (N, 7)           x, y, yaw, speed, length, width (m, rad, m/s), class
-``pred_mean``          (N, T, 2)        predicted centres [m] (multi-modal: the most likely mode)
-``pred_cov``           (N, T, 3)        covariance xx, xy, yy [m^2] (the same mode)
+``pred_mean``          (N, P, 2)        predicted centres [m] (multi-modal: the most likely mode) at the
+                                        ``pred_t`` samples: every PREDICTION_SPACING s and the horizon's end
+``pred_cov``           (N, P, 3)        covariance xx, xy, yy [m^2] (the same mode)
+``pred_t``             (P,)             the time after planning of those samples [s] (absent in files of
+                                        before: there every step, P = T)
 ``pred_weight``        (N, Q)           only for a multi-modal prediction (Q modes): each mode's weight,
                                         the first column that of pred_mean's mode
-``pred_alt_mean``      (Q-1, N, T, 2)   only for a multi-modal prediction: the other modes' centres
+``pred_alt_mean``      (Q-1, N, P, 2)   only for a multi-modal prediction: the other modes' centres
 ``cand_xy``            (K, S, 2) f16    every scored candidate's centres: the next step, every
                                         ``stride``-th step and the horizon's end
                                         (float16: within 3 cm up to 64 m from the ego, 6 cm to 128 m)
@@ -66,8 +69,11 @@ FOLDER = "decisions"
 SNAPSHOTS = "snapshots"
 #: seconds of decisions kept before every ego collision (modes collisions and risky)
 PRE_COLLISION = 5.0
-#: candidate positions are kept every this many seconds (at least every planning step)
-CANDIDATE_SPACING = 0.2
+#: candidate positions are kept every this many seconds (at least every planning step), and the
+#: predicted Gaussians likewise (PREDICTION_SPACING): what explain and replay draw (ellipses every
+#: second), not every 0.1 s step; 0.2 and every step before (issue 41: 4.7-17 MB per urban run)
+CANDIDATE_SPACING = 0.5
+PREDICTION_SPACING = 0.5
 #: mode risky keeps every risky step until this many are kept, then at most one per THIN_SECONDS
 #: (the steps before a collision always): about 35 MB for the first 1000, then ~13 MB per simulated hour
 RISKY_BUDGET = 1000
@@ -87,6 +93,9 @@ def encode(trace: DecisionTrace, step: int, time: float, dt: float) -> dict[str,
     T = c.x.shape[1]
     stride = max(1, int(round(CANDIDATE_SPACING / c.dt)))
     idx = np.unique(np.r_[0, np.arange(stride - 1, T, stride), T - 1])  # always the next step and the end
+    tp = p.mean.shape[1]
+    pstride = max(1, int(round(PREDICTION_SPACING / p.dt)))
+    pidx = np.unique(np.r_[np.arange(pstride - 1, tp, pstride), tp - 1]) if tp else np.zeros(0, dtype=np.intp)
     names = sorted(trace.cost.terms)
     # the named terms of the chosen candidate and of the best (lowest selection) of each other class
     rows = [trace.chosen] + [int(np.flatnonzero(trace.validity == v)[np.argmin(trace.selection[trace.validity == v])])
@@ -95,15 +104,16 @@ def encode(trace: DecisionTrace, step: int, time: float, dt: float) -> dict[str,
     modes = {}
     if p.alternatives:  # absent for a single-mode prediction: those files stay byte for byte as before
         modes = {"pred_weight": np.asarray(p.weight, dtype=f32),
-                 "pred_alt_mean": np.stack([a.mean - np.array([ox, oy]) for a in p.alternatives]).astype(f32)}
+                 "pred_alt_mean": np.stack([a.mean[:, pidx] - np.array([ox, oy]) for a in p.alternatives]).astype(f32)}
     return {
         "meta": np.array([step, time, trace.chosen, dt, p.mean.shape[1] if len(a) else T, stride], dtype=np.float64),
         "ego": np.array([ox, oy, e.yaw[0], e.speed[0], e.length[0], e.width[0], e.mass[0], e.cls[0]], dtype=np.float64),
         "agent_ids": np.array(a.ids, dtype=str),
         "agents": np.stack([a.x - ox, a.y - oy, a.yaw, a.speed, a.length, a.width, a.cls], axis=-1).astype(f32)
         if len(a) else np.zeros((0, 7), f32),
-        "pred_mean": (p.mean - np.array([ox, oy])).astype(f32),
-        "pred_cov": np.stack([cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]], axis=-1).astype(f32),
+        "pred_mean": (p.mean[:, pidx] - np.array([ox, oy])).astype(f32),
+        "pred_cov": np.stack([cov[:, pidx, 0, 0], cov[:, pidx, 0, 1], cov[:, pidx, 1, 1]], axis=-1).astype(f32),
+        "pred_t": ((pidx + 1) * p.dt).astype(f32),
         **modes,
         "cand_xy": np.stack([c.x[:, idx] - ox, c.y[:, idx] - oy], axis=-1).astype(np.float16),
         "cand_t": ((idx + 1) * c.dt).astype(f32),
@@ -208,8 +218,8 @@ class RecordedDecision:
 
     step, time: steps.parquet row it led to, planning time [s]; chosen: index into the K
     candidates; ego: (8,) x, y, yaw, speed, length, width, mass, class; agent_ids: (N,);
-    agents: (N, 7) x, y, yaw, speed, length, width, class; pred_mean: (N, T, 2); pred_cov:
-    (N, T, 2, 2); cand_xy: (K, S, 2); cand_t: (S,); selection, j_risk, risk: (K,);
+    agents: (N, 7) x, y, yaw, speed, length, width, class; pred_mean: (N, P, 2); pred_cov:
+    (N, P, 2, 2); pred_t: (P,) [s] after planning; cand_xy: (K, S, 2); cand_t: (S,); selection, j_risk, risk: (K,);
     validity: (K,) int8; eligible: (K,) bool; first_hit: (K,); excluded: (K,) int8 or None (files
     recorded before it); terms: name -> (K,), NaN but for
     the chosen candidate and the best one of every other validity class (the ones kept);
@@ -226,6 +236,7 @@ class RecordedDecision:
     agents: np.ndarray
     pred_mean: np.ndarray
     pred_cov: np.ndarray
+    pred_t: np.ndarray
     cand_xy: np.ndarray
     cand_t: np.ndarray
     selection: np.ndarray
@@ -243,6 +254,11 @@ class RecordedDecision:
     def n_candidates(self) -> int:
         return len(self.j_risk)
 
+    def whole_seconds(self) -> np.ndarray:
+        """Indices of the prediction samples (``pred_t``) on a whole second: where ellipses are drawn."""
+        frac = self.pred_t % 1.0
+        return np.flatnonzero(np.isclose(frac, 0.0, atol=1e-3) | np.isclose(frac, 1.0, atol=1e-3))
+
 
 def load(run: Path, step: int) -> RecordedDecision:
     """The decision recorded for ``step`` of ``run`` (FileNotFoundError if none)."""
@@ -258,6 +274,7 @@ def load(run: Path, step: int) -> RecordedDecision:
         step=int(meta[0]), time=float(meta[1]), dt=float(meta[3]), chosen=int(meta[2]), ego=ego,
         agent_ids=tuple(str(x) for x in d["agent_ids"]), agents=agents,
         pred_mean=d["pred_mean"].astype(np.float64) + origin, pred_cov=cov,
+        pred_t=d["pred_t"].astype(np.float64) if "pred_t" in d else (np.arange(d["pred_mean"].shape[1]) + 1) * meta[3],
         cand_xy=d["cand_xy"].astype(np.float64) + origin, cand_t=d["cand_t"].astype(np.float64),
         selection=d["selection"], j_risk=d["j_risk"], risk=d["risk"], validity=d["validity"],
         eligible=d["eligible"], first_hit=d["first_hit"],
