@@ -13,7 +13,8 @@ import pyarrow.parquet as pq
 from sumo_ethics.record import schema
 from sumo_ethics.record.writer import PARTIAL, conform, read_segment, segments, union_schema
 
-BASES = {"steps": schema.STEPS_BASE, "timings": schema.TIMINGS_BASE, "collisions": schema.COLLISIONS}
+BASES = {"steps": schema.STEPS_BASE, "timings": schema.TIMINGS_BASE, "collisions": schema.COLLISIONS,
+         "conflicts": schema.CONFLICTS}
 
 
 def is_incomplete(folder: Path) -> bool:
@@ -30,7 +31,7 @@ def _readable(path: Path) -> pa.Table | None:
 
 
 def read_table(folder: Path, name: str) -> pa.Table:
-    """Table ``name`` (steps, timings, collisions) of a run folder: the finished file, else the
+    """Table ``name`` (steps, timings, collisions, conflicts) of a run folder: the finished file, else the
     rows a killed run left in ``partial/`` (up to its last flush), else empty."""
     folder = Path(folder)
     base = BASES.get(name, pa.schema([]))
@@ -42,8 +43,8 @@ def read_table(folder: Path, name: str) -> pa.Table:
 
             raise ConfigError(f"{final} is not a readable Parquet file (truncated or corrupt)")
         return t
-    if name == "collisions":
-        t = _readable(folder / PARTIAL / "collisions.parquet")
+    if name in ("collisions", "conflicts"):  # rewritten whole at each flush
+        t = _readable(folder / PARTIAL / f"{name}.parquet")
         return t if t is not None else base.empty_table()
     parts = [(sch, batches) for p in segments(folder / PARTIAL, name) for sch, batches in [read_segment(p)]
              if sch is not None]
