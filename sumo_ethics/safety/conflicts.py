@@ -101,9 +101,8 @@ class ConflictBook:
             radii = 0.5 * np.hypot(e.length[0], e.width[0]) + 0.5 * np.hypot(o.length, o.width)
             vrel = np.hypot(ovx - evx, ovy - evy)
             near = dist - radii < vrel * cfg.ttc  # TTC below the threshold is possible
-            if len(tr):  # the ego's footprint of the last `pet` seconds can be reached
-                reach = float(np.max(np.hypot(tr[:, 1] - e.x[0], tr[:, 2] - e.y[0])))
-                near |= dist - radii < reach
+            if len(tr):  # within reach of the ego's footprint of the last `pet` seconds
+                near |= (np.hypot(o.x - tr[:, 1:2], o.y - tr[:, 2:3]) < radii).any(axis=0)
             near_pet = self._pet_into_others_trail(t, e)
             if near_pet:
                 near |= np.fromiter((k in near_pet for k in o.ids), bool, len(o))
@@ -111,16 +110,18 @@ class ConflictBook:
         else:
             near_pet, idx = self._pet_into_others_trail(t, e), np.empty(0, int)
         if len(idx):
-            ob, eb = _boxes(o, idx), _boxes(e, 0)
+            ob, eb = _boxes(o, idx), _boxes(e, 0)  # only the few that could meet a threshold
             ttc = box_ttc(eb, (evx, evy), ob, (ovx[idx], ovy[idx]))
-            dr = drac(ttc, vrel[idx])
-            gap = box_distance(eb, ob)
-            pet = np.minimum(self._pet_into_ego_trail(t, o, idx, tr),
-                             np.array([near_pet.get(o.ids[i], np.inf) for i in idx]))
+            pet = self._pet_into_ego_trail(t, o, idx, tr)
+            if near_pet:
+                pet = np.minimum(pet, np.array([near_pet.get(o.ids[i], np.inf) for i in idx]))
             pet = np.where(ttc > 0, pet, np.inf)  # boxes in contact: a collision, no encroachment
-            hit = (ttc < cfg.ttc) | (pet < cfg.pet)
-            for k in np.flatnonzero(hit):
-                self._event(t, step, e, o, int(idx[k]), float(ttc[k]), float(pet[k]), float(dr[k]), float(gap[k]))
+            hit = np.flatnonzero((ttc < cfg.ttc) | (pet < cfg.pet))
+            if len(hit):
+                dr = drac(ttc[hit], vrel[idx[hit]])
+                gap = box_distance(eb, _boxes(o, idx[hit]))
+                for j, k in enumerate(hit):
+                    self._event(t, step, e, o, int(idx[k]), float(ttc[k]), float(pet[k]), float(dr[j]), float(gap[j]))
         self.ego_trail.append((t, float(e.x[0]), float(e.y[0]), float(e.yaw[0]), float(e.length[0]),
                                float(e.width[0])))
         self.others_trail.append((t, o))

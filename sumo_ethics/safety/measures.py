@@ -32,12 +32,6 @@ __all__ = ["box_ttc", "drac", "box_distance", "pet_from_trail", "crossing"]
 _STILL = 1e-9
 
 
-def _axis_radius(hl: np.ndarray, hw: np.ndarray, c: np.ndarray, s: np.ndarray, ux: np.ndarray,
-                 uy: np.ndarray) -> np.ndarray:
-    """Half extent [m] along unit axis (ux, uy) of boxes with half sizes hl, hw and heading (c, s)."""
-    return hl * np.abs(c * ux + s * uy) + hw * np.abs(-s * ux + c * uy)
-
-
 def box_ttc(a: OrientedBoxes, va: tuple[np.ndarray, np.ndarray], b: OrientedBoxes,
             vb: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """Time to collision [s] of boxes a and b moving at constant velocity and heading.
@@ -46,30 +40,30 @@ def box_ttc(a: OrientedBoxes, va: tuple[np.ndarray, np.ndarray], b: OrientedBoxe
     to the boxes' shape. Returns the broadcast shape: 0 where the boxes overlap now, the
     earliest time their interiors overlap, +inf where they never do. Exact up to rounding.
     """
-    dx = np.asarray(b.x, dtype=float) - np.asarray(a.x, dtype=float)
-    dy = np.asarray(b.y, dtype=float) - np.asarray(a.y, dtype=float)
-    wx = np.asarray(vb[0], dtype=float) - np.asarray(va[0], dtype=float)  # b relative to a
-    wy = np.asarray(vb[1], dtype=float) - np.asarray(va[1], dtype=float)
-    ca, sa = np.cos(a.yaw), np.sin(a.yaw)
-    cb, sb = np.cos(b.yaw), np.sin(b.yaw)
-    hla, hwa = np.asarray(a.length, dtype=float) / 2, np.asarray(a.width, dtype=float) / 2
-    hlb, hwb = np.asarray(b.length, dtype=float) / 2, np.asarray(b.width, dtype=float) / 2
-    enter = np.zeros(np.broadcast_shapes(dx.shape, wx.shape, np.shape(ca), np.shape(cb), hla.shape, hlb.shape))
-    leave = np.full_like(enter, np.inf)
+    f = lambda v: np.asarray(v, dtype=float)  # noqa: E731
+    dx, dy = f(b.x) - f(a.x), f(b.y) - f(a.y)
+    wx, wy = f(vb[0]) - f(va[0]), f(vb[1]) - f(va[1])  # b relative to a
+    ca, sa, cb, sb = np.cos(f(a.yaw)), np.sin(f(a.yaw)), np.cos(f(b.yaw)), np.sin(f(b.yaw))
+    hla, hwa, hlb, hwb = f(a.length) / 2, f(a.width) / 2, f(b.length) / 2, f(b.width) / 2
+    shape = np.broadcast_shapes(dx.shape, dy.shape, wx.shape, wy.shape, ca.shape, cb.shape, hla.shape, hwa.shape,
+                                hlb.shape, hwb.shape)
+    ca, sa, cb, sb = (np.broadcast_to(v, shape) for v in (ca, sa, cb, sb))
+    ux, uy = np.stack([ca, -sa, cb, -sb]), np.stack([sa, ca, sb, cb])  # (4, ...) the four candidate axes
+    # half extent of each box along each axis, summed: r = L/2 |h . u| + W/2 |n . u| for a and b
+    r = (hla * np.abs(ca * ux + sa * uy) + hwa * np.abs(ca * uy - sa * ux)
+         + hlb * np.abs(cb * ux + sb * uy) + hwb * np.abs(cb * uy - sb * ux))
+    p = dx * ux + dy * uy  # centre distance along each axis
+    w = wx * ux + wy * uy  # its rate of change
+    moving = np.abs(w) > _STILL
     with np.errstate(divide="ignore", invalid="ignore"):
-        for ux, uy in ((ca, sa), (-sa, ca), (cb, sb), (-sb, cb)):
-            r = _axis_radius(hla, hwa, ca, sa, ux, uy) + _axis_radius(hlb, hwb, cb, sb, ux, uy)
-            p = dx * ux + dy * uy  # centre distance along the axis
-            w = wx * ux + wy * uy  # its rate of change
-            moving = np.abs(w) > _STILL
-            t1 = np.where(moving, (-r - p) / w, -np.inf)
-            t2 = np.where(moving, (r - p) / w, np.inf)
-            lo, hi = np.minimum(t1, t2), np.maximum(t1, t2)
-            apart = ~moving & (np.abs(p) >= r)  # separated on this axis for ever
-            lo = np.where(apart, np.inf, lo)
-            hi = np.where(apart, -np.inf, hi)
-            enter = np.maximum(enter, lo)
-            leave = np.minimum(leave, hi)
+        inv = np.where(moving, 1.0 / w, 0.0)
+    t1, t2 = (-r - p) * inv, (r - p) * inv
+    apart = np.abs(p) >= r  # separated on this axis now
+    # an axis without relative motion: overlapping for ever or never
+    lo = np.where(moving, np.minimum(t1, t2), np.where(apart, np.inf, -np.inf))
+    hi = np.where(moving, np.maximum(t1, t2), np.where(apart, -np.inf, np.inf))
+    enter = np.maximum(lo.max(axis=0), 0.0)
+    leave = hi.min(axis=0)
     return np.where((enter < leave) & (leave > 0), enter, np.inf)
 
 
