@@ -355,3 +355,62 @@ def test_run_walker_into_the_standing_ego_is_the_others_fault(scenario_dir, tmp_
     w = c[c.id_b == "walker"]
     # the walker at about 1.3 m/s closing on the standing ego: TTC below 1.5 s some 2 m before contact
     assert len(w) == 1 and w.ttc_below.iloc[0] and w.contact.iloc[0] and w.start.iloc[0] < r.time
+
+
+class FollowThenMatch:
+    """Drives along the route at ``fast`` m/s until the bumper gap to ``leader`` is at most ``gap``
+    metres, then at ``slow`` m/s (the leader's speed)."""
+
+    name = "follow_then_match"
+    needs_history = False
+
+    def __init__(self, leader: str, fast: float, slow: float, gap: float) -> None:
+        self.leader, self.fast, self.slow, self.gap = leader, fast, slow, gap
+        self.matched = False
+
+    def act(self, scene):
+        from sumo_ethics.plan.controller import Decision
+        from sumo_ethics.sim.world import EgoCommand
+
+        o = scene.others
+        if self.leader in o.index:
+            i = o.index[self.leader]
+            self.matched = self.matched or o.x[i] - scene.ego.x[0] - (o.length[i] + scene.ego.length[0]) / 2 <= self.gap
+        v = self.slow if self.matched else self.fast
+        x, y, yaw = scene.route.path.to_xy(np.array(scene.s + v * scene.dt), np.array(0.0))
+        return Decision(EgoCommand(float(x), float(y), float(yaw), v))
+
+
+@pytest.mark.sumo
+def test_min_ttc_matches_sumos_ssm_device(scenario_dir, tmp_path):
+    """SUMO's SSM device (TTC of the ego following a leader) in the same run: the same minimum TTC.
+
+    On the right lane (no keep-right lane change for the leader) the ego closes at 10 m/s on a
+    leader held at 5 m/s (speedFactor 1, sigma 0), both 4.5 m long, and drops to 5 m/s once the
+    bumper gap is 6 m or less. The gap falls 0.5 m a step, from 35.5 m at t = 0 (less the ego's
+    first step): the last step before slowing has a gap of 5.98 m, TTC = 5.98 / 5 = 1.196 s. SUMO
+    writes its TTC with two decimals (1.20) and labels the step by its start (5.9 s for our 6.0 s):
+    the values agree to 0.005 s plus rounding."""
+    import xml.etree.ElementTree as ET
+
+    cfg = write_scenario(scenario_dir, """
+      <vType id="five" vClass="passenger" length="4.5" width="1.8" maxSpeed="5" speedFactor="1" sigma="0"/>
+      <vehicle id="lead" type="five" route="r_main" depart="0" departLane="1" departPos="60" departSpeed="5"/>
+      <vehicle id="ego" type="car" route="r_main" depart="0" departLane="1" departPos="20" departSpeed="10"/>""")
+    out = tmp_path / "run"
+    ssm = tmp_path / "ssm.xml"
+    summary = run_scripted(cfg, out, FollowThenMatch("lead", 10.0, 5.0, 6.0), end=12,
+                           conflicts=ConflictConfig(ttc=3.0),  # SUMO's default threshold: both log the approach
+                           sumo_args=("--device.ssm.probability", "1", "--device.ssm.measures", "TTC",
+                                      "--device.ssm.thresholds", "3", "--device.ssm.file", str(ssm)))
+    assert summary.status.value == "timeout", summary.message
+    c = pd.read_parquet(out / "conflicts.parquet")
+    ours = c[c.id_b == "lead"]
+    assert len(ours) == 1 and not ours.contact.iloc[0]
+    (sumo,) = [m for conf in ET.parse(ssm).getroot().iter("conflict") if (conf.get("ego"), conf.get("foe")) == ("ego", "lead")
+               for m in conf.iter("minTTC")]
+    assert ours.min_ttc.iloc[0] == pytest.approx(1.196, abs=1e-3)  # by hand, see the docstring
+    assert ours.min_ttc.iloc[0] == pytest.approx(float(sumo.get("value")), abs=0.005 + 1e-9)
+    assert ours.time_worst.iloc[0] == pytest.approx(float(sumo.get("time")) + 0.1)
+    # the gap is 5.98 + 5 (6.0 - t) m: TTC first below 3 s at t = 4.2 (14.98 m; 15.48 m at 4.1)
+    assert ours.start.iloc[0] == pytest.approx(4.2)
