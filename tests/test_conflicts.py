@@ -414,3 +414,20 @@ def test_min_ttc_matches_sumos_ssm_device(scenario_dir, tmp_path):
     assert ours.time_worst.iloc[0] == pytest.approx(float(sumo.get("time")) + 0.1)
     # the gap is 5.98 + 5 (6.0 - t) m: TTC first below 3 s at t = 4.2 (14.98 m; 15.48 m at 4.1)
     assert ours.start.iloc[0] == pytest.approx(4.2)
+
+
+def test_a_killed_runs_rebuilt_summary_counts_conflicts_and_faults(tmp_path):
+    import json
+
+    from sumo_ethics.record.reader import recover_summary
+
+    (tmp_path / "config.json").write_text(json.dumps({"seed": 1, "conflicts": {"enabled": True}}))
+    rec = RunRecorder(tmp_path)
+    rec.record_conflicts()
+    for r in crossing_run(-19.95, -3.82, 50):
+        rec.add_conflict(r)
+    rec.flush()
+    s = recover_summary(tmp_path)
+    assert s["status"] == "incomplete"
+    assert s["conflicts"] == {"total": 1, "ttc": 0, "pet": 1, "contact": 0, "vru": 1, "by_class": {"pedestrian": 1}}
+    assert s["collisions"]["fault"] == {"ego": 0, "other": 0, "shared": 0, "unknown": 0}
