@@ -44,7 +44,7 @@ class ConflictBook:
         self.sink = sink
         self.cfg = cfg
         self.min_angle = math.radians(cfg.crossing_angle)
-        n = int(math.ceil(cfg.pet / dt - 1e-9)) + 1  # trail instants: PET up to the threshold
+        n = math.ceil(cfg.pet / dt - 1e-9) + 1  # trail instants: PET up to the threshold
         self.ego_trail: deque[tuple[float, float, float, float, float, float]] = deque(maxlen=n)
         self.others_trail: deque[tuple[float, AgentStates]] = deque(maxlen=n)
         self.open: dict[str, int] = {}  # other id -> index of its latest event

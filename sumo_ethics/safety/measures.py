@@ -26,7 +26,7 @@ import numpy as np
 
 from sumo_ethics.geometry import OrientedBoxes, boxes_overlap, wrap_angle
 
-__all__ = ["box_ttc", "drac", "box_distance", "pet_from_trail", "crossing"]
+__all__ = ["box_distance", "box_ttc", "crossing", "drac", "pet_from_trail"]
 
 #: relative speeds along an axis below this [m/s] count as no motion along it
 _STILL = 1e-9
@@ -40,7 +40,7 @@ def box_ttc(a: OrientedBoxes, va: tuple[np.ndarray, np.ndarray], b: OrientedBoxe
     to the boxes' shape. Returns the broadcast shape: 0 where the boxes overlap now, the
     earliest time their interiors overlap, +inf where they never do. Exact up to rounding.
     """
-    f = lambda v: np.asarray(v, dtype=float)  # noqa: E731
+    f = lambda v: np.asarray(v, dtype=float)
     dx, dy = f(b.x) - f(a.x), f(b.y) - f(a.y)
     wx, wy = f(vb[0]) - f(va[0]), f(vb[1]) - f(va[1])  # b relative to a
     ca, sa, cb, sb = np.cos(f(a.yaw)), np.sin(f(a.yaw)), np.cos(f(b.yaw)), np.sin(f(b.yaw))
