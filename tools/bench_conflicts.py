@@ -6,8 +6,9 @@ paper planner with the constant-velocity predictor by default, ``--predictor map
 shipped LSTM, ``--controller baseline`` for the cheapest controller, where the share is largest)
 with conflicts off and on, interleaved and repeated. Reported per scenario: the median wall
 time of each (whole run: SUMO start to summary), their ratio, and from the runs with conflicts
-the median ``conflict_ms`` per step and its share of the step loop (``loop_wall``), the figure
-least disturbed by other jobs on the machine. One run before the timed ones is discarded (imports,
+the median share of ``conflict_ms`` (summed over the steps) in the step loop (``loop_wall``), the
+figure least disturbed by other jobs on a shared machine; also the ratio of the median CPU times
+(the process's, SUMO included: libsumo runs in it). One run before the timed ones is discarded (imports,
 numba compilation). ``steps.parquet`` is checked to be the same with
 and without conflicts (measuring changes nothing the ego does).
 
@@ -25,8 +26,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def one(spec, out: Path, on: bool, controller: str, predictor: str) -> tuple[float, float, int, bytes]:
-    """(wall s, conflict share of the loop, steps, steps.parquet bytes) of one run."""
+def one(spec, out: Path, on: bool, controller: str, predictor: str) -> tuple[float, float, float, int, bytes]:
+    """(wall s, CPU s, conflict share of the loop, steps, steps.parquet bytes) of one run."""
+    import time
+
     import pandas as pd
 
     from sumo_ethics.config import ConflictConfig
@@ -37,12 +40,14 @@ def one(spec, out: Path, on: bool, controller: str, predictor: str) -> tuple[flo
 
     cfg = spec.run_config(out, planner_config(None, predictor=predictor), overwrite=True)
     cfg = replace(cfg, controller=controller, conflicts=ConflictConfig(enabled=on))
+    cpu = time.process_time()
     s = run(cfg, controller=HazardController(make_controller(cfg), HazardInjector(spec.hazards)))
+    cpu = time.process_time() - cpu
     share = 0.0
     if on:
         ms = pd.read_parquet(out / "timings.parquet", columns=["conflict_ms"])["conflict_ms"]
         share = float(ms.sum()) / 1e3 / s.data["loop_wall"]
-    return s.data["wall_time"], share, s.data["steps"], (out / "steps.parquet").read_bytes()
+    return s.data["wall_time"], cpu, share, s.data["steps"], (out / "steps.parquet").read_bytes()
 
 
 def main() -> None:
@@ -66,29 +71,32 @@ def main() -> None:
         one(specs[0], Path(tmp) / "warmup", True, args.controller, args.predictor)  # imports, numba compiles
         for spec in specs:
             walls: dict[bool, list[float]] = {False: [], True: []}
+            cpus: dict[bool, list[float]] = {False: [], True: []}
             shares, ref, n = [], None, 0
             for r in range(args.repeats):
                 for on in ((False, True) if r % 2 == 0 else (True, False)):  # interleaved, order alternating
-                    w, share, n, steps = one(spec, Path(tmp) / f"{spec.name}-{int(on)}", on, args.controller,
-                                             args.predictor)
+                    w, cpu, share, n, steps = one(spec, Path(tmp) / f"{spec.name}-{int(on)}", on, args.controller,
+                                                  args.predictor)
                     walls[on].append(w)
+                    cpus[on].append(cpu)
                     if on:
                         shares.append(share)
                     ref = ref or steps
                     assert steps == ref, f"{spec.name}: steps.parquet differs with conflicts {'on' if on else 'off'}"
             off, on_ = statistics.median(walls[False]), statistics.median(walls[True])
-            rows.append((spec.name, n, off, on_, on_ / off, statistics.median(shares)))
-            print(f"{spec.name}: {n} steps, off {off:.2f} s, on {on_:.2f} s, ratio {on_ / off:.3f}, "
+            cpu_ratio = statistics.median(cpus[True]) / statistics.median(cpus[False])
+            rows.append((spec.name, n, off, on_, on_ / off, cpu_ratio, statistics.median(shares)))
+            print(f"{spec.name}: {n} steps, off {off:.2f} s, on {on_:.2f} s, ratio {on_ / off:.3f} (CPU {cpu_ratio:.3f}), "
                   f"conflicts {100 * statistics.median(shares):.2f} % of the loop", flush=True)
     print()
     print(f"controller {args.controller}" + (f", predictor {args.predictor}" if args.controller == "ethical" else "")
           + f", {args.repeats} repeats, medians")
-    print("| scenario | steps | wall off [s] | wall on [s] | on / off | conflict_ms / loop |")
-    print("| --- | --- | --- | --- | --- | --- |")
-    for name, n, off, on_, ratio, share in rows:
-        print(f"| {name} | {n} | {off:.2f} | {on_:.2f} | {ratio:.3f} | {100 * share:.2f} % |")
+    print("| scenario | steps | wall off [s] | wall on [s] | wall on / off | CPU on / off | conflict_ms / loop |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for name, n, off, on_, ratio, cpu_ratio, share in rows:
+        print(f"| {name} | {n} | {off:.2f} | {on_:.2f} | {ratio:.3f} | {cpu_ratio:.3f} | {100 * share:.2f} % |")
     print(f"| median over scenarios | | | | {statistics.median(r[4] for r in rows):.3f} | "
-          f"{100 * statistics.median(r[5] for r in rows):.2f} % |")
+          f"{statistics.median(r[5] for r in rows):.3f} | {100 * statistics.median(r[6] for r in rows):.2f} % |")
 
 
 if __name__ == "__main__":

@@ -19,7 +19,6 @@ exactly (a bounding-circle test first), so a step with nobody close costs a few 
 from __future__ import annotations
 
 import math
-from collections import deque
 from typing import Any
 
 import numpy as np
@@ -44,49 +43,60 @@ class ConflictBook:
         self.sink = sink
         self.cfg = cfg
         self.min_angle = math.radians(cfg.crossing_angle)
-        n = math.ceil(cfg.pet / dt - 1e-9) + 1  # trail instants: PET up to the threshold
-        self.ego_trail: deque[tuple[float, float, float, float, float, float]] = deque(maxlen=n)
-        self.others_trail: deque[tuple[float, AgentStates]] = deque(maxlen=n)
+        n = math.ceil(cfg.pet / dt - 1e-9) + 1  # trail instants W: PET up to the threshold
+        # the trails are ring buffers of the last W instants (in no order; NaN rows: not yet filled):
+        # the ego's (W, 6) time, x, y, yaw, length, width; the others' centres and half diagonals
+        # (W, M) padded with NaN to the most road users seen at once, their times (W,) and states
+        self.pushed = 0
+        self.ego_trail = np.full((n, 6), np.nan)
+        self.others_time = np.full(n, np.nan)
+        self.others_xyr = np.full((3, n, 0), np.nan)
+        self.others_states: list[AgentStates | None] = [None] * n
         self.open: dict[str, int] = {}  # other id -> index of its latest event
         self.last: dict[str, float] = {}  # other id -> last time its pair was in conflict
         self.rows: list[dict[str, Any]] = []  # this book's rows (also in the sink)
 
     # -- measures ----------------------------------------------------------------------------
-    def _pet_into_ego_trail(self, t: float, o: AgentStates, idx: np.ndarray, tr: np.ndarray) -> np.ndarray:
-        """(len(idx),) PET [s] of others ``idx`` now entering where the ego was (inf where none);
-        tr: (W, 6) the ego's trail (time, x, y, yaw, length, width)."""
-        if not len(tr) or not len(idx):
-            return np.full(len(idx), np.inf)
+    def _pet_into_ego_trail(self, t: float, o: AgentStates, idx: np.ndarray) -> np.ndarray:
+        """(len(idx),) PET [s] of others ``idx`` now entering where the ego was (inf where none)."""
+        tr = self.ego_trail
         trail = OrientedBoxes(tr[:, 1:2], tr[:, 2:3], tr[:, 3:4], tr[:, 4:5], tr[:, 5:6])
         return pet_from_trail(_boxes(o, idx), t, trail, tr[:, 0], self.min_angle)
 
     def _pet_into_others_trail(self, t: float, e: AgentStates) -> dict[str, float]:
         """PET [s] of the ego now entering where other road users were: id -> PET, for those whose
         trail box of the last ``pet`` seconds overlaps the ego's box now at a crossing angle."""
-        if not self.others_trail:
+        x, y, r = self.others_xyr
+        if not x.size:
             return {}
-        ts = [(tw, s) for tw, s in self.others_trail if len(s)]
-        if not ts:
-            return {}
-        x = np.concatenate([s.x for _, s in ts])
-        y = np.concatenate([s.y for _, s in ts])
-        length = np.concatenate([s.length for _, s in ts])
-        width = np.concatenate([s.width for _, s in ts])
-        r_e = 0.5 * math.hypot(float(e.length[0]), float(e.width[0]))
-        near = np.hypot(x - e.x[0], y - e.y[0]) < r_e + 0.5 * np.hypot(length, width)
+        with np.errstate(invalid="ignore"):
+            near = np.hypot(x - e.x[0], y - e.y[0]) < r + 0.5 * math.hypot(float(e.length[0]), float(e.width[0]))
         out: dict[str, float] = {}
         if not near.any():
             return out
-        ends = np.cumsum([len(s) for _, s in ts])
-        for m in np.flatnonzero(near)[::-1]:  # newest first: the first hit of an id is its latest
-            k = int(np.searchsorted(ends, m, side="right"))
-            tw, s = ts[k]
-            i = int(m - (ends[k - 1] if k else 0))
-            if s.ids[i] in out:
-                continue
-            if bool(boxes_overlap(_boxes(e, 0), _boxes(s, i))) and bool(crossing(e.yaw[0], s.yaw[i], self.min_angle)):
+        eb = _boxes(e, 0)
+        for w, i in zip(*np.nonzero(near)):  # few: those whose bounding circles touch the ego's
+            s, tw = self.others_states[w], float(self.others_time[w])
+            if t - tw < out.get(s.ids[i], np.inf) and bool(boxes_overlap(eb, _boxes(s, i))) \
+                    and bool(crossing(e.yaw[0], s.yaw[i], self.min_angle)):
                 out[s.ids[i]] = t - tw
         return out
+
+    def _push(self, t: float, e: AgentStates, o: AgentStates) -> None:
+        """Add this instant to the trails (overwriting the oldest)."""
+        w = self.pushed % len(self.others_time)
+        self.pushed += 1
+        self.ego_trail[w] = (t, e.x[0], e.y[0], e.yaw[0], e.length[0], e.width[0])
+        n = len(o)
+        if n > self.others_xyr.shape[2]:  # more road users than ever before: widen
+            grown = np.full(self.others_xyr.shape[:2] + (max(n, 2 * self.others_xyr.shape[2]),), np.nan)
+            grown[:, :, :self.others_xyr.shape[2]] = self.others_xyr
+            self.others_xyr = grown
+        row = self.others_xyr[:, w]
+        row[:, n:] = np.nan
+        row[0, :n], row[1, :n], row[2, :n] = o.x, o.y, 0.5 * np.hypot(o.length, o.width)
+        self.others_time[w] = t
+        self.others_states[w] = o
 
     def observe(self, snap: Any, step: int) -> None:
         """Measure the pairs of snapshot ``snap`` (``time``, ``ego``, ``others``) at ego step ``step``;
@@ -94,25 +104,26 @@ class ConflictBook:
         cfg = self.cfg
         t, e, o = float(snap.time), snap.ego, snap.others
         evx, evy = float(e.speed[0] * np.cos(e.yaw[0])), float(e.speed[0] * np.sin(e.yaw[0]))
-        tr = np.array(self.ego_trail).reshape(-1, 6)  # (W, 6): time, x, y, yaw, length, width
+        tr = self.ego_trail
         if len(o):
             ovx, ovy = o.speed * np.cos(o.yaw), o.speed * np.sin(o.yaw)
             dist = np.hypot(o.x - e.x[0], o.y - e.y[0])
             radii = 0.5 * np.hypot(e.length[0], e.width[0]) + 0.5 * np.hypot(o.length, o.width)
             vrel = np.hypot(ovx - evx, ovy - evy)
             near = dist - radii < vrel * cfg.ttc  # TTC below the threshold is possible
-            if len(tr):  # within reach of the ego's footprint of the last `pet` seconds
-                near |= (np.hypot(o.x - tr[:, 1:2], o.y - tr[:, 2:3]) < radii).any(axis=0)
+            if self.pushed:  # within reach of the ego's footprint of the last `pet` seconds
+                with np.errstate(invalid="ignore"):
+                    near |= (np.hypot(o.x - tr[:, 1:2], o.y - tr[:, 2:3]) < radii).any(axis=0)
             near_pet = self._pet_into_others_trail(t, e)
             if near_pet:
                 near |= np.fromiter((k in near_pet for k in o.ids), bool, len(o))
             idx = np.flatnonzero(near)
-        else:
-            near_pet, idx = self._pet_into_others_trail(t, e), np.empty(0, int)
+        else:  # nobody in range now: nobody to measure (PET counts for road users still in range)
+            near_pet, idx = {}, np.empty(0, int)
         if len(idx):
             ob, eb = _boxes(o, idx), _boxes(e, 0)  # only the few that could meet a threshold
             ttc = box_ttc(eb, (evx, evy), ob, (ovx[idx], ovy[idx]))
-            pet = self._pet_into_ego_trail(t, o, idx, tr)
+            pet = self._pet_into_ego_trail(t, o, idx)
             if near_pet:
                 pet = np.minimum(pet, np.array([near_pet.get(o.ids[i], np.inf) for i in idx]))
             pet = np.where(ttc > 0, pet, np.inf)  # boxes in contact: a collision, no encroachment
@@ -122,9 +133,7 @@ class ConflictBook:
                 gap = box_distance(eb, _boxes(o, idx[hit]))
                 for j, k in enumerate(hit):
                     self._event(t, step, e, o, int(idx[k]), float(ttc[k]), float(pet[k]), float(dr[j]), float(gap[j]))
-        self.ego_trail.append((t, float(e.x[0]), float(e.y[0]), float(e.yaw[0]), float(e.length[0]),
-                               float(e.width[0])))
-        self.others_trail.append((t, o))
+        self._push(t, e, o)
 
     # -- events ------------------------------------------------------------------------------
     def _event(self, t: float, step: int, e: AgentStates, o: AgentStates, i: int, ttc: float, pet: float,
