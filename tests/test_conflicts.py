@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -433,3 +434,58 @@ def test_a_killed_runs_rebuilt_summary_counts_conflicts_and_faults(tmp_path):
     assert s["status"] == "incomplete"
     assert s["conflicts"] == {"total": 1, "ttc": 0, "pet": 1, "contact": 0, "vru": 1, "by_class": {"pedestrian": 1}}
     assert s["collisions"]["fault"] == {"ego": 0, "other": 0, "shared": 0, "unknown": 0}
+
+
+def build_signalised(folder):
+    """A road W (-100, 0) -> C (0, 0) -> E (100, 0) with a side road S -> C -> N, C a traffic light
+    held red for every link (an additional tlLogic); returns (net, additional file)."""
+    import sumo
+
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "n.nod.xml").write_text(
+        '<nodes><node id="W" x="-100" y="0"/><node id="E" x="100" y="0"/><node id="S" x="0" y="-100"/>'
+        '<node id="N" x="0" y="100"/><node id="C" x="0" y="0" type="traffic_light"/></nodes>')
+    (folder / "e.edg.xml").write_text(
+        '<edges><edge id="WC" from="W" to="C" numLanes="1" speed="13.89"/>'
+        '<edge id="CE" from="C" to="E" numLanes="1" speed="13.89"/>'
+        '<edge id="SC" from="S" to="C" numLanes="1" speed="13.89"/>'
+        '<edge id="CN" from="C" to="N" numLanes="1" speed="13.89"/></edges>')
+    net = folder / "x.net.xml"
+    subprocess.run([str(Path(sumo.SUMO_HOME) / "bin" / "netconvert"), "-n", "n.nod.xml", "-e", "e.edg.xml",
+                    "-o", net.name, "--offset.disable-normalization", "true", "--no-turnarounds", "true",
+                    "--no-warnings", "true"], cwd=folder, check=True, capture_output=True)
+    import xml.etree.ElementTree as ET
+
+    n_links = len(next(ET.parse(net).getroot().iter("tlLogic")).find("phase").get("state"))
+    add = folder / "red.add.xml"
+    add.write_text(f'<additional><tlLogic id="C" type="static" programID="red" offset="0">'
+                   f'<phase duration="1000" state="{"r" * n_links}"/></tlLogic></additional>')
+    return net, add
+
+
+@pytest.mark.sumo
+def test_run_ego_through_a_red_light_is_the_egos_fault(tmp_path):
+    # the ego drives W -> E at 10 m/s through the red light at x = 0 and into a car parked on CE
+    # 20 m after the junction: it passed the stop line at red within 5 s, so rule 3 decides (before
+    # rule 5, "moved into a standing car")
+    net, add = build_signalised(tmp_path / "net")
+    (tmp_path / "r.rou.xml").write_text("""<routes>
+      <vType id="car" vClass="passenger" length="4.5" width="1.8"/>
+      <vehicle id="parked" type="car" depart="0" departPos="25" departSpeed="0"><route edges="CE"/>
+        <stop lane="CE_0" endPos="25" duration="1000"/></vehicle>
+      <vehicle id="ego" type="car" depart="0" departPos="60" departSpeed="10"><route edges="WC CE"/></vehicle>
+    </routes>""")
+    cfg = tmp_path / "x.sumocfg"
+    cfg.write_text(f'<configuration><input><net-file value="{net}"/><route-files value="r.rou.xml"/>'
+                   f'<additional-files value="{add}"/></input><time><end value="30"/><step-length value="0.1"/></time>'
+                   '</configuration>')
+    out = tmp_path / "run"
+    summary = run_scripted(cfg, out, Scripted(10.0), end=30)
+    col = pd.read_parquet(out / "collisions.parquet")
+    ego = col[col.involves_ego]
+    assert summary.status.value == "collision" and len(ego) == 1, summary.message
+    r = ego.iloc[0]
+    assert r.id_b == "parked" and r.speed_b < 0.1
+    assert (r.fault, r.fault_reason) == ("ego", "ego entered the junction at red")
+    steps = pd.read_parquet(out / "steps.parquet")
+    assert steps.stop_s.notna().any()  # the red stop line was seen ahead
