@@ -132,6 +132,12 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
               f"drove {d['distance']:.0f} m in {d['steps']} steps, wall {d['wall_time']:.1f} s")
     con.print(f"  collisions: ego {d['collisions']['ego']}, others {d['collisions']['others']}; harm total "
               f"{h['total']:.3f} = ego {h['ego']:.3f} + third party {h['third_party']:.3f} (VRU {h['vru']:.3f})")
+    if d["collisions"]["ego"]:
+        con.print("  fault of the ego collisions: " + ", ".join(f"{k} {v}" for k, v in d["collisions"]["fault"].items()))
+    if "conflicts" in d:
+        c = d["conflicts"]
+        con.print(f"  conflicts: {c['total']} (TTC below threshold {c['ttc']}, PET {c['pet']}, with contact "
+                  f"{c['contact']}; VRU {c['vru']}) in {summary.out / 'conflicts.parquet'}")
     if d.get("decisions", {}).get("steps"):
         con.print(f"  decisions: {d['decisions']['steps']} steps kept ({d['decisions']['mode']}, "
                   f"{d['decisions']['bytes'] / 1e6:.1f} MB) in {summary.out / 'decisions'}: sumo-ethics explain / replay")
