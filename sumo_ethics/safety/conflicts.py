@@ -111,19 +111,23 @@ class ConflictBook:
             radii = 0.5 * np.hypot(e.length[0], e.width[0]) + 0.5 * np.hypot(o.length, o.width)
             vrel = np.hypot(ovx - evx, ovy - evy)
             near = dist - radii < vrel * cfg.ttc  # TTC below the threshold is possible
+            near_trail = np.zeros(len(o), bool)
             if self.pushed:  # within reach of the ego's footprint of the last `pet` seconds
                 with np.errstate(invalid="ignore"):
-                    near |= (np.hypot(o.x - tr[:, 1:2], o.y - tr[:, 2:3]) < radii).any(axis=0)
+                    near_trail = (np.hypot(o.x - tr[:, 1:2], o.y - tr[:, 2:3]) < radii).any(axis=0)
             near_pet = self._pet_into_others_trail(t, e)
             if near_pet:
                 near |= np.fromiter((k in near_pet for k in o.ids), bool, len(o))
-            idx = np.flatnonzero(near)
+            idx = np.flatnonzero(near | near_trail)
         else:  # nobody in range now: nobody to measure (PET counts for road users still in range)
             near_pet, idx = {}, np.empty(0, int)
         if len(idx):
             ob, eb = _boxes(o, idx), _boxes(e, 0)  # only the few that could meet a threshold
             ttc = box_ttc(eb, (evx, evy), ob, (ovx[idx], ovy[idx]))
-            pet = self._pet_into_ego_trail(t, o, idx)
+            pet = np.full(len(idx), np.inf)
+            on_trail = near_trail[idx]
+            if on_trail.any():  # PET into the ego's footprint: only those that can reach it
+                pet[on_trail] = self._pet_into_ego_trail(t, o, idx[on_trail])
             if near_pet:
                 pet = np.minimum(pet, np.array([near_pet.get(o.ids[i], np.inf) for i in idx]))
             pet = np.where(ttc > 0, pet, np.inf)  # boxes in contact: a collision, no encroachment
