@@ -17,7 +17,8 @@ shape (), against N road users, shape (N,)); no Python loops over pairs.
 * :func:`pet_from_trail`: post-encroachment time from past footprints: for boxes ``now`` and
   a trail of the other party's boxes at earlier times, ``now_time - t_last`` where t_last is
   the latest trail time whose box overlaps the box now, counted only where the paths cross
-  (headings apart by at least ``min_angle``).
+  (headings apart by at least ``min_angle``); never below the true PET, at most two sampling
+  intervals above it.
 """
 
 from __future__ import annotations
@@ -121,11 +122,13 @@ def pet_from_trail(now: OrientedBoxes, now_time: float, trail: OrientedBoxes, tr
 
     now: N boxes (fields (N,)) at ``now_time`` [s]; trail: the other party's boxes at W earlier
     instants, fields (W, 1) or (W, N) (one trail shared by all N, or one per box), at
-    ``trail_time`` (W,) [s], oldest first. Returns (N,): now_time - (latest trail time whose box
-    overlaps the box now and whose heading crosses it by ``min_angle`` [rad]), +inf where none.
-    The first party's leaving is known only at the trail's instants, so the result may be too
-    large by up to one trail interval (and 0 < PET is not guaranteed for a trail instant equal
-    to now_time: pass only earlier ones).
+    ``trail_time`` (W,) [s], in any order (NaN rows: empty). Returns (N,): now_time - (latest
+    trail time whose box overlaps the box now and whose heading crosses it by ``min_angle``
+    [rad]), +inf where none. Some place both boxes cover was left by the first party no earlier
+    than that trail time and reached by the second no later than now, so the result is never
+    below the true PET (the shortest such gap over the places both covered); sampled every dt,
+    called at the first step after the second party's arrival, it is at most 2 dt above it.
+    Pass only trail instants before now_time.
     """
     hit = boxes_overlap(trail, now) & crossing(trail.yaw, now.yaw, min_angle)  # (W, N)
     hit = np.broadcast_to(hit, np.broadcast_shapes(hit.shape, (len(trail_time), np.shape(now.x)[-1])))
