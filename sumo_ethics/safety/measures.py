@@ -44,25 +44,28 @@ def box_ttc(a: OrientedBoxes, va: tuple[np.ndarray, np.ndarray], b: OrientedBoxe
     f = lambda v: np.asarray(v, dtype=float)
     dx, dy = f(b.x) - f(a.x), f(b.y) - f(a.y)
     wx, wy = f(vb[0]) - f(va[0]), f(vb[1]) - f(va[1])  # b relative to a
-    ca, sa, cb, sb = np.cos(f(a.yaw)), np.sin(f(a.yaw)), np.cos(f(b.yaw)), np.sin(f(b.yaw))
+    ya, yb = f(a.yaw), f(b.yaw)
     hla, hwa, hlb, hwb = f(a.length) / 2, f(a.width) / 2, f(b.length) / 2, f(b.width) / 2
-    shape = np.broadcast_shapes(dx.shape, dy.shape, wx.shape, wy.shape, ca.shape, cb.shape, hla.shape, hwa.shape,
+    shape = np.broadcast_shapes(dx.shape, dy.shape, wx.shape, wy.shape, ya.shape, yb.shape, hla.shape, hwa.shape,
                                 hlb.shape, hwb.shape)
-    ca, sa, cb, sb = (np.broadcast_to(v, shape) for v in (ca, sa, cb, sb))
-    ux, uy = np.stack([ca, -sa, cb, -sb]), np.stack([sa, ca, sb, cb])  # (4, ...) the four candidate axes
-    # half extent of each box along each axis, summed: r = L/2 |h . u| + W/2 |n . u| for a and b
-    r = (hla * np.abs(ca * ux + sa * uy) + hwa * np.abs(ca * uy - sa * ux)
-         + hlb * np.abs(cb * ux + sb * uy) + hwb * np.abs(cb * uy - sb * ux))
-    p = dx * ux + dy * uy  # centre distance along each axis
-    w = wx * ux + wy * uy  # its rate of change
+    u = np.empty((2, 4, *shape))  # the four candidate axes (x, y): a's heading and normal, b's
+    ca, sa, cb, sb = np.cos(ya), np.sin(ya), np.cos(yb), np.sin(yb)
+    u[0, 0], u[1, 0], u[0, 1], u[1, 1] = ca, sa, -sa, ca
+    u[0, 2], u[1, 2], u[0, 3], u[1, 3] = cb, sb, -sb, cb
+    # half extent of both boxes along each axis (as in boxes_overlap): |cos|, |sin| of the relative heading
+    cr, sr = np.abs(np.cos(yb - ya)), np.abs(np.sin(yb - ya))
+    r = np.empty((4, *shape))
+    r[0], r[1] = hla + hlb * cr + hwb * sr, hwa + hlb * sr + hwb * cr
+    r[2], r[3] = hlb + hla * cr + hwa * sr, hwb + hla * sr + hwa * cr
+    p = dx * u[0] + dy * u[1]  # (4, ...) centre distance along each axis
+    w = wx * u[0] + wy * u[1]  # its rate of change
     moving = np.abs(w) > _STILL
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = np.where(moving, 1.0 / w, 0.0)
+    inv = np.divide(1.0, w, out=np.zeros_like(w), where=moving)
     t1, t2 = (-r - p) * inv, (r - p) * inv
-    apart = np.abs(p) >= r  # separated on this axis now
-    # an axis without relative motion: overlapping for ever or never
-    lo = np.where(moving, np.minimum(t1, t2), np.where(apart, np.inf, -np.inf))
-    hi = np.where(moving, np.maximum(t1, t2), np.where(apart, -np.inf, np.inf))
+    # an axis without relative motion: overlapping for ever (-inf, inf) or never (inf, -inf)
+    fixed = np.where(np.abs(p) >= r, np.inf, -np.inf)
+    lo = np.where(moving, np.minimum(t1, t2), fixed)
+    hi = np.where(moving, np.maximum(t1, t2), -fixed)
     enter = np.maximum(lo.max(axis=0), 0.0)
     leave = hi.min(axis=0)
     return np.where((enter < leave) & (leave > 0), enter, np.inf)
