@@ -84,31 +84,33 @@ def drac(ttc: np.ndarray, rel_speed: np.ndarray) -> np.ndarray:
     return np.where(np.isinf(ttc), 0.0, np.where(ttc <= 0, np.inf, out))
 
 
-def _point_segment(px: np.ndarray, py: np.ndarray, ax: np.ndarray, ay: np.ndarray, bx: np.ndarray,
-                   by: np.ndarray) -> np.ndarray:
-    ex, ey = bx - ax, by - ay
-    t = np.clip(((px - ax) * ex + (py - ay) * ey) / np.maximum(ex * ex + ey * ey, 1e-18), 0.0, 1.0)
-    return np.hypot(px - ax - t * ex, py - ay - t * ey)
+_SL = np.array([1.0, -1.0, -1.0, 1.0])  # corner signs along the heading (FL, RL, RR, FR)
+_SW = np.array([1.0, 1.0, -1.0, -1.0])  # and along the left normal
+
+
+def _corners_to_box(a: OrientedBoxes, b: OrientedBoxes) -> np.ndarray:
+    """Smallest distance [m] from b's four corners to the rectangle a (0 for a corner inside a)."""
+    f = lambda v: np.asarray(v, dtype=float)
+    ca, sa = np.cos(f(a.yaw)), np.sin(f(a.yaw))
+    dx, dy = f(b.x) - f(a.x), f(b.y) - f(a.y)
+    bx, by = dx * ca + dy * sa, dy * ca - dx * sa  # b's centre in a's frame
+    rel = f(b.yaw) - f(a.yaw)
+    cr, sr = np.cos(rel), np.sin(rel)
+    hl, hw = f(b.length)[..., None] / 2 * _SL, f(b.width)[..., None] / 2 * _SW  # (..., 4)
+    px = bx[..., None] + hl * cr[..., None] - hw * sr[..., None]  # corners in a's frame
+    py = by[..., None] + hl * sr[..., None] + hw * cr[..., None]
+    ox = np.maximum(np.abs(px) - f(a.length)[..., None] / 2, 0.0)  # how far outside a, along and across
+    oy = np.maximum(np.abs(py) - f(a.width)[..., None] / 2, 0.0)
+    return np.hypot(ox, oy).min(axis=-1)
 
 
 def box_distance(a: OrientedBoxes, b: OrientedBoxes) -> np.ndarray:
     """Smallest distance [m] between the rectangles a and b (broadcast shape); 0 where they overlap.
 
     For two disjoint convex polygons the closest pair always involves a corner of one of them,
-    so this is the minimum over every corner of a against every edge of b and vice versa.
+    so this is the smaller of the distances from b's corners to a and from a's corners to b.
     """
-    ca, cb = a.corners(), b.corners()  # (..., 4, 2)
-    shape = np.broadcast_shapes(ca.shape[:-2], cb.shape[:-2])
-    ca = np.broadcast_to(ca, shape + (4, 2))
-    cb = np.broadcast_to(cb, shape + (4, 2))
-
-    def corners_to_edges(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-        px, py = p[..., :, None, 0], p[..., :, None, 1]  # (..., 4, 1)
-        q2 = np.roll(q, -1, axis=-2)
-        return _point_segment(px, py, q[..., None, :, 0], q[..., None, :, 1], q2[..., None, :, 0],
-                              q2[..., None, :, 1]).min(axis=(-1, -2))
-
-    d = np.minimum(corners_to_edges(ca, cb), corners_to_edges(cb, ca))
+    d = np.minimum(_corners_to_box(a, b), _corners_to_box(b, a))
     return np.where(boxes_overlap(a, b), 0.0, d)
 
 
