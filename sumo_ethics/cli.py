@@ -75,7 +75,8 @@ def cli() -> None:
                    "too; map_cslstm: the same without the attention).")
 @click.option("--predictor-weights", type=click.Path(path_type=Path),
               help="Weights file for the LSTM predictor (default: the one shipped in the package).")
-@click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")
+@click.option("--config", "config_file", type=click.Path(path_type=Path),
+              help="TOML file with a [planner] table and optionally a [conflicts] table.")
 @click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")
 @click.option("--radius", type=float, default=80.0, show_default=True, help="Sensing radius around the ego [m].")
 @click.option("--overwrite", is_flag=True, help="Replace the outputs of an earlier run in --out (refused otherwise).")
@@ -110,15 +111,15 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
 
     from sumo_ethics import notes
     from sumo_ethics.runner import make_controller, run as run_scenario
-    from sumo_ethics.settings import load_toml, planner_config
+    from sumo_ethics.settings import conflicts_config, load_run_toml, planner_config
 
-    table = load_toml(config_file) if config_file is not None else None
+    table, conflicts = load_run_toml(config_file) if config_file is not None else (None, conflicts_config(None))
     planner = planner_config(table, omega_u=omega_u, omega_o=omega_o, weights=weights, utility=utility,
                              normalise=normalise, predictor=predictor, predictor_weights=predictor_weights, selection=selection)
     if (scenario.parent / "hazards.json").is_file():  # a suite scenario: run does not inject hazards
         click.echo(f"note: {scenario.parent / 'hazards.json'} is not used by 'run' (no hazards, your ego); "
                    f"'sumo-ethics evaluate {scenario.parent}' runs the scenario as the suite defines it", err=True)
-    cfg = replace(cfg, planner=planner)
+    cfg = replace(cfg, planner=planner, conflicts=conflicts)
     # built before SUMO starts, so a bad weights file or setting fails at once
     summary = run_scenario(cfg, controller=make_controller(cfg))
     d = summary.data
@@ -131,6 +132,12 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
               f"drove {d['distance']:.0f} m in {d['steps']} steps, wall {d['wall_time']:.1f} s")
     con.print(f"  collisions: ego {d['collisions']['ego']}, others {d['collisions']['others']}; harm total "
               f"{h['total']:.3f} = ego {h['ego']:.3f} + third party {h['third_party']:.3f} (VRU {h['vru']:.3f})")
+    if d["collisions"]["ego"]:
+        con.print("  fault of the ego collisions: " + ", ".join(f"{k} {v}" for k, v in d["collisions"]["fault"].items()))
+    if "conflicts" in d:
+        c = d["conflicts"]
+        con.print(f"  conflicts: {c['total']} (TTC below threshold {c['ttc']}, PET {c['pet']}, with contact "
+                  f"{c['contact']}; VRU {c['vru']}) in {summary.out / 'conflicts.parquet'}")
     if d.get("decisions", {}).get("steps"):
         con.print(f"  decisions: {d['decisions']['steps']} steps kept ({d['decisions']['mode']}, "
                   f"{d['decisions']['bytes'] / 1e6:.1f} MB) in {summary.out / 'decisions'}: sumo-ethics explain / replay")

@@ -19,6 +19,7 @@ import numpy as np
 
 from sumo_ethics.ethics.harm import CrashOutcome, ImpactArea, Party, crash_outcome
 from sumo_ethics.geometry import OrientedBoxes, boxes_overlap, wrap_angle
+from sumo_ethics.safety.fault import FaultContext, fault
 from sumo_ethics.types import AgentStates, RoadUserClass
 
 #: at most this much relative motion [m] between two tested sub-steps
@@ -116,10 +117,14 @@ def _party(s: AgentStates, i: int) -> Party:
 
 
 def collision_row(event: int, t: float, step: int, a: AgentStates, b: AgentStates, involves_ego: bool,
-                  detector: str, sumo_type: str) -> dict[str, Any]:
-    """One collisions.parquet row for parties a and b (1 agent each, states before impact)."""
+                  detector: str, sumo_type: str, ctx: FaultContext | None = None) -> dict[str, Any]:
+    """One collisions.parquet row for parties a and b (1 agent each, states before impact); the
+    fault from :func:`sumo_ethics.safety.fault.fault` with ``ctx`` (ego collisions only)."""
     out: CrashOutcome = crash_outcome(_party(a, 0), _party(b, 0))
     harm_a, harm_b = float(out.harm_a), float(out.harm_b)
+    area_a, area_b = ImpactArea(int(out.area_a)).name.lower(), ImpactArea(int(out.area_b)).name.lower()
+    who, why = fault(float(a.speed[0]), area_a, b.ids[0], int(b.cls[0]), float(b.speed[0]), area_b, ctx) \
+        if involves_ego else ("unknown", "the ego was not involved")
     return {
         "event": event, "time": t, "step": step, "involves_ego": involves_ego, "detector": detector,
         "sumo_type": sumo_type, "id_a": a.ids[0], "id_b": b.ids[0],
@@ -130,10 +135,10 @@ def collision_row(event: int, t: float, step: int, a: AgentStates, b: AgentState
         "yaw_a": float(a.yaw[0]), "yaw_b": float(b.yaw[0]),
         "mass_a": float(a.mass[0]), "mass_b": float(b.mass[0]),
         "delta_v": float(out.delta_v), "dv_a": float(out.dv_a), "dv_b": float(out.dv_b),
-        "area_a": ImpactArea(int(out.area_a)).name.lower(), "area_b": ImpactArea(int(out.area_b)).name.lower(),
+        "area_a": area_a, "area_b": area_b,
         "harm_a": harm_a, "harm_b": harm_b,
     } | booking({"harm_a": harm_a, "harm_b": harm_b, "class_b": RoadUserClass(int(b.cls[0])).label},
-                is_booked({"involves_ego": involves_ego, "detector": detector}))
+                is_booked({"involves_ego": involves_ego, "detector": detector})) | {"fault": who, "fault_reason": why}
 
 
 def booking(row: dict[str, Any], book: bool) -> dict[str, float]:
@@ -204,10 +209,11 @@ class CollisionBook:
         """The first ego collision that counts (see :func:`is_booked`), or None."""
         return next((r for r in self.sink.collisions if is_booked(r)), None)
 
-    def detect(self, before: Any, now: Any, step: int) -> bool:
+    def detect(self, before: Any, now: Any, step: int, ctx: FaultContext | None = None) -> bool:
         """Log the collisions between snapshots ``before`` and ``now`` (ego step ``step``), the
         ego's from the swept boxes and SUMO's reports, the others' from SUMO's reports (the
-        harm from the parties' states just before impact). True if the ego had a new one."""
+        harm from the parties' states just before impact, the fault with ``ctx``). True if the
+        ego had a new one."""
         rows = self.sink.collisions
         ego_id = now.ego.ids[0]
         t = now.time
@@ -240,7 +246,7 @@ class CollisionBook:
             if b is None:
                 continue
             new = collision_row(len(rows) if row is None else idx, t, step, before.ego, b, True, detector,
-                                report[6] if report else "")
+                                report[6] if report else "", ctx)
             if row is None:
                 self._book(new, ego_id, other)
             else:  # SUMO reported the pair earlier, unconfirmed by the boxes: the impact is now

@@ -41,6 +41,27 @@ class EgoVehicle:
 
 
 @dataclass(frozen=True)
+class ConflictConfig:
+    """Conflicts (near misses) measured every step between the ego and each road user in range
+    (:mod:`sumo_ethics.safety.conflicts`). A pair is in conflict while its box time to collision
+    is below ``ttc`` or its post-encroachment time below ``pet``; TOML table ``[conflicts]``."""
+
+    enabled: bool = True  # measure and write conflicts.parquet
+    ttc: float = 1.5  # s, time-to-collision threshold (SUMO's SSM device default, 3 s there)
+    pet: float = 1.0  # s, post-encroachment-time threshold
+    gap: float = 1.0  # s, a pair back in conflict within this time continues its event
+    crossing_angle: float = 30.0  # deg, PET counts only where the headings differ by at least this
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.enabled, bool):
+            raise ConfigError(f"conflicts.enabled must be true or false, got {self.enabled!r}")
+        for name in ("ttc", "pet", "gap"):
+            require_number(f"conflicts.{name}", getattr(self, name))
+        if require_number("conflicts.crossing_angle", self.crossing_angle, allow_zero=True) > 90.0:
+            raise ConfigError(f"conflicts.crossing_angle must be at most 90 degrees, got {self.crossing_angle!r}")
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """Everything one run needs. ``end`` and ``ego_depart`` are simulation times [s] (absolute,
     like SUMO's own ``--end``; times before the scenario's begin are refused)."""
@@ -66,6 +87,7 @@ class RunConfig:
     overwrite: bool = False  # replace the outputs of an earlier run in ``out`` (refused otherwise)
     planner: Any = None  # sumo_ethics.plan.ethical.PlannerConfig for the "ethical" controller (None: defaults)
     record_decisions: str = "off"  # off | collisions | risky | all (sumo_ethics.record.decisions)
+    conflicts: ConflictConfig = field(default_factory=ConflictConfig)  # near misses (conflicts.parquet)
 
     def __post_init__(self) -> None:
         from sumo_ethics.record.decisions import MODES

@@ -32,6 +32,8 @@ from sumo_ethics.plan.history import History
 from sumo_ethics.record.recorder import RunRecorder
 from sumo_ethics.record.decisions import FOLDER as DECISIONS, SNAPSHOTS
 from sumo_ethics.record.writer import PARTIAL, write_json
+from sumo_ethics.safety.conflicts import ConflictBook, conflict_counts
+from sumo_ethics.safety.fault import FAULTS, RED_MEMORY, FaultContext
 from sumo_ethics.sim import preflight, scenario as scenario_files, session
 from sumo_ethics.sim.ego import start_ego
 from sumo_ethics.sim.route import tight_bends
@@ -54,7 +56,7 @@ class RunSummary:
 
 #: every file or folder a run writes into its --out folder
 OUTPUT_NAMES = ("summary.json", "config.json", "steps.parquet", "timings.parquet", "collisions.parquet",
-                "sumo-errors.log", "sumo-outputs", PARTIAL, DECISIONS, SNAPSHOTS)
+                "conflicts.parquet", "sumo-errors.log", "sumo-outputs", PARTIAL, DECISIONS, SNAPSHOTS)
 
 
 def prepare_out(out: Path, overwrite: bool = False) -> tuple[bool, Path | None]:
@@ -137,16 +139,23 @@ class Run:
         self.notes: RunNotes | None = None  # tight bends and a lonely standstill (sumo_ethics.notes)
         self.step = 0
         self.n_fallback = 0  # predicted agents replaced by constant velocity (non-finite prediction), summed
+        self.conflicts: ConflictBook | None = None
+        self.red_s: float | None = None  # arc length of the red stop line ahead at the last read
+        self.ran_red_at = -float("inf")  # s, when the ego last passed a stop line at red
         self.t_start = wallclock.perf_counter()
 
     def stop_line(self, s_front: float) -> float | None:
-        """Arc length of the next red/yellow stop line within 100 m ahead of the ego's front."""
+        """Arc length of the next red/yellow stop line within 100 m ahead of the ego's front (and
+        in ``red_s`` that line's arc length if it shows red, else None)."""
+        self.red_s = None
         for link in self.world.route.links:
             if link.s < s_front - 0.5:
                 continue
             if link.s - s_front > 100.0:
                 return None
-            if self.world.link_state(link) in STOP_STATES:
+            state = self.world.link_state(link)
+            if state in STOP_STATES:
+                self.red_s = link.s if state in "rR" else None
                 return link.s
         return None
 
@@ -209,6 +218,9 @@ class Run:
         self.cfg = cfg = replace(cfg, ego=replace(cfg.ego, mass=float(snap.ego.mass[0])))
         self.meta["ego_limits"] = asdict(cfg.ego)
         collisions = CollisionBook(self.rec, cfg.collision_gap, world.party_state)
+        if cfg.conflicts.enabled:
+            self.conflicts = ConflictBook(self.rec, cfg.conflicts, dt)
+            self.rec.record_conflicts()
         half = float(snap.ego.length[0]) / 2
         s, d = route.path.project_point(float(snap.ego.x[0]), float(snap.ego.y[0]))
         progress = _progress(cfg.progress, snap.time, end)
@@ -252,14 +264,26 @@ class Run:
                                           f"{route.length - s - half:.1f} m before its goal")
                 w3 = wallclock.perf_counter()
                 # detect
-                ego_hit = collisions.detect(snap, new, self.step)
+                envelope = decision.info.get("cost_envelope")
+                ctx = FaultContext(ego_accel=(float(new.ego.speed[0]) - float(snap.ego.speed[0])) / dt,
+                                   decel_limit=cfg.ego.max_decel, rule_breakers=scene.rule_breakers,
+                                   ego_ran_red=new.time - self.ran_red_at <= RED_MEMORY,
+                                   ego_in_envelope=None if envelope is None else bool(envelope > 0))
+                ego_hit = collisions.detect(snap, new, self.step, ctx)
                 w4 = wallclock.perf_counter()
+                if self.conflicts is not None:
+                    self.conflicts.observe(new, self.step)
+                w5 = wallclock.perf_counter()
                 # record
                 s, d = route.path.project_point(float(new.ego.x[0]), float(new.ego.y[0]),
                                                 near=(s - 5.0, s + 5.0 + 50.0 * dt))
+                if self.red_s is not None and s + half > self.red_s + 0.5:  # passed a stop line showing red
+                    self.ran_red_at = new.time  # (known from the next step's collisions on)
                 row, timing = self._rows(new, snap, decision, s, d, dt, (w1 - w0, w2 - w1, w3 - w2, w4 - w3),
                                          scene.stop_s)
-                timing["record_ms"] = 1e3 * (wallclock.perf_counter() - w4)
+                timing["record_ms"] = 1e3 * (wallclock.perf_counter() - w5)
+                if self.conflicts is not None:
+                    timing["conflict_ms"] = 1e3 * (w5 - w4)
                 # flushes a chunk every CHUNK_SECONDS of simulated time; keeps the decision by mode
                 self.rec.step(row, timing, decision.trace, t, ego_hit)
                 notes.step(row["time"], s, row["speed"], row["n_neighbours"], row["stop_s"], row["lane"])
@@ -355,7 +379,9 @@ class Run:
             "harm": harm,
             "collisions": {"ego": len(ego_rows),
                            "ego_unconfirmed": sum(r["detector"] == "sumo_unconfirmed" for r in self.rec.collisions),
-                           "others": sum(not r["involves_ego"] for r in self.rec.collisions)},
+                           "others": sum(not r["involves_ego"] for r in self.rec.collisions),
+                           "fault": {f: sum(r["fault"] == f for r in ego_rows) for f in FAULTS}},
+            **({"conflicts": conflict_counts(self.rec.conflicts)} if self.rec.conflicts is not None else {}),
             "seed": self.cfg.seed,
             "steps": self.rec.n_steps,
             "n_fallback": self.n_fallback,

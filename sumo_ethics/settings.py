@@ -1,6 +1,7 @@
 """Planner settings from the command line and TOML files, validated before SUMO starts.
 
-A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, normalise, predictor,
+A TOML file for ``run`` may also have a ``[conflicts]`` table (:class:`~sumo_ethics.config.ConflictConfig`:
+enabled, ttc, pet, gap, crossing_angle; sweeps read ``[planner]`` alone). A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, normalise, predictor,
 predictor_weights, calibrated, max_risk, braking_prior, lateral_prior, selection, envelope, entry) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
 ``[planner.principles]`` (custom J_origin weights); unknown keys are errors. ``probability =
 "origin"`` (or ``"shapes"``) is short for ``[planner.probability] method = ...``.
@@ -53,6 +54,30 @@ def _weight(name: str, value: Any) -> float:
 
 
 def load_toml(path: Path) -> dict[str, Any]:
+    """The ``[planner]`` table of a TOML file (the only table sweeps read)."""
+    return _read_toml(path, {"planner"})[0]
+
+
+def load_run_toml(path: Path):
+    """The ``[planner]`` table and the :class:`~sumo_ethics.config.ConflictConfig` of ``[conflicts]``
+    (enabled, ttc, pet, gap, crossing_angle) of a TOML file for ``run``."""
+    planner, data = _read_toml(path, {"planner", "conflicts"})
+    return planner, conflicts_config(data.get("conflicts"), str(path))
+
+
+def conflicts_config(table: Any, where: str = "settings"):
+    """A validated ConflictConfig from a ``[conflicts]`` table (None: the defaults)."""
+    from sumo_ethics.config import ConflictConfig
+
+    if table is None:
+        return ConflictConfig()
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: 'conflicts' must be a table ([conflicts]), got {table!r}")
+    _known(table, {f.name for f in fields(ConflictConfig)}, f"[conflicts] of {where}")
+    return ConflictConfig(**table)
+
+
+def _read_toml(path: Path, tables: set[str]) -> tuple[dict[str, Any], dict[str, Any]]:
     path = Path(path)
     if path.is_dir():
         raise ConfigError(f"config file {path} is a folder, not a TOML file")
@@ -65,11 +90,11 @@ def load_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"cannot read config file {path}: {exc.strerror or exc}") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"malformed TOML in {path}: {exc}") from None
-    _known(data, {"planner"}, str(path))
+    _known(data, tables, str(path))
     planner = data.get("planner", {})
     if not isinstance(planner, dict):
         raise ConfigError(f"{path}: 'planner' must be a table ([planner]), got {planner!r}")
-    return planner
+    return planner, data
 
 
 def planner_config(table: dict[str, Any] | None = None, **overrides: Any):

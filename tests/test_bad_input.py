@@ -221,6 +221,6 @@ def test_overwrite_replaces_only_the_run_outputs(tmp_path):
     run(RunConfig(TESTBED, out, end=3.0, controller="baseline", progress=False, overwrite=True))
     assert json.loads((out / "summary.json").read_text())["status"] == "timeout"
     assert (out / "notes.txt").read_text() == PREVIOUS["notes.txt"]  # the user's file is kept
-    assert sorted(p.name for p in out.iterdir()) == sorted(["collisions.parquet", "config.json", "notes.txt",
-                                                            "steps.parquet", "sumo-errors.log", "summary.json",
-                                                            "timings.parquet"])
+    assert sorted(p.name for p in out.iterdir()) == sorted(["collisions.parquet", "conflicts.parquet", "config.json",
+                                                            "notes.txt", "steps.parquet", "sumo-errors.log",
+                                                            "summary.json", "timings.parquet"])

@@ -13,7 +13,8 @@ import pyarrow.parquet as pq
 from sumo_ethics.record import schema
 from sumo_ethics.record.writer import PARTIAL, conform, read_segment, segments, union_schema
 
-BASES = {"steps": schema.STEPS_BASE, "timings": schema.TIMINGS_BASE, "collisions": schema.COLLISIONS}
+BASES = {"steps": schema.STEPS_BASE, "timings": schema.TIMINGS_BASE, "collisions": schema.COLLISIONS,
+         "conflicts": schema.CONFLICTS}
 
 
 def is_incomplete(folder: Path) -> bool:
@@ -30,7 +31,7 @@ def _readable(path: Path) -> pa.Table | None:
 
 
 def read_table(folder: Path, name: str) -> pa.Table:
-    """Table ``name`` (steps, timings, collisions) of a run folder: the finished file, else the
+    """Table ``name`` (steps, timings, collisions, conflicts) of a run folder: the finished file, else the
     rows a killed run left in ``partial/`` (up to its last flush), else empty."""
     folder = Path(folder)
     base = BASES.get(name, pa.schema([]))
@@ -42,8 +43,8 @@ def read_table(folder: Path, name: str) -> pa.Table:
 
             raise ConfigError(f"{final} is not a readable Parquet file (truncated or corrupt)")
         return t
-    if name == "collisions":
-        t = _readable(folder / PARTIAL / "collisions.parquet")
+    if name in ("collisions", "conflicts"):  # rewritten whole at each flush
+        t = _readable(folder / PARTIAL / f"{name}.parquet")
         return t if t is not None else base.empty_table()
     parts = [(sch, batches) for p in segments(folder / PARTIAL, name) for sch, batches in [read_segment(p)]
              if sch is not None]
@@ -56,6 +57,8 @@ def read_table(folder: Path, name: str) -> pa.Table:
 def recover_summary(folder: Path) -> dict[str, Any]:
     """``summary.json`` of a run folder, or one rebuilt from its rows (status ``incomplete``) when
     the run was killed before writing it."""
+    from sumo_ethics.safety.conflicts import conflict_counts
+
     folder = Path(folder)
     path = folder / "summary.json"
     if path.is_file():
@@ -70,6 +73,7 @@ def recover_summary(folder: Path) -> dict[str, Any]:
     booked = [r for r in coll if r.get("involves_ego") and r.get("detector") != "sumo_unconfirmed"]
     harm = {k: float(sum(r.get(f"harm_{k}") or 0.0 for r in booked)) for k in ("ego", "third_party", "vru")}
     harm["total"] = harm["ego"] + harm["third_party"]
+    faults = {f: sum(r.get("fault") == f for r in booked) for f in ("ego", "other", "shared", "unknown")}
     cfg: dict[str, Any] = {}
     try:
         cfg = json.loads((folder / "config.json").read_text())
@@ -81,7 +85,9 @@ def recover_summary(folder: Path) -> dict[str, Any]:
                    f"(up to t={steps[-1]['time']:g} s)" if steps else "the run was killed before it wrote any step",
         "completed": False, "collided": bool(booked), "harm": harm,
         "collisions": {"ego": len(booked), "ego_unconfirmed": sum(r.get("detector") == "sumo_unconfirmed" for r in coll),
-                       "others": sum(not r.get("involves_ego") for r in coll)},
+                       "others": sum(not r.get("involves_ego") for r in coll), "fault": faults},
+        **({"conflicts": conflict_counts(read_table(folder, "conflicts").to_pylist())}
+           if cfg.get("conflicts", {}).get("enabled") else {}),
         "seed": cfg.get("seed"), "steps": len(steps),
         "distance": float(steps[-1]["s"] - steps[0]["s"]) if steps else 0.0,
         "sim_time": float(steps[-1]["time"]) if steps else None,

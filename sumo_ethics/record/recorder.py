@@ -26,7 +26,8 @@ class RunRecorder:
     the end writes the finished files.
 
     Collision rows stay in memory (events are few, and one is updated while it lasts) and are
-    rewritten to ``partial/collisions.parquet`` at a flush when they changed.
+    rewritten to ``partial/collisions.parquet`` at a flush when they changed; so are conflict
+    rows (``partial/conflicts.parquet``, once :meth:`record_conflicts` was called).
     """
 
     def __init__(self, out: Path, chunk: int = 20) -> None:
@@ -36,6 +37,8 @@ class RunRecorder:
         self.tables = {name: ChunkedTable(self.partial, name, base) for name, base in STREAMED.items()}
         self.collisions: list[dict[str, Any]] = []
         self._collisions_dirty = False
+        self.conflicts: list[dict[str, Any]] | None = None  # a list once conflicts are recorded
+        self._conflicts_dirty = False
         self.n_steps = 0
         self.first_step: dict[str, Any] | None = None
         self.last_step: dict[str, Any] | None = None
@@ -80,6 +83,21 @@ class RunRecorder:
         self.collisions[index].update(changes)
         self._collisions_dirty = True
 
+    def record_conflicts(self) -> None:
+        """Write conflicts.parquet (rows from :meth:`add_conflict`) with the other outputs."""
+        if self.conflicts is None:
+            self.conflicts = []
+
+    def add_conflict(self, row: dict[str, Any]) -> int:
+        self.record_conflicts()
+        self.conflicts.append(row)
+        self._conflicts_dirty = True
+        return len(self.conflicts) - 1
+
+    def update_conflict(self, index: int, **changes: Any) -> None:
+        self.conflicts[index].update(changes)
+        self._conflicts_dirty = True
+
     # -- files --
     def flush(self) -> None:
         """Append what is buffered to the streams in ``partial/`` (and write the collisions, if
@@ -90,10 +108,16 @@ class RunRecorder:
             self.partial.mkdir(parents=True, exist_ok=True)
             write_table(self.partial / "collisions.parquet", self.collisions, schema.COLLISIONS)
             self._collisions_dirty = False
+        if self._conflicts_dirty:
+            self.partial.mkdir(parents=True, exist_ok=True)
+            write_table(self.partial / "conflicts.parquet", self.conflicts, schema.CONFLICTS)
+            self._conflicts_dirty = False
 
     def close(self) -> None:
         """Write the finished files and remove ``partial/``."""
         for name, t in self.tables.items():
             t.finish(self.out / f"{name}.parquet")
         write_table(self.out / "collisions.parquet", self.collisions, schema.COLLISIONS)
+        if self.conflicts is not None:
+            write_table(self.out / "conflicts.parquet", self.conflicts, schema.CONFLICTS)
         shutil.rmtree(self.partial, ignore_errors=True)

@@ -26,6 +26,29 @@ COLLISIONS = pa.schema([
     ("harm_ego", pa.float64()),          # harm booked to the ego (0 unless involves_ego)
     ("harm_third_party", pa.float64()),  # harm booked to the other party of an ego collision
     ("harm_vru", pa.float64()),          # the part of harm_third_party that hit a VRU
+    ("fault", pa.string()),              # ego | other | shared | unknown (sumo_ethics.safety.fault)
+    ("fault_reason", pa.string()),       # the rule that decided it
+])
+
+#: one row per conflict event between the ego (party a) and another road user (b)
+#: (sumo_ethics.safety.conflicts); the state columns are those of the event's worst step
+CONFLICTS = pa.schema([
+    ("event", pa.int32()),          # running number in this run
+    ("id_a", pa.string()), ("id_b", pa.string()),
+    ("class_a", pa.string()), ("class_b", pa.string()),  # RoadUserClass labels
+    ("type_b", pa.string()),        # SUMO vType id of b
+    ("start", pa.float64()), ("end", pa.float64()),  # s, first and last step in conflict
+    ("step_start", pa.int32()),     # ego step of the start
+    ("n_steps", pa.int32()),        # steps in conflict
+    ("min_ttc", pa.float64()),      # s, box TTC at constant velocity (NaN: never on a collision course)
+    ("min_pet", pa.float64()),      # s, post-encroachment time where the paths cross (NaN: none)
+    ("max_drac", pa.float64()),     # m/s^2, |v_rel| / (2 TTC) (0: no collision course; contact excluded)
+    ("min_distance", pa.float64()), # m, box to box
+    ("ttc_below", pa.bool_()), ("pet_below", pa.bool_()),  # which threshold the event fell below
+    ("contact", pa.bool_()),        # the boxes overlapped at a step (a collision)
+    ("speed_a", pa.float64()), ("speed_b", pa.float64()),  # m/s, at the worst step
+    ("x_a", pa.float64()), ("y_a", pa.float64()), ("x_b", pa.float64()), ("y_b", pa.float64()),  # m, centres
+    ("time_worst", pa.float64()),   # s, the worst step: min TTC, else min PET
 ])
 
 #: one row per ego step, after the step
