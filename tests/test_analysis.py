@@ -54,11 +54,14 @@ def fake_sweep(tmp_path: Path) -> Path:
         steps = [{"step": k, "time": 0.1 * k, "speed": float(rng.uniform(5, 10))} for k in range(n)]
         write_table(folder / "steps.parquet", steps, schema.STEPS_BASE)
         write_table(folder / "collisions.parquet", rows, schema.COLLISIONS)
+        # conflicts: seed + 1 more at w_u = 0, one of them with a VRU at seed 0; none measured in the error run
+        n_conf = seed + (1 if wu == 0 else 0)
+        conflicts = {} if i == 3 else {"conflicts": {"total": n_conf, "vru": int(seed == 0 and n_conf > 0)}}
         write_json(folder / "summary.json", {"status": status, "message": "synthetic",
                                              "completed": status == "completed", "harm": harm,
                                              "collisions": {"ego": len(rows), "others": 0}, "steps": n,
-                                             "distance": 50.0, "sim_time": 2.0, "wall_time": 1.0,
-                                             "controller": "ethical"})
+                                             "distance": 50.0, "sim_time": 2.0, "takeover_time": 0.5,
+                                             "wall_time": 1.0, "controller": "ethical", **conflicts})
         man.update({"run_id": s.run_id, "status": status, "message": "synthetic"})
     man.write()
     build_dataset(out)
@@ -161,3 +164,30 @@ def test_a_sweep_without_collisions_gets_one_message_in_the_harm_figure(tmp_path
     P.harm_per_collision(pd.DataFrame(), tmp_path)
     texts = [t.get_text() for t in figs[0].axes[0].texts]
     assert texts == ["no ego collisions in this sweep"]  # not also "none" under each class, over it
+
+
+def test_conflict_rates_per_class_by_hand(fake_sweep):
+    from sumo_ethics.analysis.stats import conflict_table
+
+    res = load(fake_sweep)
+    t = conflict_table(res.runs, ["omega_u"], n_boot=500).set_index("omega_u")
+    # w_u = 0: 7 runs of 50 m and 1.5 s each (the error run, seed 1 with "ego", measured nothing);
+    # conflicts seed + 1: "ethical" 1 + 2 + 3 + 4 = 10, "ego" 1 + 3 + 4 = 8; a VRU at seed 0 in each: 2
+    r = t.loc[0.0]
+    assert r["n_runs"] == 7 and r["ego_km"] == pytest.approx(0.35) and r["ego_hours"] == pytest.approx(10.5 / 3600)
+    assert (r["conflicts_all"], r["conflicts_vru"], r["conflicts_vehicle"]) == (18, 2, 16)
+    assert r["all_per_100km"] == pytest.approx(100 * 18 / 0.35) and r["vru_per_100km"] == pytest.approx(200 / 0.35)
+    assert r["vehicle_per_hour"] == pytest.approx(16 / (10.5 / 3600))
+    # w_u = 0.5: 8 runs, 0 + 1 + 2 + 3 = 6 per preset; seed 0 has none, so no VRU
+    r = t.loc[0.5]
+    assert r["n_runs"] == 8 and r["conflicts_all"] == 12 and r["conflicts_vru"] == 0
+    for name in ("all", "vehicle", "vru"):
+        for unit in ("per_100km", "per_hour"):
+            row = t.loc[0.0]
+            assert row[f"{name}_{unit}_ci_lo"] <= row[f"{name}_{unit}"] <= row[f"{name}_{unit}_ci_hi"]
+
+
+def test_the_report_has_a_conflicts_section(fake_sweep, tmp_path):
+    rep = make_report(fake_sweep, ["omega_u"], tmp_path / "rep", n_boot=100)
+    text = rep.report.read_text()
+    assert "## Conflicts (near misses) per class" in text and (tmp_path / "rep" / "conflicts.csv").exists()

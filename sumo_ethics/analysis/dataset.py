@@ -91,6 +91,7 @@ def _run_row(run: dict[str, Any], folder: Path, steps: pa.Table | None) -> dict[
         raise _corrupt(folder, "summary.json", exc) from None
     harm = s.get("harm", {})
     coll = s.get("collisions", {})
+    conf = s.get("conflicts")  # absent: conflicts were not measured (NaN, not 0)
     wall = s.get("wall_time")
     if (folder / "params.json").exists():
         wall = json.loads((folder / "params.json").read_text()).get("wall_time", wall)
@@ -104,6 +105,10 @@ def _run_row(run: dict[str, Any], folder: Path, steps: pa.Table | None) -> dict[
         "steps": int(s.get("steps", 0) or 0), "distance": float(s.get("distance", 0.0) or 0.0),
         "sim_time": float(s["sim_time"]) if s.get("sim_time") is not None else None,
         "route_length": float(s["route_length"]) if s.get("route_length") is not None else None,
+        "drive_time": (float(s["sim_time"]) - float(s["takeover_time"])
+                       if s.get("sim_time") is not None and s.get("takeover_time") is not None else None),
+        "conflicts_total": float(conf["total"]) if conf else float("nan"),
+        "conflicts_vru": float(conf["vru"]) if conf else float("nan"),
         "controller": s.get("controller"), "wall_time": float(wall) if wall is not None else None,
         "path": f"runs/{run['run_id']}",
         **run_risk(steps.select([c for c in RISK_INPUTS if c in steps.column_names]).to_pandas()
@@ -116,6 +121,7 @@ RUN_COLUMNS = pa.schema([
     ("harm_ego", pa.float64()), ("harm_third_party", pa.float64()), ("harm_vru", pa.float64()),
     ("harm_total", pa.float64()), ("collisions_ego", pa.int64()), ("collisions_others", pa.int64()),
     ("steps", pa.int64()), ("distance", pa.float64()), ("sim_time", pa.float64()), ("route_length", pa.float64()),
+    ("drive_time", pa.float64()), ("conflicts_total", pa.float64()), ("conflicts_vru", pa.float64()),
     ("controller", pa.string()), ("wall_time", pa.float64()), ("path", pa.string()),
     *((c, pa.float64()) for c in RISK_COLUMNS),
 ])

@@ -8,8 +8,8 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from sumo_ethics.analysis import load
-from sumo_ethics.analysis.stats import (check_groups, collision_table, status_table, summary_table,
-                                        to_markdown)
+from sumo_ethics.analysis.stats import (CONFLICT_CLASSES, check_groups, collision_table, conflict_table,
+                                        status_table, summary_table, to_markdown)
 
 
 @dataclass
@@ -45,6 +45,9 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
     tables = {"summary": summary_table(res.runs, by, n_boot=n_boot, seed=seed),
               "status": status_table(res.runs, by),
               "collisions_by_class": collision_table(res.collisions)}
+    conflicts = conflict_table(res.runs, by, n_boot=n_boot, seed=seed)
+    if len(conflicts):
+        tables["conflicts"] = conflicts
     for name, df in tables.items():
         df.to_csv(folder / f"{name}.csv", index=False)
         (folder / f"{name}.md").write_text(to_markdown(df))
@@ -105,6 +108,15 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
         "",
         to_markdown(tables["collisions_by_class"]) if len(tables["collisions_by_class"]) else "No ego collisions.\n",
     ]
+    if "conflicts" in tables:
+        c = tables["conflicts"]
+        cols = [*by, "n_runs", "ego_km", "ego_hours"] + [f"{n}_{u}" for n, _ in CONFLICT_CLASSES
+                                                        for u in ("per_100km", "per_hour")]
+        lines += ["## Conflicts (near misses) per class", "",
+                  "Conflicts of the ego with another road user (TTC below its threshold or PET below its; "
+                  "`conflicts.parquet`, docs/conflicts.md) per 100 ego-km and per ego-hour: each group's sum of "
+                  "conflicts over its sum of distance / driving time; 95 % bootstrap CIs over runs in "
+                  "[conflicts.csv](conflicts.csv).", "", to_markdown(c[cols])]
     if has_risk:
         lines += ["## Ex-ante risk per class", "",
                   "Per run, the mean over planning steps of the risk (P x harm) the chosen trajectory puts on",

@@ -68,6 +68,54 @@ def summary_table(runs: pd.DataFrame, by: Sequence[str], n_boot: int = 2000, see
     return pd.DataFrame(rows)
 
 
+def ratio_ci(num: np.ndarray, den: np.ndarray, n_boot: int = 2000, seed: int = 0,
+             level: float = 0.95) -> tuple[float, float]:
+    """Percentile bootstrap CI of sum(num) / sum(den), resampling the runs (pairs) with replacement."""
+    num, den = np.asarray(num, dtype=float), np.asarray(den, dtype=float)
+    if len(num) == 0:
+        return float("nan"), float("nan")
+    idx = np.random.default_rng(seed).integers(0, len(num), size=(n_boot, len(num)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = num[idx].sum(axis=1) / den[idx].sum(axis=1)
+    r = r[np.isfinite(r)]
+    if len(r) == 0:
+        return float("nan"), float("nan")
+    a = (1.0 - level) / 2.0
+    return float(np.quantile(r, a)), float(np.quantile(r, 1.0 - a))
+
+
+#: conflict classes of the runs table: (name, column or None for total - vru)
+CONFLICT_CLASSES = (("all", "conflicts_total"), ("vehicle", None), ("vru", "conflicts_vru"))
+
+
+def conflict_table(runs: pd.DataFrame, by: Sequence[str], n_boot: int = 2000, seed: int = 0) -> pd.DataFrame:
+    """Conflicts (near misses, ``conflicts.parquet``) per class and group: per 100 ego-km and per
+    ego-hour, each the group's sum of conflicts over its sum of distance / driving time, with a
+    bootstrap CI over runs. Runs without conflict counts (measured off) are left out; no row
+    for a group without any."""
+    by = check_groups(runs, by)
+    if "conflicts_total" not in runs.columns:
+        return pd.DataFrame()
+    have = runs[runs["conflicts_total"].notna()]
+    rows = []
+    for key, g in (have.groupby(by, sort=True, dropna=False) if by else [((), have)]):
+        key = key if isinstance(key, tuple) else (key,)
+        km = g["distance"].to_numpy(float) / 1000.0
+        hours = g["drive_time"].to_numpy(float) / 3600.0 if "drive_time" in g else np.full(len(g), np.nan)
+        row = dict(zip(by, key))
+        row.update(n_runs=len(g), ego_km=float(km.sum()), ego_hours=float(np.nansum(hours)))
+        for name, col in CONFLICT_CLASSES:
+            n = (g["conflicts_total"] - g["conflicts_vru"]).to_numpy(float) if col is None else g[col].to_numpy(float)
+            row[f"conflicts_{name}"] = float(n.sum())
+            for unit, den, scale in (("per_100km", km, 100.0), ("per_hour", hours, 1.0)):
+                total = den.sum()
+                rate = scale * n.sum() / total if total > 0 else float("nan")
+                lo, hi = ratio_ci(n, den, n_boot, seed)
+                row.update({f"{name}_{unit}": rate, f"{name}_{unit}_ci_lo": scale * lo, f"{name}_{unit}_ci_hi": scale * hi})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def status_table(runs: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
     """Run counts per group and status (completed, collision, timeout, error)."""
     by = check_groups(runs, by)
