@@ -158,7 +158,7 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str, record_decisi
                    total=float(harm.get("total", 0.0)), ego=float(harm.get("ego", 0.0)),
                    third_party=float(harm.get("third_party", 0.0)), vru=float(harm.get("vru", 0.0)),
                    message=str(data.get("message", ""))[:200], steps=int(data.get("steps", 0) or 0),
-                   hazards_fired=",".join(fired), **_victims(Path(out_dir)),
+                   hazards_fired=",".join(fired), **_victims(Path(out_dir)), **_safety(Path(out_dir), data),
                    **run_risk_file(Path(out_dir)))
     except Exception as exc:  # noqa: BLE001
         row.update(status="error", completed=False, total=0.0, ego=0.0, third_party=0.0, vru=0.0,
@@ -189,6 +189,78 @@ def _victims(out: Path) -> dict[str, Any]:
                 "harm_worst": float(max(c.harm_ego.max(), c.harm_third_party.max()))}
     except Exception:  # noqa: BLE001
         return {"collided_with": "", "harm_worst": float("nan")}
+
+
+#: fault values of collisions.parquet, in the order the tables list them
+FAULTS = ("ego", "other", "shared", "unknown")
+
+
+def _safety(out: Path, summary: dict[str, Any]) -> dict[str, Any]:
+    """Per run: ``distance`` [m] and ``drive_time`` [s] of the ego, ``conflicts_total`` and
+    ``conflicts_vru`` (NaN where conflicts were not measured) and ``harm_fault_<f>``: the harm
+    (ego + third party) of the ego's booked collisions whose ``fault`` is f (docs/conflicts.md)."""
+    conf = summary.get("conflicts")
+    row: dict[str, Any] = {
+        "distance": float(summary.get("distance", 0.0) or 0.0),
+        "drive_time": (float(summary["sim_time"]) - float(summary["takeover_time"])
+                       if summary.get("sim_time") is not None and summary.get("takeover_time") is not None
+                       else float("nan")),
+        "conflicts_total": float(conf["total"]) if conf else float("nan"),
+        "conflicts_vru": float(conf["vru"]) if conf else float("nan"),
+        **{f"harm_fault_{f}": 0.0 for f in FAULTS}}
+    try:
+        import pandas as pd
+
+        c = pd.read_parquet(out / "collisions.parquet")
+    except Exception:  # noqa: BLE001 - no collisions file: nothing booked
+        return row
+    if "fault" not in c.columns:
+        return row
+    c = c[c.involves_ego & (c.detector != "sumo_unconfirmed")]
+    for f in FAULTS:
+        sel = c[c.fault == f]
+        row[f"harm_fault_{f}"] = float(sel.harm_ego.sum() + sel.harm_third_party.sum())
+    return row
+
+
+def safety_table(rows: list[dict[str, Any]], planners: list[str], n_boot: int = 2000,
+                 seed: int = 0) -> list[dict[str, Any]]:
+    """Per planner: conflicts (all, VRU) per 100 ego-km, the sum over its runs over their distance
+    with a bootstrap CI over scenarios, and the harm of its ego collisions summed by fault."""
+    from sumo_ethics.analysis.stats import ratio_ci
+
+    out = []
+    for p in planners:
+        sub = [r for r in rows if r["planner"] == p and np.isfinite(r.get("conflicts_total", np.nan))]
+        km = np.array([r.get("distance", 0.0) / 1000.0 for r in sub])
+        row: dict[str, Any] = {"planner": p, "runs": len(sub), "ego_km": float(km.sum())}
+        for name in ("total", "vru"):
+            n = np.array([r[f"conflicts_{name}"] for r in sub], dtype=float)
+            lo, hi = ratio_ci(n, km, n_boot, seed)
+            row.update({f"conflicts_{name}": float(n.sum()),
+                        f"conflicts_{name}_per_100km": 100.0 * n.sum() / km.sum() if km.sum() > 0 else float("nan"),
+                        f"conflicts_{name}_per_100km_lo": 100.0 * lo, f"conflicts_{name}_per_100km_hi": 100.0 * hi})
+        for f in FAULTS:
+            row[f"harm_fault_{f}"] = float(sum(r.get(f"harm_fault_{f}", 0.0) for r in rows if r["planner"] == p))
+        out.append(row)
+    return out
+
+
+def safety_markdown(st: list[dict[str, Any]]) -> list[str]:
+    """The conflicts and fault section of table1.md."""
+    if not any(r["runs"] for r in st):
+        return []
+    lines = ["", "Conflicts (near misses, docs/conflicts.md) per 100 ego-km [95 % bootstrap CI over runs] and "
+             "the harm of the ego's collisions (ego + third party) by who caused them:", "",
+             "| Algorithm | Ego-km | Conflicts / 100 km | VRU conflicts / 100 km | "
+             + " | ".join(f"Harm, fault {f}" for f in FAULTS) + " |",
+             "| --- |" + " --- |" * (3 + len(FAULTS))]
+    for r in st:
+        lines.append(f"| {r['planner']} | {r['ego_km']:.1f} | "
+                     + " | ".join(_fmt(r[f"conflicts_{n}_per_100km"], r[f"conflicts_{n}_per_100km_lo"],
+                                       r[f"conflicts_{n}_per_100km_hi"], True) for n in ("total", "vru"))
+                     + " | " + " | ".join(f"{r[f'harm_fault_{f}']:.2f}" for f in FAULTS) + " |")
+    return lines
 
 
 # ---- many runs --------------------------------------------------------------------------
@@ -237,7 +309,7 @@ def _row_from_folder(scenario: str, planner: PlannerSpec, out_dir: str, *_: Any)
             "vru": float(h.get("vru", 0.0)), "message": str(data.get("message", ""))[:200],
             "steps": int(data.get("steps", 0) or 0),
             "hazards_fired": ",".join(sorted({e["type"] for e in events if e["event"] == "trigger"})),
-            **_victims(out), "wall_s": float(data.get("wall_time", 0.0) or 0.0),
+            **_victims(out), **_safety(out, data), "wall_s": float(data.get("wall_time", 0.0) or 0.0),
             **run_risk_file(out)}
 
 
@@ -492,7 +564,12 @@ def write_outputs(rows: list[dict[str, Any]], planners: list[PlannerSpec], out: 
         pd.DataFrame(paired).to_csv(out / "paired.csv", index=False)
     bh = hazard_breakdown(rows, names)
     pd.DataFrame(bh).to_csv(out / "by_hazard.csv", index=False)
+    st = safety_table(rows, names)
+    pd.DataFrame(st).to_csv(out / "safety.csv", index=False)
     md = markdown(t1, paired, bh, meta)
+    extra = safety_markdown(st)
+    if extra:
+        md = md.rstrip("\n") + "\n" + "\n".join(extra) + "\n"
     (out / "table1.md").write_text(md)
     df = pd.DataFrame(rows)
     if "risk_total_mean" in df and df["risk_total_mean"].notna().any():
