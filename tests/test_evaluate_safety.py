@@ -47,3 +47,24 @@ def test_a_run_folder_gives_its_conflicts_and_harm_by_fault(tmp_path):
     assert s["harm_fault_ego"] == pytest.approx(0.4) and s["harm_fault_other"] == pytest.approx(0.03)
     assert s["harm_fault_shared"] == s["harm_fault_unknown"] == 0.0
     assert math.isnan(_safety(tmp_path, {"distance": 1.0})["conflicts_total"])  # conflicts off: not 0
+
+
+def test_overcautious_brakings_by_hand():
+    import numpy as np
+    import pandas as pd
+
+    from sumo_ethics.suite.evaluate import overcautious_brakings
+
+    t = np.round(np.arange(0, 100) * 0.1, 1)
+    accel = np.full(100, -1.0)
+    accel[(t >= 1.0) & (t <= 1.2)] = -4.0  # 1: nothing near it: over-cautious
+    accel[t == 5.0] = -4.0  # 2: a conflict starts 0.5 s later: warranted
+    accel[t == 8.0] = -4.0  # 3: a red light ahead: warranted
+    accel[t == 9.5] = -2.9  # above -0.3 g: not hard
+    stop = np.where(t == 8.0, 50.0, np.nan)
+    steps = pd.DataFrame({"time": t, "accel": accel, "stop_s": stop})
+    conflicts = pd.DataFrame({"start": [5.5], "end": [6.0]})
+    assert overcautious_brakings(steps, conflicts) == 1
+    assert overcautious_brakings(steps, None) == 2  # without the conflict, braking 2 is over-cautious too
+    later = pd.DataFrame({"start": [8.5], "end": [9.0]})  # 3.5 s after braking 2: too late to warrant it
+    assert overcautious_brakings(steps, later) == 2

@@ -193,6 +193,33 @@ def _victims(out: Path) -> dict[str, Any]:
 
 #: fault values of collisions.parquet, in the order the tables list them
 FAULTS = ("ego", "other", "shared", "unknown")
+#: over-caution: a hard braking (below -HARD_BRAKE m/s^2, 0.3 g, the harsh-braking threshold common
+#: in naturalistic driving studies) with no conflict under way or starting from WARRANT_BEFORE s
+#: before it to WARRANT_AFTER s after it, and no red light ahead
+HARD_BRAKE = 0.3 * 9.81
+WARRANT_BEFORE, WARRANT_AFTER = 1.0, 3.0
+
+
+def overcautious_brakings(steps: Any, conflicts: Any) -> int:
+    """Number of hard-braking episodes (consecutive steps with accel < -HARD_BRAKE) of a run with
+    no conflict (``conflicts.parquet``: ``start``, ``end``) overlapping [t0 - WARRANT_BEFORE,
+    t0 + WARRANT_AFTER] around the episode's first step t0 and no red/yellow stop line ahead
+    (``stop_s``) at t0."""
+    import pandas as pd
+
+    if steps is None or len(steps) == 0 or "accel" not in steps:
+        return 0
+    hard = (steps["accel"].to_numpy(float) < -HARD_BRAKE)
+    first = np.flatnonzero(hard & ~np.r_[False, hard[:-1]])
+    t = steps["time"].to_numpy(float)
+    red = steps["stop_s"].notna().to_numpy() if "stop_s" in steps else np.zeros(len(steps), bool)
+    c = conflicts if conflicts is not None else pd.DataFrame({"start": [], "end": []})
+    n = 0
+    for i in first:
+        lo, hi = t[i] - WARRANT_BEFORE, t[i] + WARRANT_AFTER
+        warranted = bool(((c["start"] <= hi) & (c["end"] >= lo)).any()) if len(c) else False
+        n += int(not warranted and not red[i])
+    return n
 
 
 def _safety(out: Path, summary: dict[str, Any]) -> dict[str, Any]:
@@ -207,7 +234,16 @@ def _safety(out: Path, summary: dict[str, Any]) -> dict[str, Any]:
                        else float("nan")),
         "conflicts_total": float(conf["total"]) if conf else float("nan"),
         "conflicts_vru": float(conf["vru"]) if conf else float("nan"),
-        **{f"harm_fault_{f}": 0.0 for f in FAULTS}}
+        **{f"harm_fault_{f}": 0.0 for f in FAULTS}, "overcautious": float("nan")}
+    try:
+        import pandas as pd
+
+        steps = pd.read_parquet(out / "steps.parquet", columns=["time", "accel", "stop_s"])
+        cpath = out / "conflicts.parquet"
+        if conf:  # conflicts were measured: a braking without one under way is over-cautious
+            row["overcautious"] = float(overcautious_brakings(steps, pd.read_parquet(cpath) if cpath.exists() else None))
+    except Exception:  # noqa: BLE001 - no steps: nothing to count
+        pass
     try:
         import pandas as pd
 
@@ -240,6 +276,12 @@ def safety_table(rows: list[dict[str, Any]], planners: list[str], n_boot: int = 
             row.update({f"conflicts_{name}": float(n.sum()),
                         f"conflicts_{name}_per_100km": 100.0 * n.sum() / km.sum() if km.sum() > 0 else float("nan"),
                         f"conflicts_{name}_per_100km_lo": 100.0 * lo, f"conflicts_{name}_per_100km_hi": 100.0 * hi})
+        n = np.array([r.get("overcautious", np.nan) for r in sub], dtype=float)
+        n = np.where(np.isfinite(n), n, 0.0)
+        lo, hi = ratio_ci(n, km, n_boot, seed)
+        row.update(overcautious=float(n.sum()),
+                   overcautious_per_100km=100.0 * n.sum() / km.sum() if km.sum() > 0 else float("nan"),
+                   overcautious_per_100km_lo=100.0 * lo, overcautious_per_100km_hi=100.0 * hi)
         for f in FAULTS:
             row[f"harm_fault_{f}"] = float(sum(r.get(f"harm_fault_{f}", 0.0) for r in rows if r["planner"] == p))
         out.append(row)
@@ -250,15 +292,19 @@ def safety_markdown(st: list[dict[str, Any]]) -> list[str]:
     """The conflicts and fault section of table1.md."""
     if not any(r["runs"] for r in st):
         return []
-    lines = ["", "Conflicts (near misses, docs/conflicts.md) per 100 ego-km [95 % bootstrap CI over runs] and "
-             "the harm of the ego's collisions (ego + third party) by who caused them:", "",
-             "| Algorithm | Ego-km | Conflicts / 100 km | VRU conflicts / 100 km | "
+    lines = ["", "Conflicts (near misses, docs/conflicts.md) per 100 ego-km [95 % bootstrap CI over runs], "
+             f"over-cautious brakings (below -{HARD_BRAKE:.2f} m/s^2 with no conflict from {WARRANT_BEFORE:g} s before "
+             f"to {WARRANT_AFTER:g} s after and no red light ahead) per 100 ego-km, and the harm of the ego's "
+             "collisions (ego + third party) by who caused them:", "",
+             "| Algorithm | Ego-km | Conflicts / 100 km | VRU conflicts / 100 km | Over-cautious brakings / 100 km | "
              + " | ".join(f"Harm, fault {f}" for f in FAULTS) + " |",
-             "| --- |" + " --- |" * (3 + len(FAULTS))]
+             "| --- |" + " --- |" * (4 + len(FAULTS))]
     for r in st:
         lines.append(f"| {r['planner']} | {r['ego_km']:.1f} | "
                      + " | ".join(_fmt(r[f"conflicts_{n}_per_100km"], r[f"conflicts_{n}_per_100km_lo"],
                                        r[f"conflicts_{n}_per_100km_hi"], True) for n in ("total", "vru"))
+                     + " | " + _fmt(r["overcautious_per_100km"], r["overcautious_per_100km_lo"],
+                                    r["overcautious_per_100km_hi"], True)
                      + " | " + " | ".join(f"{r[f'harm_fault_{f}']:.2f}" for f in FAULTS) + " |")
     return lines
 
