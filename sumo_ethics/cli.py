@@ -153,18 +153,22 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
 @click.option("--step", type=int, help="The steps.parquet step the decision led to (also a collision's step).")
 @click.option("--time", "at_time", type=float, help="The planning time [s] (the nearest recorded decision).")
 @click.option("--collision", type=int, help="A collision event of collisions.parquet: its last decision before impact.")
+@click.option("--conflict", type=int, help="A conflict event of conflicts.parquet: the decision nearest its worst moment.")
 @click.option("--out", type=click.Path(path_type=Path), help="Figure path without suffix; .png and .svg are written "
               "(default RUN_DIR/explain/step_NNNNNN).")
-def explain(run_dir: Path, step: int | None, at_time: float | None, collision: int | None, out: Path | None) -> None:
+def explain(run_dir: Path, step: int | None, at_time: float | None, collision: int | None, conflict: int | None,
+            out: Path | None) -> None:
     """Draw one recorded planning step of RUN_DIR: the scene, predictions, candidates and the cost terms of the choice.
 
     Every run keeps the last decision before each ego collision (--collision K); other steps need a run made with
     --record-decisions risky, all or collisions. --time picks the nearest recorded step within 0.5 s.
     """
-    from sumo_ethics.analysis.explain import explain as draw, hit_of, resolve_step
+    from sumo_ethics.analysis.explain import conflict_mark, explain as draw, hit_of, resolve_step
 
-    k = resolve_step(run_dir, step=step, time=at_time, collision=collision)
-    res = draw(run_dir, k, out, hit=hit_of(run_dir, collision) if collision is not None else None)
+    k = resolve_step(run_dir, step=step, time=at_time, collision=collision, conflict=conflict)
+    mark = hit_of(run_dir, collision) if collision is not None else conflict_mark(run_dir, conflict) \
+        if conflict is not None else None
+    res = draw(run_dir, k, out, hit=mark)
     d = res.decision
     click.echo(f"step {d.step} (t={d.time:g} s): chose candidate {d.chosen} of {d.n_candidates}; "
                f"figure {res.paths[0]} (+ .svg)")

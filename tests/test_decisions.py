@@ -124,6 +124,32 @@ def test_explain_cli_finds_a_step_by_time_and_refuses_runs_without_decisions(urb
     assert_one_line_error(sumo_ethics("explain", str(run), "--step", "100000"), "nearest recorded step", 2)
 
 
+def test_explain_draws_a_conflict_at_its_worst_moment(urban_runs, tmp_path):
+    """explain --conflict K: the decision taken at the conflict's worst moment (the scene then), the other party marked
+    with the conflict's measures; an unknown event is one line naming the events there are."""
+    import shutil
+
+    from sumo_ethics.record import schema
+    from sumo_ethics.record.writer import write_table
+
+    run = tmp_path / "run"
+    shutil.copytree(urban_runs["all"], run)
+    d = rec.load(run, rec.recorded_steps(run)[12])
+    row = {f.name: (0.0 if str(f.type) == "double" else 0 if str(f.type).startswith("int") else False
+                    if str(f.type) == "bool" else "") for f in schema.CONFLICTS}
+    row.update(event=0, id_a="ego", id_b="walker7", class_a="car", class_b="pedestrian", time_worst=d.time,
+               min_ttc=0.84, min_pet=float("nan"), x_b=float(d.ego[0]) + 6.0, y_b=float(d.ego[1]) + 2.0)
+    write_table(run / "conflicts.parquet", [row], schema.CONFLICTS)
+    res = CliRunner().invoke(cli, ["explain", str(run), "--conflict", "0", "--out", str(tmp_path / "c")])
+    assert res.exit_code == 0, res.output
+    assert f"step {d.step} " in res.output
+    assert (tmp_path / "c.png").is_file() and (tmp_path / "c.svg").is_file()
+    from sumo_ethics.analysis.explain import conflict_mark
+
+    assert conflict_mark(run, 0) == (row["x_b"], row["y_b"], "conflict 0: pedestrian 'walker7', min TTC 0.84 s")
+    assert_one_line_error(sumo_ethics("explain", str(run), "--conflict", "5"), "has no conflict event 5 (events: 0)", 2)
+
+
 # ---- the modes, by hand -------------------------------------------------------------------------
 def _trace(chosen_risk: float) -> DecisionTrace:
     one = AgentStates(ids=("ego",), x=np.zeros(1), y=np.zeros(1), yaw=np.zeros(1), speed=np.ones(1),

@@ -95,13 +95,17 @@ def record_mode(run: Path) -> str | None:
     return None
 
 
-def resolve_step(run: Path, step: int | None = None, time: float | None = None, collision: int | None = None) -> int:
+def resolve_step(run: Path, step: int | None = None, time: float | None = None, collision: int | None = None,
+                 conflict: int | None = None) -> int:
     """The recorded step named by exactly one of ``step``, ``time`` [s] (the nearest recorded
-    planning time) or ``collision`` (an event number of collisions.parquet: its last planning step
-    before impact). ConfigError when it is not recorded."""
-    if sum(v is not None for v in (step, time, collision)) != 1:
-        raise ConfigError("give exactly one of --step, --time and --collision")
+    planning time), ``collision`` (an event number of collisions.parquet: its last planning step
+    before impact) or ``conflict`` (an event number of conflicts.parquet: the planning step nearest
+    its worst moment, ``time_worst``). ConfigError when it is not recorded."""
+    if sum(v is not None for v in (step, time, collision, conflict)) != 1:
+        raise ConfigError("give exactly one of --step, --time, --collision and --conflict")
     run = Path(run)
+    if conflict is not None:
+        time = float(_conflict_row(run, conflict)["time_worst"])
     steps = recorded(run)
     if time is not None and not np.isfinite(time):
         raise ConfigError(f"--time must be a finite time in seconds, got {time}")
@@ -144,12 +148,34 @@ def load_checked(run: Path, step: int) -> RecordedDecision:
         return rec.load(run, step)
 
 
+def _conflict_row(run: Path, event: int) -> dict:
+    """Conflict ``event`` of conflicts.parquet; ConfigError naming the events there are."""
+    from sumo_ethics.record.reader import read_table
+
+    rows = read_table(Path(run), "conflicts").to_pylist()
+    match = [r for r in rows if r["event"] == event]
+    if not match:
+        raise ConfigError(f"{run} has no conflict event {event} (events: "
+                          f"{', '.join(str(r['event']) for r in rows[:20]) or 'none'}"
+                          f"{' ...' if len(rows) > 20 else ''})")
+    return match[0]
+
+
+def conflict_mark(run: Path, event: int) -> tuple[float, float, str]:
+    """Where the other party of conflict ``event`` was at its worst moment, and what the conflict was."""
+    r = _conflict_row(run, event)
+    what = [f"min TTC {r['min_ttc']:.2f} s" if np.isfinite(r["min_ttc"]) else "",
+            f"min PET {r['min_pet']:.2f} s" if np.isfinite(r["min_pet"]) else ""]
+    return (float(r["x_b"]), float(r["y_b"]),
+            f"conflict {event}: {r['class_b']} '{r['id_b']}', {', '.join(w for w in what if w)}")
+
+
 def hit_of(run: Path, event: int) -> tuple[float, float, str] | None:
     """Where the other party of collision ``event`` was just before impact, and who it was."""
     from sumo_ethics.record.reader import read_table
 
     rows = [r for r in read_table(Path(run), "collisions").to_pylist() if r["event"] == event]
-    return (float(rows[0]["x_b"]), float(rows[0]["y_b"]), f"{rows[0]['class_b']} '{rows[0]['id_b']}'") if rows else None
+    return (float(rows[0]["x_b"]), float(rows[0]["y_b"]), f"hit: {rows[0]['class_b']} '{rows[0]['id_b']}'") if rows else None
 
 
 def _time_of(run: Path, step: int) -> float:
@@ -408,11 +434,11 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
             cmap = plt.get_cmap("viridis")
             _candidates(ax, d, cmap(norm(np.clip(j, lo, hi))))
             ax.set_title("The same candidates by J_risk", fontsize=10)
-        if hit is not None:  # the other party of a collision, where it was just before impact
+        if hit is not None:  # the other party of a collision just before impact (or of a conflict at its worst)
             ax.plot(hit[0], hit[1], marker="X", ms=13, mfc="red", mec="white", mew=1.2, zorder=8)
             # the label goes towards the middle of the panel, so that it never runs off its edge
             right, top = hit[0] > (x0 + x1) / 2, hit[1] > (y0 + y1) / 2
-            ax.annotate(f"hit: {hit[2]}", (hit[0], hit[1]), xytext=(-8 if right else 8, -8 if top else 8),
+            ax.annotate(hit[2], (hit[0], hit[1]), xytext=(-8 if right else 8, -8 if top else 8),
                         textcoords="offset points", ha="right" if right else "left", va="top" if top else "bottom",
                         color="red", fontsize=9, weight="bold", zorder=8,
                         path_effects=[withStroke(linewidth=2.0, foreground="white")])
@@ -518,6 +544,6 @@ def collision_snapshots(run: Path, rows: list[dict[str, Any]]) -> list[Path]:
                  f"harm ego {r['harm_ego']:.3f}, third party {r['harm_third_party']:.3f}. "
                  f"The last decision before impact:")
         res = explain(run, int(r["step"]), Path(run) / rec.SNAPSHOTS / f"collision_{r['event']}", title=title,
-                      hit=(float(r["x_b"]), float(r["y_b"]), f"{r['class_b']} '{r['id_b']}'"))
+                      hit=(float(r["x_b"]), float(r["y_b"]), f"hit: {r['class_b']} '{r['id_b']}'"))
         out.extend(res.paths)
     return out
