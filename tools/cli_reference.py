@@ -32,7 +32,12 @@ detail is explained on the [Running a scenario](usage.md), [Outputs](outputs.md)
 
 
 def _help(cmd: click.Command, path: list[str], parent: click.Context | None) -> tuple[str, click.Context]:
-    ctx = click.Context(cmd, info_name=path[-1], parent=parent, terminal_width=WIDTH, max_content_width=WIDTH)
+    # the command's own context settings (-h beside --help), as `sumo-ethics COMMAND -h` makes them; click
+    # caches a command's help option on first use, so one made by a bare Context elsewhere in the same
+    # process (a test) would otherwise print "--help" alone here
+    cmd._help_option = None  # type: ignore[attr-defined]
+    ctx = click.Context(cmd, info_name=path[-1], parent=parent, **{**cmd.context_settings, "terminal_width": WIDTH,
+                                                                  "max_content_width": WIDTH})
     return ctx.get_help(), ctx
 
 
