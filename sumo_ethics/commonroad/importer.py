@@ -27,6 +27,7 @@ import json
 import logging
 import math
 import os
+import re
 import shutil
 import tempfile
 import time
@@ -260,8 +261,9 @@ def _sumo_on_path() -> Iterator[None]:
                 os.environ[k] = v
 
 
-def convert_net(scenario: Any, folder: Path, name: str) -> Path:
-    """The lanelet network as ``folder/<name>.net.xml`` (CommonRoad's coordinates, its own speed limits)."""
+def convert_net(scenario: Any, folder: Path, name: str) -> tuple[Path, dict[str, str]]:
+    """The lanelet network as ``folder/<name>.net.xml`` (CommonRoad's coordinates), and which SUMO lane
+    each lanelet became (lanelet id -> lane id, as the converter reports it)."""
     from commonroad_sumo.cr2sumo.map_converter.map_converter import CR2SumoMapConverter, CR2SumoMapConverterConfig
 
     work = folder / ".netconvert"
@@ -272,16 +274,24 @@ def convert_net(scenario: Any, folder: Path, name: str) -> Path:
     try:
         with _sumo_on_path(), warnings.catch_warnings(), redirect_stdout(io.StringIO()):
             warnings.simplefilter("ignore")
-            project = CR2SumoMapConverter(scenario, conf).create_sumo_files(work)
+            converter = CR2SumoMapConverter(scenario, conf)
+            project = converter.create_sumo_files(work)
     except Exception as exc:  # noqa: BLE001 - the converter raises anything on odd networks
         raise ConfigError(f"the lanelet network could not be converted ({_one_line(exc)})") from None
     nets = sorted(work.glob("*.net.xml"))
     if project is None or not nets:
         raise ConfigError("the lanelet network could not be converted (netconvert failed)")
     net = folder / f"{name}.net.xml"
-    os.replace(nets[0], net)
+    # netconvert's header names the time and the temporary folder: without it, the same input gives the same bytes
+    text = nets[0].read_text()
+    head = re.match(r"(<\?xml[^>]*>\s*)<!-- generated on .*?-->\s*", text, flags=re.S)
+    if head:
+        text = head.group(1) + "<!-- converted by commonroad-sumo (CR2SumoMapConverter) and netconvert for " \
+            "sumo-ethics import-commonroad -->\n\n" + text[head.end():]
+    net.write_text(text)
     shutil.rmtree(work, ignore_errors=True)
-    return net
+    lanes = {str(k): str(v) for k, v in sorted(converter.lanelet_id2lane_id.items())}
+    return net, lanes
 
 
 def _angle_diff(a: float, b: float) -> float:
@@ -289,11 +299,14 @@ def _angle_diff(a: float, b: float) -> float:
 
 
 def match_lane(net: Any, x: float, y: float, yaw: float, vclass: str, radius: float = 4.0,
-               max_angle: float = math.radians(45.0)) -> tuple[Any, float] | None:
-    """The lane (normal lanes only) nearest to (x, y) running within ``max_angle`` of ``yaw`` that
-    ``vclass`` may use, and the position of (x, y) along it [m]; None if there is none within ``radius``."""
+               max_angle: float = math.radians(45.0), junctions: bool = False) -> tuple[Any, float] | None:
+    """The lane nearest to (x, y) running within ``max_angle`` of ``yaw`` that ``vclass`` may use
+    (junction lanes too with ``junctions``), and the position of (x, y) along it [m]; None if there is
+    none within ``radius``."""
     best = None
-    for lane, dist in net.getNeighboringLanes(x, y, radius, includeJunctions=False):
+    for lane, dist in net.getNeighboringLanes(x, y, radius, includeJunctions=junctions):
+        if lane.getID().startswith(":") and not junctions:
+            continue
         if not lane.allows(vclass):
             continue
         pos, d = lane.getClosestLanePosAndDist((x, y))
@@ -316,6 +329,23 @@ def _segment_at(shape: list, pos: float) -> tuple:
             return a, b
         run += seg
     return shape[-2], shape[-1]
+
+
+def _from_lane(net: Any, internal: str) -> Any:
+    """The normal lane whose connection runs through junction lane ``internal`` (or a lane split from it)."""
+    base = internal.rsplit("_", 1)[0]
+    exact, same_edge = [], []
+    for edge in sorted(net.getEdges(withInternal=False), key=lambda e: e.getID()):
+        for lane in edge.getLanes():
+            for conn in lane.getOutgoing():
+                via = conn.getViaLaneID() or ""
+                if via == internal:
+                    exact.append(lane)
+                elif via.rsplit("_", 1)[0] == base:
+                    same_edge.append(lane)
+    if exact or same_edge:
+        return (exact or same_edge)[0]
+    raise ConfigError(f"unsupported: the ego starts on junction lane {internal}, which no lane leads into")
 
 
 def _path(net: Any, a: Any, b: Any, vclass: str) -> list[str] | None:
@@ -440,13 +470,19 @@ def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
         raise ConfigError(f"{path.name}: unsupported: the goal's time window ends (step {k_end}) before the ego starts "
                           f"(step {k_start})")
     rows, info, skipped = obstacle_rows(scenario, k_start, k_end)
-    net_path = convert_net(scenario, folder, name)
-    net = sumolib.net.readNet(str(net_path), withInternal=False)
-    m = match_lane(net, ex, ey, eyaw, "passenger")
+    net_path, lanelet_lanes = convert_net(scenario, folder, name)
+    net = sumolib.net.readNet(str(net_path), withInternal=True)
+    # lanelets inside junctions become netconvert's junction lanes: their lanes are gone from the net
+    in_junctions = sorted((k for k, v in lanelet_lanes.items() if not net.hasEdge(v.rsplit("_", 1)[0])), key=int)
+    lanelet_lanes = {k: v for k, v in lanelet_lanes.items() if k not in set(in_junctions)}
+    m = match_lane(net, ex, ey, eyaw, "passenger", junctions=True)
     if m is None:
         raise ConfigError(f"{path.name}: unsupported: the ego's start ({ex:.1f}, {ey:.1f}) is on no lane of the "
                           f"converted network heading its way")
     start_lane, start_pos = m
+    if start_lane.getID().startswith(":"):  # on a junction: depart at the end of the lane leading into it
+        start_lane = _from_lane(net, start_lane.getID())
+        start_pos = start_lane.getLength() - EGO_LENGTH / 2.0 - 0.1
     route, goal_edges = ego_route(net, start_lane.getEdge(), goal)
     t0 = TAKEOVER_STEPS * dt  # simulation time of the ego's first controlled step = CommonRoad step k_start
 
@@ -487,7 +523,8 @@ def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
         "planning_problem_id": int(pid), "n_planning_problems": len(problems.planning_problem_dict),
         "ego": {"x": ex, "y": ey, "yaw": eyaw, "speed": espeed, "time_step": k_start, "length": EGO_LENGTH,
                 "width": EGO_WIDTH, "lane": start_lane.getID(), "route": route},
-        "goal": goal.to_list(), "goal_edges": goal_edges,
+        "goal": goal.to_list(), "goal_edges": goal_edges, "lanelet_lanes": lanelet_lanes,
+        "lanelets_in_junctions": in_junctions,
         "obstacles": {"file": OBSTACLES, "count": len(info),
                       "replayed": sorted(s for s, m in info.items() if m["driven_by"] == "replay"),
                       "driven_by_sumo": sorted(routes), "not_imported": skipped, "info": info},
