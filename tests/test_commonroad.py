@@ -337,3 +337,29 @@ def test_cli_import_then_run(tmp_path: Path, capsys) -> None:
     assert d["controller"] == "ethical" and d["ego_id"] == "ego"
     assert d["commonroad"]["goal_reached"] == d["completed"]
     assert main(["run", str(out / "ZAM_Tutorial-1_1_T-1.sumocfg"), "--ego", "x", "--out", str(tmp_path / "r2")]) == 2
+
+
+@needs_cr
+@pytest.mark.sumo
+def test_evaluate_a_folder_of_commonroad_files(tmp_path: Path, capsys) -> None:
+    """Imported on the fly; a file that does not import is listed with its cause and the rest run."""
+    src = tmp_path / "in"
+    (src / "sub").mkdir(parents=True)
+    (src / "ZAM_Tutorial-1_1_T-1.xml.gz").write_bytes(ZAM.read_bytes())
+    (src / "sub" / "BEL_Putte-1_1_T-1.xml.gz").write_bytes(BEL.read_bytes())
+    (src / "broken.xml").write_text('<?xml version="1.0"?><commonRoad><foo></commonRoad>')
+    _no_problem(src)  # noproblem.xml: no planning problem
+    out = tmp_path / "ev"
+    assert main(["evaluate", str(src), "--planner", "baseline", "--out", str(out), "--workers", "1", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "import failed: broken.xml" in err and "import failed: noproblem.xml" in err
+    imports = pd.read_csv(out / "imports.csv")
+    assert sorted(imports.status) == ["failed", "failed", "imported", "imported"]
+    assert imports.seconds.notna().all() and (imports.seconds < 60).all()
+    failed = imports[imports.status == "failed"].set_index("file")
+    assert "no planning problem" in failed.loc[str(src / "noproblem.xml"), "cause"]
+    res = pd.read_csv(out / "results.csv")
+    assert sorted(res.scenario) == ["BEL_Putte-1_1_T-1-replay", "ZAM_Tutorial-1_1_T-1-replay"]
+    assert res.goal_reached.tolist() == res.completed.tolist()
+    assert (res.replay_max_error_m < 0.01).all()
+    assert "2 of 4 files imported" in (out / "table1.md").read_text()
