@@ -63,6 +63,10 @@ def test_goal_by_hand() -> None:
     assert not g2.is_reached(5, 1.3, 1.6, 0.0, 0.0)
     assert g2.is_reached(55, 1e4, 1e4, 1.0, 99.0)
     assert g2.last_step == 60
+    # a run completes in the circle at once, but on the time-only goal state only at its window's end
+    assert g2.completes(5, 1.2, 1.6, 0.0, 0.0)
+    assert not g2.completes(55, 1e4, 1e4, 1.0, 99.0) and g2.completes(60, 1e4, 1e4, 1.0, 99.0)
+    assert g.completes(35, 105.0, 0.0, math.pi, 15.0)
     # the serialised form round-trips
     assert Goal.from_list(json.loads(json.dumps(g.to_list()))).is_reached(35, 105.0, 0.0, math.pi, 15.0)
 
@@ -297,7 +301,7 @@ def test_goal_ends_the_run(imported, tmp_path: Path) -> None:
     assert s.data["completed"] and cr["goal_reached"] and s.status.value == "completed"
     assert 35 <= cr["goal_time_step"] <= 40
     t0, dt = cr["time_offset"], meta["dt"]
-    reached = [goal.is_reached(int(round((t - t0) / dt)), x, y, yaw, v) for t, x, y, yaw, v in probe.ego]
+    reached = [goal.completes(int(round((t - t0) / dt)), x, y, yaw, v) for t, x, y, yaw, v in probe.ego]
     assert reached[-1] and not any(reached[:-1])
     assert abs(probe.ego[-1][0] - cr["goal_time"]) < 1e-9
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["commonroad"]["goal_reached"] is True

@@ -12,6 +12,9 @@ A goal state holds when every quantity it gives holds (those it leaves out are f
   ``0 <= wrap(value - start) <= wrap(end - start)``, wrap into [-pi, pi));
 - ``velocity``: the speed lies in the closed interval.
 
+:meth:`Goal.completes` is what ends a run: the same, but a goal state without a position holds
+only at the last step of its time window (see there).
+
 The serialised form (one dict per goal state, written by the importer into ``commonroad.json``)
 keeps the run independent of commonroad-io: an imported folder runs with the base install.
 """
@@ -92,7 +95,16 @@ class Goal:
     states: tuple[GoalState, ...]
 
     def is_reached(self, step: int, x: float, y: float, yaw: float, speed: float) -> bool:
+        """commonroad-io's ``GoalRegion.is_reached`` for this state."""
         return any(s.holds(step, x, y, yaw, speed) for s in self.states)
+
+    def completes(self, step: int, x: float, y: float, yaw: float, speed: float) -> bool:
+        """Whether a run ends here as completed: :meth:`is_reached`, except that a goal state giving no
+        position (a time window, perhaps with speed or heading: "drive on safely until then") counts only
+        at its window's last step. commonroad-io's check alone would end such a run at its first step
+        (any state in the window reaches it), before anything happened."""
+        return any(s.holds(step, x, y, yaw, speed) and (s.has_position or s.time_step is None
+                                                       or step >= s.time_step[1]) for s in self.states)
 
     @property
     def last_step(self) -> int | None:

@@ -187,6 +187,15 @@ def _size(shape: Any) -> tuple[float, float]:
     raise ConfigError(f"unsupported obstacle shape {type(shape).__name__}")
 
 
+def _exact(v: Any, state: Any = None, attr: str | None = None) -> float:
+    """A state value as a number: an interval (an uncertain value) by its middle; NaN if absent."""
+    if attr is not None and not state.has_value(attr):
+        return float("nan")
+    if hasattr(v, "start") and hasattr(v, "end"):
+        return 0.5 * (float(v.start) + float(v.end))
+    return float(v)
+
+
 def obstacle_rows(scenario: Any, first_step: int, last_step: int) -> tuple[list[dict[str, Any]], dict[str, Any], list[str]]:
     """Recorded states of every road user: (rows of obstacles.parquet, per-obstacle info, skipped).
 
@@ -212,12 +221,14 @@ def obstacle_rows(scenario: Any, first_step: int, last_step: int) -> tuple[list[
             raw = [obs.initial_state] + (list(obs.prediction.trajectory.state_list)
                                          if obs.prediction is not None and hasattr(obs.prediction, "trajectory") else [])
             pts = []
-            for i, s in enumerate(raw):
-                if not s.has_value("position") or not hasattr(s.position, "__len__"):
-                    raise ConfigError(f"unsupported: obstacle {obs.obstacle_id} has a state without an exact position")
-                yaw = float(s.orientation) if s.has_value("orientation") else float("nan")
-                v = float(s.velocity) if s.has_value("velocity") else float("nan")
-                pts.append([int(s.time_step), float(s.position[0]), float(s.position[1]), yaw, v])
+            for s in raw:
+                pos = s.position if s.has_value("position") else None
+                if pos is not None and not hasattr(pos, "__len__"):  # an uncertain position: its shape's centre
+                    pos = getattr(pos, "center", None)
+                if pos is None:
+                    raise ConfigError(f"unsupported: obstacle {obs.obstacle_id} has a state without a position")
+                pts.append([int(_exact(s.time_step)), float(pos[0]), float(pos[1]), _exact(s.orientation, s, "orientation"),
+                            _exact(s.velocity, s, "velocity")])
             a = np.array(pts, dtype=float)
             for col in (3, 4):  # missing orientation / speed from the displacement
                 bad = ~np.isfinite(a[:, col])
@@ -356,26 +367,39 @@ def _path(net: Any, a: Any, b: Any, vclass: str) -> list[str] | None:
 
 
 def ego_route(net: Any, start: Any, goal: Goal, vclass: str = "passenger") -> tuple[list[str], list[str]]:
-    """(route edges, goal edges): the shortest route from edge ``start`` to an edge with a lane
-    through the goal region, extended by one successor so the goal lies before the route's end; without
-    a goal position, the longest of the shortest routes to every reachable edge."""
+    """(route edges, goal edges): the shortest route from edge ``start`` to the goal region: to an edge
+    with a lane through it, or through a junction lane crossing it (the connection's edges); extended by
+    one successor so the goal lies before the route's end. Without a goal position, the longest of the
+    shortest routes to every reachable edge."""
     from shapely.geometry import LineString
 
     region = goal.region()
     edges = [e for e in net.getEdges(withInternal=False) if e.allows(vclass)]
+
+    def hits(lane: Any) -> bool:
+        return LineString([p[:2] for p in lane.getShape()]).intersects(region)
+
     if region is not None:
-        goal_edges = sorted(e.getID() for e in edges if any(
-            LineString([p[:2] for p in lane.getShape()]).intersects(region) for lane in e.getLanes()))
-        if not goal_edges:
+        goal_edges = sorted(e.getID() for e in edges if any(hits(lane) for lane in e.getLanes()))
+        # junction lanes through the goal: the route must take their connection (from edge -> to edge)
+        via = sorted({(lane.getEdge().getID(), c.getTo().getID()) for e in edges for lane in e.getLanes()
+                      for c in lane.getOutgoing() if c.getViaLaneID() and hits(net.getLane(c.getViaLaneID()))})
+        if not goal_edges and not via:
             raise ConfigError("unsupported: no lane of the converted network passes through the goal region")
         options = []
         for g in goal_edges:
             p = _path(net, start, net.getEdge(g), vclass)
             if p is not None:
                 options.append((sum(net.getEdge(e).getLength() for e in p), p))
+        for a, b in via:
+            p = _path(net, start, net.getEdge(a), vclass)
+            if p is not None and b not in p:
+                p = p + [b]
+                options.append((sum(net.getEdge(e).getLength() for e in p), p))
         if not options:
             raise ConfigError("unsupported: no route from the ego's start lane to the goal region in the converted network")
         route = min(options)[1]
+        goal_edges = sorted(set(goal_edges) | {b for _, b in via})
     else:
         goal_edges = []
         options = []

@@ -10,9 +10,10 @@
   size) when its record begins, moved with ``moveToXY`` (exact position, keepRoute 2|4) to its
   recorded state for the coming step, and removed when its record ends; nothing reacts to the ego;
   between recorded steps (a run step shorter than the scenario's) the state is interpolated;
-- checks the goal region every step (:mod:`sumo_ethics.commonroad.goal`, the ego's centre,
-  heading and speed at its CommonRoad time step) and ends the run as completed when it is
-  reached (:class:`~sumo_ethics.runner.StopRun`);
+- checks the goal region every step (:meth:`sumo_ethics.commonroad.goal.Goal.completes`, the ego's
+  centre, heading and speed at its CommonRoad time step) and ends the run as completed when it is
+  reached (:class:`~sumo_ethics.runner.StopRun`); a goal without a position only at the end of its
+  time window;
 - measures, every step, how far each replayed obstacle is from its recorded position as SUMO
   reports it (``replay.max_error_m`` in summary.json's ``commonroad`` entry).
 """
@@ -105,7 +106,7 @@ class CommonRoadHook:
         k = int(round(u))
         self._check(snap.time, u)
         ego = snap.ego
-        if abs(u - k) < 1e-6 and self.goal.is_reached(k, float(ego.x[0]), float(ego.y[0]), float(ego.yaw[0]),
+        if abs(u - k) < 1e-6 and self.goal.completes(k, float(ego.x[0]), float(ego.y[0]), float(ego.yaw[0]),
                                                      float(ego.speed[0])):
             self.goal_reached, self.goal_time, self.goal_step = True, float(snap.time), k
             from sumo_ethics.runner import StopRun
