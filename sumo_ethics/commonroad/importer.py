@@ -524,6 +524,8 @@ def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
             if meta["kind"] != "dynamic" or meta["vclass"] in ("pedestrian", "rail"):
                 continue
             st = by_id[sid]
+            if math.hypot(st[-1]["x"] - st[0]["x"], st[-1]["y"] - st[0]["y"]) < 1.0 and max(r["speed"] for r in st) < 0.5:
+                continue  # standing all along (parked, waiting): SUMO would drive it off
             r = _obstacle_route(net, st, meta["vclass"])
             if r is None:
                 continue
