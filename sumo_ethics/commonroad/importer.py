@@ -376,8 +376,8 @@ def ego_route(net: Any, start: Any, goal: Goal, vclass: str = "passenger") -> tu
     region = goal.region()
     edges = [e for e in net.getEdges(withInternal=False) if e.allows(vclass)]
 
-    def hits(lane: Any) -> bool:
-        return LineString([p[:2] for p in lane.getShape()]).intersects(region)
+    def hits(lane: Any) -> bool:  # the lane's centre line within half its width of the goal region
+        return LineString([p[:2] for p in lane.getShape()]).distance(region) <= lane.getWidth() / 2.0
 
     if region is not None:
         goal_edges = sorted(e.getID() for e in edges if any(hits(lane) for lane in e.getLanes()))
@@ -385,7 +385,7 @@ def ego_route(net: Any, start: Any, goal: Goal, vclass: str = "passenger") -> tu
         via = sorted({(lane.getEdge().getID(), c.getTo().getID()) for e in edges for lane in e.getLanes()
                       for c in lane.getOutgoing() if c.getViaLaneID() and hits(net.getLane(c.getViaLaneID()))})
         if not goal_edges and not via:
-            raise ConfigError("unsupported: no lane of the converted network passes through the goal region")
+            raise ConfigError("unsupported: no lane of the converted network passes within half a lane width of the goal region")
         options = []
         for g in goal_edges:
             p = _path(net, start, net.getEdge(g), vclass)
@@ -448,7 +448,10 @@ def import_commonroad(path: Path, out: Path | None = None, mode: str = "replay")
     name = scenario_name(path)
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.import-", dir=_existing_parent(out)))
     try:
-        result = _build(path, scenario, problems, tmp, name, mode)
+        try:
+            result = _build(path, scenario, problems, tmp, name, mode)
+        except ConfigError as exc:  # every cause names the file, once
+            raise (exc if str(exc).startswith(f"{path.name}: ") else ConfigError(f"{path.name}: {exc}")) from None
         if out.exists():  # an empty folder (checked above): its place is taken by the new one
             out.rmdir()
         else:
@@ -501,8 +504,14 @@ def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
     lanelet_lanes = {k: v for k, v in lanelet_lanes.items() if k not in set(in_junctions)}
     m = match_lane(net, ex, ey, eyaw, "passenger", junctions=True)
     if m is None:
+        near = match_lane(net, ex, ey, eyaw, "passenger", radius=50.0, junctions=True)
+        anyway = sorted(net.getNeighboringLanes(ex, ey, 4.0, includeJunctions=True), key=lambda p: (p[1], p[0].getID()))
+        why = (f"the nearest lane heading its way is {near[0].getClosestLanePosAndDist((ex, ey))[1]:.1f} m off"
+               if near is not None else "no lane heading its way within 50 m")
+        if anyway:
+            why += f"; lane {anyway[0][0].getID()} passes {anyway[0][1]:.1f} m off in another direction"
         raise ConfigError(f"{path.name}: unsupported: the ego's start ({ex:.1f}, {ey:.1f}) is on no lane of the "
-                          f"converted network heading its way")
+                          f"converted network heading its way ({why})")
     start_lane, start_pos = m
     if start_lane.getID().startswith(":"):  # on a junction: depart at the end of the lane leading into it
         start_lane = _from_lane(net, start_lane.getID())
