@@ -13,10 +13,11 @@ The folder (``--out``)::
     commonroad.json       the planning problem (the ego's initial state and goal region), the mode
                           and how each obstacle is driven; its presence marks the folder as imported
 
-Only commonroad-io, commonroad-sumo (the ``commonroad`` extra) and sumolib are used here, never
-libsumo: the run side is ``sumo_ethics.sim.commonroad``. Everything that goes wrong with the
-input is a ConfigError (one line, exit 2); the folder is built in a temporary sibling and moved
-into place at the end, so a failed import leaves nothing behind and deletes nothing.
+Only commonroad-io and commonroad-sumo (the ``commonroad`` extra) are used here; the net is read
+with sumolib in ``sumo_ethics.sim.crnet`` and the run side is ``sumo_ethics.sim.commonroad``.
+Everything that goes wrong with the input is a ConfigError (one line, exit 2); the folder is built
+in a temporary sibling and moved into place at the end, so a failed import leaves nothing behind
+and deletes nothing.
 """
 
 from __future__ import annotations
@@ -305,115 +306,6 @@ def convert_net(scenario: Any, folder: Path, name: str) -> tuple[Path, dict[str,
     return net, lanes
 
 
-def _angle_diff(a: float, b: float) -> float:
-    return abs((a - b + math.pi) % (2.0 * math.pi) - math.pi)
-
-
-def match_lane(net: Any, x: float, y: float, yaw: float, vclass: str, radius: float = 4.0,
-               max_angle: float = math.radians(45.0), junctions: bool = False) -> tuple[Any, float] | None:
-    """The lane nearest to (x, y) running within ``max_angle`` of ``yaw`` that ``vclass`` may use
-    (junction lanes too with ``junctions``), and the position of (x, y) along it [m]; None if there is
-    none within ``radius``."""
-    best = None
-    for lane, dist in net.getNeighboringLanes(x, y, radius, includeJunctions=junctions):
-        if lane.getID().startswith(":") and not junctions:
-            continue
-        if not lane.allows(vclass):
-            continue
-        pos, d = lane.getClosestLanePosAndDist((x, y))
-        shape = lane.getShape()
-        seg = _segment_at(shape, pos)
-        heading = math.atan2(seg[1][1] - seg[0][1], seg[1][0] - seg[0][0])
-        if _angle_diff(heading, yaw) > max_angle:
-            continue
-        key = (d, lane.getID())
-        if best is None or key < best[0]:
-            best = (key, lane, pos)
-    return None if best is None else (best[1], best[2])
-
-
-def _segment_at(shape: list, pos: float) -> tuple:
-    run = 0.0
-    for a, b in zip(shape[:-1], shape[1:]):
-        seg = math.hypot(b[0] - a[0], b[1] - a[1])
-        if run + seg >= pos:
-            return a, b
-        run += seg
-    return shape[-2], shape[-1]
-
-
-def _from_lane(net: Any, internal: str) -> Any:
-    """The normal lane whose connection runs through junction lane ``internal`` (or a lane split from it)."""
-    base = internal.rsplit("_", 1)[0]
-    exact, same_edge = [], []
-    for edge in sorted(net.getEdges(withInternal=False), key=lambda e: e.getID()):
-        for lane in edge.getLanes():
-            for conn in lane.getOutgoing():
-                via = conn.getViaLaneID() or ""
-                if via == internal:
-                    exact.append(lane)
-                elif via.rsplit("_", 1)[0] == base:
-                    same_edge.append(lane)
-    if exact or same_edge:
-        return (exact or same_edge)[0]
-    raise ConfigError(f"unsupported: the ego starts on junction lane {internal}, which no lane leads into")
-
-
-def _path(net: Any, a: Any, b: Any, vclass: str) -> list[str] | None:
-    if a.getID() == b.getID():
-        return [a.getID()]
-    edges, _ = net.getShortestPath(a, b, vClass=vclass)
-    return None if edges is None else [e.getID() for e in edges]
-
-
-def ego_route(net: Any, start: Any, goal: Goal, vclass: str = "passenger") -> tuple[list[str], list[str]]:
-    """(route edges, goal edges): the shortest route from edge ``start`` to the goal region: to an edge
-    with a lane through it, or through a junction lane crossing it (the connection's edges); extended by
-    one successor so the goal lies before the route's end. Without a goal position, the longest of the
-    shortest routes to every reachable edge."""
-    from shapely.geometry import LineString
-
-    region = goal.region()
-    edges = [e for e in net.getEdges(withInternal=False) if e.allows(vclass)]
-
-    def hits(lane: Any) -> bool:  # the lane's centre line within half its width of the goal region
-        return LineString([p[:2] for p in lane.getShape()]).distance(region) <= lane.getWidth() / 2.0
-
-    if region is not None:
-        goal_edges = sorted(e.getID() for e in edges if any(hits(lane) for lane in e.getLanes()))
-        # junction lanes through the goal: the route must take their connection (from edge -> to edge)
-        via = sorted({(lane.getEdge().getID(), c.getTo().getID()) for e in edges for lane in e.getLanes()
-                      for c in lane.getOutgoing() if c.getViaLaneID() and hits(net.getLane(c.getViaLaneID()))})
-        if not goal_edges and not via:
-            raise ConfigError("unsupported: no lane of the converted network passes within half a lane width of the goal region")
-        options = []
-        for g in goal_edges:
-            p = _path(net, start, net.getEdge(g), vclass)
-            if p is not None:
-                options.append((sum(net.getEdge(e).getLength() for e in p), p))
-        for a, b in via:
-            p = _path(net, start, net.getEdge(a), vclass)
-            if p is not None and b not in p:
-                p = p + [b]
-                options.append((sum(net.getEdge(e).getLength() for e in p), p))
-        if not options:
-            raise ConfigError("unsupported: no route from the ego's start lane to the goal region in the converted network")
-        route = min(options)[1]
-        goal_edges = sorted(set(goal_edges) | {b for _, b in via})
-    else:
-        goal_edges = []
-        options = []
-        for e in sorted(edges, key=lambda e: e.getID()):
-            p = _path(net, start, e, vclass)
-            if p is not None:
-                options.append((sum(net.getEdge(x).getLength() for x in p), [-len(p)], p))
-        route = max(options, key=lambda o: (o[0], o[1]))[2]
-    nxt = sorted(e.getID() for e in net.getEdge(route[-1]).getOutgoing() if e.allows(vclass))
-    if nxt:
-        route = route + [nxt[0]]
-    return route, goal_edges
-
-
 # ---- the folder ---------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class ImportResult:
@@ -473,7 +365,7 @@ def _existing_parent(out: Path) -> Path:
 
 def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
            mode: str) -> tuple[int, int, int, list[str]]:
-    import sumolib
+    from sumo_ethics.sim.crnet import ego_route, from_lane, match_lane, obstacle_route, read_net
 
     dt = float(scenario.dt)
     if not (dt > 0 and math.isfinite(dt)):
@@ -498,7 +390,7 @@ def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
                           f"(step {k_start})")
     rows, info, skipped = obstacle_rows(scenario, k_start, k_end)
     net_path, lanelet_lanes = convert_net(scenario, folder, name)
-    net = sumolib.net.readNet(str(net_path), withInternal=True)
+    net = read_net(net_path)
     # lanelets inside junctions become netconvert's junction lanes: their lanes are gone from the net
     in_junctions = sorted((k for k, v in lanelet_lanes.items() if not net.hasEdge(v.rsplit("_", 1)[0])), key=int)
     lanelet_lanes = {k: v for k, v in lanelet_lanes.items() if k not in set(in_junctions)}
@@ -514,7 +406,7 @@ def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
                           f"converted network heading its way ({why})")
     start_lane, start_pos = m
     if start_lane.getID().startswith(":"):  # on a junction: depart at the end of the lane leading into it
-        start_lane = _from_lane(net, start_lane.getID())
+        start_lane = from_lane(net, start_lane.getID())
         start_pos = start_lane.getLength() - EGO_LENGTH / 2.0 - 0.1
     route, goal_edges = ego_route(net, start_lane.getEdge(), goal)
     t0 = TAKEOVER_STEPS * dt  # simulation time of the ego's first controlled step = CommonRoad step k_start
@@ -535,7 +427,7 @@ def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
             st = by_id[sid]
             if math.hypot(st[-1]["x"] - st[0]["x"], st[-1]["y"] - st[0]["y"]) < 1.0 and max(r["speed"] for r in st) < 0.5:
                 continue  # standing all along (parked, waiting): SUMO would drive it off
-            r = _obstacle_route(net, st, meta["vclass"])
+            r = obstacle_route(net, st, meta["vclass"])
             if r is None:
                 continue
             lane, pos, edges = r
@@ -578,25 +470,6 @@ def _version(dist: str) -> str | None:
         return version(dist)
     except PackageNotFoundError:
         return None
-
-
-def _obstacle_route(net: Any, states: list[dict[str, Any]], vclass: str) -> tuple[Any, float, list[str]] | None:
-    """(first lane, position along it, route edges) along an obstacle's recorded positions, or None
-    when its first position is on no lane heading its way (parked, off the road)."""
-    first = match_lane(net, states[0]["x"], states[0]["y"], states[0]["yaw"], vclass, radius=2.5)
-    if first is None:
-        return None
-    lane, pos = first
-    edges = [lane.getEdge().getID()]
-    for s in states[1:: max(1, len(states) // 50)] + [states[-1]]:
-        m = match_lane(net, s["x"], s["y"], s["yaw"], vclass, radius=2.5)
-        if m is None or m[0].getEdge().getID() == edges[-1]:
-            continue
-        p = _path(net, net.getEdge(edges[-1]), m[0].getEdge(), vclass)
-        if p is None:
-            break  # unreachable in the net: the route ends where it can
-        edges += p[1:]
-    return lane, pos, edges
 
 
 def _write_routes(path: Path, info: dict[str, Any], routes: dict[str, list[str]],

@@ -54,9 +54,9 @@ def _import_one(args: tuple[str, str, str]) -> dict[str, Any]:
     try:  # the packages loaded before the clock starts: the time is the scenario's own
         import commonroad.common.file_reader  # noqa: F401
         import commonroad_sumo.cr2sumo.map_converter.map_converter  # noqa: F401
-        import sumolib  # noqa: F401
 
-        from sumo_ethics.commonroad.importer import import_commonroad
+        import sumo_ethics.sim.crnet  # noqa: F401
+        from sumo_ethics.commonroad.importer import import_commonroad  # noqa: F401
     except ImportError:
         pass
     t0 = time.perf_counter()
