@@ -43,7 +43,8 @@ from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld
 from sumo_ethics.types import VULNERABLE, RunStatus
 
 #: called every ego step with (snapshot, world) before the controller acts. A hook may also have
-#: ``at_takeover(world)`` (called once, after the takeover and before the first step),
+#: ``at_takeover(world) -> RoutePath | None`` (called once, after the takeover and before the first
+#: step; a path returned replaces the ego's reference path),
 #: ``at_route_end(t) -> (status, message)`` (how a run ends when the ego passes its route's end,
 #: instead of completed) and ``summary() -> dict`` (merged into summary.json); it ends the run by
 #: raising :class:`StopRun`. sumo_ethics.sim.commonroad uses all of them.
@@ -216,8 +217,8 @@ class Run:
         self.world = world = SumoWorld(ego_id, cfg.sensing_radius)
         route = world.takeover()
         for hook in self.hooks:
-            if hasattr(hook, "at_takeover"):
-                hook.at_takeover(world)
+            if hasattr(hook, "at_takeover"):  # may return another reference path for the ego
+                route = hook.at_takeover(world) or route
         self.notes = notes = RunNotes(tight_bends(route, cfg.ego.max_curvature), cfg.ego.max_curvature,
                                       ROAD_CURVATURE_TOL)
         self.meta.update(step_length=dt, route_edges=list(edges), route_length=route.length,

@@ -408,7 +408,7 @@ def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
     if start_lane.getID().startswith(":"):  # on a junction: depart at the end of the lane leading into it
         start_lane = from_lane(net, start_lane.getID())
         start_pos = start_lane.getLength() - EGO_LENGTH / 2.0 - 0.1
-    route, goal_edges = ego_route(net, start_lane.getEdge(), goal)
+    route, goal_edges, goal_lanes = ego_route(net, start_lane.getEdge(), goal)
     t0 = TAKEOVER_STEPS * dt  # simulation time of the ego's first controlled step = CommonRoad step k_start
 
     def sim_time(k: int) -> float:
@@ -450,7 +450,7 @@ def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
         "planning_problem_id": int(pid), "n_planning_problems": len(problems.planning_problem_dict),
         "ego": {"x": ex, "y": ey, "yaw": eyaw, "speed": espeed, "time_step": k_start, "length": EGO_LENGTH,
                 "width": EGO_WIDTH, "lane": start_lane.getID(), "route": route},
-        "goal": goal.to_list(), "goal_edges": goal_edges, "lanelet_lanes": lanelet_lanes,
+        "goal": goal.to_list(), "goal_edges": goal_edges, "goal_lanes": goal_lanes, "lanelet_lanes": lanelet_lanes,
         "lanelets_in_junctions": in_junctions,
         "obstacles": {"file": OBSTACLES, "count": len(info),
                       "replayed": sorted(s for s, m in info.items() if m["driven_by"] == "replay"),

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -88,9 +89,13 @@ class CommonRoadHook:
         return self.first + (t - self.t0) / self.dt_cr
 
     # ---- the runner's calls -------------------------------------------------------------
-    def at_takeover(self, world: Any) -> None:
+    def at_takeover(self, world: Any) -> Any:
         """Right after the takeover, before the runner's first step: the ego and the obstacles are
-        placed for that step's end, which is CommonRoad step ``first_step``."""
+        placed for that step's end, which is CommonRoad step ``first_step``. Returns the ego's
+        reference path, changing to the goal's lanes where the route reaches them, with the goal's
+        top speed as their speed limit when the goal gives one (None: the runner's own, when the
+        goal names no lanes)."""
+        from sumo_ethics.sim.route import build_route_path
         from sumo_ethics.sim.world import EgoCommand
 
         dt = libsumo.simulation.getDeltaT()
@@ -100,6 +105,22 @@ class CommonRoadHook:
         edge = e["route"][0]
         libsumo.route.add(_ROUTE, [edge])
         self._place(self.t0)
+        goal_lanes = frozenset(self.meta.get("goal_lanes", ()))
+        if not goal_lanes:
+            return None
+        v = libsumo.vehicle
+        ego = world.ego_id
+        edges = tuple(v.getRoute(ego)[v.getRouteIndex(ego):])
+        route = build_route_path(edges, v.getLaneID(ego), v.getVehicleClass(ego), np.array([e["x"], e["y"]]),
+                                 target_lanes=goal_lanes)
+        # the goal's top speed, where every goal state gives one, as the speed limit on the goal lanes
+        tops = [st.velocity[1] if st.velocity is not None else None for st in self.goal.states]
+        if tops and None not in tops:
+            on_goal = np.array([lane in goal_lanes for lane in route.lane_of_vertex])
+            route = replace(route, speed_limit=np.where(on_goal, np.minimum(route.speed_limit, max(tops)),
+                                                        route.speed_limit))
+        world.route = route
+        return route
 
     def __call__(self, snap: Any, world: Any) -> None:
         u = self.step_at(snap.time)

@@ -79,8 +79,9 @@ def shortest_path(net: Any, a: Any, b: Any, vclass: str) -> list[str] | None:
     return None if edges is None else [e.getID() for e in edges]
 
 
-def ego_route(net: Any, start: Any, goal: Goal, vclass: str = "passenger") -> tuple[list[str], list[str]]:
-    """(route edges, goal edges): the shortest route from edge ``start`` to the goal region: to an edge
+def ego_route(net: Any, start: Any, goal: Goal, vclass: str = "passenger") -> tuple[list[str], list[str], list[str]]:
+    """(route edges, goal edges, goal lanes: the lanes of the route within half a lane width of the
+    goal region, which the ego's reference path changes to): the shortest route from edge ``start`` to the goal region: to an edge
     with a lane through it, or through a junction lane crossing it (the connection's edges); extended by
     one successor so the goal lies before the route's end. Without a goal position, the longest of the
     shortest routes to every reachable edge."""
@@ -113,8 +114,12 @@ def ego_route(net: Any, start: Any, goal: Goal, vclass: str = "passenger") -> tu
             raise ConfigError("unsupported: no route from the ego's start lane to the goal region in the converted network")
         route = min(options)[1]
         goal_edges = sorted(set(goal_edges) | {b for _, b in via})
+        lanes = [lane for e in route for lane in net.getEdge(e).getLanes() if lane.allows(vclass)]
+        # the lanes through the region; only without one, those passing within half a width of it
+        goal_lanes = sorted(lane.getID() for lane in lanes if LineString([p[:2] for p in lane.getShape()])
+                            .intersects(region)) or sorted(lane.getID() for lane in lanes if hits(lane))
     else:
-        goal_edges = []
+        goal_edges, goal_lanes = [], []
         options = []
         for e in sorted(edges, key=lambda e: e.getID()):
             p = shortest_path(net, start, e, vclass)
@@ -124,7 +129,7 @@ def ego_route(net: Any, start: Any, goal: Goal, vclass: str = "passenger") -> tu
     nxt = sorted(e.getID() for e in net.getEdge(route[-1]).getOutgoing() if e.allows(vclass))
     if nxt:
         route = route + [nxt[0]]
-    return route, goal_edges
+    return route, goal_edges, goal_lanes
 
 
 def obstacle_route(net: Any, states: list[dict[str, Any]], vclass: str) -> tuple[Any, float, list[str]] | None:
