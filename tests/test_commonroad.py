@@ -367,3 +367,23 @@ def test_evaluate_a_folder_of_commonroad_files(tmp_path: Path, capsys) -> None:
     assert res.goal_reached.tolist() == res.completed.tolist()
     assert (res.replay_max_error_m < 0.01).all()
     assert "2 of 4 files imported" in (out / "table1.md").read_text()
+
+
+@needs_cr
+@pytest.mark.sumo
+def test_the_ego_changes_to_the_goal_lane(tmp_path: Path) -> None:
+    """ZAM_Tutorial with its goal moved one lanelet to the left: the ego starts on lane 1_0 and the
+    reference path takes it to the goal's lane 1_1 (lanelet 2), where the run completes."""
+    from sumo_ethics.commonroad.importer import import_commonroad
+
+    text = gzip.open(ZAM, "rt").read()
+    goal = text.index("<goalState>")
+    src = tmp_path / "ZAM_left.xml"
+    src.write_text(text[:goal] + text[goal:].replace('<lanelet ref="1"/>', '<lanelet ref="2"/>', 1))
+    cfg = import_commonroad(src, tmp_path / "imp").sumocfg
+    meta = json.loads((cfg.parent / "commonroad.json").read_text())
+    assert meta["goal_lanes"] == ["1_1"] and meta["ego"]["lane"] == "1_0"
+    s = _run(cfg, tmp_path / "run")
+    assert s.data["commonroad"]["goal_reached"], s.message
+    steps = pd.read_parquet(tmp_path / "run" / "steps.parquet")
+    assert steps.lane.iloc[0] == "1_0" and steps.lane.iloc[-1] == "1_1"
