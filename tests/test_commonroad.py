@@ -387,3 +387,14 @@ def test_the_ego_changes_to_the_goal_lane(tmp_path: Path) -> None:
     assert s.data["commonroad"]["goal_reached"], s.message
     steps = pd.read_parquet(tmp_path / "run" / "steps.parquet")
     assert steps.lane.iloc[0] == "1_0" and steps.lane.iloc[-1] == "1_1"
+
+
+@needs_cr
+@pytest.mark.sumo
+def test_same_seed_same_bytes(imported, tmp_path: Path) -> None:
+    """Two runs of an imported scenario with the same seed write the same steps and collisions."""
+    cfg = imported["BEL", "reactive"]
+    for name in ("a", "b"):
+        _run(cfg, tmp_path / name)
+    for f in ("steps.parquet", "collisions.parquet"):
+        assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
