@@ -398,3 +398,33 @@ def test_same_seed_same_bytes(imported, tmp_path: Path) -> None:
         _run(cfg, tmp_path / name)
     for f in ("steps.parquet", "collisions.parquet"):
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
+
+
+@needs_cr
+@pytest.mark.sumo
+def test_a_pedestrian_on_a_highway_is_replayed(tmp_path: Path) -> None:
+    """ZAM_Tutorial's car made a pedestrian: the highway's lanes disallow pedestrians, so it is replayed as
+    a vehicle of class wheelchair (booked as a pedestrian), exactly where recorded."""
+    from sumo_ethics.commonroad.importer import import_commonroad
+    from sumo_ethics.types import RoadUserClass
+
+    src = tmp_path / "ZAM_ped.xml"
+    src.write_text(gzip.open(ZAM, "rt").read().replace("<type>car</type>", "<type>pedestrian</type>"))
+    cfg = import_commonroad(src, tmp_path / "imp").sumocfg
+    meta = json.loads((cfg.parent / "commonroad.json").read_text())
+    assert meta["obstacles"]["info"]["cr_42"]["vclass"] == "wheelchair"
+    seen: list[int] = []
+
+    def classes(snap, world) -> None:
+        seen.extend(int(c) for i, c in zip(snap.others.ids, snap.others.cls) if i == "cr_42")
+
+    s = run_with(cfg, tmp_path / "run", classes)
+    assert s.data["commonroad"]["replay"]["missing"] == 0 and s.data["commonroad"]["replay"]["max_error_m"] < 0.01
+    assert seen and set(seen) == {int(RoadUserClass.PEDESTRIAN)}
+
+
+def run_with(cfg: Path, out: Path, hook):
+    from sumo_ethics.config import RunConfig
+    from sumo_ethics.runner import run
+
+    return run(RunConfig(scenario=cfg, out=out, controller="baseline", progress=False), hooks=(hook,))

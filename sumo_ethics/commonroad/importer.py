@@ -365,7 +365,7 @@ def _existing_parent(out: Path) -> Path:
 
 def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
            mode: str) -> tuple[int, int, int, list[str]]:
-    from sumo_ethics.sim.crnet import ego_route, from_lane, match_lane, obstacle_route, read_net
+    from sumo_ethics.sim.crnet import ego_route, from_lane, match_lane, obstacle_route, read_net, replay_edge
 
     dt = float(scenario.dt)
     if not (dt > 0 and math.isfinite(dt)):
@@ -434,8 +434,17 @@ def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
             routes[sid] = edges
             departs[sid] = (lane.getID(), min(pos + meta["length"] / 2.0, lane.getLength()), lane.getIndex(),
                             max(0.0, float(st[0]["speed"])))
-    for sid, meta in info.items():
+    for sid, meta in list(info.items()):
         meta["driven_by"] = "sumo" if sid in routes else "replay"
+        if meta["driven_by"] == "replay":  # SUMO inserts it on an edge its class may use, then moves it
+            placed = replay_edge(net, meta["vclass"])
+            if placed is None:
+                skipped.append(f"{meta['obstacle_id']} ({meta['type']}: no lane of the network allows a "
+                               f"{meta['vclass']} or a class of the same kind)")
+                del info[sid]
+                continue
+            meta["vclass"], meta["edge"] = placed
+    rows = [r for r in rows if r["sumo_id"] in info]
 
     _write_routes(folder / f"{name}.rou.xml", info, routes, departs, sim_time, start_lane, start_pos, espeed, route, dt)
     end = sim_time(k_end) + dt / 2.0

@@ -74,6 +74,7 @@ class CommonRoadHook:
             g = g.sort_values("step")
             self.tracks[sid] = {c: g[c].to_numpy() for c in ("step", "x", "y", "yaw", "speed")}
         self.added: set[str] = set()
+        self._routes: set[str] = set()  # insertion routes added, one per edge
         self.t0: float | None = None
         self.goal_reached = False
         self.goal_time: float | None = None
@@ -102,8 +103,6 @@ class CommonRoadHook:
         self.t0 = libsumo.simulation.getTime() + dt
         e = self.meta["ego"]
         world.apply(EgoCommand(e["x"], e["y"], e["yaw"], e["speed"]))
-        edge = e["route"][0]
-        libsumo.route.add(_ROUTE, [edge])
         self._place(self.t0)
         goal_lanes = frozenset(self.meta.get("goal_lanes", ()))
         if not goal_lanes:
@@ -180,7 +179,11 @@ class CommonRoadHook:
                 continue
             x, y, yaw, speed = st
             if sid not in self.added:
-                v.add(sid, _ROUTE, typeID=f"{sid}_type", depart="now", departSpeed="0")
+                route = f"{_ROUTE}_{m['edge']}"
+                if route not in self._routes:
+                    libsumo.route.add(route, [m["edge"]])
+                    self._routes.add(route)
+                v.add(sid, route, typeID=f"{sid}_type", depart="now", departSpeed="0")
                 v.setSpeedMode(sid, 32)
                 v.setLaneChangeMode(sid, 0)
                 v.setSpeedFactor(sid, 3.0)

@@ -149,3 +149,20 @@ def obstacle_route(net: Any, states: list[dict[str, Any]], vclass: str) -> tuple
             break  # unreachable in the net: the route ends where it can
         edges += p[1:]
     return lane, pos, edges
+
+
+#: a vClass SUMO may refuse on every lane (a highway net disallows pedestrians and bicycles) -> classes the
+#: project books the same way (sumo_ethics.types: wheelchair is a pedestrian, scooter a bicycle)
+SAME_KIND = {"pedestrian": ("wheelchair",), "bicycle": ("scooter",)}
+
+
+def replay_edge(net: Any, vclass: str) -> tuple[str, str] | None:
+    """(vClass, edge) for a replayed road user: an edge one of its lanes allows the class on (SUMO
+    inserts it there before moving it to its recorded place), trying classes of the same kind when
+    no lane allows its own; None when none does."""
+    edges = sorted(net.getEdges(withInternal=False), key=lambda e: e.getID())
+    for vc in (vclass, *SAME_KIND.get(vclass, ())):
+        for e in edges:
+            if any(lane.allows(vc) for lane in e.getLanes()):
+                return vc, e.getID()
+    return None
