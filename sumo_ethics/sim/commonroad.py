@@ -179,9 +179,10 @@ class CommonRoadHook:
                 continue
             x, y, yaw, speed = st
             if sid not in self.added:
-                route = f"{_ROUTE}_{m['edge']}"
+                edge = m.get("edge", self.meta["ego"]["route"][0])  # imports before the edge was chosen: the ego's
+                route = f"{_ROUTE}_{edge}"
                 if route not in self._routes:
-                    libsumo.route.add(route, [m["edge"]])
+                    libsumo.route.add(route, [edge])
                     self._routes.add(route)
                 v.add(sid, route, typeID=f"{sid}_type", depart="now", departSpeed="0")
                 v.setSpeedMode(sid, 32)
