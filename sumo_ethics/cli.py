@@ -421,6 +421,28 @@ def replay(run_dir: Path, out: Path, every: int, fps: float | None, quiet: bool)
     click.echo(f"wrote {res.path}: {res.playback}, {shown}")
 
 
+@cli.command("import-commonroad")
+@click.argument("scenario", type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path),
+              help="Scenario folder to write, new or empty (default commonroad/<name>-<mode>).")
+@click.option("--mode", type=click.Choice(["replay", "reactive"]), default="replay", show_default=True,
+              help="replay: every recorded road user follows its recorded states exactly; reactive: they start "
+                   "as recorded and SUMO drives them along their recorded route (those it cannot, e.g. parked "
+                   "cars, are replayed).")
+def import_commonroad_cmd(scenario: Path, out: Path | None, mode: str) -> None:
+    """Import a CommonRoad scenario (.xml or .xml.gz) into a SUMO scenario folder for run, sweep and evaluate.
+
+    Needs the optional packages: pip install 'sumo-ethics[commonroad]'.
+    """
+    from sumo_ethics.commonroad.importer import import_commonroad
+
+    res = import_commonroad(scenario, out, mode)
+    click.echo(f"imported {scenario.name} ({mode}) in {res.seconds:.1f} s: {res.n_obstacles} road users "
+               f"({res.n_replayed} replayed, {res.n_reactive} driven by SUMO)"
+               + (f", {len(res.skipped)} not imported" if res.skipped else ""))
+    click.echo(f"run it: sumo-ethics run {res.sumocfg}")
+
+
 from sumo_ethics.cli_sweep import analyze, sweep  # noqa: E402
 
 cli.add_command(sweep)

@@ -57,10 +57,17 @@ def generate_cmd(count: int, seed: int, out: Path, family: str) -> None:
 @click.option("--record-decisions", type=click.Choice(["off", "collisions", "risky", "all"]), default="risky",
               show_default=True, help="Decisions each run keeps for 'explain'/'replay' (risky: the steps whose choice "
                                       "carries risk and the 5 s before every ego collision).")
+@click.option("--mode", type=click.Choice(["replay", "reactive"]), default="replay", show_default=True,
+              help="For a folder of CommonRoad files: how the recorded road users are driven (see import-commonroad).")
 @click.option("--quiet", is_flag=True, help="No per-run progress lines.")
 def evaluate_cmd(suite_dir: Path, planners: tuple[str, ...], workers: int, out: Path, limit: int | None,
-                 reference: str | None, resume: bool, record_decisions: str, quiet: bool) -> None:
-    """Run every scenario of SUITE with each planner and write the paper's Table 1."""
+                 reference: str | None, resume: bool, record_decisions: str, mode: str, quiet: bool) -> None:
+    """Run every scenario of SUITE with each planner and write the paper's Table 1.
+
+    SUITE is a generated suite, or a folder of CommonRoad files (.xml, .xml.gz; imported on the fly into
+    OUT/imported in --mode, each failed import listed with its cause in OUT/imports.csv while the rest
+    go on) or of folders written by import-commonroad.
+    """
     from sumo_ethics.suite.evaluate import evaluate
 
     def progress(n: int, total: int, row: dict) -> None:
@@ -68,10 +75,16 @@ def evaluate_cmd(suite_dir: Path, planners: tuple[str, ...], workers: int, out: 
             click.echo(f"[{n}/{total}] {row['scenario']} {row['planner']}: {row.get('status')} "
                        f"({row.get('wall_s', 0):.1f} s)")
 
+    def imported(line: str) -> None:
+        if not quiet or line.startswith("import failed"):
+            click.echo(line, err=line.startswith("import failed"))
+
     csv, md = evaluate(suite_dir, list(planners), out, workers=workers, limit=limit, reference=reference,
-                       progress=progress, resume=resume, record_decisions=record_decisions)
+                       progress=progress, resume=resume, record_decisions=record_decisions, mode=mode,
+                       on_import=imported)
     click.echo(md.read_text())
-    click.echo(f"tables: {csv}, {md}")
+    click.echo(f"tables: {csv}, {md}" + (f"; imports: {md.parent / 'imports.csv'}"
+                                         if (md.parent / "imports.csv").is_file() else ""))
     if (md.parent / "risk.md").is_file():
         click.echo(f"ex-ante risk: {md.parent / 'risk.md'}, {md.parent / 'risk_paired.csv'}, "
                    f"{md.parent / 'figures' / 'exante_risk.png'}")

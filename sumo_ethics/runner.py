@@ -42,8 +42,21 @@ from sumo_ethics.sim.scenario import format_time
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld
 from sumo_ethics.types import VULNERABLE, RunStatus
 
-#: called every ego step with (snapshot, world) before the controller acts
+#: called every ego step with (snapshot, world) before the controller acts. A hook may also have
+#: ``at_takeover(world) -> RoutePath | None`` (called once, after the takeover and before the first
+#: step; a path returned replaces the ego's reference path),
+#: ``at_route_end(t) -> (status, message)`` (how a run ends when the ego passes its route's end,
+#: instead of completed) and ``summary() -> dict`` (merged into summary.json); it ends the run by
+#: raising :class:`StopRun`. sumo_ethics.sim.commonroad uses all of them.
 StepHook = Callable[[Snapshot, SumoWorld], None]
+
+
+class StopRun(Exception):
+    """Raised by a hook to end the run with ``status`` and ``message`` (e.g. a goal region reached)."""
+
+    def __init__(self, status: RunStatus, message: str) -> None:
+        super().__init__(message)
+        self.status, self.message = status, message
 
 
 @dataclass(frozen=True)
@@ -203,6 +216,9 @@ class Run:
         self.cfg = cfg = replace(self.cfg, ego=ego)
         self.world = world = SumoWorld(ego_id, cfg.sensing_radius)
         route = world.takeover()
+        for hook in self.hooks:
+            if hasattr(hook, "at_takeover"):  # may return another reference path for the ego
+                route = hook.at_takeover(world) or route
         self.notes = notes = RunNotes(tight_bends(route, cfg.ego.max_curvature), cfg.ego.max_curvature,
                                       ROAD_CURVATURE_TOL)
         self.meta.update(step_length=dt, route_edges=list(edges), route_length=route.length,
@@ -234,8 +250,12 @@ class Run:
                     self.status, self.message = RunStatus.TIMEOUT, f"time limit {format_time(end)} reached"
                     return
                 w0 = wallclock.perf_counter()
-                for hook in self.hooks:  # e.g. hazards injected relative to the ego
-                    hook(snap, world)
+                try:
+                    for hook in self.hooks:  # e.g. hazards injected relative to the ego
+                        hook(snap, world)
+                except StopRun as stop:
+                    self.status, self.message = stop.status, stop.message
+                    return
                 # read
                 obs = None
                 if history is not None:
@@ -258,7 +278,7 @@ class Run:
                     # of our goal that is arrival, anywhere else a failure
                     reach = s + half + max(float(snap.ego.speed[0]), decision.command.speed) * dt + 1.0
                     if reach >= route.length - 0.5:
-                        self.status, self.message = RunStatus.COMPLETED, f"goal reached at t={format_time(t + dt)}"
+                        self.status, self.message = self._route_end(t + dt)
                         return
                     raise SimulationError(f"the ego '{world.ego_id}' left the simulation at t={t + dt:g} s "
                                           f"{route.length - s - half:.1f} m before its goal")
@@ -296,12 +316,20 @@ class Run:
                     self.message = f"ego collided with {first['class_b']} '{first['id_b']}' at t={format_time(first['time'])}"
                     return
                 if s + half >= route.length - 0.5:
-                    self.status, self.message = RunStatus.COMPLETED, f"goal reached at t={format_time(snap.time)}"
+                    self.status, self.message = self._route_end(snap.time)
                     return
         finally:
             self.meta["loop_wall"] = wallclock.perf_counter() - self.t_start  # s, before outputs are written
             if progress is not None:
                 progress[0].stop()
+
+    def _route_end(self, t: float) -> tuple[RunStatus, str]:
+        """How the run ends when the ego passes its route's end at time t: completed, unless a hook
+        says otherwise (an imported CommonRoad scenario completes only in its goal region)."""
+        for hook in self.hooks:
+            if hasattr(hook, "at_route_end"):
+                return hook.at_route_end(t)
+        return RunStatus.COMPLETED, f"goal reached at t={format_time(t)}"
 
     def _rows(self, now: Snapshot, before: Snapshot, decision: Any, s: float, d: float, dt: float,
               w: tuple[float, float, float, float], stop_s: float | None) -> tuple[dict, dict]:
@@ -390,6 +418,7 @@ class Run:
             "wall_time": wall,
             **{k: v for k, v in self.meta.items() if k != "last_time"},
             **(self.notes.summary(self.status is RunStatus.COMPLETED) if self.notes is not None else {}),
+            **{k: v for h in self.hooks if hasattr(h, "summary") for k, v in h.summary().items()},
             "versions": {"sumo_ethics": __version__, "sumo": self.meta.get("sumo_version", "unknown"),
                          "python": platform.python_version(), "numpy": np.__version__},
         }
@@ -428,6 +457,20 @@ def make_controller(cfg: RunConfig) -> Controller:
     raise ConfigError(f"unknown controller '{cfg.controller}'; known: {', '.join(CONTROLLERS)}")
 
 
+def _imported(cfg: RunConfig, hooks: tuple[StepHook, ...]) -> tuple[RunConfig, tuple[StepHook, ...]]:
+    """A folder written by ``import-commonroad`` (``commonroad.json`` beside the sumocfg): its own ego
+    (the planning problem's) and the hook that places it, replays the obstacles and checks the goal."""
+    from sumo_ethics.sim.commonroad import CommonRoadHook, marker_of
+
+    marker = marker_of(cfg.scenario)
+    if marker is None:
+        return cfg, hooks
+    if cfg.ego_id not in (None, "ego") or cfg.ego_from is not None:
+        raise ConfigError(f"{cfg.scenario.name} is an imported CommonRoad scenario: its ego is the planning "
+                          "problem's; drop --ego/--ego-from/--ego-to")
+    return replace(cfg, ego_id="ego"), hooks + (CommonRoadHook(marker),)
+
+
 def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepHook, ...] = ()) -> RunSummary:
     """Run one scenario; writes the run folder and returns the summary.
 
@@ -441,6 +484,7 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
     written, e.g. a full disk), KeyboardInterrupt on Ctrl-C and :class:`Terminated` on SIGTERM
     (status ``interrupted``).
     """
+    cfg, hooks = _imported(cfg, tuple(hooks))
     controller = controller or make_controller(cfg)
     r = Run(cfg, controller, tuple(hooks))
     t0 = wallclock.perf_counter()

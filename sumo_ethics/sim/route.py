@@ -155,11 +155,13 @@ def smooth_path(raw: Polyline, spacing: float = 1.0, half_window: int = 2) -> tu
 
 
 def build_route_path(edges: tuple[str, ...], start_lane: str, vclass: str,
-                     start_xy: np.ndarray | None = None) -> RoutePath:
+                     start_xy: np.ndarray | None = None, target_lanes: frozenset[str] = frozenset()) -> RoutePath:
     """Lane-level reference path for ``edges`` starting from the ego's current lane.
 
     Lane changes the route needs (an acceleration lane, a turn from another lane) become a
-    smooth blend between the two lane centre lines along the edge.
+    smooth blend between the two lane centre lines along the edge. ``target_lanes``: on an edge
+    with some of these lanes (that lead on along the route), the path takes one of them (an
+    imported CommonRoad scenario's goal lanes).
     """
     edges = tuple(e for e in edges if not e.startswith(":"))
     if not edges:
@@ -174,6 +176,8 @@ def build_route_path(edges: tuple[str, ...], start_lane: str, vclass: str,
         exits[i] = [ln for ln in usable[i] if any(lk[0] in nxt for lk in libsumo.lane.getLinks(ln))]
         if not exits[i]:
             raise SimulationError(f"the ego's route is not drivable: no lane of {edges[i]} leads to {edges[i + 1]}")
+    if target_lanes:
+        exits = [[ln for ln in ex if ln in target_lanes] or ex for ex in exits]
 
     def index(lane_id: str) -> int:
         return int(lane_id.rsplit("_", 1)[1])

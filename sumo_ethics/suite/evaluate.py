@@ -127,6 +127,10 @@ def parse_planners(texts: Iterable[str]) -> list[PlannerSpec]:
 def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str, record_decisions: str = "risky") -> dict[str, Any]:
     """Run one scenario with one planner, keeping its decisions by ``record_decisions``; returns
     the result row (never raises)."""
+    if (Path(scenario_dir) / "commonroad.json").is_file():  # an imported CommonRoad scenario
+        from sumo_ethics.suite import commonroad
+
+        return commonroad.run_one(scenario_dir, planner, out_dir, record_decisions)
     t0 = time.perf_counter()
     row: dict[str, Any] = {"scenario": Path(scenario_dir).name, "planner": planner.name}
     try:
@@ -341,6 +345,8 @@ def _row_from_folder(scenario: str, planner: PlannerSpec, out_dir: str, *_: Any)
     """The row of a finished run (for --resume), None if the folder holds no finished run."""
     out = Path(out_dir)
     data = _read_summary(out)
+    if (Path(scenario) / "commonroad.json").is_file():  # CommonRoad runs are not resumed: run again
+        return None
     if data is None or not (out / "hazard_events.json").is_file():
         return None
     from sumo_ethics.suite.spec import load
@@ -520,6 +526,13 @@ def markdown(t1: list[dict[str, Any]], paired: list[dict[str, Any]], by_hazard: 
                   "| Hazard | Scenarios | " + " | ".join(planners) + " |", "| --- | --- |" + " --- |" * len(planners)]
         for r in by_hazard:
             lines.append(f"| {r['hazard']} | {r['scenarios']} | " + " | ".join(str(r[p]) for p in planners) + " |")
+    if meta.get("imports"):
+        fails = meta.get("import_failures", {})
+        n_fail = sum(fails.values())
+        lines += ["", f"CommonRoad, {meta.get('commonroad_mode')} mode: {meta['imports'] - n_fail} of {meta['imports']} "
+                  f"files imported ({meta.get('import_seconds', 0):.0f} s of import time; OUT/imports.csv has each "
+                  "file's time and cause)" + (": failed " + "; ".join(f"{n} x {c}" for c, n in fails.items())
+                                               if fails else "") + "."]
     if meta:
         lines += ["", "Planners: " + "; ".join(f"`{k}` = {v}" for k, v in meta.get("planners", {}).items()) + ".",
                   f"Wall time {meta.get('wall_s', 0):.0f} s with {meta.get('workers')} workers."]
@@ -635,21 +648,39 @@ def write_outputs(rows: list[dict[str, Any]], planners: list[PlannerSpec], out: 
 
 def evaluate(suite: Path, planner_texts: list[str], out: Path, workers: int = 2, limit: int | None = None,
              reference: str | None = None, progress: Callable | None = None,
-             resume: bool = False, record_decisions: str = "risky") -> tuple[Path, Path]:
-    from sumo_ethics.suite.spec import load_suite
+             resume: bool = False, record_decisions: str = "risky", mode: str = "replay",
+             on_import: Callable[[str], None] | None = None) -> tuple[Path, Path]:
+    """Table 1 of ``suite``: a generated suite, or a folder of CommonRoad files (imported on the fly in
+    ``mode``, see sumo_ethics.suite.commonroad; failed imports are listed in OUT/imports.csv) or of
+    imported CommonRoad folders."""
+    from sumo_ethics.suite import commonroad
+    from sumo_ethics.suite.spec import HAZARD_FILE, load_suite
 
     planners = parse_planners(planner_texts)
-    specs = load_suite(suite)  # validates every hazard file before anything runs
-    if limit is not None:
-        specs = specs[:limit]
     names = [p.name for p in planners]
     ref = reference or ("origin" if "origin" in names else names[0])
     if ref not in names:
         raise ConfigError(f"--reference {ref!r} is not one of the planners {names}")
     t0 = time.perf_counter()
-    rows = run_suite([s.folder for s in specs], planners, Path(out), workers, progress, resume, record_decisions)
-    meta = {"suite": str(suite), "scenarios": len(specs), "workers": workers, "wall_s": time.perf_counter() - t0,
-            "planners": {p.name: p.describe() for p in planners}, "reference": ref}
+    extra: dict[str, Any] = {}
+    if commonroad.is_input(suite) and not (Path(suite) / HAZARD_FILE).is_file() \
+            and not any(Path(suite).glob(f"*/{HAZARD_FILE}")):
+        folders, imports = commonroad.prepare(Path(suite), Path(out), mode, workers, on_import)
+        if not folders:
+            raise ConfigError(f"none of the {len(imports)} CommonRoad files in {suite} imported; the causes are in "
+                              f"{Path(out) / 'imports.csv'}")
+        folders = folders[:limit] if limit is not None else folders
+        failed = commonroad.failure_summary(imports)
+        extra = {"commonroad_mode": mode, "imports": len(imports), "import_failures": dict(failed),
+                 "import_seconds": float(sum(r["seconds"] for r in imports)), "import_wall_s": time.perf_counter() - t0}
+    else:
+        specs = load_suite(suite)  # validates every hazard file before anything runs
+        if limit is not None:
+            specs = specs[:limit]
+        folders = [s.folder for s in specs]
+    rows = run_suite(folders, planners, Path(out), workers, progress, resume, record_decisions)
+    meta = {"suite": str(suite), "scenarios": len(folders), "workers": workers, "wall_s": time.perf_counter() - t0,
+            "planners": {p.name: p.describe() for p in planners}, "reference": ref, **extra}
     return write_outputs(rows, planners, Path(out), ref, meta)
 
 

@@ -1,0 +1,126 @@
+"""CommonRoad's goal region, checked without commonroad-io: pure numpy and shapely.
+
+A planning problem's goal is a list of goal states; the goal is reached when ANY of them holds.
+A goal state holds when every quantity it gives holds (those it leaves out are free), exactly as
+``commonroad.planning.goal.GoalRegion.is_reached``:
+
+- ``time_step``: the integer CommonRoad time step lies in the closed interval;
+- ``position``: the point lies in (or on the boundary of) one of the shapes (rectangles and
+  polygons as polygons, circles as centre and radius; a goal given by lanelets is the union of
+  those lanelets' polygons, which commonroad-io builds as a shape group);
+- ``orientation``: the angle, wrapped, lies in the interval (commonroad-io's ``AngleInterval``:
+  ``0 <= wrap(value - start) <= wrap(end - start)``, wrap into [-pi, pi));
+- ``velocity``: the speed lies in the closed interval.
+
+:meth:`Goal.completes` is what ends a run: the same, but a goal state without a position holds
+only at the last step of its time window (see there).
+
+The serialised form (one dict per goal state, written by the importer into ``commonroad.json``)
+keeps the run independent of commonroad-io: an imported folder runs with the base install.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+import shapely
+from shapely.geometry import Point, Polygon
+
+TWO_PI = 2.0 * math.pi
+
+
+def _wrap(a: float) -> float:
+    """commonroad-io's ``vectorized_angle_difference`` applied to one difference: into [-pi, pi)."""
+    d = math.fmod(a, TWO_PI)
+    return float(np.arctan2(np.sin(d), np.cos(d)))
+
+
+@dataclass(frozen=True)
+class GoalState:
+    time_step: tuple[int, int] | None = None
+    velocity: tuple[float, float] | None = None
+    orientation: tuple[float, float] | None = None
+    polygons: tuple[Polygon, ...] = ()  # position shapes as polygons (rectangles, polygons, lanelets)
+    circles: tuple[tuple[float, float, float], ...] = ()  # (x, y, radius)
+
+    @property
+    def has_position(self) -> bool:
+        return bool(self.polygons or self.circles)
+
+    def holds(self, step: int, x: float, y: float, yaw: float, speed: float) -> bool:
+        if self.time_step is not None and not self.time_step[0] <= step <= self.time_step[1]:
+            return False
+        if self.has_position and not self.contains(x, y):
+            return False
+        if self.orientation is not None:
+            span = _wrap(self.orientation[1] - self.orientation[0])
+            diff = _wrap(yaw - self.orientation[0])
+            if not 0.0 <= diff <= span:
+                return False
+        if self.velocity is not None and not self.velocity[0] <= speed <= self.velocity[1]:
+            return False
+        return True
+
+    def contains(self, x: float, y: float) -> bool:
+        p = Point(x, y)
+        if any(poly.intersects(p) for poly in self.polygons):
+            return True
+        return any(math.hypot(x - cx, y - cy) <= r for cx, cy, r in self.circles)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time_step": list(self.time_step) if self.time_step else None,
+                "velocity": list(self.velocity) if self.velocity else None,
+                "orientation": list(self.orientation) if self.orientation else None,
+                "polygons": [np.asarray(p.exterior.coords)[:-1].round(6).tolist() for p in self.polygons],
+                "circles": [list(c) for c in self.circles]}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "GoalState":
+        def pair(v):
+            return None if v is None else (v[0], v[1])
+
+        return cls(time_step=None if d.get("time_step") is None else (int(d["time_step"][0]), int(d["time_step"][1])),
+                   velocity=pair(d.get("velocity")), orientation=pair(d.get("orientation")),
+                   polygons=tuple(Polygon(p) for p in d.get("polygons", ())),
+                   circles=tuple((float(c[0]), float(c[1]), float(c[2])) for c in d.get("circles", ())))
+
+
+@dataclass(frozen=True)
+class Goal:
+    """The goal region: reached when any of ``states`` holds."""
+
+    states: tuple[GoalState, ...]
+
+    def is_reached(self, step: int, x: float, y: float, yaw: float, speed: float) -> bool:
+        """commonroad-io's ``GoalRegion.is_reached`` for this state."""
+        return any(s.holds(step, x, y, yaw, speed) for s in self.states)
+
+    def completes(self, step: int, x: float, y: float, yaw: float, speed: float) -> bool:
+        """Whether a run ends here as completed: :meth:`is_reached`, except that a goal state giving no
+        position (a time window, perhaps with speed or heading: "drive on safely until then") counts only
+        at its window's last step. commonroad-io's check alone would end such a run at its first step
+        (any state in the window reaches it), before anything happened."""
+        return any(s.holds(step, x, y, yaw, speed) and (s.has_position or s.time_step is None
+                                                       or step >= s.time_step[1]) for s in self.states)
+
+    @property
+    def last_step(self) -> int | None:
+        """The latest time step at which the goal can still be reached (None: no time limit)."""
+        ends = [s.time_step[1] for s in self.states if s.time_step is not None]
+        return max(ends) if ends and len(ends) == len(self.states) else None
+
+    def region(self) -> Any:
+        """The union of every position shape (None if no goal state gives a position)."""
+        geoms = [p for s in self.states for p in s.polygons]
+        geoms += [Point(cx, cy).buffer(r, 32) for s in self.states for cx, cy, r in s.circles]
+        return shapely.union_all(geoms) if geoms else None
+
+    def to_list(self) -> list[dict[str, Any]]:
+        return [s.to_dict() for s in self.states]
+
+    @classmethod
+    def from_list(cls, items: Sequence[dict[str, Any]]) -> "Goal":
+        return cls(tuple(GoalState.from_dict(d) for d in items))

@@ -1,0 +1,184 @@
+"""``sumo-ethics evaluate`` on CommonRoad scenarios: a folder of CommonRoad files (``*.xml``,
+``*.xml.gz``, searched recursively) imported on the fly, or of folders imported ahead with
+``import-commonroad`` (holding ``commonroad.json``).
+
+Every file is imported into ``OUT/imported/<name>-<mode>`` (an import already there, of the same
+mode, is reused), in ``workers`` processes; a file that does not import is listed in
+``OUT/imports.csv`` with its one-line cause and the import time, and the evaluation goes on with
+the rest. Each imported folder is then run like a suite scenario (the run detects the import by
+its ``commonroad.json``: the planning problem's ego, replayed or SUMO-driven obstacles, completion
+= the CommonRoad goal region).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from sumo_ethics.errors import ConfigError, SumoEthicsError
+
+MARKER = "commonroad.json"
+SEED = 1  # SUMO's seed for every CommonRoad run (replay draws nothing; reactive drivers do)
+
+
+def is_input(folder: Path) -> bool:
+    """Whether ``folder`` holds CommonRoad files or imported CommonRoad folders (and no suite)."""
+    folder = Path(folder)
+    return folder.is_dir() and bool(commonroad_files(folder) or imported_folders(folder))
+
+
+def commonroad_files(folder: Path) -> list[Path]:
+    files = [p for p in Path(folder).rglob("*") if p.is_file() and (p.name.endswith(".xml") or p.name.endswith(".xml.gz"))
+             and not (p.parent / MARKER).is_file()]
+    return sorted(files, key=lambda p: (p.name, str(p)))
+
+
+def imported_folders(folder: Path) -> list[Path]:
+    return sorted(p.parent for p in Path(folder).rglob(MARKER))
+
+
+def cause_of(message: str) -> str:
+    """A failure message reduced to its cause (file names, numbers and details in brackets dropped)."""
+    text = re.sub(r"^[^:]*\.xml(\.gz)?: ", "", message.strip())
+    text = re.sub(r"\([^)]*\)", "", text)
+    text = re.sub(r"-?\d+(\.\d+)?", "N", text)
+    return re.sub(r"\s+", " ", text).strip(" :")
+
+
+def _import_one(args: tuple[str, str, str]) -> dict[str, Any]:
+    src, dest, mode = args
+    row: dict[str, Any] = {"file": src, "folder": dest, "mode": mode}
+    try:  # the packages loaded before the clock starts: the time is the scenario's own
+        import commonroad.common.file_reader  # noqa: F401
+        import commonroad_sumo.cr2sumo.map_converter.map_converter  # noqa: F401
+
+        import sumo_ethics.sim.crnet  # noqa: F401
+        from sumo_ethics.commonroad.importer import import_commonroad  # noqa: F401
+    except ImportError:
+        pass
+    t0 = time.perf_counter()
+    try:
+        from sumo_ethics.commonroad.importer import import_commonroad
+
+        res = import_commonroad(Path(src), Path(dest), mode)
+        row.update(status="imported", cause="", message="", obstacles=res.n_obstacles, replayed=res.n_replayed,
+                   driven_by_sumo=res.n_reactive)
+    except SumoEthicsError as exc:
+        row.update(status="failed", message=str(exc), cause=cause_of(str(exc)))
+    except Exception as exc:  # noqa: BLE001 - a bug or an odd file: listed, the others go on
+        msg = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+        row.update(status="failed", message=f"internal error: {msg}", cause=f"internal error: {type(exc).__name__}")
+    row["seconds"] = round(time.perf_counter() - t0, 3)
+    return row
+
+
+def prepare(folder: Path, out: Path, mode: str, workers: int = 2,
+            progress: Callable[[str], None] | None = None) -> tuple[list[Path], list[dict[str, Any]]]:
+    """(imported folders to run, one row per file: imported/reused/failed with cause and seconds);
+    writes OUT/imports.csv."""
+    import pandas as pd
+
+    from sumo_ethics.commonroad.importer import MODES, require_packages, scenario_name
+
+    if mode not in MODES:
+        raise ConfigError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
+    folder, out = Path(folder), Path(out)
+    ready = [p for p in imported_folders(folder) if json.loads((p / MARKER).read_text()).get("mode") == mode]
+    rows: list[dict[str, Any]] = [{"file": str(p), "folder": str(p), "mode": mode, "status": "imported ahead",
+                                   "cause": "", "message": "", "seconds": 0.0} for p in ready]
+    files = commonroad_files(folder)
+    if files:
+        require_packages()
+    todo = []
+    for f in files:
+        dest = out / "imported" / f"{scenario_name(f)}-{mode}"
+        marker = dest / MARKER
+        if marker.is_file() and json.loads(marker.read_text()).get("source") == str(f.resolve()):
+            rows.append({"file": str(f), "folder": str(dest), "mode": mode, "status": "reused", "cause": "",
+                         "message": "", "seconds": 0.0})
+        else:
+            todo.append((str(f), str(dest), mode))
+    names = [scenario_name(Path(t[0])) for t in todo]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ConfigError(f"two CommonRoad files named {dup[0]} in {folder}: scenario names must be unique")
+    if todo:
+        (out / "imported").mkdir(parents=True, exist_ok=True)
+        if workers > 1 and len(todo) > 1:
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor
+
+            with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+                for row in pool.map(_import_one, todo):
+                    rows.append(row)
+                    if progress is not None:
+                        progress(_line(row))
+        else:
+            for t in todo:
+                rows.append(_import_one(t))
+                if progress is not None:
+                    progress(_line(rows[-1]))
+    out.mkdir(parents=True, exist_ok=True)
+    pd.DataFrame(rows).to_csv(out / "imports.csv", index=False)
+    dirs = sorted((Path(r["folder"]) for r in rows if r["status"] != "failed"), key=lambda p: p.name)
+    return dirs, rows
+
+
+def _line(row: dict[str, Any]) -> str:
+    name = Path(row["file"]).name
+    if row["status"] == "failed":
+        msg = row["message"]
+        return f"import failed: {msg if msg.startswith(name) else f'{name}: {msg}'}"
+    return f"imported {name} in {row['seconds']:.1f} s"
+
+
+def run_one(scenario_dir: str, planner: Any, out_dir: str, record_decisions: str = "risky") -> dict[str, Any]:
+    """One imported CommonRoad folder with one planner -> a result row for evaluate (never raises)."""
+    from sumo_ethics.suite.evaluate import _read_summary, _safety, _victims, run_risk_file
+
+    t0 = time.perf_counter()
+    folder = Path(scenario_dir)
+    row: dict[str, Any] = {"scenario": folder.name, "planner": planner.name}
+    try:
+        meta = json.loads((folder / MARKER).read_text())
+        row.update(network=f"commonroad-{meta['mode']}", hazard="", seed=SEED)
+        from sumo_ethics.config import RunConfig
+        from sumo_ethics.runner import make_controller, run
+        from sumo_ethics.settings import planner_config
+
+        pcfg = planner_config(None, **planner.options) if planner.options is not None else None
+        cfg = RunConfig(scenario=next(folder.glob("*.sumocfg")), out=Path(out_dir), seed=SEED,
+                        controller="baseline" if planner.options is None else "ethical", planner=pcfg,
+                        progress=False, overwrite=True, record_decisions=record_decisions)
+        try:
+            data = run(cfg, controller=make_controller(cfg)).data
+        except Exception as exc:  # noqa: BLE001 - a failed run is a row with status error
+            data = _read_summary(Path(out_dir)) or {"status": "error", "message": str(exc)}
+            if not data.get("message"):
+                data["message"] = f"{type(exc).__name__}: {exc}"
+        harm = data.get("harm", {})
+        cr = data.get("commonroad", {})
+        row.update(status=data.get("status", "error"), completed=bool(data.get("completed", False)),
+                   total=float(harm.get("total", 0.0)), ego=float(harm.get("ego", 0.0)),
+                   third_party=float(harm.get("third_party", 0.0)), vru=float(harm.get("vru", 0.0)),
+                   message=str(data.get("message", ""))[:200], steps=int(data.get("steps", 0) or 0),
+                   hazards_fired="", goal_reached=bool(cr.get("goal_reached", False)),
+                   goal_time_step=cr.get("goal_time_step"),
+                   replay_max_error_m=float(cr.get("replay", {}).get("max_error_m", float("nan"))),
+                   **_victims(Path(out_dir)), **_safety(Path(out_dir), data), **run_risk_file(Path(out_dir)))
+    except Exception as exc:  # noqa: BLE001
+        row.update(status="error", completed=False, total=0.0, ego=0.0, third_party=0.0, vru=0.0,
+                   message=f"{type(exc).__name__}: {exc}"[:200], steps=0, hazards_fired="", collided_with="")
+    row["wall_s"] = time.perf_counter() - t0
+    return row
+
+
+def failure_summary(rows: list[dict[str, Any]]) -> list[tuple[str, int]]:
+    """(cause, count) of the failed imports, most frequent first."""
+    from collections import Counter
+
+    c = Counter(r["cause"] for r in rows if r["status"] == "failed")
+    return sorted(c.items(), key=lambda kv: (-kv[1], kv[0]))
