@@ -80,6 +80,13 @@ def _run_table(folder: Path, name: str) -> pa.Table:
         raise _corrupt(folder, f"{name}.parquet", exc) from None
 
 
+def drive_time(summary: dict[str, Any]) -> float | None:
+    """Seconds the ego was driven (summary.json's sim_time - takeover_time), None if unknown."""
+    if summary.get("sim_time") is None or summary.get("takeover_time") is None:
+        return None
+    return float(summary["sim_time"]) - float(summary["takeover_time"])
+
+
 def _run_row(run: dict[str, Any], folder: Path, steps: pa.Table | None) -> dict[str, Any]:
     """The runs-table row of a finished run folder; ``steps``: its steps table (for the ex-ante
     risk summary, read once by the caller), None if it has none."""
@@ -105,8 +112,7 @@ def _run_row(run: dict[str, Any], folder: Path, steps: pa.Table | None) -> dict[
         "steps": int(s.get("steps", 0) or 0), "distance": float(s.get("distance", 0.0) or 0.0),
         "sim_time": float(s["sim_time"]) if s.get("sim_time") is not None else None,
         "route_length": float(s["route_length"]) if s.get("route_length") is not None else None,
-        "drive_time": (float(s["sim_time"]) - float(s["takeover_time"])
-                       if s.get("sim_time") is not None and s.get("takeover_time") is not None else None),
+        "drive_time": drive_time(s),
         "conflicts_total": float(conf["total"]) if conf else float("nan"),
         "conflicts_vru": float(conf["vru"]) if conf else float("nan"),
         "controller": s.get("controller"), "wall_time": float(wall) if wall is not None else None,

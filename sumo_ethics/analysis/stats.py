@@ -84,6 +84,16 @@ def ratio_ci(num: np.ndarray, den: np.ndarray, n_boot: int = 2000, seed: int = 0
     return float(np.quantile(r, a)), float(np.quantile(r, 1.0 - a))
 
 
+def rate_ci(num: np.ndarray, den: np.ndarray, scale: float = 1.0, n_boot: int = 2000,
+            seed: int = 0) -> tuple[float, float, float]:
+    """(rate, CI low, CI high) of ``scale`` x sum(num) / sum(den) over runs (NaN rate for no
+    denominator), the CI from :func:`ratio_ci`."""
+    total = float(np.sum(den))
+    rate = scale * float(np.sum(num)) / total if total > 0 else float("nan")
+    lo, hi = ratio_ci(num, den, n_boot, seed)
+    return rate, scale * lo, scale * hi
+
+
 #: conflict classes of the runs table: (name, column or None for total - vru)
 CONFLICT_CLASSES = (("all", "conflicts_total"), ("vehicle", None), ("vru", "conflicts_vru"))
 
@@ -108,10 +118,8 @@ def conflict_table(runs: pd.DataFrame, by: Sequence[str], n_boot: int = 2000, se
             n = (g["conflicts_total"] - g["conflicts_vru"]).to_numpy(float) if col is None else g[col].to_numpy(float)
             row[f"conflicts_{name}"] = float(n.sum())
             for unit, den, scale in (("per_100km", km, 100.0), ("per_hour", hours, 1.0)):
-                total = den.sum()
-                rate = scale * n.sum() / total if total > 0 else float("nan")
-                lo, hi = ratio_ci(n, den, n_boot, seed)
-                row.update({f"{name}_{unit}": rate, f"{name}_{unit}_ci_lo": scale * lo, f"{name}_{unit}_ci_hi": scale * hi})
+                rate, lo, hi = rate_ci(n, den, scale, n_boot, seed)
+                row.update({f"{name}_{unit}": rate, f"{name}_{unit}_ci_lo": lo, f"{name}_{unit}_ci_hi": hi})
         rows.append(row)
     return pd.DataFrame(rows)
 

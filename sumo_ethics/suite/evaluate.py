@@ -162,7 +162,7 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str, record_decisi
                    total=float(harm.get("total", 0.0)), ego=float(harm.get("ego", 0.0)),
                    third_party=float(harm.get("third_party", 0.0)), vru=float(harm.get("vru", 0.0)),
                    message=str(data.get("message", ""))[:200], steps=int(data.get("steps", 0) or 0),
-                   hazards_fired=",".join(fired), **_victims(Path(out_dir)), **_safety(Path(out_dir), data),
+                   hazards_fired=",".join(fired), **_outcome(Path(out_dir), data),
                    **run_risk_file(Path(out_dir)))
     except Exception as exc:  # noqa: BLE001
         row.update(status="error", completed=False, total=0.0, ego=0.0, third_party=0.0, vru=0.0,
@@ -178,14 +178,25 @@ def _read_summary(out: Path) -> dict[str, Any] | None:
         return None
 
 
-def _victims(out: Path) -> dict[str, Any]:
-    """``collided_with`` (class and origin of the ego's first victim, '' if none) and
-    ``harm_worst`` (the largest harm booked to a single party, the ego included, 0 if none)."""
+def _ego_collisions(out: Path) -> Any:
+    """The run's booked ego collisions (collisions.parquet without the unconfirmed SUMO reports), None
+    if the file cannot be read."""
     try:
         import pandas as pd
 
         c = pd.read_parquet(out / "collisions.parquet")
-        c = c[c.involves_ego & (c.detector != "sumo_unconfirmed")]
+        return c[c.involves_ego & (c.detector != "sumo_unconfirmed")]
+    except Exception:  # noqa: BLE001 - no or a damaged file
+        return None
+
+
+def _victims(c: Any) -> dict[str, Any]:
+    """``collided_with`` (class and origin of the ego's first victim, '' if none) and
+    ``harm_worst`` (the largest harm booked to a single party, the ego included, 0 if none) of the
+    booked ego collisions ``c`` (:func:`_ego_collisions`; None: unreadable)."""
+    if c is None:
+        return {"collided_with": "", "harm_worst": float("nan")}
+    try:
         if not len(c):
             return {"collided_with": "", "harm_worst": 0.0}
         r = c.iloc[0]
@@ -193,6 +204,12 @@ def _victims(out: Path) -> dict[str, Any]:
                 "harm_worst": float(max(c.harm_ego.max(), c.harm_third_party.max()))}
     except Exception:  # noqa: BLE001
         return {"collided_with": "", "harm_worst": float("nan")}
+
+
+def _outcome(out: Path, summary: dict[str, Any]) -> dict[str, Any]:
+    """:func:`_victims` and :func:`_safety` of a run folder, collisions.parquet read once."""
+    c = _ego_collisions(out)
+    return {**_victims(c), **_safety(out, summary, c)}
 
 
 #: fault values of collisions.parquet, in the order the tables list them
@@ -226,37 +243,32 @@ def overcautious_brakings(steps: Any, conflicts: Any) -> int:
     return n
 
 
-def _safety(out: Path, summary: dict[str, Any]) -> dict[str, Any]:
-    """Per run: ``distance`` [m] and ``drive_time`` [s] of the ego, ``conflicts_total`` and
-    ``conflicts_vru`` (NaN where conflicts were not measured) and ``harm_fault_<f>``: the harm
-    (ego + third party) of the ego's booked collisions whose ``fault`` is f (docs/conflicts.md)."""
+def _safety(out: Path, summary: dict[str, Any], c: Any) -> dict[str, Any]:
+    """Per run: ``distance`` [m] and ``drive_time`` [s] of the ego, ``conflicts_total``,
+    ``conflicts_vru`` and ``overcautious`` (NaN where conflicts were not measured) and
+    ``harm_fault_<f>``: the harm (ego + third party) of the booked ego collisions ``c``
+    (:func:`_ego_collisions`) whose ``fault`` is f (docs/conflicts.md)."""
+    from sumo_ethics.analysis.dataset import drive_time
+
     conf = summary.get("conflicts")
+    driven = drive_time(summary)
     row: dict[str, Any] = {
         "distance": float(summary.get("distance", 0.0) or 0.0),
-        "drive_time": (float(summary["sim_time"]) - float(summary["takeover_time"])
-                       if summary.get("sim_time") is not None and summary.get("takeover_time") is not None
-                       else float("nan")),
+        "drive_time": float("nan") if driven is None else driven,
         "conflicts_total": float(conf["total"]) if conf else float("nan"),
         "conflicts_vru": float(conf["vru"]) if conf else float("nan"),
         **{f"harm_fault_{f}": 0.0 for f in FAULTS}, "overcautious": float("nan")}
-    try:
-        import pandas as pd
+    if conf:  # conflicts were measured: a braking without one under way is over-cautious
+        try:
+            import pandas as pd
 
-        steps = pd.read_parquet(out / "steps.parquet", columns=["time", "accel", "stop_s"])
-        cpath = out / "conflicts.parquet"
-        if conf:  # conflicts were measured: a braking without one under way is over-cautious
+            steps = pd.read_parquet(out / "steps.parquet", columns=["time", "accel", "stop_s"])
+            cpath = out / "conflicts.parquet"
             row["overcautious"] = float(overcautious_brakings(steps, pd.read_parquet(cpath) if cpath.exists() else None))
-    except Exception:  # noqa: BLE001 - no steps: nothing to count
-        pass
-    try:
-        import pandas as pd
-
-        c = pd.read_parquet(out / "collisions.parquet")
-    except Exception:  # noqa: BLE001 - no collisions file: nothing booked
+        except Exception:  # noqa: BLE001 - no steps: nothing to count
+            pass
+    if c is None or "fault" not in c.columns:  # no collisions file, or one from before fault: nothing booked
         return row
-    if "fault" not in c.columns:
-        return row
-    c = c[c.involves_ego & (c.detector != "sumo_unconfirmed")]
     for f in FAULTS:
         sel = c[c.fault == f]
         row[f"harm_fault_{f}"] = float(sel.harm_ego.sum() + sel.harm_third_party.sum())
@@ -267,25 +279,18 @@ def safety_table(rows: list[dict[str, Any]], planners: list[str], n_boot: int = 
                  seed: int = 0) -> list[dict[str, Any]]:
     """Per planner: conflicts (all, VRU) per 100 ego-km, the sum over its runs over their distance
     with a bootstrap CI over scenarios, and the harm of its ego collisions summed by fault."""
-    from sumo_ethics.analysis.stats import ratio_ci
+    from sumo_ethics.analysis.stats import rate_ci
 
     out = []
     for p in planners:
         sub = [r for r in rows if r["planner"] == p and np.isfinite(r.get("conflicts_total", np.nan))]
         km = np.array([r.get("distance", 0.0) / 1000.0 for r in sub])
         row: dict[str, Any] = {"planner": p, "runs": len(sub), "ego_km": float(km.sum())}
-        for name in ("total", "vru"):
-            n = np.array([r[f"conflicts_{name}"] for r in sub], dtype=float)
-            lo, hi = ratio_ci(n, km, n_boot, seed)
-            row.update({f"conflicts_{name}": float(n.sum()),
-                        f"conflicts_{name}_per_100km": 100.0 * n.sum() / km.sum() if km.sum() > 0 else float("nan"),
-                        f"conflicts_{name}_per_100km_lo": 100.0 * lo, f"conflicts_{name}_per_100km_hi": 100.0 * hi})
-        n = np.array([r.get("overcautious", np.nan) for r in sub], dtype=float)
-        n = np.where(np.isfinite(n), n, 0.0)
-        lo, hi = ratio_ci(n, km, n_boot, seed)
-        row.update(overcautious=float(n.sum()),
-                   overcautious_per_100km=100.0 * n.sum() / km.sum() if km.sum() > 0 else float("nan"),
-                   overcautious_per_100km_lo=100.0 * lo, overcautious_per_100km_hi=100.0 * hi)
+        for name in ("conflicts_total", "conflicts_vru", "overcautious"):
+            n = np.nan_to_num(np.array([r.get(name, np.nan) for r in sub], dtype=float), nan=0.0)
+            rate, lo, hi = rate_ci(n, km, 100.0, n_boot, seed)
+            row.update({name: float(n.sum()), f"{name}_per_100km": rate, f"{name}_per_100km_lo": lo,
+                        f"{name}_per_100km_hi": hi})
         for f in FAULTS:
             row[f"harm_fault_{f}"] = float(sum(r.get(f"harm_fault_{f}", 0.0) for r in rows if r["planner"] == p))
         out.append(row)
@@ -305,10 +310,8 @@ def safety_markdown(st: list[dict[str, Any]]) -> list[str]:
              "| --- |" + " --- |" * (4 + len(FAULTS))]
     for r in st:
         lines.append(f"| {r['planner']} | {r['ego_km']:.1f} | "
-                     + " | ".join(_fmt(r[f"conflicts_{n}_per_100km"], r[f"conflicts_{n}_per_100km_lo"],
-                                       r[f"conflicts_{n}_per_100km_hi"], True) for n in ("total", "vru"))
-                     + " | " + _fmt(r["overcautious_per_100km"], r["overcautious_per_100km_lo"],
-                                    r["overcautious_per_100km_hi"], True)
+                     + " | ".join(_fmt(r[f"{n}_per_100km"], r[f"{n}_per_100km_lo"], r[f"{n}_per_100km_hi"], True)
+                                  for n in ("conflicts_total", "conflicts_vru", "overcautious"))
                      + " | " + " | ".join(f"{r[f'harm_fault_{f}']:.2f}" for f in FAULTS) + " |")
     return lines
 
@@ -361,7 +364,7 @@ def _row_from_folder(scenario: str, planner: PlannerSpec, out_dir: str, *_: Any)
             "vru": float(h.get("vru", 0.0)), "message": str(data.get("message", ""))[:200],
             "steps": int(data.get("steps", 0) or 0),
             "hazards_fired": ",".join(sorted({e["type"] for e in events if e["event"] == "trigger"})),
-            **_victims(out), **_safety(out, data), "wall_s": float(data.get("wall_time", 0.0) or 0.0),
+            **_outcome(out, data), "wall_s": float(data.get("wall_time", 0.0) or 0.0),
             **run_risk_file(out)}
 
 
