@@ -300,7 +300,7 @@ def _candidates(ax: Any, d: RecordedDecision, colours: Any, chosen: bool = True)
         p = paths[d.chosen]
         ax.plot(p[:, 0], p[:, 1], color="white", lw=4.0, zorder=7, solid_capstyle="round")
         ax.plot(p[:, 0], p[:, 1], color="black", lw=2.0, zorder=7.1, solid_capstyle="round", label="chosen")
-        whole = np.flatnonzero(np.isclose(d.cand_t % 1.0, 0.0, atol=1e-3) | np.isclose(d.cand_t % 1.0, 1.0, atol=1e-3))
+        whole = rec.whole_seconds(d.cand_t)
         ax.plot(d.cand_xy[d.chosen, whole, 0], d.cand_xy[d.chosen, whole, 1], "o", ms=4.5, mfc="white", mec="black",
                 zorder=7.2)
     return len(paths)

@@ -76,11 +76,6 @@ _jit = numba.njit(cache=True, nogil=True)
 
 
 @_jit
-def _phi(x: float) -> float:
-    return 0.5 * math.erfc(-x * _SQRT1_2)
-
-
-@_jit
 def _phi_pos(x: float) -> float:
     """Phi(x) for x >= 0: cubic Hermite interpolation of a table (error < 1e-12); 1 from 8.3 on
     (1 - Phi(8.3) < 6e-17)."""

@@ -256,8 +256,13 @@ class RecordedDecision:
 
     def whole_seconds(self) -> np.ndarray:
         """Indices of the prediction samples (``pred_t``) on a whole second: where ellipses are drawn."""
-        frac = self.pred_t % 1.0
-        return np.flatnonzero(np.isclose(frac, 0.0, atol=1e-3) | np.isclose(frac, 1.0, atol=1e-3))
+        return whole_seconds(self.pred_t)
+
+
+def whole_seconds(t: np.ndarray) -> np.ndarray:
+    """Indices of the sample times ``t`` [s] that fall on a whole second (within 1 ms)."""
+    frac = np.asarray(t) % 1.0
+    return np.flatnonzero(np.isclose(frac, 0.0, atol=1e-3) | np.isclose(frac, 1.0, atol=1e-3))
 
 
 def load(run: Path, step: int) -> RecordedDecision:
