@@ -11,7 +11,8 @@ file: read both and concatenate.
 
 SUMO writes ``-1`` (``-1.00``, ``-00:00:01`` with ``--human-readable-time``, and ``-0.00`` for
 the arrival of a stop not yet begun) for a value it does not know; every negative value is read
-as unknown. Columns (:data:`TRIPS`):
+as unknown: NaN in the frame, null in the Parquet file. Columns (:data:`TRIPS`; str is pandas'
+default string dtype, as a Parquet file read back gives it):
 
 =================  ========  ===================================================================
 ``id``             str       SUMO id
@@ -74,8 +75,6 @@ TRIPS = pa.schema([
     ("arrived", pa.bool_()),
 ])
 COLUMNS = tuple(TRIPS.names)
-_STR = ("id", "kind", "type_id", "vclass", "cls")
-_BOOL = ("ego", "arrived")
 _NAN = float("nan")
 _GZIP_MAGIC = b"\x1f\x8b"
 
@@ -243,10 +242,8 @@ def read_tripinfo(path: Path, egos: Iterable[str] = (), vclass_of: Mapping[str, 
 
 
 def _frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
-    df = pd.DataFrame(rows, columns=list(COLUMNS))
-    for c in COLUMNS:
-        df[c] = df[c].astype(object if c in _STR else bool if c in _BOOL else "float64")
-    return df
+    """The rows with the dtypes of trips.parquet read back (strings as pandas' default string dtype)."""
+    return pa.Table.from_pylist(rows, schema=TRIPS).to_pandas()
 
 
 def write_trips(df: pd.DataFrame, path: Path) -> None:
