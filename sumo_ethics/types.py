@@ -237,10 +237,15 @@ class Prediction:
     def take(self, index: np.ndarray | list[int]) -> "Prediction":
         """The agents at integer positions ``index``, every mode and weight kept."""
         idx = np.asarray(index, dtype=int)
-        sub = self.map_modes(lambda m: Prediction(tuple(m.ids[i] for i in idx), m.dt, m.mean[idx], m.cov[idx], m.yaw[idx]))
+
+        def one(m: Prediction) -> Prediction:
+            return Prediction(tuple(m.ids[i] for i in idx), m.dt, m.mean[idx], m.cov[idx], m.yaw[idx])
+
+        main = one(self.single())
         if self.weight is None:
-            return sub
-        return Prediction(sub.ids, sub.dt, sub.mean, sub.cov, sub.yaw, sub.alternatives, self.weight[idx])
+            return main
+        return Prediction(main.ids, main.dt, main.mean, main.cov, main.yaw, tuple(one(a) for a in self.alternatives),
+                          self.weight[idx])
 
     def map_modes(self, fn) -> "Prediction":
         """``fn`` (single-mode Prediction -> single-mode Prediction) applied to every mode, weights kept."""
