@@ -214,14 +214,19 @@ class CollisionBook:
         ego's from the swept boxes and SUMO's reports, the others' from SUMO's reports (the
         harm from the parties' states just before impact, the fault with ``ctx``). True if the
         ego had a new one."""
+        ego_new = self.detect_ego(before, now, step, ctx)
+        self.detect_others(now.time, now.collisions, step, frozenset(now.ego.ids))
+        return ego_new
+
+    def detect_ego(self, before: Any, now: Any, step: int, ctx: FaultContext | None = None) -> bool:
+        """The ego's collisions of :meth:`detect` (a fleet calls this per ego: a pair of egos is
+        one event, booked by the first); True if the ego had a new one."""
         rows = self.sink.collisions
         ego_id = now.ego.ids[0]
         t = now.time
         hits = swept_contacts(before.ego, now.ego, now.others, previous_of(now.others, before.others))
         geo = {now.others.ids[i] for i in np.flatnonzero(hits)}
-        reports: dict[frozenset[str], SumoReport] = {}
-        for c in now.collisions:
-            reports.setdefault(frozenset((c[0], c[1])), c)
+        reports = _by_pair(now.collisions)
         ego_new = False
         now_index = now.others.index
         sumo_ego = {next(iter(p - {ego_id})) for p in reports if ego_id in p and len(p) == 2}
@@ -254,8 +259,14 @@ class CollisionBook:
                            sumo_type=row["sumo_type"] or new["sumo_type"])
                 self.sink.update_collision(idx, **new)
             ego_new = ego_new or detector != "sumo_unconfirmed"
-        for pair, c in sorted(reports.items(), key=lambda kv: sorted(kv[0])):
-            if ego_id in pair or len(pair) != 2:
+        return ego_new
+
+    def detect_others(self, t: float, collisions: tuple, step: int, egos: frozenset[str]) -> None:
+        """Book SUMO's reports at time ``t`` [s] of collisions between road users none of which is
+        in ``egos``."""
+        rows = self.sink.collisions
+        for pair, c in sorted(_by_pair(collisions).items(), key=lambda kv: sorted(kv[0])):
+            if pair & egos or len(pair) != 2:
                 continue
             is_new, _ = self.events.observe(t, c[0], c[1])
             if not is_new:
@@ -265,4 +276,11 @@ class CollisionBook:
                 continue
             a, b = _with_speed(a, c[4]), _with_speed(b, c[5])
             self._book(collision_row(len(rows), t, step, a, b, False, "sumo", c[6]), c[0], c[1])
-        return ego_new
+
+
+def _by_pair(collisions: tuple) -> dict[frozenset[str], SumoReport]:
+    """SUMO's reports of a step by the pair of parties (the first report of a pair)."""
+    reports: dict[frozenset[str], SumoReport] = {}
+    for c in collisions:
+        reports.setdefault(frozenset((c[0], c[1])), c)
+    return reports

@@ -160,17 +160,8 @@ class Run:
     def stop_line(self, s_front: float) -> float | None:
         """Arc length of the next red/yellow stop line within 100 m ahead of the ego's front (and
         in ``red_s`` that line's arc length if it shows red, else None)."""
-        self.red_s = None
-        for link in self.world.route.links:
-            if link.s < s_front - 0.5:
-                continue
-            if link.s - s_front > 100.0:
-                return None
-            state = self.world.link_state(link)
-            if state in STOP_STATES:
-                self.red_s = link.s if state in "rR" else None
-                return link.s
-        return None
+        line, self.red_s = stop_line(self.world, s_front)
+        return line
 
     def execute(self) -> None:
         cfg = self.cfg
@@ -188,6 +179,12 @@ class Run:
         if not (cfg.out / "sumo-outputs").exists():
             self.written.append("sumo-outputs")
         outputs, left = scenario_files.redirected(files, cfg.out / "sumo-outputs")
+        if cfg.fleet is not None:  # every trip of the run, for trips.parquet
+            outputs.setdefault("tripinfo-output", str(cfg.out / "sumo-outputs" / "tripinfo.xml"))
+            outputs["tripinfo-output.write-unfinished"] = "true"
+            self.meta["tripinfo"] = outputs["tripinfo-output"]
+        if cfg.fleet is not None:
+            ego_id = None
         self.meta.update(scenario=str(files.config), ego_id=ego_id, **plan.record(),
                          forced_sumo_options=session.forced_option_report(files), redirected_outputs=outputs,
                          outputs_not_redirected=left, sumo_args=list(cfg.sumo_args))
@@ -334,17 +331,7 @@ class Run:
     def _rows(self, now: Snapshot, before: Snapshot, decision: Any, s: float, d: float, dt: float,
               w: tuple[float, float, float, float], stop_s: float | None) -> tuple[dict, dict]:
         """This step's steps.parquet and timings.parquet rows."""
-        e, o = now.ego, now.others
-        dist = np.hypot(o.x - e.x[0], o.y - e.y[0]) if len(o) else np.empty(0)
-        row = {
-            "step": self.step, "time": now.time, "x": float(e.x[0]), "y": float(e.y[0]), "yaw": float(e.yaw[0]),
-            "speed": float(e.speed[0]), "speed_cmd": float(decision.command.speed), "speed_sumo": now.sumo_speed,
-            "accel": (float(e.speed[0]) - float(before.ego.speed[0])) / dt, "s": s, "d": d,
-            "lane": self.world.sumo_lane(), "n_neighbours": len(o), "n_vru": int(VULNERABLE[o.cls].sum()),
-            "min_distance": float(dist.min()) if len(dist) else float("nan"),
-            "stop_s": float("nan") if stop_s is None else stop_s,
-        }
-        row.update(decision.info)
+        row = step_row(self.step, now, before, decision, s, d, dt, self.world.sumo_lane(), stop_s)
         timing = {"step": self.step, "controller_ms": 1e3 * w[0], "sumo_ms": 1e3 * w[1], "read_ms": 1e3 * w[2],
                   "collision_ms": 1e3 * w[3]}
         timing.update(decision.timings_ms)
@@ -424,6 +411,39 @@ class Run:
         }
 
 
+def stop_line(world: SumoWorld, s_front: float) -> tuple[float | None, float | None]:
+    """(arc length of the next red/yellow stop line within 100 m ahead of the ego's front s_front
+    [m] on its route, that arc length again if the line shows red), each None if there is none."""
+    for link in world.route.links:
+        if link.s < s_front - 0.5:
+            continue
+        if link.s - s_front > 100.0:
+            return None, None
+        state = world.link_state(link)
+        if state in STOP_STATES:
+            return link.s, link.s if state in "rR" else None
+    return None, None
+
+
+def step_row(step: int, now: Snapshot, before: Snapshot, decision: Any, s: float, d: float, dt: float, lane: str,
+             stop_s: float | None) -> dict[str, Any]:
+    """One steps.parquet row: the ego after ``step`` (snapshot ``now``; ``before`` the one the
+    ``decision`` was taken in), its Frenet s, d [m] on its route and SUMO lane, the step's
+    decision's named numbers."""
+    e, o = now.ego, now.others
+    dist = np.hypot(o.x - e.x[0], o.y - e.y[0]) if len(o) else np.empty(0)
+    row = {
+        "step": step, "time": now.time, "x": float(e.x[0]), "y": float(e.y[0]), "yaw": float(e.yaw[0]),
+        "speed": float(e.speed[0]), "speed_cmd": float(decision.command.speed), "speed_sumo": now.sumo_speed,
+        "accel": (float(e.speed[0]) - float(before.ego.speed[0])) / dt, "s": s, "d": d,
+        "lane": lane, "n_neighbours": len(o), "n_vru": int(VULNERABLE[o.cls].sum()),
+        "min_distance": float(dist.min()) if len(dist) else float("nan"),
+        "stop_s": float("nan") if stop_s is None else stop_s,
+    }
+    row.update(decision.info)
+    return row
+
+
 def _progress(enabled: bool, start: float, end: float) -> Any:
     if not enabled:
         return None
@@ -484,9 +504,25 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
     written, e.g. a full disk), KeyboardInterrupt on Ctrl-C and :class:`Terminated` on SIGTERM
     (status ``interrupted``).
     """
+    if cfg.fleet is not None:
+        if hooks:
+            raise ConfigError("a fleet run (--egos, --penetration, several --ego) takes no hooks (hazards)")
+        from sumo_ethics.sim.commonroad import marker_of
+
+        if marker_of(cfg.scenario) is not None:
+            raise ConfigError(f"{cfg.scenario.name} is an imported CommonRoad scenario: its one ego is the planning "
+                              "problem's; drop --egos/--penetration/--fleet")
+        from sumo_ethics.fleet import run_fleet
+
+        return run_fleet(cfg)
     cfg, hooks = _imported(cfg, tuple(hooks))
     controller = controller or make_controller(cfg)
-    r = Run(cfg, controller, tuple(hooks))
+    return execute(Run(cfg, controller, tuple(hooks)), cfg)
+
+
+def execute(r: Run, cfg: RunConfig) -> RunSummary:
+    """Run ``r`` (a :class:`Run`, or a fleet's) to its end: outputs and summary written whatever
+    happens, then the error raised (see :func:`run`)."""
     t0 = wallclock.perf_counter()
     error: BaseException | None = None
     with sigterm_as_interrupt():

@@ -36,6 +36,7 @@ class RunRecorder:
         self.partial = out / PARTIAL
         self.tables = {name: ChunkedTable(self.partial, name, base) for name, base in STREAMED.items()}
         self.collisions: list[dict[str, Any]] = []
+        self.collision_schema = schema.COLLISIONS  # a fleet's names the ego parties too
         self._collisions_dirty = False
         self.conflicts: list[dict[str, Any]] | None = None  # a list once conflicts are recorded
         self._conflicts_dirty = False
@@ -106,7 +107,7 @@ class RunRecorder:
             t.flush()
         if self._collisions_dirty:
             self.partial.mkdir(parents=True, exist_ok=True)
-            write_table(self.partial / "collisions.parquet", self.collisions, schema.COLLISIONS)
+            write_table(self.partial / "collisions.parquet", self.collisions, self.collision_schema)
             self._collisions_dirty = False
         if self._conflicts_dirty:
             self.partial.mkdir(parents=True, exist_ok=True)
@@ -117,7 +118,7 @@ class RunRecorder:
         """Write the finished files and remove ``partial/``."""
         for name, t in self.tables.items():
             t.finish(self.out / f"{name}.parquet")
-        write_table(self.out / "collisions.parquet", self.collisions, schema.COLLISIONS)
+        write_table(self.out / "collisions.parquet", self.collisions, self.collision_schema)
         if self.conflicts is not None:
             write_table(self.out / "conflicts.parquet", self.conflicts, schema.CONFLICTS)
         shutil.rmtree(self.partial, ignore_errors=True)

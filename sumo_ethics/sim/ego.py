@@ -75,17 +75,23 @@ def find_ego_route(cfg: RunConfig) -> tuple[str, ...]:
     edges = _usable_edges()
     if len(edges) < 1:
         raise ConfigError("the network has no edge a passenger car may use")
-    rng = np.random.default_rng(cfg.seed)
+    route = random_route(edges, np.random.default_rng(cfg.seed), cfg.min_route_length)
+    if not route:
+        raise ConfigError("found no route for the ego on this network; give --ego-from and --ego-to")
+    return route
+
+
+def random_route(edges: list[str], rng: np.random.Generator, min_length: float) -> tuple[str, ...]:
+    """The first route between two random ``edges`` at least ``min_length`` [m] long (else the
+    longest of 300 draws; () if none connects)."""
     best: tuple[float, tuple[str, ...]] = (0.0, ())
     for _ in range(300):
         a, b = rng.choice(len(edges), size=2)
         stage = libsumo.simulation.findRoute(edges[a], edges[b], vType=EGO_TYPE)
         if stage.edges and stage.length > best[0]:
             best = (stage.length, tuple(stage.edges))
-            if stage.length >= cfg.min_route_length:
+            if stage.length >= min_length:
                 break
-    if not best[1]:
-        raise ConfigError("found no route for the ego on this network; give --ego-from and --ego-to")
     return best[1]
 
 
@@ -106,17 +112,7 @@ def ego_limits(ego_id: str, car: EgoVehicle) -> EgoVehicle:
 
 def insert_ego(cfg: RunConfig, ego_id: str, depart: float) -> tuple[str, ...]:
     """Define the ego's vType, wait until ``depart`` [s], insert it, step until it departs."""
-    vt = libsumo.vehicletype
-    vt.copy("DEFAULT_VEHTYPE", EGO_TYPE)
-    vt.setVehicleClass(EGO_TYPE, "passenger")
-    vt.setLength(EGO_TYPE, cfg.ego.length)
-    vt.setWidth(EGO_TYPE, cfg.ego.width)
-    vt.setMass(EGO_TYPE, cfg.ego.mass)
-    vt.setParameter(EGO_TYPE, "mass", repr(float(cfg.ego.mass)))  # given, even if it equals SUMO's 1500 kg
-    vt.setMaxSpeed(EGO_TYPE, cfg.ego.max_speed)
-    vt.setAccel(EGO_TYPE, cfg.ego.max_accel)
-    vt.setDecel(EGO_TYPE, cfg.ego.comfort_decel)
-    vt.setEmergencyDecel(EGO_TYPE, cfg.ego.max_decel)
+    define_ego_type(cfg.ego)
     edges = find_ego_route(cfg)
     _step_until(lambda: False, depart)
     libsumo.route.add(EGO_ROUTE, list(edges))
@@ -126,6 +122,21 @@ def insert_ego(cfg: RunConfig, ego_id: str, depart: float) -> tuple[str, ...]:
     if not _step_until(lambda: ego_id in libsumo.simulation.getDepartedIDList(), limit):
         raise SimulationError(f"the ego could not be inserted on edge '{edges[0]}' within {INSERT_PATIENCE:g} s")
     return edges
+
+
+def define_ego_type(ego: EgoVehicle) -> None:
+    """The vType of inserted egos (EGO_TYPE): a passenger car with ``ego``'s body and limits."""
+    vt = libsumo.vehicletype
+    vt.copy("DEFAULT_VEHTYPE", EGO_TYPE)
+    vt.setVehicleClass(EGO_TYPE, "passenger")
+    vt.setLength(EGO_TYPE, ego.length)
+    vt.setWidth(EGO_TYPE, ego.width)
+    vt.setMass(EGO_TYPE, ego.mass)
+    vt.setParameter(EGO_TYPE, "mass", repr(float(ego.mass)))  # given, even if it equals SUMO's 1500 kg
+    vt.setMaxSpeed(EGO_TYPE, ego.max_speed)
+    vt.setAccel(EGO_TYPE, ego.max_accel)
+    vt.setDecel(EGO_TYPE, ego.comfort_decel)
+    vt.setEmergencyDecel(EGO_TYPE, ego.max_decel)
 
 
 def start_ego(cfg: RunConfig, ego_id: str, end: float, depart: float) -> tuple[EgoVehicle, tuple[str, ...]]:

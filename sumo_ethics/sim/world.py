@@ -160,10 +160,15 @@ class SumoWorld:
 
     def step(self, cmd: EgoCommand | None = None) -> None:
         """Apply ``cmd`` (if any) and advance SUMO one step (then :meth:`read` the scene)."""
+        self.command(cmd)
+        libsumo.simulationStep()
+
+    def command(self, cmd: EgoCommand | None) -> None:
+        """Place the ego at ``cmd`` during the next step (None: SUMO drives it); a fleet commands
+        every ego, then steps SUMO once."""
         self._commanded = None
         if cmd is not None:
             self.apply(cmd)
-        libsumo.simulationStep()
 
     def party_state(self, agent_id: str) -> AgentStates | None:
         """Full state of any vehicle or person by id (None if it is not in the simulation)."""
