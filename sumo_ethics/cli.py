@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import Any
 
 import click
 
 from sumo_ethics.cli_types import SUMO_TIME
-from sumo_ethics.errors import SumoEthicsError, Terminated
+from sumo_ethics.errors import ConfigError, SumoEthicsError, Terminated
 from sumo_ethics.predict import PREDICTORS, PredictorError
 
 
@@ -42,7 +43,8 @@ def cli() -> None:
 
 @cli.command()
 @click.argument("scenario", type=click.Path(path_type=Path))
-@click.option("--ego", "ego_id", help="Take over this vehicle of the scenario's route files when it departs.")
+@click.option("--ego", "ego_ids", multiple=True, help="Take over this vehicle of the scenario's route files when it "
+              "departs (repeatable: several egos).")
 @click.option("--ego-from", help="Insert our own ego on a route from this edge ...")
 @click.option("--ego-to", help="... to this edge.")
 @click.option("--ego-depart", type=SUMO_TIME,
@@ -84,24 +86,52 @@ def cli() -> None:
               show_default=True, help="Keep what the planner weighed, for 'explain' and 'replay': every step, the "
               "steps with any risk and the 5 s before each ego collision, only those 5 s, or nothing but the last step "
               "before each ego collision.")
+@click.option("--egos", type=int, help="Fleet: insert this many egos of ours, departing evenly over the first half of "
+              "the run on routes drawn with --seed.")
+@click.option("--penetration", type=float, help="Fleet: take over each eligible vehicle of the scenario (a motor road "
+              "vehicle without stops) with this probability, 0..1, drawn with --seed when it departs.")
+@click.option("--fleet", "fleet_shares", metavar="NAME=SHARE,...", help="Fleet: each ego's planner drawn by share, e.g. "
+              "ethical=0.5,ego=0.5 (J_origin weight presets, or baseline); default all ethical.")
 @click.option("--quiet", is_flag=True, help="No progress display.")
-def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float | None,
+def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration: float | None,
+        fleet_shares: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float | None,
         seed: int, end: float | None, step_length: float | None, sumo_arg: tuple[str, ...], out: Path | None,
         controller: str, omega_u: float | None, omega_o: float | None, weights: str | None, selection: str | None,
         utility: str | None, normalise: str | None, predictor: str | None, predictor_weights: Path | None, config_file: Path | None,
         continue_after_collision: bool, radius: float, overwrite: bool, record_decisions: str, quiet: bool) -> None:
-    """Run SCENARIO (a .sumocfg) with one vehicle taken over by the ego controller."""
+    """Run SCENARIO (a .sumocfg) with one vehicle taken over by the ego controller, or a fleet of them
+    (--egos, --penetration, several --ego, --fleet)."""
     from dataclasses import replace
 
-    from sumo_ethics.config import RunConfig
+    from sumo_ethics.config import FleetSpec, RunConfig
     from sumo_ethics.sim import scenario as scenario_files
+
+    fleet = None
+    if egos is not None or penetration is not None or fleet_shares is not None or len(ego_ids) > 1:
+        if ego_from is not None or ego_depart is not None:
+            raise ConfigError("--ego-from/--ego-to/--ego-depart place the single inserted ego; a fleet's egos "
+                              "(--egos) depart evenly over the run on routes drawn with --seed")
+        if controller != "ethical":
+            raise ConfigError("--controller sets the single ego's; a fleet names its planners with --fleet, "
+                              "e.g. --fleet ethical=0.5,baseline=0.5")
+        if record_decisions != "off":
+            raise ConfigError("--record-decisions is for single-ego runs (explain and replay read one ego)")
+        fleet = FleetSpec(egos=egos or 0, penetration=penetration or 0.0, ids=ego_ids,
+                          shares=FleetSpec.parse_shares(fleet_shares) if fleet_shares is not None
+                          else FleetSpec().shares)
+        from sumo_ethics.fleet import check_fleet_names
+
+        check_fleet_names(fleet)
+        ego_ids = ()
+    ego_id = ego_ids[0] if ego_ids else None
 
     # input checks that need no simulation, before the heavy imports (numpy, libsumo, torch)
     out = out or Path("runs") / f"{scenario.stem}-seed{seed}"
     cfg = RunConfig(scenario=scenario, out=out, seed=seed, end=end, ego_id=ego_id, ego_from=ego_from, ego_to=ego_to,
                     ego_depart=ego_depart, stop_at_collision=not continue_after_collision, controller=controller,
                     sensing_radius=radius, progress=not quiet, overwrite=overwrite, step_length=step_length,
-                    sumo_args=scenario_files.parse_sumo_args(sumo_arg), record_decisions=record_decisions)
+                    sumo_args=scenario_files.parse_sumo_args(sumo_arg), record_decisions=record_decisions,
+                    fleet=fleet)
     scenario_files.plan(cfg.scenario, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id,
                         tuple(e for e in (ego_from, ego_to) if e is not None))
     scenario_files.check_out(out)
@@ -120,6 +150,11 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
         click.echo(f"note: {scenario.parent / 'hazards.json'} is not used by 'run' (no hazards, your ego); "
                    f"'sumo-ethics evaluate {scenario.parent}' runs the scenario as the suite defines it", err=True)
     cfg = replace(cfg, planner=planner, conflicts=conflicts)
+    if fleet is not None:
+        from sumo_ethics.fleet import make_fleet_controllers, run_fleet
+
+        _print_fleet(run_fleet(cfg, make_fleet_controllers(cfg)))
+        return
     # built before SUMO starts, so a bad weights file or setting fails at once
     summary = run_scenario(cfg, controller=make_controller(cfg))
     d = summary.data
@@ -145,6 +180,26 @@ def run(scenario: Path, ego_id: str | None, ego_from: str | None, ego_to: str | 
         con.print(f"  collision snapshot: {summary.out / snap}")
     for line in notes.lines(d):  # tight bends, a lonely standstill
         con.print(f"  {line}", markup=False)
+    con.print(f"  outputs in {summary.out}")
+
+
+def _print_fleet(summary: Any) -> None:
+    """What ``run`` prints at the end of a fleet run."""
+    d = summary.data
+    con = _console()
+    f, h, e, c = d["fleet"], d["harm"], d["harm_everyone"], d["collisions"]
+    con.print(f"[bold]{d['status']}[/bold]: {d['message']}")
+    con.print(f"  {f['egos']} egos (" + ", ".join(f"{k} {v}" for k, v in f["by_planner"].items()) + "); "
+              + ", ".join(f"{k} {v}" for k, v in f["by_status"].items()) + f"; drove {d['distance'] / 1e3:.2f} km, "
+              f"{d['steps']} steps, wall {d['wall_time']:.1f} s")
+    con.print(f"  ego collisions {c['ego']} (ego-ego {c['ego_ego']}), others {c['others']}; harm booked to egos "
+              f"{h['ego']:.3f}, third parties {h['third_party']:.3f} (VRU {h['vru']:.3f}); everyone's harm {e['total']:.3f}")
+    if "traffic" in d:
+        t = d["traffic"]
+        con.print(f"  trips: {t['vehicle_trips']} vehicles ({t['vehicle_km']:.1f} km), {t['person_trips']} persons "
+                  f"({t['person_km']:.1f} km) in {summary.out / 'trips.parquet'}")
+    if f["teleported"]:
+        con.print(f"  SUMO teleported {len(f['teleported'])} egos (handed back): {', '.join(f['teleported'][:5])}")
     con.print(f"  outputs in {summary.out}")
 
 

@@ -61,6 +61,68 @@ class ConflictConfig:
             raise ConfigError(f"conflicts.crossing_angle must be at most 90 degrees, got {self.crossing_angle!r}")
 
 
+#: what ``--fleet`` names besides the J_origin weight presets: the route-following baseline
+FLEET_CONTROLLERS = ("baseline",)
+
+
+@dataclass(frozen=True)
+class FleetSpec:
+    """Several egos in one run (:mod:`sumo_ethics.fleet`).
+
+    egos: inserted egos, departures spread over the first half of the run, routes drawn with the
+    seed; penetration: share of the scenario's own eligible vehicles taken over when they depart
+    (each by its own seeded draw, so the egos at 0.1 are among those at 0.25); ids: vehicles of the
+    scenario taken over; shares: (planner name, share) pairs, each ego drawing its planner by share
+    (a J_origin weight preset such as ``ethical`` or ``ego``, or ``baseline``), shares summing to 1.
+    """
+
+    egos: int = 0
+    penetration: float = 0.0
+    ids: tuple[str, ...] = ()
+    shares: tuple[tuple[str, float], ...] = (("ethical", 1.0),)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.egos, int) or isinstance(self.egos, bool) or not 0 <= self.egos <= 10_000:
+            raise ConfigError(f"--egos must be a whole number from 0 to 10000, got {self.egos!r}")
+        p = self.penetration
+        if not (isinstance(p, (int, float)) and not isinstance(p, bool) and 0.0 <= p <= 1.0):
+            raise ConfigError(f"--penetration must be a share from 0 to 1, got {p!r}")
+        object.__setattr__(self, "penetration", float(p))
+        if len(set(self.ids)) != len(self.ids):
+            raise ConfigError("--ego names the same vehicle twice")
+        if not self.shares:
+            raise ConfigError("--fleet needs at least one planner")
+        names = [n for n, _ in self.shares]
+        if len(set(names)) != len(names):
+            raise ConfigError(f"--fleet names a planner twice: {','.join(names)}")
+        for name, share in self.shares:
+            if not (isinstance(share, (int, float)) and not isinstance(share, bool) and 0.0 <= share <= 1.0):
+                raise ConfigError(f"--fleet share of '{name}' must be from 0 to 1, got {share!r}")
+        total = sum(s for _, s in self.shares)
+        if abs(total - 1.0) > 1e-6:
+            raise ConfigError(f"--fleet shares must sum to 1, got {total:g}")
+
+    @staticmethod
+    def parse_shares(text: str) -> tuple[tuple[str, float], ...]:
+        """``"ethical=0.5,ego=0.5"`` -> (("ethical", 0.5), ("ego", 0.5)); a single name means all egos."""
+        out = []
+        for part in (p.strip() for p in text.split(",")):
+            if not part:
+                continue
+            name, eq, value = part.partition("=")
+            name = name.strip()
+            if not name:
+                raise ConfigError(f"--fleet: '{part}' names no planner (expected NAME=SHARE, e.g. ethical=0.5,ego=0.5)")
+            if not eq:
+                out.append((name, 1.0))
+                continue
+            try:
+                out.append((name, float(value)))
+            except ValueError:
+                raise ConfigError(f"--fleet: share '{value.strip()}' of '{name}' is not a number") from None
+        return tuple(out)
+
+
 @dataclass(frozen=True)
 class RunConfig:
     """Everything one run needs. ``end`` and ``ego_depart`` are simulation times [s] (absolute,
@@ -88,6 +150,7 @@ class RunConfig:
     planner: Any = None  # sumo_ethics.plan.ethical.PlannerConfig for the "ethical" controller (None: defaults)
     record_decisions: str = "off"  # off | collisions | risky | all (sumo_ethics.record.decisions)
     conflicts: ConflictConfig = field(default_factory=ConflictConfig)  # near misses (conflicts.parquet)
+    fleet: FleetSpec | None = None  # several egos (sumo_ethics.fleet); None: the single-ego run
 
     def __post_init__(self) -> None:
         from sumo_ethics.record.decisions import MODES
@@ -119,6 +182,10 @@ class RunConfig:
         d["out"] = str(self.out)
         d["sumo_args"] = list(self.sumo_args)
         d["planner"] = _plain(d["planner"])
+        if self.fleet is None:  # the single-ego run's config.json keeps its bytes
+            del d["fleet"]
+        else:
+            d["fleet"] = _plain(d["fleet"])
         return d
 
 

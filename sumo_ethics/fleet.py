@@ -1,0 +1,550 @@
+"""Several egos in one run: ``run_fleet(cfg, controllers) -> RunSummary`` (``sumo-ethics run
+--egos N``, ``--penetration P``, ``--ego ID --ego ID2``, ``--fleet ethical=0.5,ego=0.5``).
+
+Which vehicles become egos: ``--egos`` inserts N of ours (departures spread evenly over the first
+half of the run, routes drawn with the seed); ``--penetration`` takes over each eligible vehicle of
+the scenario (a motor road vehicle without stops, :func:`sumo_ethics.sim.fleet.eligible`) when it
+departs, by its own seeded draw :func:`draw`: a vehicle's draw does not depend on the others, so
+the egos at penetration 0.1 are among those at 0.25 (common random numbers across a sweep);
+``--ego`` names vehicles. Each ego's planner is drawn by share (``--fleet``) from a second draw.
+
+Each step every ego is driven as in the single-ego run (:mod:`sumo_ethics.runner`): read its scene
+(its own context subscription: other egos are road users to it), act, command; then SUMO steps
+once for all. The neighbours of all egos are predicted once per step in one batched call
+(:class:`SharedPrediction`, over the union of what the egos see, egos included), each ego's planner
+taking its own rows. Collisions are detected per ego with one book for the run: a collision of two
+egos is one event (party a is the ego whose check ran first) with the harm to both booked to
+egos (:func:`fleet_booking`); collisions of other road users from SUMO's reports. An ego that
+reaches its goal is handed back to SUMO for its last metres (its trip ends in SUMO's tripinfo); one
+that collides is taken off the road (with ``--continue-after-collision`` it drives on); one SUMO
+starts to teleport is handed back and named in the summary. The run ends at ``--end`` (or the
+scenario's end, or when SUMO has nobody left). Every trip of the run, egos or not, goes to
+``trips.parquet`` from SUMO's tripinfo.
+"""
+
+from __future__ import annotations
+
+import time as wallclock
+import zlib
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from sumo_ethics.collision import CollisionBook, is_booked
+from sumo_ethics.config import FLEET_CONTROLLERS, FleetSpec, RunConfig
+from sumo_ethics.errors import ConfigError
+from sumo_ethics.plan.controller import Controller, Decision, Scene
+from sumo_ethics.plan.history import History
+from sumo_ethics.record import schema
+from sumo_ethics.record.writer import ChunkedTable
+from sumo_ethics.runner import Run, RunSummary, _progress, execute, step_row, stop_line
+from sumo_ethics.safety.conflicts import ConflictBook, conflict_counts
+from sumo_ethics.safety.fault import FAULTS, RED_MEMORY, FaultContext
+from sumo_ethics.sim import fleet as sim_fleet, scenario as scenario_files, session
+from sumo_ethics.sim.ego import ego_limits
+from sumo_ethics.sim.rules import RuleMonitor
+from sumo_ethics.sim.scenario import format_time
+from sumo_ethics.sim.world import Snapshot, SumoWorld
+from sumo_ethics.types import AgentStates, Observation, Prediction, RoadUserClass, RunStatus
+
+#: the prefix of inserted egos' ids (``fleet_ego_0`` ...)
+INSERTED_PREFIX = "fleet_ego_"
+#: collisions.parquet of a fleet run: which parties were egos
+COLLISIONS = schema.COLLISIONS.append(schema.pa.field("ego_a", schema.pa.bool_())).append(
+    schema.pa.field("ego_b", schema.pa.bool_()))
+
+#: steps.parquet and timings.parquet of a fleet run: one row per ego per step, named by the ego
+STEPS = schema.pa.schema([("ego_id", schema.pa.string()), ("planner", schema.pa.string())] + list(schema.STEPS_BASE))
+TIMINGS = schema.pa.schema([("ego_id", schema.pa.string())] + list(schema.TIMINGS_BASE))
+
+
+# ---- who becomes an ego, with which planner -------------------------------------------------------
+def draw(seed: int, stream: int, vid: str) -> float:
+    """A uniform number in [0, 1) for vehicle ``vid``, fixed by (seed, stream, id) alone; stream 0
+    decides penetration, stream 1 the planner."""
+    return float(np.random.default_rng([seed, stream, zlib.crc32(vid.encode())]).random())
+
+
+def planner_of(seed: int, vid: str, shares: tuple[tuple[str, float], ...]) -> str:
+    """The fleet planner of ego ``vid``: the share interval its draw falls in (in the order given)."""
+    u, acc = draw(seed, 1, vid), 0.0
+    for name, share in shares:
+        acc += share
+        if u < acc:
+            return name
+    return next(n for n, s in reversed(shares) if s > 0)
+
+
+def inserted_departs(n: int, begin: float, end: float, dt: float) -> list[float]:
+    """Departure times [s] of n inserted egos: evenly over the first half of the run, on steps."""
+    return [begin + round(i * (end - begin) / (2 * n) / dt) * dt for i in range(n)]
+
+
+def check_fleet_names(spec: FleetSpec) -> None:
+    """ConfigError for a ``--fleet`` name that is neither a weight preset nor a known controller."""
+    from sumo_ethics.ethics.cost import PRESETS
+
+    for name, _ in spec.shares:
+        if name not in PRESETS and name not in FLEET_CONTROLLERS:
+            raise ConfigError(f"--fleet: unknown planner '{name}'; known: "
+                              f"{', '.join(sorted(PRESETS) + list(FLEET_CONTROLLERS))}")
+
+
+def make_fleet_controllers(cfg: RunConfig) -> Callable[[str, str], Controller]:
+    """A factory: (fleet planner name, ego id) -> a new controller for that ego. The ethical planners share
+    one predictor per predictor setting (loaded once), wrapped in a :class:`SharedPrediction`."""
+    from sumo_ethics.ethics.cost import PrincipleWeights
+    from sumo_ethics.plan.baseline import RouteFollower
+    from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig, make_predictor
+
+    spec = cfg.fleet
+    assert spec is not None
+    check_fleet_names(spec)
+    base = cfg.planner or PlannerConfig()
+    shared: dict[tuple, SharedPrediction] = {}
+
+    def make(name: str, vid: str = "") -> Controller:
+        if name == "baseline":
+            return RouteFollower()
+        pc = replace(base, cost=replace(base.cost, weights=PrincipleWeights.preset(name)))
+        key = (pc.predictor, pc.predictor_weights, pc.calibrated)
+        if key not in shared:
+            shared[key] = SharedPrediction(make_predictor(*key))
+        return EthicalPlanner(pc, predictor=shared[key])
+
+    make.shared = shared  # type: ignore[attr-defined]
+    for name, share in spec.shares:  # a bad weights file fails before SUMO starts
+        if share > 0 and name != "baseline":
+            make(name)
+    return make
+
+
+class SharedPrediction:
+    """One batched prediction per step for every ego's neighbours.
+
+    :meth:`begin` hands it the step's union observation (every road user some ego sees, the egos
+    too); the first ``predict`` of a step with a horizon predicts them all at once, every call
+    returns the rows of the agents it asks for. Everything else is the wrapped predictor's.
+    """
+
+    def __init__(self, base: Any) -> None:
+        self.base = base
+        self.obs: Observation | None = None
+        self.index: dict[str, int] = {}
+        self.cache: dict[tuple[int, float], Prediction] = {}
+        self.calls = 0  # batched predictions made
+
+    def __getattr__(self, name: str) -> Any:  # kind, path, model, calibration ...
+        return getattr(self.base, name)
+
+    def begin(self, obs: Observation) -> None:
+        self.obs, self.index, self.cache = obs, obs.current.index, {}
+
+    def predict(self, obs: Observation, horizon_steps: int, dt: float) -> Prediction:
+        if self.obs is None:
+            return self.base.predict(obs, horizon_steps, dt)
+        key = (horizon_steps, float(dt))
+        if key not in self.cache:
+            self.cache[key] = self.base.predict(self.obs, horizon_steps, dt)
+            self.calls += 1
+        return self.cache[key].take([self.index[k] for k in obs.current.ids])
+
+
+def union_states(parts: list[AgentStates]) -> AgentStates:
+    """The agents of ``parts`` once each (the first state seen of an id), sorted by id."""
+    first: dict[str, tuple[int, int]] = {}
+    for p, s in enumerate(parts):
+        for i, k in enumerate(s.ids):
+            first.setdefault(k, (p, i))
+    if not first:
+        return AgentStates.empty()
+    ids = sorted(first)
+    cols = {}
+    for name in ("x", "y", "yaw", "speed", "accel", "length", "width", "mass", "cls"):
+        cols[name] = np.array([getattr(parts[first[k][0]], name)[first[k][1]] for k in ids])
+    cols["cls"] = cols["cls"].astype(np.int8)
+    return AgentStates(tuple(ids), cols["x"], cols["y"], cols["yaw"], cols["speed"], cols["accel"], cols["length"],
+                       cols["width"], cols["mass"], cols["cls"],
+                       tuple(parts[first[k][0]].type_id[first[k][1]] for k in ids))
+
+
+# ---- booking ------------------------------------------------------------------------------------
+def fleet_booking(row: dict[str, Any], egos: set[str] | frozenset[str]) -> dict[str, Any]:
+    """Which parties of a collision row were egos, and its harm booked per class for a fleet:
+    ``harm_ego`` the harm to every ego party (both of an ego-ego collision, once),
+    ``harm_third_party`` to a party that is not an ego, ``harm_vru`` its part to a VRU."""
+    ego_a, ego_b = row["id_a"] in egos, row["id_b"] in egos
+    if not is_booked(row):
+        return {"ego_a": ego_a, "ego_b": ego_b, "harm_ego": 0.0, "harm_third_party": 0.0, "harm_vru": 0.0}
+    vru = RoadUserClass[row["class_b"].upper()].is_vulnerable
+    return {"ego_a": ego_a, "ego_b": ego_b, "harm_ego": row["harm_a"] + (row["harm_b"] if ego_b else 0.0),
+            "harm_third_party": 0.0 if ego_b else row["harm_b"], "harm_vru": row["harm_b"] if vru and not ego_b else 0.0}
+
+
+class _FleetCollisions:
+    """The run recorder as a collision sink whose rows carry the fleet booking."""
+
+    def __init__(self, rec: Any, egos: set[str]) -> None:
+        self.rec, self.egos = rec, egos
+
+    @property
+    def collisions(self) -> list[dict[str, Any]]:
+        return self.rec.collisions
+
+    def add_collision(self, row: dict[str, Any]) -> int:
+        return self.rec.add_collision(row | fleet_booking(row, self.egos))
+
+    def update_collision(self, index: int, **changes: Any) -> None:
+        self.rec.update_collision(index, **changes)
+        self.rec.update_collision(index, **fleet_booking(self.rec.collisions[index], self.egos))
+
+
+class _ConflictRows:
+    """One ego's ConflictBook sink inside the run's: its rows numbered among all egos' rows."""
+
+    def __init__(self, rec: Any) -> None:
+        self.rec, self.where = rec, []
+
+    def add_conflict(self, row: dict[str, Any]) -> int:
+        self.where.append(self.rec.add_conflict(row | {"event": len(self.rec.conflicts or [])}))
+        return len(self.where) - 1
+
+    def update_conflict(self, index: int, **changes: Any) -> None:
+        self.rec.update_conflict(self.where[index], **changes)
+
+
+# ---- one ego ------------------------------------------------------------------------------------
+@dataclass
+class Agent:
+    """One ego of the fleet and its driving state."""
+
+    id: str
+    planner: str
+    inserted: bool
+    controller: Controller
+    world: SumoWorld
+    takeover_time: float
+    vehicle: Any = None  # EgoVehicle limits
+    snap: Snapshot | None = None  # None until the first read after the takeover
+    s: float = 0.0
+    d: float = 0.0
+    s0: float = float("nan")  # s at the first read
+    half: float = 0.0
+    rules: RuleMonitor | None = None
+    conflicts: ConflictBook | None = None
+    red_s: float | None = None
+    ran_red_at: float = -float("inf")
+    status: str = "driving"
+    message: str = ""
+    end_time: float | None = None
+    steps: int = 0
+    collisions: int = 0
+    n_fallback: int = 0
+    decision: Decision | None = None
+    scene: Scene | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def record(self) -> dict[str, Any]:
+        return {"id": self.id, "planner": self.planner, "inserted": self.inserted, "status": self.status,
+                "message": self.message, "takeover_time": self.takeover_time, "end_time": self.end_time,
+                "steps": self.steps, "distance": 0.0 if self.s0 != self.s0 else float(self.s - self.s0),
+                "route_length": float(self.world.route.length) if self.world.route is not None else 0.0,
+                "collisions": self.collisions, "n_fallback": self.n_fallback}
+
+
+class FleetRun(Run):
+    """State of one fleet run; :meth:`execute` (Run's) sets up SUMO, :meth:`_loop` drives the egos."""
+
+    def __init__(self, cfg: RunConfig, make: Callable[[str, str], Controller]) -> None:
+        super().__init__(cfg, controller=None, hooks=())  # type: ignore[arg-type]
+        self.make = make
+        self.spec: FleetSpec = cfg.fleet  # type: ignore[assignment]
+        self.agents: list[Agent] = []
+        self.active: list[Agent] = []
+        self.egos: set[str] = set()
+        self.wanted: dict[str, bool] = {}  # id -> inserted by us (else named by --ego)
+        self.considered = 0  # vehicles of the scenario drawn for penetration
+        self.eligible = 0
+        self.teleported: list[str] = []
+
+    def _loop(self, ego_id: str, end: float, depart: float) -> None:
+        cfg, spec = self.cfg, self.spec
+        dt = session.step_length()
+        self.rec.start(dt, "off")
+        self.rec.collision_schema = COLLISIONS
+        self.rec.tables["steps"] = ChunkedTable(self.rec.partial, "steps", STEPS)
+        self.rec.tables["timings"] = ChunkedTable(self.rec.partial, "timings", TIMINGS)
+        sink = _FleetCollisions(self.rec, self.egos)
+        self.book = collisions = CollisionBook(sink, cfg.collision_gap, SumoWorld("", cfg.sensing_radius).party_state)
+        if cfg.conflicts.enabled:
+            self.rec.record_conflicts()
+        t = session.sim_time()
+        inserted = [f"{INSERTED_PREFIX}{i}" for i in range(spec.egos)]
+        if inserted:
+            routes = sim_fleet.insert_egos(inserted, inserted_departs(spec.egos, t, end, dt), cfg.seed, cfg.ego,
+                                           cfg.min_route_length, cfg.ego_depart_lane)
+            self.meta["inserted_routes"] = {k: len(v) for k, v in routes.items()}
+        self.wanted = {k: True for k in inserted} | {k: False for k in spec.ids}
+        self.union_history = History(dt)
+        shared = list(getattr(self.make, "shared", {}).values())
+        self.meta.update(step_length=dt, takeover_time=t, controller="fleet",
+                         takeover_wall=wallclock.perf_counter() - self.t_start)
+        progress = _progress(cfg.progress, t, end)
+        try:
+            while True:
+                t = session.sim_time()
+                self.meta["last_time"] = t
+                if t >= end - 1e-9 or (t > self.meta["takeover_time"] and sim_fleet.pending() == 0):
+                    self.status = RunStatus.COMPLETED
+                    self.message = (f"time limit {format_time(end)} reached" if t >= end - 1e-9 else
+                                    f"every trip ended at t={format_time(t)}")
+                    for a in self.active:
+                        a.status, a.message, a.end_time = "timeout", self.message, t
+                    return
+                w0 = wallclock.perf_counter()
+                acting = [a for a in self.active if a.snap is not None]
+                if shared and acting:
+                    self._share_prediction(acting, shared, t)
+                for a in acting:
+                    self._act(a, t, dt)
+                for a in self.active:
+                    a.world.command(a.decision.command if a.decision is not None and a.snap is not None else None)
+                w1 = wallclock.perf_counter()
+                sim_fleet.advance()
+                self.step += 1
+                w2 = wallclock.perf_counter()
+                now = session.sim_time()
+                gone = sim_fleet.teleporting() & self.egos
+                reports = tuple(sim_fleet.sumo_collisions())
+                self.rows_before = len(self.rec.collisions)
+                for a in list(self.active):
+                    self._observe(a, now, dt, gone, (w1 - w0, w2 - w1))
+                collisions.detect_others(now, reports, self.step, frozenset(self.egos))
+                for vid in sim_fleet.departed():
+                    self._maybe_take_over(vid, now, end)
+                if progress is not None and self.step % 50 == 0:
+                    progress[0].update(progress[1], completed=min(now, end))
+        finally:
+            self.meta["loop_wall"] = wallclock.perf_counter() - self.t_start
+            self.meta["shared_predictions"] = sum(p.calls for p in shared)
+            self.meta["vclass_of"] = sim_fleet.vclasses()
+            if progress is not None:
+                progress[0].stop()
+
+    # -- per step -----------------------------------------------------------------------------------
+    def _share_prediction(self, acting: list[Agent], shared: list[SharedPrediction], t: float) -> None:
+        """The union of what the acting egos see (and the egos), its history and one observation."""
+        union = union_states([a.snap.ego for a in acting] + [a.snap.others for a in acting])
+        self.union_history.push(union)
+        obs = self.union_history.observation(t, AgentStates.empty(), union)
+        for p in shared:
+            p.begin(obs)
+        self._union_obs = obs
+
+    def _act(self, a: Agent, t: float, dt: float) -> None:
+        snap = a.snap
+        ctl = a.controller
+        obs = None
+        if getattr(ctl, "needs_history", False):
+            u = self._union_obs
+            idx = [u.current.index[k] for k in snap.others.ids]
+            obs = Observation(time=t, dt=dt, history=u.history[idx], valid=u.valid[idx], current=snap.others,
+                              ego=snap.ego)
+        line, a.red_s = stop_line(a.world, a.s + a.half)
+        a.scene = Scene(time=t, dt=dt, ego=snap.ego, others=snap.others, route=a.world.route, s=a.s, d=a.d,
+                        stop_s=line, vehicle=a.vehicle, history=obs,
+                        rule_breakers=a.rules.breakers(snap.others) if a.rules is not None else frozenset())
+        w = wallclock.perf_counter()
+        a.decision = ctl.act(a.scene)
+        a.extra["controller_ms"] = 1e3 * (wallclock.perf_counter() - w)
+        a.n_fallback += int(a.decision.info.get("n_fallback", 0))
+
+    def _observe(self, a: Agent, now: float, dt: float, gone: frozenset[str], w: tuple[float, float]) -> None:
+        """Read ego ``a`` after the step: its collisions, conflicts and steps row, or its end."""
+        cfg = self.cfg
+        before, decision = a.snap, a.decision
+        if a.id in gone:
+            self.teleported.append(a.id)
+            self._end(a, "teleported", f"SUMO started to teleport it at t={format_time(now)}; handed back", now)
+            sim_fleet.release(a.id)
+            return
+        new = a.world.read()
+        if new is None:
+            if before is None:
+                self._end(a, "left", f"left the simulation right after the takeover (t={format_time(now)})", now)
+                return
+            reach = a.s + a.half + max(float(before.ego.speed[0]), decision.command.speed) * dt + 1.0
+            if reach >= a.world.route.length - 0.5:
+                self._end(a, "completed", f"goal reached at t={format_time(now)}", now)
+            else:
+                self._end(a, "left", f"left the simulation at t={format_time(now)} "
+                                     f"{a.world.route.length - a.s - a.half:.1f} m before its goal", now)
+            return
+        route = a.world.route
+        if before is None:  # the first read after the takeover
+            a.vehicle = replace(a.vehicle, mass=float(new.ego.mass[0]))
+            a.half = float(new.ego.length[0]) / 2
+            a.s, a.d = route.path.project_point(float(new.ego.x[0]), float(new.ego.y[0]))
+            a.s0 = a.s
+            a.snap = new
+            if cfg.conflicts.enabled:
+                a.conflicts = ConflictBook(_ConflictRows(self.rec), cfg.conflicts, dt)
+            return
+        w3 = wallclock.perf_counter()
+        envelope = decision.info.get("cost_envelope")
+        ctx = FaultContext(ego_accel=(float(new.ego.speed[0]) - float(before.ego.speed[0])) / dt,
+                           decel_limit=a.vehicle.max_decel, rule_breakers=a.scene.rule_breakers,
+                           ego_ran_red=new.time - a.ran_red_at <= RED_MEMORY,
+                           ego_in_envelope=None if envelope is None else bool(envelope > 0))
+        hit = self.book.detect_ego(before, new, self.step, ctx)
+        # an ego hit by an ego checked before it this step: the event is that ego's row
+        hit = hit or any(r["id_b"] == a.id and is_booked(r) for r in self.rec.collisions[self.rows_before:])
+        w4 = wallclock.perf_counter()
+        if a.conflicts is not None:  # a pair of egos once: by the ego taken over first
+            earlier = {b.id for b in self.agents[:self.agents.index(a)]}
+            keep = [i for i, k in enumerate(new.others.ids) if k not in earlier]
+            a.conflicts.observe(new if len(keep) == len(new.others) else
+                                replace(new, others=new.others.take(keep)), self.step)
+        w5 = wallclock.perf_counter()
+        a.s, a.d = route.path.project_point(float(new.ego.x[0]), float(new.ego.y[0]), near=(a.s - 5.0, a.s + 5.0 + 50.0 * dt))
+        if a.red_s is not None and a.s + a.half > a.red_s + 0.5:
+            a.ran_red_at = new.time
+        row = {"ego_id": a.id, "planner": a.planner} | step_row(self.step, new, before, decision, a.s, a.d, dt,
+                                                                  a.world.sumo_lane(), a.scene.stop_s)
+        timing = {"ego_id": a.id, "step": self.step, "controller_ms": a.extra.get("controller_ms", 0.0),
+                  "sumo_ms": 1e3 * w[1] / max(len(self.active), 1), "collision_ms": 1e3 * (w4 - w3),
+                  "conflict_ms": 1e3 * (w5 - w4)} | decision.timings_ms
+        self.rec.step(row, timing, None, before.time, hit)
+        a.steps += 1
+        a.snap = new
+        if hit:
+            a.collisions += 1
+            if cfg.stop_at_collision:
+                first = next(r for r in reversed(self.rec.collisions) if is_booked(r) and a.id in (r["id_a"], r["id_b"]))
+                other = first["id_b"] if first["id_a"] == a.id else first["id_a"]
+                self._end(a, "collision", f"collided with '{other}' at t={format_time(first['time'])}; "
+                                          "taken off the road", now)
+                sim_fleet.remove(a.id)
+                return
+        if a.s + a.half >= route.length - 0.5:
+            self._end(a, "completed", f"goal reached at t={format_time(now)}; handed back to SUMO", now)
+            sim_fleet.release(a.id)
+
+    def _end(self, a: Agent, status: str, message: str, t: float) -> None:
+        a.status, a.message, a.end_time = status, message, t
+        self.active.remove(a)
+
+    def _maybe_take_over(self, vid: str, t: float, end: float) -> None:
+        spec = self.spec
+        if vid in self.wanted:
+            inserted = self.wanted[vid]
+        elif spec.penetration > 0.0:
+            self.considered += 1
+            if not sim_fleet.eligible(vid):
+                return
+            self.eligible += 1
+            if draw(self.cfg.seed, 0, vid) >= spec.penetration:
+                return
+            inserted = False
+        else:
+            return
+        if not inserted and not sim_fleet.eligible(vid):
+            raise ConfigError(f"--ego '{vid}' cannot be an ego (not a motor road vehicle, or it has stops)")
+        name = planner_of(self.cfg.seed, vid, spec.shares)
+        world = SumoWorld(vid, self.cfg.sensing_radius)
+        world.takeover()
+        vehicle = self.cfg.ego if inserted else ego_limits(vid, self.cfg.ego)
+        ctl = self.make(name, vid)
+        a = Agent(vid, name, inserted, ctl, world, t, vehicle=vehicle,
+                  rules=RuleMonitor() if getattr(ctl, "needs_rules", False) else None)
+        self.agents.append(a)
+        self.active.append(a)
+        self.egos.add(vid)
+
+    # -- outputs ----------------------------------------------------------------------------------
+    def finish(self, wall: float, error: BaseException | None) -> tuple[dict[str, Any], BaseException | None]:
+        if "config.json" in self.written:
+            self._trips()
+        return super().finish(wall, error)
+
+    def _snapshots(self) -> None:
+        """No decisions are kept in a fleet run (explain and replay read single-ego runs)."""
+
+    def _trips(self) -> None:
+        """trips.parquet from SUMO's tripinfo (written when SUMO closed)."""
+        path = self.meta.get("tripinfo")
+        if not path or not Path(path).is_file():
+            return
+        try:
+            from sumo_ethics.record.trips import read_tripinfo, write_trips
+
+            df = read_tripinfo(Path(path), self.egos, vclass_of=self.meta.get("vclass_of"))
+            write_trips(df, self.cfg.out / "trips.parquet")
+            veh = df[df["kind"] == "vehicle"]
+            per = df[df["kind"] == "person"]
+            self.meta["traffic"] = {
+                "trips": int(len(df)), "vehicle_trips": int(len(veh)), "person_trips": int(len(per)),
+                "arrived": int(df["arrived"].sum()), "vehicle_km": float(veh["route_length"].sum() / 1e3),
+                "person_km": float(per["route_length"].sum() / 1e3),
+                "time_loss_h": {"egos": float(veh.loc[veh["ego"], "time_loss"].sum() / 3600),
+                                "other_vehicles": float(veh.loc[~veh["ego"], "time_loss"].sum() / 3600),
+                                "persons": float(per["time_loss"].sum() / 3600)},
+            }
+        except Exception as exc:  # noqa: BLE001 - the trips must never cost the run's other outputs
+            self.meta["trips_error"] = f"{type(exc).__name__}: {exc}"
+
+    def summary(self, wall: float) -> dict[str, Any]:
+        rows = self.rec.collisions
+        booked = [r for r in rows if is_booked(r)]
+        harm = {k: float(sum(r[f"harm_{k}"] for r in booked)) for k in ("ego", "third_party", "vru")}
+        harm["total"] = harm["ego"] + harm["third_party"]
+        everyone = {"egos": 0.0, "other_vehicles": 0.0, "vru": 0.0}
+        for r in rows:
+            if r["detector"] == "sumo_unconfirmed":
+                continue
+            for p in "ab":
+                who = "egos" if r[f"id_{p}"] in self.egos else "vru" if RoadUserClass[
+                    r[f"class_{p}"].upper()].is_vulnerable else "other_vehicles"
+                everyone[who] += float(r[f"harm_{p}"])
+        everyone["total"] = sum(everyone.values())
+        by_planner: dict[str, int] = {}
+        for a in self.agents:
+            by_planner[a.planner] = by_planner.get(a.planner, 0) + 1
+        statuses: dict[str, int] = {}
+        for a in self.agents:
+            statuses[a.status] = statuses.get(a.status, 0) + 1
+        spec = self.spec
+        return {
+            "status": self.status.value, "message": self.message,
+            "completed": self.status is RunStatus.COMPLETED,
+            "fleet": {"spec": asdict(spec), "egos": len(self.agents), "by_planner": by_planner, "by_status": statuses,
+                      "inserted": sum(a.inserted for a in self.agents), "considered": self.considered,
+                      "eligible": self.eligible, "teleported": self.teleported},
+            "harm": harm, "harm_everyone": everyone,
+            "collisions": {"ego": len(booked), "ego_ego": sum(bool(r.get("ego_b")) for r in booked),
+                           "ego_unconfirmed": sum(r["detector"] == "sumo_unconfirmed" for r in rows),
+                           "others": sum(not r["involves_ego"] for r in rows),
+                           "fault": {f: sum(r["fault"] == f for r in booked) for f in FAULTS}},
+            **({"conflicts": conflict_counts(self.rec.conflicts)} if self.rec.conflicts is not None else {}),
+            "seed": self.cfg.seed, "steps": self.step, "ego_steps": self.rec.n_steps,
+            "n_fallback": sum(a.n_fallback for a in self.agents),
+            "distance": float(sum(a.record()["distance"] for a in self.agents)),
+            "sim_time": self.meta.get("last_time"), "wall_time": wall,
+            **{k: v for k, v in self.meta.items() if k not in ("last_time", "vclass_of", "ego_id")},
+            "egos": [a.record() for a in self.agents],
+        }
+
+
+def run_fleet(cfg: RunConfig, make: Callable[[str, str], Controller] | None = None) -> RunSummary:
+    """Run one scenario with the fleet ``cfg.fleet``; writes the run folder (the single-ego run's
+    files, with ``ego_id`` and ``planner`` in steps.parquet, ``ego_a``/``ego_b`` in
+    collisions.parquet, and trips.parquet) and returns the summary. Errors as :func:`runner.run`."""
+    if cfg.fleet is None:
+        raise ConfigError("run_fleet needs a fleet (cfg.fleet)")
+    make = make or make_fleet_controllers(cfg)
+    for k in cfg.fleet.ids:  # a vehicle named by --ego must be in the scenario's files
+        scenario_files.check_ego_id(scenario_files.read_scenario(cfg.scenario), k)
+    return execute(FleetRun(cfg, make), cfg)
+

@@ -1,0 +1,234 @@
+"""Fleets: several egos in one run (sumo_ethics.fleet), on the bundled testbed and urban_grid."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import sumo
+
+from conftest import SCENARIOS, Scripted, write_scenario
+from sumo_ethics.config import FleetSpec, RunConfig
+from sumo_ethics.errors import ConfigError
+from sumo_ethics.fleet import draw, fleet_booking, inserted_departs, planner_of, run_fleet, union_states
+from sumo_ethics.plan.baseline import RouteFollower
+from sumo_ethics.plan.controller import Decision, Scene
+from sumo_ethics.sim.session import FORCED_OPTIONS
+from sumo_ethics.types import AgentStates, Prediction
+
+
+# ---- who becomes an ego, with which planner (no SUMO) -------------------------------------------
+def test_fleet_shares_hold_over_a_large_draw():
+    shares = (("ethical", 0.5), ("ego", 0.3), ("baseline", 0.2))
+    n = 20_000
+    names = [planner_of(7, f"veh{i}", shares) for i in range(n)]
+    for name, share in shares:
+        got = names.count(name) / n
+        assert abs(got - share) < 4 * math.sqrt(share * (1 - share) / n), (name, got)
+    # the same seed and id give the same planner; another seed reshuffles
+    assert names[:200] == [planner_of(7, f"veh{i}", shares) for i in range(200)]
+    assert names[:200] != [planner_of(8, f"veh{i}", shares) for i in range(200)]
+
+
+def test_penetration_draws_are_nested_and_hold_their_share():
+    ids = [f"v{i}" for i in range(10_000)]
+    at = {p: {k for k in ids if draw(3, 0, k) < p} for p in (0.1, 0.25, 0.5)}
+    assert at[0.1] <= at[0.25] <= at[0.5]  # the egos at 10 % stay egos at 25 %
+    for p, egos in at.items():
+        assert abs(len(egos) / len(ids) - p) < 4 * math.sqrt(p * (1 - p) / len(ids))
+    # the planner draw is a separate stream: it is not the penetration draw
+    assert [draw(3, 0, k) for k in ids[:5]] != [draw(3, 1, k) for k in ids[:5]]
+
+
+def test_inserted_departures_spread_over_the_first_half():
+    assert inserted_departs(4, 100.0, 500.0, 0.1) == pytest.approx([100.0, 150.0, 200.0, 250.0])
+    assert inserted_departs(1, 0.0, 60.0, 0.1) == [0.0]
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"egos": -1}, "--egos"),
+    ({"penetration": 1.5}, "--penetration"),
+    ({"ids": ("a", "a")}, "same vehicle twice"),
+    ({"shares": (("ethical", 0.5), ("ego", 0.4))}, "sum to 1"),
+    ({"shares": (("ethical", 0.5), ("ethical", 0.5))}, "twice"),
+])
+def test_fleet_spec_refuses_bad_input(kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        FleetSpec(**kwargs)
+
+
+def test_fleet_shares_parse():
+    assert FleetSpec.parse_shares("ethical=0.5, ego=0.5") == (("ethical", 0.5), ("ego", 0.5))
+    assert FleetSpec.parse_shares("baseline") == (("baseline", 1.0),)
+    with pytest.raises(ConfigError, match="not a number"):
+        FleetSpec.parse_shares("ethical=half")
+
+
+def test_fleet_booking_of_an_ego_ego_collision_books_both_once():
+    row = {"id_a": "A", "id_b": "B", "class_b": "car", "harm_a": 0.2, "harm_b": 0.3, "involves_ego": True,
+           "detector": "geometry"}
+    both = fleet_booking(row, {"A", "B"})
+    assert both == {"ego_a": True, "ego_b": True, "harm_ego": 0.5, "harm_third_party": 0.0, "harm_vru": 0.0}
+    one = fleet_booking(row | {"class_b": "pedestrian"}, {"A"})
+    assert one == {"ego_a": True, "ego_b": False, "harm_ego": 0.2, "harm_third_party": 0.3, "harm_vru": 0.3}
+    unconfirmed = fleet_booking(row | {"detector": "sumo_unconfirmed"}, {"A", "B"})
+    assert unconfirmed["harm_ego"] == unconfirmed["harm_third_party"] == 0.0
+
+
+def _agents(ids, x):
+    n = len(ids)
+    return AgentStates(tuple(ids), np.asarray(x, float), np.zeros(n), np.zeros(n), np.ones(n), np.zeros(n),
+                       np.full(n, 4.5), np.full(n, 1.8), np.full(n, 1500.0), np.zeros(n, np.int8), ("car",) * n)
+
+
+def test_union_of_what_the_egos_see_keeps_each_road_user_once():
+    u = union_states([_agents(["e1"], [0.0]), _agents(["b", "a"], [5.0, 7.0]), _agents(["a", "e1"], [99.0, 99.0])])
+    assert u.ids == ("a", "b", "e1")
+    assert list(u.x) == [7.0, 5.0, 0.0]  # the first state seen of each (an ego's own read first)
+
+
+def test_prediction_take_keeps_every_mode_of_a_subset():
+    n, t = 3, 4
+    mean = np.arange(n * t * 2, dtype=float).reshape(n, t, 2)
+    cov = np.broadcast_to(np.eye(2), (n, t, 2, 2)).copy()
+    alt = Prediction(("a", "b", "c"), 0.1, mean + 100, cov, np.zeros((n, t)))
+    p = Prediction(("a", "b", "c"), 0.1, mean, cov, np.zeros((n, t)), (alt,), np.array([[0.7, 0.3], [0.6, 0.4],
+                                                                                        [0.9, 0.1]]))
+    sub = p.take([2, 0])
+    assert sub.ids == ("c", "a")
+    assert np.array_equal(sub.mean, mean[[2, 0]])
+    assert np.array_equal(sub.alternatives[0].mean, mean[[2, 0]] + 100)
+    assert np.array_equal(sub.weight, [[0.9, 0.1], [0.7, 0.3]])
+
+
+# ---- in SUMO -------------------------------------------------------------------------------------
+class Recording:
+    """A controller that keeps every command it gives (time of the scene -> pose)."""
+
+    def __init__(self, inner) -> None:
+        self.inner = inner
+        self.name = inner.name
+        self.needs_history = getattr(inner, "needs_history", False)
+        self.commands: dict[float, tuple[float, float]] = {}
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def act(self, scene: Scene) -> Decision:
+        d = self.inner.act(scene)
+        self.commands[round(scene.time, 6)] = (d.command.x, d.command.y)
+        return d
+
+
+def test_two_egos_each_driven_by_its_own_planner(tmp_path, scenario_dir):
+    routes = ('<vehicle id="a" type="car" route="r_main" depart="0" departPos="80" departLane="1" departSpeed="5"/>'
+              '<vehicle id="b" type="car" route="r_main" depart="2" departPos="10" departLane="2" departSpeed="8"/>'
+              '<vehicle id="c" type="car" route="r_main" depart="0" departPos="40" departLane="1" departSpeed="4"/>')
+    cfg = write_scenario(scenario_dir, routes, end=20.0)
+    made: dict[str, Recording] = {}
+
+    def make(name: str, vid: str):
+        made[vid] = Recording(Scripted(6.0) if vid == "a" else RouteFollower())
+        return made[vid]
+
+    rc = RunConfig(scenario=cfg, out=tmp_path / "run", progress=False,
+                   fleet=FleetSpec(ids=("a", "b"), shares=(("baseline", 1.0),)))
+    summary = run_fleet(rc, make)
+    steps = pd.read_parquet(tmp_path / "run" / "steps.parquet")
+    assert set(steps["ego_id"]) == {"a", "b"}
+    for vid, rec in made.items():
+        own = steps[steps["ego_id"] == vid]
+        assert len(own) > 100
+        # the pose recorded after each step is the pose its own planner chose for that step
+        planned = np.array([rec.commands[round(t - 0.1, 6)] for t in own["time"]])
+        err = np.hypot(own["x"].to_numpy() - planned[:, 0], own["y"].to_numpy() - planned[:, 1])
+        assert err.max() < 0.03, (vid, err.max())
+    a = steps[steps["ego_id"] == "a"]
+    assert np.allclose(a["speed"], 6.0)  # the scripted ego drove its own speed, not b's
+    b = steps[steps["ego_id"] == "b"]
+    assert b["y"].iloc[-1] == pytest.approx(-1.6, abs=0.2)  # b kept its own lane (the left one)
+    egos = {e["id"]: e for e in summary.data["egos"]}
+    assert set(egos) == {"a", "b"} and summary.data["fleet"]["egos"] == 2
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["fleet"]["ids"] == ["a", "b"]
+
+
+def test_an_ego_ego_collision_is_one_event_with_harm_to_both(tmp_path, scenario_dir):
+    routes = ('<vehicle id="front" type="car" route="r_main" depart="0" departPos="60" departLane="1" departSpeed="3"/>'
+              '<vehicle id="back" type="car" route="r_main" depart="0" departPos="10" departLane="1" departSpeed="12"/>')
+    cfg = write_scenario(scenario_dir, routes, end=20.0)
+    speeds = {"front": 3.0, "back": 12.0}
+    rc = RunConfig(scenario=cfg, out=tmp_path / "run", progress=False,
+                   fleet=FleetSpec(ids=("front", "back"), shares=(("baseline", 1.0),)))
+    summary = run_fleet(rc, lambda name, vid: Scripted(speeds[vid]))
+    col = pd.read_parquet(tmp_path / "run" / "collisions.parquet")
+    ego = col[col["involves_ego"]]
+    assert len(ego) == 1  # one event, not one per ego
+    r = ego.iloc[0]
+    assert r["ego_a"] and r["ego_b"] and {r["id_a"], r["id_b"]} == {"front", "back"}
+    # a rear-end impact of equal masses at 12 and 3 m/s: closing speed 9 m/s, each 4.5 m/s change
+    assert r["delta_v"] == pytest.approx(9.0, abs=0.01)
+    assert r["dv_a"] == pytest.approx(4.5, abs=0.01) and r["dv_b"] == pytest.approx(4.5, abs=0.01)
+    assert r["harm_ego"] == pytest.approx(r["harm_a"] + r["harm_b"]) and r["harm_third_party"] == 0.0
+    assert summary.data["harm"]["ego"] == pytest.approx(r["harm_a"] + r["harm_b"])
+    assert summary.data["collisions"]["ego_ego"] == 1
+    assert {e["id"]: e["status"] for e in summary.data["egos"]} == {"front": "collision", "back": "collision"}
+
+
+def _plain_sumo_trips(cfg: Path, out: Path, end: float, seed: int = 42) -> pd.DataFrame:
+    from sumo_ethics.record.trips import read_tripinfo
+
+    cmd = [str(Path(sumo.SUMO_HOME) / "bin" / "sumo"), "-c", str(cfg), "--seed", str(seed), "--end", f"{end:g}",
+           "--no-step-log", "true", "--tripinfo-output", str(out), "--tripinfo-output.write-unfinished", "true"]
+    for k, v in FORCED_OPTIONS.items():  # the collision reporting a run switches on (it changes no motion)
+        cmd += [f"--{k}", v]
+    subprocess.run(cmd, check=True, capture_output=True)
+    return read_tripinfo(out)
+
+
+def test_penetration_zero_reproduces_the_plain_sumo_trips(tmp_path):
+    scenario = SCENARIOS / "urban_grid" / "urban_grid.sumocfg"
+    rc = RunConfig(scenario=scenario, out=tmp_path / "run", progress=False, end=90.0, fleet=FleetSpec(penetration=0.0))
+    summary = run_fleet(rc)
+    assert summary.data["fleet"]["egos"] == 0
+    ours = pd.read_parquet(tmp_path / "run" / "trips.parquet")
+    plain = _plain_sumo_trips(scenario, tmp_path / "plain.xml", 90.0)
+    assert len(ours) > 50 and not ours["ego"].any()
+    cols = ["id", "kind", "depart", "arrival", "duration", "route_length", "time_loss", "waiting_time"]
+    pd.testing.assert_frame_equal(ours[cols].reset_index(drop=True), plain[cols].reset_index(drop=True))
+
+
+def test_penetration_one_makes_every_eligible_vehicle_an_ego(tmp_path):
+    scenario = SCENARIOS / "urban_grid" / "urban_grid.sumocfg"
+    rc = RunConfig(scenario=scenario, out=tmp_path / "run", progress=False, end=40.0,
+                   fleet=FleetSpec(penetration=1.0, shares=(("baseline", 1.0),)))
+    summary = run_fleet(rc)
+    f = summary.data["fleet"]
+    trips = pd.read_parquet(tmp_path / "run" / "trips.parquet")
+    motor = trips[(trips["kind"] == "vehicle") & trips["vclass"].isin(["passenger", "truck", "bus", "motorcycle",
+                                                                        "delivery", "trailer"])]
+    assert f["egos"] == f["eligible"] > 5
+    assert f["eligible"] <= len(motor)
+    assert set(trips.loc[trips["ego"], "id"]) == {e["id"] for e in summary.data["egos"]}
+    assert not trips.loc[trips["kind"] == "person", "ego"].any()
+    assert not trips.loc[trips["vclass"] == "bicycle", "ego"].any()
+    steps = pd.read_parquet(tmp_path / "run" / "steps.parquet")
+    assert set(steps["ego_id"]) <= {e["id"] for e in summary.data["egos"]}
+    # plausible motion of every ego: accelerations within the limits the baseline drives with
+    assert steps["accel"].between(-8.0 - 1e-6, 3.0 + 1e-6).all()
+
+
+def test_the_single_ego_run_writes_no_fleet_columns(tmp_path, scenario_dir):
+    from sumo_ethics.runner import run
+
+    routes = '<vehicle id="a" type="car" route="r_main" depart="0" departPos="80" departLane="1" departSpeed="5"/>'
+    cfg = write_scenario(scenario_dir, routes, end=5.0)
+    run(RunConfig(scenario=cfg, out=tmp_path / "run", progress=False, ego_id="a"), Scripted(5.0))
+    assert "fleet" not in json.loads((tmp_path / "run" / "config.json").read_text())
+    assert "ego_id" not in pd.read_parquet(tmp_path / "run" / "steps.parquet").columns
+    assert "ego_b" not in pd.read_parquet(tmp_path / "run" / "collisions.parquet").columns
+    assert not (tmp_path / "run" / "trips.parquet").exists()
