@@ -34,7 +34,7 @@ import numpy as np
 
 from sumo_ethics.collision import CollisionBook, is_booked
 from sumo_ethics.config import FLEET_CONTROLLERS, FleetSpec, RunConfig
-from sumo_ethics.errors import ConfigError
+from sumo_ethics.errors import ConfigError, SumoEthicsError
 from sumo_ethics.plan.controller import Controller, Decision, Scene
 from sumo_ethics.plan.history import History
 from sumo_ethics.record import schema
@@ -268,6 +268,7 @@ class FleetRun(Run):
         self.considered = 0  # vehicles of the scenario drawn for penetration
         self.eligible = 0
         self.teleported: list[str] = []
+        self.refused: dict[str, str] = {}  # vehicles whose takeover failed -> why (SUMO drove them on)
 
     def _loop(self, ego_id: str, end: float, depart: float) -> None:
         cfg, spec = self.cfg, self.spec
@@ -415,7 +416,7 @@ class FleetRun(Run):
                                                                   a.world.sumo_lane(), a.scene.stop_s)
         timing = {"ego_id": a.id, "step": self.step, "controller_ms": a.extra.get("controller_ms", 0.0),
                   "sumo_ms": 1e3 * w[1] / max(len(self.active), 1), "collision_ms": 1e3 * (w4 - w3),
-                  "conflict_ms": 1e3 * (w5 - w4)} | decision.timings_ms
+                  "conflict_ms": 1e3 * (w5 - w4), "wall_s": w5 - self.t_start} | decision.timings_ms
         self.rec.step(row, timing, None, before.time, hit)
         a.steps += 1
         a.snap = new
@@ -454,7 +455,12 @@ class FleetRun(Run):
             raise ConfigError(f"--ego '{vid}' cannot be an ego (not a motor road vehicle, or it has stops)")
         name = planner_of(self.cfg.seed, vid, spec.shares)
         world = SumoWorld(vid, self.cfg.sensing_radius)
-        world.takeover()
+        try:
+            world.takeover()
+        except SumoEthicsError as exc:  # e.g. a route the planner cannot follow: SUMO keeps driving it
+            self.refused[vid] = str(exc)
+            sim_fleet.release(vid)
+            return
         vehicle = self.cfg.ego if inserted else ego_limits(vid, self.cfg.ego)
         ctl = self.make(name, vid)
         a = Agent(vid, name, inserted, ctl, world, t, vehicle=vehicle,
@@ -491,6 +497,10 @@ class FleetRun(Run):
                 "time_loss_h": {"egos": float(veh.loc[veh["ego"], "time_loss"].sum() / 3600),
                                 "other_vehicles": float(veh.loc[~veh["ego"], "time_loss"].sum() / 3600),
                                 "persons": float(per["time_loss"].sum() / 3600)},
+                # per trip that departed (a trip under way: its time loss so far), NaN for no trips
+                "time_loss_mean_s": {"egos": _mean(veh.loc[veh["ego"], "time_loss"]),
+                                     "other_vehicles": _mean(veh.loc[~veh["ego"], "time_loss"]),
+                                     "persons": _mean(per["time_loss"])},
             }
         except Exception as exc:  # noqa: BLE001 - the trips must never cost the run's other outputs
             self.meta["trips_error"] = f"{type(exc).__name__}: {exc}"
@@ -521,7 +531,7 @@ class FleetRun(Run):
             "completed": self.status is RunStatus.COMPLETED,
             "fleet": {"spec": asdict(spec), "egos": len(self.agents), "by_planner": by_planner, "by_status": statuses,
                       "inserted": sum(a.inserted for a in self.agents), "considered": self.considered,
-                      "eligible": self.eligible, "teleported": self.teleported},
+                      "eligible": self.eligible, "teleported": self.teleported, "refused": self.refused},
             "harm": harm, "harm_everyone": everyone,
             "collisions": {"ego": len(booked), "ego_ego": sum(bool(r.get("ego_b")) for r in booked),
                            "ego_unconfirmed": sum(r["detector"] == "sumo_unconfirmed" for r in rows),
@@ -535,6 +545,12 @@ class FleetRun(Run):
             **{k: v for k, v in self.meta.items() if k not in ("last_time", "vclass_of", "ego_id")},
             "egos": [a.record() for a in self.agents],
         }
+
+
+def _mean(values: Any) -> float | None:
+    """The mean of the known values, None (JSON null) for none."""
+    v = values.dropna()
+    return float(v.mean()) if len(v) else None
 
 
 def run_fleet(cfg: RunConfig, make: Callable[[str, str], Controller] | None = None) -> RunSummary:

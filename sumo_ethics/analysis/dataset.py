@@ -87,6 +87,30 @@ def drive_time(summary: dict[str, Any]) -> float | None:
     return float(summary["sim_time"]) - float(summary["takeover_time"])
 
 
+#: a fleet run's traffic outcomes (NaN for a single-ego run): egos, everyone's harm by party
+#: (summed over every confirmed collision of the run), kilometres driven and walked by all
+#: trips, mean time loss per trip by party (sumo_ethics.fleet, trips.parquet)
+FLEET_COLUMNS = ("fleet_egos", "harm_all_egos", "harm_all_other_vehicles", "harm_all_vru", "harm_all_total",
+                 "vehicle_km", "person_km", "time_loss_egos", "time_loss_other_vehicles", "time_loss_persons")
+
+
+def fleet_columns(s: dict[str, Any]) -> dict[str, float]:
+    """The FLEET_COLUMNS of a run's summary.json (all NaN for a single-ego run)."""
+    nan = float("nan")
+    if "fleet" not in s:
+        return dict.fromkeys(FLEET_COLUMNS, nan)
+    everyone, traffic = s.get("harm_everyone", {}), s.get("traffic", {})
+    loss = traffic.get("time_loss_mean_s", {})
+
+    def num(v: Any) -> float:
+        return float(v) if v is not None else nan
+
+    return {"fleet_egos": float(s["fleet"].get("egos", 0)),
+            **{f"harm_all_{k}": num(everyone.get(k)) for k in ("egos", "other_vehicles", "vru", "total")},
+            "vehicle_km": num(traffic.get("vehicle_km")), "person_km": num(traffic.get("person_km")),
+            **{f"time_loss_{k}": num(loss.get(k)) for k in ("egos", "other_vehicles", "persons")}}
+
+
 def _run_row(run: dict[str, Any], folder: Path, steps: pa.Table | None) -> dict[str, Any]:
     """The runs-table row of a finished run folder; ``steps``: its steps table (for the ex-ante
     risk summary, read once by the caller), None if it has none."""
@@ -116,6 +140,7 @@ def _run_row(run: dict[str, Any], folder: Path, steps: pa.Table | None) -> dict[
         "conflicts_total": float(conf["total"]) if conf else float("nan"),
         "conflicts_vru": float(conf["vru"]) if conf else float("nan"),
         "controller": s.get("controller"), "wall_time": float(wall) if wall is not None else None,
+        **fleet_columns(s),
         "path": f"runs/{run['run_id']}",
         **run_risk(steps.select([c for c in RISK_INPUTS if c in steps.column_names]).to_pandas()
                    if steps is not None else pd.DataFrame()),
@@ -128,7 +153,8 @@ RUN_COLUMNS = pa.schema([
     ("harm_total", pa.float64()), ("collisions_ego", pa.int64()), ("collisions_others", pa.int64()),
     ("steps", pa.int64()), ("distance", pa.float64()), ("sim_time", pa.float64()), ("route_length", pa.float64()),
     ("drive_time", pa.float64()), ("conflicts_total", pa.float64()), ("conflicts_vru", pa.float64()),
-    ("controller", pa.string()), ("wall_time", pa.float64()), ("path", pa.string()),
+    ("controller", pa.string()), ("wall_time", pa.float64()),
+    *((c, pa.float64()) for c in FLEET_COLUMNS), ("path", pa.string()),
     *((c, pa.float64()) for c in RISK_COLUMNS),
 ])
 

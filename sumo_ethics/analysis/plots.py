@@ -28,7 +28,8 @@ from sumo_ethics.analysis.stats import ego_collision_harm  # noqa: E402
 CLASS_COLOURS = {"ego": "#1f77b4", "third party": "#ff7f0e", "VRU": "#d62728", "total": "#444444"}
 LABELS = {"omega_u": "utility weight $w_u$ [-]", "omega_o": "origin weight $w_o$ [-]",
           "max_risk": "max risk [-]", "end": "time limit [s]", "ego_depart": "ego departure [s]",
-          "radius": "sensing radius [m]", "seed": "seed"}
+          "radius": "sensing radius [m]", "seed": "seed", "penetration": "share of vehicles that are egos [-]",
+          "egos": "inserted egos"}
 HARM_LABEL = "harm per run [-]"
 
 
@@ -156,6 +157,43 @@ def harm_vs_parameter(summary: pd.DataFrame, by: Sequence[str], folder: Path) ->
                  f"Harm per class vs {_label(x)} (bootstrap 95% CI over runs, {n[0]} runs per point)")
     fig.tight_layout()
     return _save(fig, folder, "harm_vs_" + x.replace(".", "_"))
+
+
+def traffic_vs_parameter(table: pd.DataFrame, by: Sequence[str], folder: Path) -> list[Path]:
+    """Fleet runs (analysis.stats.traffic_table): everyone's harm by party per 10^6 vehicle-km, the
+    egos' conflicts per 100 ego-km and the mean time loss per trip by party, against the first
+    ``--by`` key (e.g. penetration), one series per combination of the others (e.g. the fleet)."""
+    x = by[0]
+    hues = _hues(table, by)
+    panels = [("harm_egos_per_Mvkm", "harm to egos"), ("harm_other_vehicles_per_Mvkm", "harm to other vehicles"),
+              ("harm_vru_per_Mvkm", "harm to VRUs"), ("conflicts_per_100km", "egos' conflicts"),
+              ("time_loss_egos", "time loss of egos"), ("time_loss_other_vehicles", "time loss of other vehicles"),
+              ("time_loss_persons", "time loss of pedestrians")]
+    units = {"harm": "per $10^6$ vehicle-km [-]", "conf": "per 100 ego-km", "time": "mean per trip [s]"}
+    fig, axes = plt.subplots(2, 4, figsize=(17, 7.5), sharex=True)
+    cmap = plt.get_cmap("tab10")
+    for ax, (col, title) in zip(axes.flat, panels):
+        for i, (label, g) in enumerate(hues):
+            if g[col].notna().any():
+                _line_ci(ax, g, x, col, cmap(i % 10), label or "mean, 95% CI", marker=MARKERS[i % len(MARKERS)],
+                         slot=i, slots=len(hues), linestyle=LINESTYLES[i % len(LINESTYLES)])
+        if not table[col].notna().any():
+            ax.text(0.5, 0.5, "no values\n(e.g. no trip of this party ended)", ha="center", va="center",
+                    transform=ax.transAxes, color="0.4")
+        ax.tick_params(labelbottom=True)
+        ax.set_title(title)
+        ax.set_xlabel(_label(x))
+        ax.set_ylabel(units[col[:4]])
+        ax.grid(alpha=0.3)
+    axes.flat[-1].axis("off")
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    if handles:
+        axes.flat[-1].legend(handles, [f"{lab} (95% CI)" for lab in labels], loc="center", fontsize=10, frameon=False)
+    n = int(table["n_runs"].min()), int(table["n_runs"].max())
+    runs = f"{n[0]}" if n[0] == n[1] else f"{n[0]}-{n[1]}"
+    fig.suptitle(f"Traffic outcomes vs {_label(x)} (bootstrap 95% CI over runs, {runs} runs per point)")
+    fig.tight_layout()
+    return _save(fig, folder, "traffic_vs_" + x.replace(".", "_"))
 
 
 def completion_vs_parameter(summary: pd.DataFrame, by: Sequence[str], folder: Path) -> list[Path]:

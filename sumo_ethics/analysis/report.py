@@ -8,8 +8,8 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from sumo_ethics.analysis import load
-from sumo_ethics.analysis.stats import (CONFLICT_CLASSES, check_groups, collision_table, conflict_table,
-                                        status_table, summary_table, to_markdown)
+from sumo_ethics.analysis.stats import (CONFLICT_CLASSES, TRAFFIC_HARM, TRAFFIC_LOSS, check_groups, collision_table,
+                                        conflict_table, status_table, summary_table, to_markdown, traffic_table)
 
 
 @dataclass
@@ -48,6 +48,9 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
     conflicts = conflict_table(res.runs, by, n_boot=n_boot, seed=seed)
     if len(conflicts):
         tables["conflicts"] = conflicts
+    traffic = traffic_table(res.runs, by, n_boot=n_boot, seed=seed)
+    if len(traffic):
+        tables["traffic"] = traffic
     for name, df in tables.items():
         df.to_csv(folder / f"{name}.csv", index=False)
         (folder / f"{name}.md").write_text(to_markdown(df))
@@ -58,6 +61,8 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
     rep.figures["completion"] = plots.completion_vs_parameter(tables["summary"], by, figs)
     rep.figures["harm_per_collision"] = plots.harm_per_collision(res.collisions, figs)
     rep.figures["tradeoff"] = plots.tradeoff(res.runs, figs, by)
+    if "traffic" in tables:
+        rep.figures["traffic"] = plots.traffic_vs_parameter(tables["traffic"], by, figs)
     has_risk = "risk_total_mean" in res.runs and res.runs["risk_total_mean"].notna().any()
     if has_risk:
         from sumo_ethics.analysis.risk import risk_boxplot, risk_table
@@ -117,6 +122,15 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
                   "`conflicts.parquet`, docs/conflicts.md) per 100 ego-km and per ego-hour: each group's sum of "
                   "conflicts over its sum of distance / driving time; 95 % bootstrap CIs over runs in "
                   "[conflicts.csv](conflicts.csv).", "", to_markdown(c[cols])]
+    if "traffic" in tables:
+        t = tables["traffic"]
+        cols = [*by, "n_runs", "egos", "vehicle_km", *(f"harm_{n}_per_Mvkm" for n, _ in TRAFFIC_HARM),
+                "conflicts_per_100km", *(f"time_loss_{n}" for n, _ in TRAFFIC_LOSS)]
+        lines += ["## Traffic (fleet runs)", "",
+                  "Everyone's harm by party (egos, other vehicles, VRUs: every confirmed collision of the run, the "
+                  "egos' and SUMO's own) per 10^6 vehicle-km of all trips; the egos' conflicts per 100 ego-km; mean "
+                  "time loss per trip [s] by party, from SUMO's tripinfo (`trips.parquet`). 95 % bootstrap CIs over "
+                  "runs in [traffic.csv](traffic.csv).", "", to_markdown(t[cols])]
     if has_risk:
         lines += ["## Ex-ante risk per class", "",
                   "Per run, the mean over planning steps of the risk (P x harm) the chosen trajectory puts on",
@@ -129,7 +143,8 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
                 "completion": "Completion and ego-collision rate",
                 "harm_per_collision": "Harm per ego collision by class",
                 "tradeoff": "Ego vs third-party harm per run",
-                "exante_risk": "Ex-ante risk of the chosen trajectory per class (per-run mean)"}
+                "exante_risk": "Ex-ante risk of the chosen trajectory per class (per-run mean)",
+                "traffic": "Traffic outcomes of the fleet runs: harm, conflicts and time loss by party"}
     for key, paths in rep.figures.items():
         png, svg = (p.relative_to(folder).as_posix() for p in paths)
         lines += [f"### {captions[key]}", "", f"![{captions[key]}]({png})", "", f"[SVG]({svg})", ""]

@@ -124,6 +124,49 @@ def conflict_table(runs: pd.DataFrame, by: Sequence[str], n_boot: int = 2000, se
     return pd.DataFrame(rows)
 
 
+#: traffic outcomes of fleet runs: (name, runs column); harm per 10^6 vehicle-km of all trips,
+#: mean time loss per trip [s]
+TRAFFIC_HARM = (("egos", "harm_all_egos"), ("other_vehicles", "harm_all_other_vehicles"), ("vru", "harm_all_vru"),
+                ("total", "harm_all_total"))
+TRAFFIC_LOSS = (("egos", "time_loss_egos"), ("other_vehicles", "time_loss_other_vehicles"),
+                ("persons", "time_loss_persons"))
+
+
+def traffic_table(runs: pd.DataFrame, by: Sequence[str], n_boot: int = 2000, seed: int = 0) -> pd.DataFrame:
+    """Fleet runs' traffic outcomes per group: everyone's harm by party per 10^6 vehicle-km (the
+    group's summed harm over its summed vehicle-km of all trips), the egos' conflicts per 100
+    ego-km, mean time loss per trip by party (mean over runs), each with a bootstrap 95 % CI over
+    runs. Empty without fleet runs."""
+    by = check_groups(runs, by)
+    if "vehicle_km" not in runs.columns or not runs["vehicle_km"].notna().any():
+        return pd.DataFrame()
+    have = runs[runs["vehicle_km"].notna()]
+    rows = []
+    for key, g in (have.groupby(by, sort=True, dropna=False) if by else [((), have)]):
+        key = key if isinstance(key, tuple) else (key,)
+        km = g["vehicle_km"].to_numpy(float)
+        row = dict(zip(by, key))
+        row.update(n_runs=len(g), egos=float(g["fleet_egos"].mean()), vehicle_km=float(km.sum()),
+                   ego_km=float(g["distance"].sum() / 1000.0))
+        for name, col in TRAFFIC_HARM:
+            rate, lo, hi = rate_ci(g[col].to_numpy(float), km, 1e6, n_boot, seed)
+            row.update({f"harm_{name}_per_Mvkm": rate, f"harm_{name}_per_Mvkm_ci_lo": lo,
+                        f"harm_{name}_per_Mvkm_ci_hi": hi})
+        if "conflicts_total" in g and g["conflicts_total"].notna().any():
+            c = g[g["conflicts_total"].notna()]
+            rate, lo, hi = rate_ci(c["conflicts_total"].to_numpy(float), c["distance"].to_numpy(float) / 1000.0, 100.0,
+                                   n_boot, seed)
+        else:
+            rate = lo = hi = float("nan")
+        row.update(conflicts_per_100km=rate, conflicts_per_100km_ci_lo=lo, conflicts_per_100km_ci_hi=hi)
+        for name, col in TRAFFIC_LOSS:
+            lo, hi = bootstrap_ci(g[col], n_boot, seed)
+            row.update({f"time_loss_{name}": float(g[col].mean()), f"time_loss_{name}_ci_lo": lo,
+                        f"time_loss_{name}_ci_hi": hi})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def status_table(runs: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
     """Run counts per group and status (completed, collision, timeout, error)."""
     by = check_groups(runs, by)

@@ -44,7 +44,7 @@ def execute_run(spec: dict[str, Any], runs_dir: str) -> dict[str, Any]:
     cfg = s.run_config(tmp)
     from sumo_ethics.runner import make_controller, run
 
-    controller = make_controller(cfg)
+    controller = make_controller(cfg) if cfg.fleet is None else None  # a fleet makes one per ego
     one_thread()
     try:
         run(cfg, controller=controller)

@@ -40,6 +40,10 @@ RUN_KEYS: dict[str, tuple[str, type]] = {
     "ego_to": ("ego_to", str),
     "step_length": ("step_length", float),
     "record_decisions": ("record_decisions", str),
+    # a fleet (sumo_ethics.fleet): any of these makes each run a fleet run
+    "egos": ("fleet.egos", int),
+    "penetration": ("fleet.penetration", float),
+    "fleet": ("fleet.shares", str),
 }
 #: decisions a sweep's runs keep unless --record-decisions says otherwise (not part of the
 #: sweep's definition then, so sweeps made before it resume as they were)
@@ -176,6 +180,8 @@ def parse_set(items: Iterable[str]) -> dict[str, list[Any]]:
                     conv.append(str(v))
                 elif typ is bool and isinstance(v, bool):
                     conv.append(v)
+                elif typ is int and isinstance(v, (int, float)) and not isinstance(v, bool) and float(v).is_integer():
+                    conv.append(int(v))
                 else:
                     raise ConfigError(f"--set {key}: {v!r} is not a {typ.__name__}")
             values = conv
@@ -253,6 +259,14 @@ class RunSpec:
             overrides["predictor"] = opts["predictor"]
         planner = planner_config(table, **overrides)
         kw = {RUN_KEYS[k][0]: v for k, v in opts.items() if k in RUN_KEYS}
+        fleet = {k.removeprefix("fleet."): kw.pop(k) for k in list(kw) if k.startswith("fleet.")}
+        if fleet:
+            from sumo_ethics.config import FleetSpec
+
+            if "shares" in fleet:
+                fleet["shares"] = FleetSpec.parse_shares(fleet["shares"])
+            kw["fleet"] = FleetSpec(**fleet)
+            kw["record_decisions"] = "off"  # explain and replay read single-ego runs
         kw.setdefault("record_decisions", SWEEP_RECORD_DECISIONS)
         return RunConfig(scenario=Path(self.scenario), out=out, seed=int(self.params["seed"]), planner=planner,
                          progress=False, **kw)

@@ -1,0 +1,112 @@
+"""What a fleet costs: wall time per simulated second with 1, 5, 10, 25 (and 100) egos on the same
+scenario, the ethical planner with its prediction shared among the egos, and at one size also
+with one prediction per ego (the sharing switched off), and memory over the run.
+
+Each fleet run inserts N egos of ours on urban_grid (routes drawn with the seed). Their
+departures are spread over the first half of the run (``--end``), so the figure reported is
+taken over the second half, where every ego that could be inserted drives: the wall time of
+those steps per simulated second, per ego-step, and the per-ego-step medians of the planner's
+parts from timings.parquet. The resident memory of the process is sampled every second; its
+growth over the second half is reported (flat memory: a few MB).
+
+    python tools/bench_fleet.py [--sizes 1,5,10,25] [--end 40] [--unshared 10] [--baseline 100]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def rss_mb() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * 4096 / 1e6
+
+
+def one(n: int, end: float, shared: bool, planner: str, out: Path, seed: int) -> dict:
+    import pandas as pd
+
+    from sumo_ethics.config import FleetSpec, RunConfig
+    from sumo_ethics.fleet import make_fleet_controllers, run_fleet
+    from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
+    from sumo_ethics.plan.baseline import RouteFollower
+
+    cfg = RunConfig(scenario=ROOT / "scenarios" / "urban_grid" / "urban_grid.sumocfg", out=out, seed=seed, end=end,
+                    progress=False, fleet=FleetSpec(egos=n, shares=((planner, 1.0),)))
+    if planner == "baseline":
+        def make(name, vid):
+            return RouteFollower()
+    elif shared:
+        make = make_fleet_controllers(cfg)
+    else:
+        def make(name, vid):  # one predictor per ego: each predicts its own neighbours
+            return EthicalPlanner(PlannerConfig())
+    samples: list[tuple[float, float]] = []
+    stop = threading.Event()
+
+    def sample() -> None:
+        while not stop.is_set():
+            samples.append((time.perf_counter(), rss_mb()))
+            stop.wait(1.0)
+
+    th = threading.Thread(target=sample, daemon=True)
+    th.start()
+    t0 = time.perf_counter()
+    s = run_fleet(cfg, make)
+    stop.set()
+    th.join()
+    steps = pd.read_parquet(out / "steps.parquet", columns=["ego_id", "step", "time"])
+    tim = pd.read_parquet(out / "timings.parquet")
+    late_steps = steps.loc[steps["time"] > end / 2, "step"]
+    lt = tim[tim["step"].isin(late_steps)]
+    per_step = lt.groupby("step")
+    # wall_s: the run's clock when each ego's row was written; over the second half of the run
+    wall = float(lt["wall_s"].max() - lt["wall_s"].min())
+    sim = float(steps.loc[steps["time"] > end / 2, "time"].agg(lambda t: t.max() - t.min()))
+    late_rss = [r for t, r in samples if t - t0 > (time.perf_counter() - t0) / 2]
+    return {"n": n, "planner": planner, "shared": shared, "egos_driving": float(per_step.size().median()),
+            "controller_ms": float(lt["controller_ms"].median()),
+            "predict_ms": float(lt["predict_ms"].median()) if "predict_ms" in lt else 0.0,
+            "ego_step_ms": float(per_step["controller_ms"].sum().median()),
+            "wall_per_sim_s": wall / sim if sim > 0 else float("nan"), "run_wall": time.perf_counter() - t0,
+            "rss_growth_mb": late_rss[-1] - min(late_rss) if len(late_rss) > 2 else float("nan"),
+            "rss_mb": samples[-1][1] if samples else float("nan"), "egos": s.data["fleet"]["egos"]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="1,5,10,25")
+    ap.add_argument("--end", type=float, default=40.0)
+    ap.add_argument("--unshared", type=int, default=10, help="also run this size with one prediction per ego (0: no)")
+    ap.add_argument("--baseline", type=int, default=100, help="also run this many baseline egos (0: no)")
+    ap.add_argument("--seed", type=int, default=1)
+    a = ap.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        jobs = [(int(n), True, "ethical") for n in a.sizes.split(",")]
+        if a.unshared:
+            jobs.append((a.unshared, False, "ethical"))
+        if a.baseline:
+            jobs.append((a.baseline, True, "baseline"))
+        for k, (n, shared, planner) in enumerate(jobs):
+            r = one(n, a.end, shared, planner, Path(tmp) / f"r{k}", a.seed)
+            rows.append(r)
+            print(f"{r['n']:>4} egos {r['planner']:>8} {'shared' if r['shared'] else 'own':>6}: driving {r['egos_driving']:5.1f}, "
+                  f"planner {r['controller_ms']:6.1f} ms/ego-step (predict {r['predict_ms']:5.1f}), "
+                  f"{r['ego_step_ms']:7.1f} ms of planning per step, {r['wall_per_sim_s']:6.1f} s wall per simulated s, "
+                  f"RSS {r['rss_mb']:.0f} MB (+{r['rss_growth_mb']:.1f} MB over the second half)", flush=True)
+    one_ego = next((r for r in rows if r["n"] == 1 and r["planner"] == "ethical"), None)
+    if one_ego:
+        for r in rows:
+            if r["planner"] == "ethical":
+                print(f"{r['n']} egos ({'shared' if r['shared'] else 'own'} prediction): planning per step "
+                      f"{r['ego_step_ms'] / one_ego['ego_step_ms']:.1f}x one ego's")
+
+
+if __name__ == "__main__":
+    main()
