@@ -232,3 +232,36 @@ def test_the_single_ego_run_writes_no_fleet_columns(tmp_path, scenario_dir):
     assert "ego_id" not in pd.read_parquet(tmp_path / "run" / "steps.parquet").columns
     assert "ego_b" not in pd.read_parquet(tmp_path / "run" / "collisions.parquet").columns
     assert not (tmp_path / "run" / "trips.parquet").exists()
+
+
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM"])
+def test_a_killed_fleet_run_keeps_its_rows(tmp_path, sig):
+    import signal
+    import sys
+    import time
+
+    from sumo_ethics.record.reader import read_table, recover_summary
+
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "sumo_ethics.cli", "run", str(SCENARIOS / "testbed" / "testbed.sumocfg"),
+                             "--egos", "3", "--fleet", "baseline", "--end", "300", "--quiet", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not (out / "partial").is_dir() or len(read_table(out, "steps")) < 100:  # a few chunks on disk
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    proc.send_signal(getattr(signal, sig))
+    _, err = proc.communicate(timeout=60)
+    steps = read_table(out, "steps").to_pandas()
+    assert len(steps) >= 100 and {"ego_id", "planner"} <= set(steps.columns)
+    s = recover_summary(out)
+    if sig == "SIGKILL":
+        assert s["status"] == "incomplete" and s["fleet"]["egos"] == steps["ego_id"].nunique()
+    else:
+        assert proc.returncode == 143 and len(err.strip().splitlines()) == 1, err
+        assert s["status"] == "interrupted" and s["ego_steps"] == len(steps)
+        assert s["fleet"]["egos"] >= steps["ego_id"].nunique()
+    # each ego's distance from its own first row to its last, not across egos
+    per = steps.groupby("ego_id")["s"].agg(lambda v: v.iloc[-1] - v.iloc[0])
+    assert s["distance"] == pytest.approx(per.sum(), rel=0.05)

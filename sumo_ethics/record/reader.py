@@ -68,7 +68,18 @@ def recover_summary(folder: Path) -> dict[str, Any]:
                 return data
         except (OSError, ValueError):
             pass
-    steps = read_table(folder, "steps").select(["step", "time", "s"]).to_pylist()
+    table = read_table(folder, "steps")
+    fleet = "ego_id" in table.column_names  # a fleet run: one row per ego per step
+    steps = table.select(["step", "time", "s"] + (["ego_id"] if fleet else [])).to_pylist()
+    if fleet:  # each ego's distance from its first row to its last
+        first: dict[str, float] = {}
+        last: dict[str, float] = {}
+        for r in steps:
+            first.setdefault(r["ego_id"], r["s"])
+            last[r["ego_id"]] = r["s"]
+        distance = float(sum(last[k] - first[k] for k in last))
+    else:
+        distance = float(steps[-1]["s"] - steps[0]["s"]) if steps else 0.0
     coll = read_table(folder, "collisions").to_pylist()
     booked = [r for r in coll if r.get("involves_ego") and r.get("detector") != "sumo_unconfirmed"]
     harm = {k: float(sum(r.get(f"harm_{k}") or 0.0 for r in booked)) for k in ("ego", "third_party", "vru")}
@@ -88,8 +99,8 @@ def recover_summary(folder: Path) -> dict[str, Any]:
                        "others": sum(not r.get("involves_ego") for r in coll), "fault": faults},
         **({"conflicts": conflict_counts(read_table(folder, "conflicts").to_pylist())}
            if cfg.get("conflicts", {}).get("enabled") else {}),
-        "seed": cfg.get("seed"), "steps": len(steps),
-        "distance": float(steps[-1]["s"] - steps[0]["s"]) if steps else 0.0,
+        "seed": cfg.get("seed"), "steps": len(steps), "distance": distance,
+        **({"fleet": {"spec": cfg.get("fleet"), "egos": len({r["ego_id"] for r in steps})}} if fleet else {}),
         "sim_time": float(steps[-1]["time"]) if steps else None,
         "controller": cfg.get("controller"), "reconstructed": True,
     }
