@@ -265,3 +265,26 @@ def test_a_killed_fleet_run_keeps_its_rows(tmp_path, sig):
     # each ego's distance from its own first row to its last, not across egos
     per = steps.groupby("ego_id")["s"].agg(lambda v: v.iloc[-1] - v.iloc[0])
     assert s["distance"] == pytest.approx(per.sum(), rel=0.05)
+
+
+def test_traffic_table_rates_by_hand():
+    from sumo_ethics.analysis.stats import traffic_table
+
+    runs = pd.DataFrame({
+        "penetration": [0.1, 0.1, 0.5], "fleet_egos": [2.0, 4.0, 10.0],
+        "harm_all_egos": [0.5, 0.0, 1.0], "harm_all_other_vehicles": [0.0, 0.25, 0.0], "harm_all_vru": [0.1, 0.0, 0.0],
+        "harm_all_total": [0.6, 0.25, 1.0], "vehicle_km": [1000.0, 3000.0, 2000.0], "person_km": [1.0, 1.0, 1.0],
+        "time_loss_egos": [10.0, 20.0, 5.0], "time_loss_other_vehicles": [1.0, 3.0, 2.0],
+        "time_loss_persons": [np.nan, 4.0, 6.0], "conflicts_total": [2.0, 1.0, 0.0], "distance": [5000.0, 10000.0, 2000.0],
+    })
+    t = traffic_table(runs, ["penetration"], n_boot=200).set_index("penetration")
+    # 0.5 harm to egos over 4,000 vehicle-km = 125 per 10^6 vehicle-km
+    assert t.loc[0.1, "harm_egos_per_Mvkm"] == pytest.approx(125.0)
+    assert t.loc[0.1, "harm_vru_per_Mvkm"] == pytest.approx(25.0)
+    assert t.loc[0.1, "harm_total_per_Mvkm"] == pytest.approx(212.5)
+    assert t.loc[0.1, "conflicts_per_100km"] == pytest.approx(20.0)  # 3 conflicts over 15 ego-km
+    assert t.loc[0.1, "time_loss_egos"] == pytest.approx(15.0) and t.loc[0.1, "time_loss_persons"] == 4.0
+    assert t.loc[0.1, "egos"] == 3.0 and t.loc[0.5, "harm_egos_per_Mvkm"] == pytest.approx(500.0)
+    lo, hi = t.loc[0.1, "time_loss_egos_ci_lo"], t.loc[0.1, "time_loss_egos_ci_hi"]
+    assert 10.0 <= lo <= 15.0 <= hi <= 20.0
+    assert traffic_table(runs.drop(columns=["vehicle_km"]), ["penetration"]).empty  # no fleet runs
