@@ -91,7 +91,8 @@ def cli() -> None:
 @click.option("--penetration", type=float, help="Fleet: take over each eligible vehicle of the scenario (a motor road "
               "vehicle without stops) with this probability, 0..1, drawn with --seed when it departs.")
 @click.option("--fleet", "fleet_shares", metavar="NAME=SHARE,...", help="Fleet: each ego's planner drawn by share, e.g. "
-              "ethical=0.5,ego=0.5 (J_origin weight presets, or baseline); default all ethical.")
+              "ethical=0.5,ego=0.5 (J_origin weight presets, baseline, or [planners.NAME] tables of --config); "
+              "default all ethical.")
 @click.option("--quiet", is_flag=True, help="No progress display.")
 def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration: float | None,
         fleet_shares: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float | None,
@@ -119,9 +120,6 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
         fleet = FleetSpec(egos=egos or 0, penetration=penetration or 0.0, ids=ego_ids,
                           shares=FleetSpec.parse_shares(fleet_shares) if fleet_shares is not None
                           else FleetSpec().shares)
-        from sumo_ethics.fleet import check_fleet_names
-
-        check_fleet_names(fleet)
         ego_ids = ()
     ego_id = ego_ids[0] if ego_ids else None
 
@@ -151,7 +149,16 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
                    f"'sumo-ethics evaluate {scenario.parent}' runs the scenario as the suite defines it", err=True)
     cfg = replace(cfg, planner=planner, conflicts=conflicts)
     if fleet is not None:
-        from sumo_ethics.fleet import make_fleet_controllers, run_fleet
+        from sumo_ethics.fleet import check_fleet_names, make_fleet_controllers, run_fleet
+        from sumo_ethics.settings import named_planners
+
+        named = named_planners(config_file) if config_file is not None else {}
+        used = [n for n, _ in fleet.shares if n in named]
+        cfg = replace(cfg, fleet=replace(fleet, planners=tuple(
+            (n, planner_config({**(table or {}), **named[n]}, omega_u=omega_u, omega_o=omega_o, weights=weights,
+                               utility=utility, normalise=normalise, predictor=predictor,
+                               predictor_weights=predictor_weights, selection=selection)) for n in used)))
+        check_fleet_names(cfg.fleet)
 
         _print_fleet(run_fleet(cfg, make_fleet_controllers(cfg)))
         return

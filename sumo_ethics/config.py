@@ -80,6 +80,7 @@ class FleetSpec:
     penetration: float = 0.0
     ids: tuple[str, ...] = ()
     shares: tuple[tuple[str, float], ...] = (("ethical", 1.0),)
+    planners: tuple[tuple[str, Any], ...] = ()  # named PlannerConfigs ([planners.NAME] of --config)
 
     def __post_init__(self) -> None:
         if not isinstance(self.egos, int) or isinstance(self.egos, bool) or not 0 <= self.egos <= 10_000:

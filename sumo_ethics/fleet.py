@@ -86,10 +86,12 @@ def check_fleet_names(spec: FleetSpec) -> None:
     """ConfigError for a ``--fleet`` name that is neither a weight preset nor a known controller."""
     from sumo_ethics.ethics.cost import PRESETS
 
+    named = [n for n, _ in spec.planners]
     for name, _ in spec.shares:
-        if name not in PRESETS and name not in FLEET_CONTROLLERS:
+        if name not in PRESETS and name not in FLEET_CONTROLLERS and name not in named:
             raise ConfigError(f"--fleet: unknown planner '{name}'; known: "
-                              f"{', '.join(sorted(PRESETS) + list(FLEET_CONTROLLERS))}")
+                              f"{', '.join(sorted(PRESETS) + list(FLEET_CONTROLLERS) + named)} "
+                              "(names of [planners.NAME] tables of --config too)")
 
 
 def make_fleet_controllers(cfg: RunConfig) -> Callable[[str, str], Controller]:
@@ -105,10 +107,15 @@ def make_fleet_controllers(cfg: RunConfig) -> Callable[[str, str], Controller]:
     base = cfg.planner or PlannerConfig()
     shared: dict[tuple, SharedPrediction] = {}
 
+    named = dict(spec.planners)
+
     def make(name: str, vid: str = "") -> Controller:
-        if name == "baseline":
+        if name in named:  # a [planners.NAME] table of --config (before the presets of the same name)
+            pc = named[name]
+        elif name == "baseline":
             return RouteFollower()
-        pc = replace(base, cost=replace(base.cost, weights=PrincipleWeights.preset(name)))
+        else:
+            pc = replace(base, cost=replace(base.cost, weights=PrincipleWeights.preset(name)))
         key = (pc.predictor, pc.predictor_weights, pc.calibrated)
         if key not in shared:
             shared[key] = SharedPrediction(make_predictor(*key))
@@ -116,7 +123,7 @@ def make_fleet_controllers(cfg: RunConfig) -> Callable[[str, str], Controller]:
 
     make.shared = shared  # type: ignore[attr-defined]
     for name, share in spec.shares:  # a bad weights file fails before SUMO starts
-        if share > 0 and name != "baseline":
+        if share > 0 and (name != "baseline" or name in named):
             make(name)
     return make
 

@@ -61,8 +61,17 @@ def load_toml(path: Path) -> dict[str, Any]:
 def load_run_toml(path: Path):
     """The ``[planner]`` table and the :class:`~sumo_ethics.config.ConflictConfig` of ``[conflicts]``
     (enabled, ttc, pet, gap, crossing_angle) of a TOML file for ``run``."""
-    planner, data = _read_toml(path, {"planner", "conflicts"})
+    planner, data = _read_toml(path, {"planner", "conflicts", "planners"})
     return planner, conflicts_config(data.get("conflicts"), str(path))
+
+
+def named_planners(path: Path) -> dict[str, dict[str, Any]]:
+    """The ``[planners.NAME]`` tables of a TOML file for ``run --fleet``: name -> its keys (those of
+    ``[planner]``, which they override)."""
+    named = _read_toml(path, {"planner", "conflicts", "planners"})[1].get("planners", {})
+    if not isinstance(named, dict) or not all(isinstance(v, dict) for v in named.values()):
+        raise ConfigError(f"{path}: 'planners' must hold named tables ([planners.NAME]), got {named!r}")
+    return named
 
 
 def conflicts_config(table: Any, where: str = "settings"):

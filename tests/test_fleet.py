@@ -288,3 +288,24 @@ def test_traffic_table_rates_by_hand():
     lo, hi = t.loc[0.1, "time_loss_egos_ci_lo"], t.loc[0.1, "time_loss_egos_ci_hi"]
     assert 10.0 <= lo <= 15.0 <= hi <= 20.0
     assert traffic_table(runs.drop(columns=["vehicle_km"]), ["penetration"]).empty  # no fleet runs
+
+
+def test_named_planner_tables_of_the_toml_drive_their_share(tmp_path, capfd):
+    from sumo_ethics.cli import main
+    from sumo_ethics.ethics.cost import PRESETS
+
+    toml = tmp_path / "fleet.toml"
+    toml.write_text('[planner]\nomega_u = 0.25\n\n[planners.cautious]\nweights = "maximin"\nmax_risk = 0.01\n')
+    out = tmp_path / "run"
+    code = main(["run", str(SCENARIOS / "testbed" / "testbed.sumocfg"), "--egos", "2", "--fleet", "cautious",
+                 "--config", str(toml), "--end", "6", "--quiet", "--out", str(out)])
+    assert code == 0, capfd.readouterr().err
+    cfg = json.loads((out / "config.json").read_text())
+    (name, pc), = cfg["fleet"]["planners"]
+    assert name == "cautious" and pc["max_risk"] == 0.01 and pc["cost"]["omega_u"] == 0.25  # [planner] underneath
+    assert pc["cost"]["weights"]["maximin"] == PRESETS["maximin"].maximin > 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["fleet"]["by_planner"] == {"cautious": 2}
+    assert main(["run", str(SCENARIOS / "testbed" / "testbed.sumocfg"), "--egos", "2", "--fleet", "careful",
+                 "--config", str(toml), "--quiet", "--out", str(tmp_path / "r2")]) == 2
+    assert "unknown planner 'careful'" in capfd.readouterr().err
