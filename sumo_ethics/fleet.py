@@ -234,6 +234,8 @@ class Agent:
     world: SumoWorld
     takeover_time: float
     vehicle: Any = None  # EgoVehicle limits
+    route_length: float = 0.0  # m, of its reference path
+    speed_factor: float = 1.0  # its own speedFactor before the takeover (given back with it)
     snap: Snapshot | None = None  # None until the first read after the takeover
     s: float = 0.0
     d: float = 0.0
@@ -257,7 +259,7 @@ class Agent:
         return {"id": self.id, "planner": self.planner, "inserted": self.inserted, "status": self.status,
                 "message": self.message, "takeover_time": self.takeover_time, "end_time": self.end_time,
                 "steps": self.steps, "distance": 0.0 if self.s0 != self.s0 else float(self.s - self.s0),
-                "route_length": float(self.world.route.length) if self.world.route is not None else 0.0,
+                "route_length": self.route_length,
                 "collisions": self.collisions, "n_fallback": self.n_fallback}
 
 
@@ -285,7 +287,7 @@ class FleetRun(Run):
         self.rec.tables["steps"] = ChunkedTable(self.rec.partial, "steps", STEPS)
         self.rec.tables["timings"] = ChunkedTable(self.rec.partial, "timings", TIMINGS)
         sink = _FleetCollisions(self.rec, self.egos)
-        self.book = collisions = CollisionBook(sink, cfg.collision_gap, SumoWorld("", cfg.sensing_radius).party_state)
+        self.book = CollisionBook(sink, cfg.collision_gap, SumoWorld("", cfg.sensing_radius).party_state)
         if cfg.conflicts.enabled:
             self.rec.record_conflicts()
         t = session.sim_time()
@@ -313,8 +315,7 @@ class FleetRun(Run):
                     return
                 w0 = wallclock.perf_counter()
                 acting = [a for a in self.active if a.snap is not None]
-                if shared and acting:
-                    self._share_prediction(acting, shared, t)
+                self._share_prediction(acting, shared, t)
                 for a in acting:
                     self._act(a, t, dt)
                 for a in self.active:
@@ -324,12 +325,7 @@ class FleetRun(Run):
                 self.step += 1
                 w2 = wallclock.perf_counter()
                 now = session.sim_time()
-                gone = sim_fleet.teleporting() & self.egos
-                reports = tuple(sim_fleet.sumo_collisions())
-                self.rows_before = len(self.rec.collisions)
-                for a in list(self.active):
-                    self._observe(a, now, dt, gone, (w1 - w0, w2 - w1))
-                collisions.detect_others(now, reports, self.step, frozenset(self.egos))
+                self._observe_all(now, dt, (w1 - w0, w2 - w1))
                 for vid in sim_fleet.departed():
                     self._maybe_take_over(vid, now, end)
                 if progress is not None and self.step % 50 == 0:
@@ -343,13 +339,14 @@ class FleetRun(Run):
 
     # -- per step -----------------------------------------------------------------------------------
     def _share_prediction(self, acting: list[Agent], shared: list[SharedPrediction], t: float) -> None:
-        """The union of what the acting egos see (and the egos), its history and one observation."""
+        """The union of what the acting egos see (and the egos) into the history, every step (an
+        empty one when nobody acts: a road user's rows keep their times), and the step's
+        observation of it for the shared predictions."""
         union = union_states([a.snap.ego for a in acting] + [a.snap.others for a in acting])
         self.union_history.push(union)
-        obs = self.union_history.observation(t, AgentStates.empty(), union)
+        self._union_obs = obs = self.union_history.observation(t, AgentStates.empty(), union)
         for p in shared:
             p.begin(obs)
-        self._union_obs = obs
 
     def _act(self, a: Agent, t: float, dt: float) -> None:
         snap = a.snap
@@ -365,41 +362,89 @@ class FleetRun(Run):
                         stop_s=line, vehicle=a.vehicle, history=obs,
                         rule_breakers=a.rules.breakers(snap.others) if a.rules is not None else frozenset())
         w = wallclock.perf_counter()
-        a.decision = ctl.act(a.scene)
+        try:
+            a.decision = ctl.act(a.scene)
+        except Exception as exc:  # noqa: BLE001 - one ego's failure must not end everyone's run
+            a.decision = None
+            self._end(a, "error", f"its planner failed at t={format_time(t)}: {type(exc).__name__}: {exc}; "
+                                  "handed back to SUMO", t)
+            sim_fleet.release(a.id, a.speed_factor)
+            return
         a.extra["controller_ms"] = 1e3 * (wallclock.perf_counter() - w)
         a.n_fallback += int(a.decision.info.get("n_fallback", 0))
 
-    def _observe(self, a: Agent, now: float, dt: float, gone: frozenset[str], w: tuple[float, float]) -> None:
-        """Read ego ``a`` after the step: its collisions, conflicts and steps row, or its end."""
-        cfg = self.cfg
+    def _observe_all(self, now: float, dt: float, w: tuple[float, float]) -> None:
+        """After a step: read every ego, give each ego's own state to the others' views of it, then
+        each ego's collisions, conflicts and steps row; the others' collisions; the egos' ends."""
+        gone = sim_fleet.teleporting() & self.egos
+        reports = tuple(sim_fleet.sumo_collisions())
+        rows_before = len(self.rec.collisions)
+        read: list[tuple[Agent, Snapshot]] = []
+        for a in list(self.active):
+            new = self._read(a, now, dt, gone)
+            if new is not None:
+                read.append((a, new))
+        own = {a.id: new.ego for a, new in read}
+        checked: set[str] = set()  # egos whose collisions and conflicts were measured this step
+        hit: set[str] = set()
+        for a, new in read:
+            new = _with_own_states(new, own)
+            if self._record(a, new, dt, w, checked):
+                hit.add(a.id)
+        # SUMO's reports of everyone else, egos driven by SUMO this step (just taken over, handed back) too
+        self.book.detect_others(now, reports, self.step, frozenset(checked))
+        for r in self.rec.collisions[rows_before:]:  # a new event names both egos (one detected it)
+            if is_booked(r):
+                hit.update(k for k in (r["id_a"], r["id_b"]) if k in checked)
+        for a, _ in read:
+            if a.id in hit:
+                a.collisions += 1
+                if self.cfg.stop_at_collision and a in self.active:
+                    row = next(r for r in reversed(self.rec.collisions) if is_booked(r) and a.id in (r["id_a"], r["id_b"]))
+                    other = row["id_b"] if row["id_a"] == a.id else row["id_a"]
+                    self._end(a, "collision", f"collided with '{other}' at t={format_time(row['time'])}; "
+                                              "taken off the road", now)
+                    sim_fleet.remove(a.id)
+        for a, _ in read:
+            if a in self.active and a.snap is not None and a.s + a.half >= a.route_length - 0.5:
+                self._end(a, "completed", f"goal reached at t={format_time(now)}; handed back to SUMO", now)
+                sim_fleet.release(a.id, a.speed_factor)
+
+    def _read(self, a: Agent, now: float, dt: float, gone: frozenset[str]) -> Snapshot | None:
+        """Ego ``a``'s snapshot after the step, or None when it ended (teleported, left, arrived)
+        or was read for the first time after its takeover."""
         before, decision = a.snap, a.decision
         if a.id in gone:
             self.teleported.append(a.id)
             self._end(a, "teleported", f"SUMO started to teleport it at t={format_time(now)}; handed back", now)
-            sim_fleet.release(a.id)
-            return
+            sim_fleet.release(a.id, a.speed_factor)
+            return None
         new = a.world.read()
         if new is None:
             if before is None:
                 self._end(a, "left", f"left the simulation right after the takeover (t={format_time(now)})", now)
-                return
+                return None
             reach = a.s + a.half + max(float(before.ego.speed[0]), decision.command.speed) * dt + 1.0
-            if reach >= a.world.route.length - 0.5:
+            if reach >= a.route_length - 0.5:
                 self._end(a, "completed", f"goal reached at t={format_time(now)}", now)
             else:
                 self._end(a, "left", f"left the simulation at t={format_time(now)} "
-                                     f"{a.world.route.length - a.s - a.half:.1f} m before its goal", now)
-            return
-        route = a.world.route
+                                     f"{a.route_length - a.s - a.half:.1f} m before its goal", now)
+            return None
         if before is None:  # the first read after the takeover
             a.vehicle = replace(a.vehicle, mass=float(new.ego.mass[0]))
             a.half = float(new.ego.length[0]) / 2
-            a.s, a.d = route.path.project_point(float(new.ego.x[0]), float(new.ego.y[0]))
+            a.s, a.d = a.world.route.path.project_point(float(new.ego.x[0]), float(new.ego.y[0]))
             a.s0 = a.s
             a.snap = new
-            if cfg.conflicts.enabled:
-                a.conflicts = ConflictBook(_ConflictRows(self.rec), cfg.conflicts, dt)
-            return
+            if self.cfg.conflicts.enabled:
+                a.conflicts = ConflictBook(_ConflictRows(self.rec), self.cfg.conflicts, dt)
+            return None
+        return new
+
+    def _record(self, a: Agent, new: Snapshot, dt: float, w: tuple[float, float], checked: set[str]) -> bool:
+        """Ego ``a``'s collisions (True: a new one), conflicts and steps row of the step to ``new``."""
+        before, decision = a.snap, a.decision
         w3 = wallclock.perf_counter()
         envelope = decision.info.get("cost_envelope")
         ctx = FaultContext(ego_accel=(float(new.ego.speed[0]) - float(before.ego.speed[0])) / dt,
@@ -407,15 +452,14 @@ class FleetRun(Run):
                            ego_ran_red=new.time - a.ran_red_at <= RED_MEMORY,
                            ego_in_envelope=None if envelope is None else bool(envelope > 0))
         hit = self.book.detect_ego(before, new, self.step, ctx)
-        # an ego hit by an ego checked before it this step: the event is that ego's row
-        hit = hit or any(r["id_b"] == a.id and is_booked(r) for r in self.rec.collisions[self.rows_before:])
         w4 = wallclock.perf_counter()
-        if a.conflicts is not None:  # a pair of egos once: by the ego taken over first
-            earlier = {b.id for b in self.agents[:self.agents.index(a)]}
-            keep = [i for i, k in enumerate(new.others.ids) if k not in earlier]
+        if a.conflicts is not None:  # a pair of egos once: by the ego measured first this step
+            keep = [i for i, k in enumerate(new.others.ids) if k not in checked]
             a.conflicts.observe(new if len(keep) == len(new.others) else
                                 replace(new, others=new.others.take(keep)), self.step)
+        checked.add(a.id)
         w5 = wallclock.perf_counter()
+        route = a.world.route
         a.s, a.d = route.path.project_point(float(new.ego.x[0]), float(new.ego.y[0]), near=(a.s - 5.0, a.s + 5.0 + 50.0 * dt))
         if a.red_s is not None and a.s + a.half > a.red_s + 0.5:
             a.ran_red_at = new.time
@@ -427,22 +471,14 @@ class FleetRun(Run):
         self.rec.step(row, timing, None, before.time, hit)
         a.steps += 1
         a.snap = new
-        if hit:
-            a.collisions += 1
-            if cfg.stop_at_collision:
-                first = next(r for r in reversed(self.rec.collisions) if is_booked(r) and a.id in (r["id_a"], r["id_b"]))
-                other = first["id_b"] if first["id_a"] == a.id else first["id_a"]
-                self._end(a, "collision", f"collided with '{other}' at t={format_time(first['time'])}; "
-                                          "taken off the road", now)
-                sim_fleet.remove(a.id)
-                return
-        if a.s + a.half >= route.length - 0.5:
-            self._end(a, "completed", f"goal reached at t={format_time(now)}; handed back to SUMO", now)
-            sim_fleet.release(a.id)
+        return hit
 
     def _end(self, a: Agent, status: str, message: str, t: float) -> None:
+        """Ego ``a`` is done: its status, and nothing of it kept but its record (memory stays flat
+        however many egos come and go)."""
         a.status, a.message, a.end_time = status, message, t
         self.active.remove(a)
+        a.controller = a.world = a.snap = a.decision = a.scene = a.rules = None  # type: ignore[assignment]
 
     def _maybe_take_over(self, vid: str, t: float, end: float) -> None:
         spec = self.spec
@@ -458,20 +494,22 @@ class FleetRun(Run):
             inserted = False
         else:
             return
-        if not inserted and not sim_fleet.eligible(vid):
-            raise ConfigError(f"--ego '{vid}' cannot be an ego (not a motor road vehicle, or it has stops)")
+        if not inserted and vid in spec.ids and not sim_fleet.eligible(vid):
+            self.refused[vid] = "not a motor road vehicle, or it has stops (the rules of --ego)"
+            return
         name = planner_of(self.cfg.seed, vid, spec.shares)
         world = SumoWorld(vid, self.cfg.sensing_radius)
+        factor = sim_fleet.speed_factor(vid)
         try:
-            world.takeover()
-        except SumoEthicsError as exc:  # e.g. a route the planner cannot follow: SUMO keeps driving it
+            route = world.takeover()
+        except (SumoEthicsError, *session.SUMO_ERRORS) as exc:  # e.g. a route the planner cannot follow
             self.refused[vid] = str(exc)
-            sim_fleet.release(vid)
             return
+        sim_fleet.hold_speed(vid)  # its first step, before its planner acts: no faster than now
         vehicle = self.cfg.ego if inserted else ego_limits(vid, self.cfg.ego)
         ctl = self.make(name, vid)
-        a = Agent(vid, name, inserted, ctl, world, t, vehicle=vehicle,
-                  rules=RuleMonitor() if getattr(ctl, "needs_rules", False) else None)
+        a = Agent(vid, name, inserted, ctl, world, t, vehicle=vehicle, route_length=float(route.length),
+                  speed_factor=factor, rules=RuleMonitor() if getattr(ctl, "needs_rules", False) else None)
         self.agents.append(a)
         self.active.append(a)
         self.egos.add(vid)
@@ -538,7 +576,8 @@ class FleetRun(Run):
             "completed": self.status is RunStatus.COMPLETED,
             "fleet": {"spec": asdict(spec), "egos": len(self.agents), "by_planner": by_planner, "by_status": statuses,
                       "inserted": sum(a.inserted for a in self.agents), "considered": self.considered,
-                      "eligible": self.eligible, "teleported": self.teleported, "refused": self.refused},
+                      "eligible": self.eligible, "teleported": self.teleported, "refused": self.refused,
+                      "not_departed": sorted(k for k in self.wanted if k not in self.egos and k not in self.refused)},
             "harm": harm, "harm_everyone": everyone,
             "collisions": {"ego": len(booked), "ego_ego": sum(bool(r.get("ego_b")) for r in booked),
                            "ego_unconfirmed": sum(r["detector"] == "sumo_unconfirmed" for r in rows),
@@ -552,6 +591,21 @@ class FleetRun(Run):
             **{k: v for k, v in self.meta.items() if k not in ("last_time", "vclass_of", "ego_id")},
             "egos": [a.record() for a in self.agents],
         }
+
+
+def _with_own_states(snap: Snapshot, own: dict[str, AgentStates]) -> Snapshot:
+    """``snap`` with each ego among its road users at the speed and acceleration that ego was placed
+    with (its own read), not SUMO's re-derived ones (sim.world.SumoWorld.read)."""
+    o = snap.others
+    idx = [i for i, k in enumerate(o.ids) if k in own]
+    if not idx:
+        return snap
+    speed, accel = o.speed.copy(), o.accel.copy()
+    for i in idx:
+        e = own[o.ids[i]]
+        speed[i], accel[i] = e.speed[0], e.accel[0]
+    return replace(snap, others=AgentStates.trusted(o.ids, o.x, o.y, o.yaw, speed, accel, o.length, o.width, o.mass,
+                                                    o.cls, o.type_id))
 
 
 def _mean(values: Any) -> float | None:

@@ -65,23 +65,42 @@ def route_edges(vid: str) -> tuple[str, ...]:
     return tuple(libsumo.vehicle.getRoute(vid))
 
 
-def release(vid: str) -> None:
+def _unsubscribe(vid: str) -> None:
+    v = libsumo.vehicle
+    v.unsubscribeContext(vid, libsumo.constants.CMD_GET_VEHICLE_VARIABLE, 0)
+    v.unsubscribeContext(vid, libsumo.constants.CMD_GET_PERSON_VARIABLE, 0)
+
+
+def speed_factor(vid: str) -> float:
+    """A vehicle's own speedFactor (drawn by SUMO from its vType's speed distribution)."""
+    return float(libsumo.vehicle.getSpeedFactor(vid))
+
+
+def hold_speed(vid: str) -> None:
+    """For the step between a takeover and the ego's first planned step: keep its speed (the
+    takeover switched SUMO's checks off and tripled its speed factor)."""
+    libsumo.vehicle.setSpeed(vid, libsumo.vehicle.getSpeed(vid))
+
+
+def release(vid: str, factor: float = 1.0) -> None:
     """Hand an ego back to SUMO (its goal reached, or its control given up): SUMO's own car
-    following and lane changing drive it from here; its subscriptions end."""
+    following and lane changing drive it from here, with its own speed ``factor``; its
+    subscriptions end."""
     v = libsumo.vehicle
     if vid not in v.getIDList():
         return
-    v.unsubscribeContext(vid, libsumo.constants.CMD_GET_VEHICLE_VARIABLE, 0)
-    v.unsubscribeContext(vid, libsumo.constants.CMD_GET_PERSON_VARIABLE, 0)
+    _unsubscribe(vid)
     v.setSpeedMode(vid, DEFAULT_SPEED_MODE)
     v.setLaneChangeMode(vid, DEFAULT_LANE_CHANGE_MODE)
-    v.setSpeedFactor(vid, 1.0)
+    v.setSpeedFactor(vid, factor)
     v.setSpeed(vid, -1)  # SUMO's own speed from now on
 
 
 def remove(vid: str) -> None:
-    """Take a crashed ego off the road (SUMO's collision.action remove does this to its own)."""
+    """Take a crashed ego off the road (SUMO's collision.action remove does this to its own);
+    its subscriptions end first (SUMO fails on a subscription of a vehicle that is gone)."""
     if vid in libsumo.vehicle.getIDList():
+        _unsubscribe(vid)
         libsumo.vehicle.remove(vid, libsumo.constants.REMOVE_VAPORIZED)
 
 
