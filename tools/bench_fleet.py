@@ -10,6 +10,7 @@ parts from timings.parquet. The resident memory of the process is sampled every 
 growth over the second half is reported (flat memory: a few MB).
 
     python tools/bench_fleet.py [--sizes 1,5,10,25] [--end 40] [--unshared 10] [--baseline 100]
+    python tools/bench_fleet.py --memory 600   # memory while egos come and go (penetration 1, baseline)
 """
 
 from __future__ import annotations
@@ -78,6 +79,38 @@ def one(n: int, end: float, shared: bool, planner: str, out: Path, seed: int) ->
             "rss_mb": samples[-1][1] if samples else float("nan"), "egos": s.data["fleet"]["egos"]}
 
 
+def memory(seconds: float, seed: int) -> None:
+    """Memory over a long run whose egos come and go: penetration 1, baseline planners (cheap), so
+    every eligible vehicle of urban_grid is an ego from its departure to its arrival."""
+    from sumo_ethics.config import FleetSpec, RunConfig
+    from sumo_ethics.fleet import run_fleet
+    from sumo_ethics.plan.baseline import RouteFollower
+
+    samples: list[tuple[float, float]] = []
+    stop = threading.Event()
+
+    def sample() -> None:
+        while not stop.is_set():
+            samples.append((time.perf_counter(), rss_mb()))
+            stop.wait(1.0)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = RunConfig(scenario=ROOT / "scenarios" / "urban_grid" / "urban_grid.sumocfg", out=Path(tmp) / "m",
+                        seed=seed, end=seconds, progress=False, fleet=FleetSpec(penetration=1.0,
+                                                                                 shares=(("baseline", 1.0),)))
+        th = threading.Thread(target=sample, daemon=True)
+        th.start()
+        s = run_fleet(cfg, lambda name, vid: RouteFollower())
+        stop.set()
+        th.join()
+    t0, t1 = samples[0][0], samples[-1][0]
+    at = [min(samples, key=lambda x: abs(x[0] - (t0 + f * (t1 - t0))))[1] for f in (0.1, 0.25, 0.5, 0.75, 1.0)]
+    f = s.data["fleet"]
+    print(f"memory, penetration 1 (baseline), {seconds:g} s of urban_grid: {f['egos']} egos "
+          f"({f['by_status']}); RSS at 10/25/50/75/100 % of the run: " + " / ".join(f"{r:.0f}" for r in at)
+          + f" MB; growth from 25 % to the end {at[-1] - at[1]:+.1f} MB")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="1,5,10,25")
@@ -85,7 +118,11 @@ def main() -> None:
     ap.add_argument("--unshared", type=int, default=10, help="also run this size with one prediction per ego (0: no)")
     ap.add_argument("--baseline", type=int, default=100, help="also run this many baseline egos (0: no)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--memory", type=float, default=0.0, help="only the memory run, this many simulated seconds")
     a = ap.parse_args()
+    if a.memory:
+        memory(a.memory, a.seed)
+        return
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         jobs = [(int(n), True, "ethical") for n in a.sizes.split(",")]
