@@ -479,6 +479,7 @@ class FleetRun(Run):
         a.status, a.message, a.end_time = status, message, t
         self.active.remove(a)
         a.controller = a.world = a.snap = a.decision = a.scene = a.rules = None  # type: ignore[assignment]
+        a.conflicts = None  # its rows are in the recorder; its trails go
 
     def _maybe_take_over(self, vid: str, t: float, end: float) -> None:
         spec = self.spec
