@@ -29,6 +29,21 @@ def rss_mb() -> float:
         return int(f.read().split()[1]) * 4096 / 1e6
 
 
+def rss_sampler() -> tuple[list[tuple[float, float]], threading.Event, threading.Thread]:
+    """A started thread appending (time, RSS MB) every second to the list until the event is set."""
+    samples: list[tuple[float, float]] = []
+    stop = threading.Event()
+
+    def sample() -> None:
+        while not stop.is_set():
+            samples.append((time.perf_counter(), rss_mb()))
+            stop.wait(1.0)
+
+    th = threading.Thread(target=sample, daemon=True)
+    th.start()
+    return samples, stop, th
+
+
 def one(n: int, end: float, shared: bool, planner: str, out: Path, seed: int) -> dict:
     import pandas as pd
 
@@ -47,16 +62,7 @@ def one(n: int, end: float, shared: bool, planner: str, out: Path, seed: int) ->
     else:
         def make(name, vid):  # one predictor per ego: each predicts its own neighbours
             return EthicalPlanner(PlannerConfig())
-    samples: list[tuple[float, float]] = []
-    stop = threading.Event()
-
-    def sample() -> None:
-        while not stop.is_set():
-            samples.append((time.perf_counter(), rss_mb()))
-            stop.wait(1.0)
-
-    th = threading.Thread(target=sample, daemon=True)
-    th.start()
+    samples, stop, th = rss_sampler()
     t0 = time.perf_counter()
     s = run_fleet(cfg, make)
     stop.set()
@@ -86,20 +92,11 @@ def memory(seconds: float, seed: int) -> None:
     from sumo_ethics.fleet import run_fleet
     from sumo_ethics.plan.baseline import RouteFollower
 
-    samples: list[tuple[float, float]] = []
-    stop = threading.Event()
-
-    def sample() -> None:
-        while not stop.is_set():
-            samples.append((time.perf_counter(), rss_mb()))
-            stop.wait(1.0)
-
+    samples, stop, th = rss_sampler()
     with tempfile.TemporaryDirectory() as tmp:
         cfg = RunConfig(scenario=ROOT / "scenarios" / "urban_grid" / "urban_grid.sumocfg", out=Path(tmp) / "m",
                         seed=seed, end=seconds, progress=False, fleet=FleetSpec(penetration=1.0,
                                                                                  shares=(("baseline", 1.0),)))
-        th = threading.Thread(target=sample, daemon=True)
-        th.start()
         s = run_fleet(cfg, lambda name, vid: RouteFollower())
         stop.set()
         th.join()
