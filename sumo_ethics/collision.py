@@ -19,7 +19,7 @@ import numpy as np
 
 from sumo_ethics.ethics.harm import CrashOutcome, ImpactArea, Party, crash_outcome
 from sumo_ethics.geometry import OrientedBoxes, boxes_overlap, wrap_angle
-from sumo_ethics.safety.fault import FaultContext, fault
+from sumo_ethics.safety.fault import FAULTS, FaultContext, fault
 from sumo_ethics.types import AgentStates, RoadUserClass
 
 #: at most this much relative motion [m] between two tested sub-steps
@@ -151,6 +151,16 @@ def booking(row: dict[str, Any], book: bool) -> dict[str, float]:
 def is_booked(row: dict[str, Any]) -> bool:
     """An ego collision that counts: not a SUMO report our boxes did not confirm."""
     return row["involves_ego"] and row["detector"] != "sumo_unconfirmed"
+
+
+def booked_outcome(rows: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], dict[str, float], dict[str, int]]:
+    """Of a run's collision rows: the ego collisions that count (:func:`is_booked`), their harm per
+    class (``ego``, ``third_party``, ``vru``, ``total`` = ego + third party) and their count per fault
+    (summary.json's ``harm`` and ``collisions.fault``)."""
+    booked = [r for r in rows if is_booked(r)]
+    harm = {k: float(sum(r.get(f"harm_{k}") or 0.0 for r in booked)) for k in ("ego", "third_party", "vru")}
+    harm["total"] = harm["ego"] + harm["third_party"]
+    return booked, harm, {f: sum(r.get("fault") == f for r in booked) for f in FAULTS}
 
 
 def merged_detector(old: str, new: str) -> str:

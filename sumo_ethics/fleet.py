@@ -32,7 +32,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from sumo_ethics.collision import CollisionBook, is_booked
+from sumo_ethics.collision import CollisionBook, booked_outcome, is_booked
 from sumo_ethics.config import FLEET_CONTROLLERS, FleetSpec, RunConfig
 from sumo_ethics.errors import ConfigError, SumoEthicsError
 from sumo_ethics.plan.controller import Controller, Decision, Scene
@@ -41,7 +41,7 @@ from sumo_ethics.record import schema
 from sumo_ethics.record.writer import ChunkedTable
 from sumo_ethics.runner import Run, RunSummary, _progress, execute, step_row, stop_line
 from sumo_ethics.safety.conflicts import ConflictBook, conflict_counts
-from sumo_ethics.safety.fault import FAULTS, RED_MEMORY, FaultContext
+from sumo_ethics.safety.fault import RED_MEMORY, FaultContext
 from sumo_ethics.sim import fleet as sim_fleet, scenario as scenario_files, session
 from sumo_ethics.sim.ego import ego_limits
 from sumo_ethics.sim.rules import RuleMonitor
@@ -161,20 +161,14 @@ class SharedPrediction:
 
 def union_states(parts: list[AgentStates]) -> AgentStates:
     """The agents of ``parts`` once each (the first state seen of an id), sorted by id."""
-    first: dict[str, tuple[int, int]] = {}
-    for p, s in enumerate(parts):
-        for i, k in enumerate(s.ids):
-            first.setdefault(k, (p, i))
-    if not first:
+    ids = np.array([k for s in parts for k in s.ids], dtype=str)
+    if not len(ids):
         return AgentStates.empty()
-    ids = sorted(first)
-    cols = {}
-    for name in ("x", "y", "yaw", "speed", "accel", "length", "width", "mass", "cls"):
-        cols[name] = np.array([getattr(parts[first[k][0]], name)[first[k][1]] for k in ids])
-    cols["cls"] = cols["cls"].astype(np.int8)
-    return AgentStates(tuple(ids), cols["x"], cols["y"], cols["yaw"], cols["speed"], cols["accel"], cols["length"],
-                       cols["width"], cols["mass"], cols["cls"],
-                       tuple(parts[first[k][0]].type_id[first[k][1]] for k in ids))
+    uniq, first = np.unique(ids, return_index=True)  # sorted, and where each id is seen first
+    cols = (np.concatenate([getattr(s, name) for s in parts])[first]
+            for name in ("x", "y", "yaw", "speed", "accel", "length", "width", "mass", "cls"))
+    types = [t for s in parts for t in s.type_id]
+    return AgentStates.trusted(tuple(uniq.tolist()), *cols, tuple(types[i] for i in first))
 
 
 # ---- booking ------------------------------------------------------------------------------------
@@ -495,7 +489,7 @@ class FleetRun(Run):
             inserted = False
         else:
             return
-        if not inserted and vid in spec.ids and not sim_fleet.eligible(vid):
+        if not inserted and not sim_fleet.eligible(vid):  # named by --ego
             self.refused[vid] = "not a motor road vehicle, or it has stops (the rules of --ego)"
             return
         name = planner_of(self.cfg.seed, vid, spec.shares)
@@ -553,9 +547,7 @@ class FleetRun(Run):
 
     def summary(self, wall: float) -> dict[str, Any]:
         rows = self.rec.collisions
-        booked = [r for r in rows if is_booked(r)]
-        harm = {k: float(sum(r[f"harm_{k}"] for r in booked)) for k in ("ego", "third_party", "vru")}
-        harm["total"] = harm["ego"] + harm["third_party"]
+        booked, harm, faults = booked_outcome(rows)
         everyone = {"egos": 0.0, "other_vehicles": 0.0, "vru": 0.0}
         for r in rows:
             if r["detector"] == "sumo_unconfirmed":
@@ -583,7 +575,7 @@ class FleetRun(Run):
             "collisions": {"ego": len(booked), "ego_ego": sum(bool(r.get("ego_b")) for r in booked),
                            "ego_unconfirmed": sum(r["detector"] == "sumo_unconfirmed" for r in rows),
                            "others": sum(not r["involves_ego"] for r in rows),
-                           "fault": {f: sum(r["fault"] == f for r in booked) for f in FAULTS}},
+                           "fault": faults},
             **({"conflicts": conflict_counts(self.rec.conflicts)} if self.rec.conflicts is not None else {}),
             "seed": self.cfg.seed, "steps": self.step, "ego_steps": self.rec.n_steps,
             "n_fallback": sum(a.n_fallback for a in self.agents),

@@ -21,7 +21,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from sumo_ethics import __version__
-from sumo_ethics.collision import CollisionBook, is_booked
+from sumo_ethics.collision import CollisionBook, booked_outcome, is_booked
 from sumo_ethics.interrupt import sigterm_as_interrupt, sigterm_deferred
 from sumo_ethics.config import RunConfig
 from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEthicsError, Terminated
@@ -33,7 +33,7 @@ from sumo_ethics.record.recorder import RunRecorder
 from sumo_ethics.record.decisions import FOLDER as DECISIONS, SNAPSHOTS
 from sumo_ethics.record.writer import PARTIAL, write_json
 from sumo_ethics.safety.conflicts import ConflictBook, conflict_counts
-from sumo_ethics.safety.fault import FAULTS, RED_MEMORY, FaultContext
+from sumo_ethics.safety.fault import RED_MEMORY, FaultContext
 from sumo_ethics.sim import preflight, scenario as scenario_files, session
 from sumo_ethics.sim.ego import start_ego
 from sumo_ethics.sim.route import tight_bends
@@ -382,9 +382,7 @@ class Run:
         self.meta["snapshot_wall"] = wallclock.perf_counter() - w
 
     def summary(self, wall: float) -> dict[str, Any]:
-        ego_rows = [r for r in self.rec.collisions if is_booked(r)]
-        harm = {k: float(sum(r[f"harm_{k}"] for r in ego_rows)) for k in ("ego", "third_party", "vru")}
-        harm["total"] = harm["ego"] + harm["third_party"]
+        ego_rows, harm, faults = booked_outcome(self.rec.collisions)
         first, last = self.rec.first_step, self.rec.last_step
         return {
             "status": self.status.value,
@@ -395,7 +393,7 @@ class Run:
             "collisions": {"ego": len(ego_rows),
                            "ego_unconfirmed": sum(r["detector"] == "sumo_unconfirmed" for r in self.rec.collisions),
                            "others": sum(not r["involves_ego"] for r in self.rec.collisions),
-                           "fault": {f: sum(r["fault"] == f for r in ego_rows) for f in FAULTS}},
+                           "fault": faults},
             **({"conflicts": conflict_counts(self.rec.conflicts)} if self.rec.conflicts is not None else {}),
             "seed": self.cfg.seed,
             "steps": self.rec.n_steps,

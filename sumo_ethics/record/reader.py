@@ -57,6 +57,7 @@ def read_table(folder: Path, name: str) -> pa.Table:
 def recover_summary(folder: Path) -> dict[str, Any]:
     """``summary.json`` of a run folder, or one rebuilt from its rows (status ``incomplete``) when
     the run was killed before writing it."""
+    from sumo_ethics.collision import booked_outcome
     from sumo_ethics.safety.conflicts import conflict_counts
 
     folder = Path(folder)
@@ -81,10 +82,7 @@ def recover_summary(folder: Path) -> dict[str, Any]:
     else:
         distance = float(steps[-1]["s"] - steps[0]["s"]) if steps else 0.0
     coll = read_table(folder, "collisions").to_pylist()
-    booked = [r for r in coll if r.get("involves_ego") and r.get("detector") != "sumo_unconfirmed"]
-    harm = {k: float(sum(r.get(f"harm_{k}") or 0.0 for r in booked)) for k in ("ego", "third_party", "vru")}
-    harm["total"] = harm["ego"] + harm["third_party"]
-    faults = {f: sum(r.get("fault") == f for r in booked) for f in ("ego", "other", "shared", "unknown")}
+    booked, harm, faults = booked_outcome(coll)
     cfg: dict[str, Any] = {}
     try:
         cfg = json.loads((folder / "config.json").read_text())
