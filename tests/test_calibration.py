@@ -16,6 +16,11 @@ from sumo_ethics.predict import features as F
 T = F.FUT_STEPS
 
 
+def moving(a: np.ndarray) -> np.ndarray:
+    """(len(a),) speeds [m/s] of agents in motion (none of them ``standing``)."""
+    return np.full(len(a), 10.0)
+
+
 def synthetic(n: int, sigma_lon: float, sigma_lat: float, shrink: float, seed: int, lateral: float = 0.0,
               group: int = F.GROUP_VEHICLE):
     """n one-mode predictions with mean (t, lateral * t / 4) and true errors N(0, diag(sigma^2)),
@@ -61,7 +66,7 @@ def test_half_sigma_predictor_gets_factor_two_and_nominal_coverage():
     params, w, g, fut = synthetic(6000, 1.2, 0.3, 0.5, seed=3)
     before = C.coverage(params[:, 0], fut, levels=(C.TARGET,))[0]
     assert before == pytest.approx(0.393, abs=0.01)
-    cal = C.fit(params, w, g, fut, level=C.TARGET)
+    cal = C.fit(params, w, g, moving(g), fut, level=C.TARGET)
     fitted = cal.scale[F.GROUP_VEHICLE, 0]  # the steady state: the means do not move sideways
     assert np.allclose(fitted, 2.0, rtol=0.05)
     assert (cal.n_points[F.GROUP_VEHICLE, 0] > 0).all()
@@ -69,7 +74,7 @@ def test_half_sigma_predictor_gets_factor_two_and_nominal_coverage():
     assert np.allclose(cal.scale[F.GROUP_VEHICLE, 1:], fitted[None])
     assert np.all(cal.scale[F.GROUP_CYCLIST] == 1.0)  # no cyclists at all: factor 1
     p2, w2, g2, fut2 = synthetic(6000, 1.2, 0.3, 0.5, seed=4)
-    after = C.coverage(cal.apply(p2, w2, g2)[:, 0], fut2, levels=(C.TARGET,))[0]
+    after = C.coverage(cal.apply(p2, w2, g2, moving(g2))[:, 0], fut2, levels=(C.TARGET,))[0]
     assert after == pytest.approx(0.865, abs=0.01)
 
 
@@ -78,11 +83,11 @@ def test_fit_level_sets_the_share_inside_the_2_sigma_ellipse():
     # k-sigma ellipse with 1 - exp(-k^2/2) = 0.91, k = sqrt(-2 ln 0.09) = 2.194; predicted sigma = true / 2,
     # so 2 * factor * sigma_true / 2 = k * sigma_true: factor = 2 * k / 2 = 2.194
     params, w, g, fut = synthetic(6000, 1.0, 0.5, 0.5, seed=8)
-    cal = C.fit(params, w, g, fut)
+    cal = C.fit(params, w, g, moving(g), fut)
     assert C.FIT_LEVEL == 0.91
     assert np.allclose(cal.scale[F.GROUP_VEHICLE, 0], 2.0 * math.sqrt(-2 * math.log(0.09)) / 2.0, rtol=0.05)
     p2, w2, g2, fut2 = synthetic(6000, 1.0, 0.5, 0.5, seed=9)
-    assert C.coverage(cal.apply(p2, w2, g2)[:, 0], fut2, levels=(C.TARGET,))[0] == pytest.approx(0.91, abs=0.01)
+    assert C.coverage(cal.apply(p2, w2, g2, moving(g2))[:, 0], fut2, levels=(C.TARGET,))[0] == pytest.approx(0.91, abs=0.01)
 
 
 def test_balanced_weights_give_each_manoeuvre_the_same_total():
@@ -99,7 +104,7 @@ def test_too_wide_lateral_shrinks_and_axes_are_fitted_separately():
     # lateral sigma predicted 4x too wide, longitudinal right: factors about 1 and 0.25
     params, w, g, fut = synthetic(6000, 1.0, 0.2, 1.0, seed=5)
     params[..., 3] = 0.8
-    cal = C.fit(params, w, g, fut, level=C.TARGET)
+    cal = C.fit(params, w, g, moving(g), fut, level=C.TARGET)
     assert np.allclose(cal.scale[F.GROUP_VEHICLE, 0, :, 0], 1.0, rtol=0.06)
     assert np.allclose(cal.scale[F.GROUP_VEHICLE, 0, :, 1], 0.25, rtol=0.06)
 
@@ -111,6 +116,9 @@ def test_state_comes_from_the_predicted_modes_not_the_future():
     mu_y[3, 1, 5] = -3.0  # ... with weight 0.05 it does not count: steady
     w = np.array([[1.0, 0.0], [1.0, 0.0], [0.7, 0.3], [0.95, 0.05]])
     assert C.state_of(mu_y, w).tolist() == [0, 1, 2, 0]
+    # slower than 0.5 m/s now: the steady ones (0 and 3) are standing, the lateral ones stay lateral
+    assert C.state_of(mu_y, w, np.array([0.2, 0.2, 0.49, 0.0])).tolist() == [3, 1, 2, 3]
+    assert C.state_of(mu_y, w, np.array([0.5, 0.2, 0.49, 7.0])).tolist() == [0, 1, 2, 0]
     assert C.lateral_extent(mu_y, w).tolist() == [0.0, 1.0, 3.0, 0.0]
 
 
@@ -132,7 +140,7 @@ def test_file_round_trip_and_hash_check(tmp_path: Path):
     params, w, g, fut = synthetic(3000, 1.0, 0.4, 0.5, seed=6)
     weights = tmp_path / "m.pt"
     weights.write_bytes(b"weights")
-    cal = C.fit(params, w, g, fut, weights_sha256=C.file_sha256(weights), meta={"note": "test"})
+    cal = C.fit(params, w, g, moving(g), fut, weights_sha256=C.file_sha256(weights), meta={"note": "test"})
     path = cal.write(C.calibration_path(weights))
     assert path.name == "m.calibration.json"
     back = C.load_for(weights)
@@ -151,10 +159,48 @@ def test_file_round_trip_and_hash_check(tmp_path: Path):
 
 def test_fit_is_deterministic():
     params, w, g, fut = synthetic(2000, 1.0, 0.4, 0.7, seed=7, lateral=1.0)
-    a = C.fit(params, w, g, fut, min_points=100).to_dict()
-    b = C.fit(params.copy(), w.copy(), g.copy(), fut.copy(), min_points=100).to_dict()
+    a = C.fit(params, w, g, moving(g), fut, min_points=100).to_dict()
+    b = C.fit(params.copy(), w.copy(), g.copy(), moving(g.copy()), fut.copy(), min_points=100).to_dict()
     assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
     assert (np.asarray(a["n_points"])[F.GROUP_VEHICLE, 1] > 0).all()  # 1 m sideways: the lateral state
+
+
+def test_standing_agents_get_their_own_factors():
+    # the same steady predictions (sigma 0.5 m predicted on both axes): the moving half's true
+    # errors are N(0, 1 m) on both axes, the standing half's N(0, 1 m) along and N(0, 0.2 m) across.
+    # Pooled (version 1) both would get one lateral factor. With the standing state each cell gets
+    # (true / predicted) x k / 2, k = 2.194 (the 2-sigma ellipse holds FIT_LEVEL = 91 %): the moving
+    # ones k on both axes, the standing ones k along and 0.4 k / 2 = 0.2 k across
+    k = math.sqrt(-2 * math.log(1 - C.FIT_LEVEL))
+    pm, wm, gm, fm = synthetic(6000, 1.0, 1.0, 0.5, seed=11)
+    ps, ws, gs, fs = synthetic(6000, 1.0, 0.2, 2.5, seed=12)
+    ps[..., 0] = 0.0  # standing: no progress expected,
+    ps[..., 2] = 0.5  # the same predicted spread as the moving ones
+    fs = ps[:, 0, :, :2] + np.random.default_rng(13).normal(size=fs.shape) * np.array([1.0, 0.2])
+    speed = np.r_[np.full(6000, 8.0), np.full(6000, 0.1)]
+    cal = C.fit(np.r_[pm, ps], np.r_[wm, ws], np.r_[gm, gs], speed, np.r_[fm, fs])
+    moving_f, standing_f = cal.scale[F.GROUP_VEHICLE, 0], cal.scale[F.GROUP_VEHICLE, C.STANDING]
+    assert np.allclose(moving_f, k, rtol=0.06)  # 0.5 m predicted, 1 m true on both axes
+    assert np.allclose(standing_f[:, 0], k, rtol=0.06)  # along: 0.5 predicted, 1 true
+    assert np.allclose(standing_f[:, 1], 0.2 * k, rtol=0.06)  # across: 0.5 predicted, 0.2 true
+    assert (cal.n_points[F.GROUP_VEHICLE, C.STANDING] > 0).all()
+    # applied: a standing agent's lateral sigma at 4 s is 0.5 x 0.2 k = 0.22 m, a moving one's 0.5 k = 1.1 m
+    _, sy = cal.sigmas(np.zeros(2, dtype=int), np.zeros((2, 1, T)), np.ones((2, 1)), np.array([0.0, 8.0]),
+                       np.full((2, 1, T), 0.5), np.full((2, 1, T), 0.5))
+    assert sy[:, 0, -1] == pytest.approx([0.1 * k, 0.5 * k], rel=0.06)
+
+
+def test_a_version_1_file_loads_with_the_steady_factors_for_standing_agents(tmp_path: Path):
+    params, w, g, fut = synthetic(3000, 1.0, 0.4, 0.5, seed=6)
+    cal = C.fit(params, w, g, moving(g), fut)
+    d = cal.to_dict()
+    v1 = {**d, "version": 1, "states": ["steady", "lateral", "strong_lateral"],
+          "scale_lon": [rows[:3] for rows in d["scale_lon"]], "scale_lat": [rows[:3] for rows in d["scale_lat"]],
+          "n_points": [rows[:3] for rows in d["n_points"]]}
+    v1.pop("stand_speed_mps")
+    back = C.Calibration.from_dict(v1)
+    assert np.array_equal(back.scale[:, C.STANDING], cal.scale[:, 0])
+    assert np.array_equal(back.scale[:, :3], cal.scale[:, :3]) and (back.n_points[:, C.STANDING] == 0).all()
 
 
 # ------------------------------------------------------------ applied on load (torch)
@@ -225,10 +271,10 @@ def test_cap_keeps_a_factor_from_blowing_up_a_wide_spread():
     cal = C.Calibration(scale, cal.n_points, cap=cap)
     sx = np.array([0.1, 0.8, 2.0])[:, None, None] * np.ones((3, 1, T))
     mu_y = np.zeros((3, 1, T))
-    out_x, out_y = cal.sigmas(np.zeros(3, dtype=int), mu_y, np.ones((3, 1)), sx, sx)
+    out_x, out_y = cal.sigmas(np.zeros(3, dtype=int), mu_y, np.ones((3, 1)), moving(sx), sx, sx)
     assert np.allclose(out_x[:, 0, 0], [0.4, 1.0, 2.0]) and np.allclose(out_y, out_x)
     # fitted caps are the 99.5th percentile of the absolute errors: N(0, 1) -> 2.807
     params, w, g, fut = synthetic(8000, 1.0, 1.0, 1.0, seed=10)
-    fitted = C.fit(params, w, g, fut, level=C.TARGET)
+    fitted = C.fit(params, w, g, moving(g), fut, level=C.TARGET)
     assert np.allclose(fitted.cap[F.GROUP_VEHICLE], 2.807, rtol=0.05)
     assert C.Calibration.from_dict(fitted.to_dict()).cap.tolist() == fitted.cap.tolist()

@@ -12,7 +12,7 @@ file (sumo_ethics/predict/calibration.py says what is fitted, and how).
 ``NAME=DATASET:SPLIT`` (split train, val, test or all) and writes into ``--out``:
 - ``coverage.csv``: per dataset, model, variant (uncalibrated / calibrated), class group,
   manoeuvre (vehicles and cyclists; the dataset's label of the future, used only to group the
-  rows) and horizon (1 s, 2 s, 4 s and "all" steps): points, the share of true positions inside
+  rows; and "standing now" / "moving now", slower or not than 0.5 m/s when predicted) and horizon (1 s, 2 s, 4 s and "all" steps): points, the share of true positions inside
   the most likely mode's ellipse of nominal mass 10 %, 20 %, ..., 95 % (cov_<level>), in_1sigma,
   in_2sigma, ADE of the most likely mode [m] and the mixture NLL per point [nats];
 - ``coverage.md``: the 1- and 2-sigma columns before and after, with NLL and ADE;
@@ -66,7 +66,7 @@ def cmd_fit(args: argparse.Namespace) -> None:
                 "tool": "tools/calibrate_predictor.py fit"}
         sw = C.balanced_weights(batch["tgt_group"], batch["manoeuvre"])  # each future manoeuvre weighs the same
         meta["sample_weight"] = f"balanced over the future manoeuvres of each class group (at least {C.BALANCE_MIN})"
-        cal = C.fit(params, weight, batch["tgt_group"], fut, valid, sample_weight=sw, meta=meta,
+        cal = C.fit(params, weight, batch["tgt_group"], batch["tgt_speed"], fut, valid, sample_weight=sw, meta=meta,
                     weights_sha256=C.file_sha256(path))
         out = cal.write(C.calibration_path(path))
         print(f"{name}: {out}")
@@ -92,6 +92,8 @@ def rows_for(dname: str, model: str, variant: str, params: np.ndarray, weight: n
         sels.append((gname, "all", group == g))
         if g != F.GROUP_PEDESTRIAN:
             sels += [(gname, m, (group == g) & (man == i)) for i, m in enumerate(MANOEUVRES)]
+        standing = batch["tgt_speed"] < C.STAND_SPEED  # now, not a label of the future
+        sels += [(gname, "standing now", (group == g) & standing), (gname, "moving now", (group == g) & ~standing)]
     hsteps = [("all", np.ones(F.FUT_STEPS, dtype=bool))]
     for h in HORIZONS:
         st = np.zeros(F.FUT_STEPS, dtype=bool)
@@ -136,7 +138,7 @@ def cmd_report(args: argparse.Namespace) -> None:
             if cal is None:
                 print(f"{name}: no calibration file fitted for {path}", file=sys.stderr)
                 continue
-            rows += rows_for(dname, name, "calibrated", cal.apply(params, weight, batch["tgt_group"]), weight, batch)
+            rows += rows_for(dname, name, "calibrated", cal.apply(params, weight, batch["tgt_group"], batch["tgt_speed"]), weight, batch)
     df = pd.DataFrame(rows)
     df.to_csv(out / "coverage.csv", index=False, float_format="%.4f")
     (out / "coverage.md").write_text(markdown(df, notes) + "\n")
@@ -154,7 +156,7 @@ def markdown(df: pd.DataFrame, notes: list[str]) -> str:
         t[f"{label} after"] = after[col].reindex(before.index)
     t = t.reset_index()
     main = t[(t["horizon"] == "all") & (t["points"] >= 50)]
-    by_h = t[(t["horizon"] != "all") & t["manoeuvre"].isin(["all", "turn", "lane_change", "hazard"])
+    by_h = t[(t["horizon"] != "all") & t["manoeuvre"].isin(["all", "turn", "lane_change", "hazard", "standing now"])
              & (t["points"] >= 50)]
     pct = lambda x: f"{100 * x:.1f}"  # noqa: E731
     fmt = main.copy()
@@ -188,7 +190,7 @@ def plot(df: pd.DataFrame, path: Path, model: str) -> None:
     cols = [f"cov_{int(round(100 * p))}" for p in C.LEVELS]
     series = [("vehicle", "all", "vehicles", "tab:blue"), ("vehicle", "lane_change", "vehicles, lane change", "tab:red"),
               ("vehicle", "turn", "vehicles, turn", "tab:orange"), ("vehicle", "hazard", "hazard actors (vehicles)", "tab:purple"),
-              ("cyclist", "all", "cyclists", "tab:green"), ("pedestrian", "all", "pedestrians", "tab:brown")]
+              ("vehicle", "standing now", "vehicles standing now", "tab:gray"), ("cyclist", "all", "cyclists", "tab:green"), ("pedestrian", "all", "pedestrians", "tab:brown")]
     datasets = list(dict.fromkeys(df["dataset"]))
     fig, axes = plt.subplots(1, len(datasets), figsize=(6.2 * len(datasets), 6.0), squeeze=False)
     def panel(ax, d: pd.DataFrame, rows: list, title: str) -> None:
@@ -223,7 +225,7 @@ def plot(df: pd.DataFrame, path: Path, model: str) -> None:
     for row, dname in zip(axes, datasets):
         for ax, h in zip(row, HORIZONS):
             d = df[(df["dataset"] == dname) & (df["model"] == model) & (df["horizon"] == f"{h:g}s")]
-            panel(ax, d, series[:3], f"{model}: {dname}, {h:g} s ahead")
+            panel(ax, d, [*series[:3], series[4]], f"{model}: {dname}, {h:g} s ahead")
     fig.suptitle("Coverage by horizon (dashed: before, solid: after)")
     fig.tight_layout()
     fig.savefig(path.with_name(path.stem + "_by_horizon.png"), dpi=100, metadata={"Software": None})

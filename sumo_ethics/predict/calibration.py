@@ -19,7 +19,16 @@ manoeuvre state s that is known when the prediction is made (never the future's 
   weight is at least ``MODE_WEIGHT_MIN`` (the most likely mode always counts). It is large when
   the model itself foresees a turn, a lane change or a swerve, or keeps one as a real
   alternative; it is about 0 for a road user the model expects to go straight on.
-- s = ``steady`` below STATE_EDGES[0], ``lateral`` up to STATE_EDGES[1], ``strong_lateral`` above.
+- s = ``steady`` below STATE_EDGES[0], ``lateral`` up to STATE_EDGES[1], ``strong_lateral`` above;
+  and ``standing``: steady, and slower than STAND_SPEED (0.5 m/s) now.
+
+STANDING (version 2). Version 1 had no ``standing`` state: a car parked at the kerb shared the
+``steady`` factors of moving traffic, whose lateral errors (drifts, lane changes at speed) set a
+lateral sigma of 1.9 m at 4 s (median, validation split). Standing steady vehicles' own lateral
+errors are far smaller (99th percentile 0.27 m at 3 s and 0.60 m at 4 s), and their 2-sigma
+ellipse held 98-99.5 % of them: the ethical planner then waited behind parked cars for the rest
+of the run (issue 37, suite s0052 and s0073). They now get their own cell, fitted by the same
+rule as every other.
 
 Fit (:func:`fit`), per (g, s, horizon bin) on held-out samples (the validation split), from the
 standardised errors z_x = (x - mu_x) / sigma_x, z_y = (y - mu_y) / sigma_y of the most likely mode:
@@ -83,10 +92,14 @@ from sumo_ethics.predict import features as F
 log = logging.getLogger(__name__)
 
 FORMAT = "sumo-ethics-calibration"
-VERSION = 1
-STATES = ("steady", "lateral", "strong_lateral")
+VERSION = 2
+STATES = ("steady", "lateral", "strong_lateral", "standing")
 #: [m] lateral_extent edges between the STATES
 STATE_EDGES = (0.5, 2.0)
+#: [m/s] an agent slower than this now, with steady modes, is ``standing``
+STAND_SPEED = 0.5
+#: index of ``standing`` in STATES
+STANDING = STATES.index("standing")
 #: a mode counts for lateral_extent when its weight is at least this (the most likely always counts)
 MODE_WEIGHT_MIN = 0.1
 #: horizon bins as model steps (1-based, 0.2 s each): [first, last] of each bin
@@ -132,9 +145,13 @@ def lateral_extent(mu_y: np.ndarray, weight: np.ndarray) -> np.ndarray:
     return np.where(counts, ext, 0.0).max(axis=1)
 
 
-def state_of(mu_y: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """(S,) index into STATES of each agent (see :func:`lateral_extent`)."""
-    return np.searchsorted(np.asarray(STATE_EDGES), lateral_extent(mu_y, weight), side="right").astype(np.int64)
+def state_of(mu_y: np.ndarray, weight: np.ndarray, speed: np.ndarray | None = None) -> np.ndarray:
+    """(S,) index into STATES of each agent (see :func:`lateral_extent`); ``speed`` (S,) [m/s] now
+    (None: no agent is ``standing``)."""
+    state = np.searchsorted(np.asarray(STATE_EDGES), lateral_extent(mu_y, weight), side="right").astype(np.int64)
+    if speed is not None:
+        state[(state == 0) & (np.asarray(speed, dtype=float) < STAND_SPEED)] = STANDING
+    return state
 
 
 def mahalanobis2(params: np.ndarray, fut: np.ndarray) -> np.ndarray:
@@ -176,27 +193,27 @@ class Calibration:
         """(N_GROUPS, len(STATES), FUT_STEPS, 2) factors at the model's steps (0.2 ... 4 s)."""
         return self._tables[0]
 
-    def factors(self, group: np.ndarray, mu_y: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    def factors(self, group: np.ndarray, mu_y: np.ndarray, weight: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """(S, FUT_STEPS, 2) factors on (sigma_x, sigma_y) of each agent: group (S,) class group,
-        mu_y (S, M, FUT_STEPS) lateral means in its heading frame, weight (S, M)."""
-        return self._tables[0][np.asarray(group, dtype=np.int64), state_of(mu_y, weight)]
+        mu_y (S, M, FUT_STEPS) lateral means in its heading frame, weight (S, M), speed (S,) [m/s] now."""
+        return self._tables[0][np.asarray(group, dtype=np.int64), state_of(mu_y, weight, speed)]
 
-    def sigmas(self, group: np.ndarray, mu_y: np.ndarray, weight: np.ndarray, sx: np.ndarray,
-               sy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def sigmas(self, group: np.ndarray, mu_y: np.ndarray, weight: np.ndarray, speed: np.ndarray,
+               sx: np.ndarray, sy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Calibrated (sigma_x, sigma_y), each (S, M, FUT_STEPS) [m], of agents with class ``group``
-        (S,), lateral means mu_y (S, M, FUT_STEPS) in their heading frame now and mode weights
-        (S, M): ``min(c sigma, max(sigma, cap))``."""
+        (S,), lateral means mu_y (S, M, FUT_STEPS) in their heading frame now, mode weights (S, M)
+        and speed (S,) [m/s] now: ``min(c sigma, max(sigma, cap))``."""
         g = np.asarray(group, dtype=np.int64)
-        f = self.factors(g, mu_y, weight)[:, None]  # (S, 1, T, 2)
+        f = self.factors(g, mu_y, weight, speed)[:, None]  # (S, 1, T, 2)
         cap = self._tables[1][g][:, None]
         return (np.minimum(sx * f[..., 0], np.maximum(sx, cap[..., 0])),
                 np.minimum(sy * f[..., 1], np.maximum(sy, cap[..., 1])))
 
-    def apply(self, params: np.ndarray, weight: np.ndarray, group: np.ndarray) -> np.ndarray:
+    def apply(self, params: np.ndarray, weight: np.ndarray, group: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Calibrated copy of params (S, M, FUT_STEPS, 5) in each agent's heading frame [m]
-        (modes by falling weight, weight (S, M)); means, rho and weights untouched."""
+        (modes by falling weight, weight (S, M), speed (S,) [m/s] now); means, rho and weights untouched."""
         out = np.array(params, dtype=float, copy=True)
-        out[..., 2], out[..., 3] = self.sigmas(group, params[..., 1], weight, out[..., 2], out[..., 3])
+        out[..., 2], out[..., 3] = self.sigmas(group, params[..., 1], weight, speed, out[..., 2], out[..., 3])
         return out
 
     # ---------------------------------------------------------------- file
@@ -204,7 +221,7 @@ class Calibration:
         return {
             "format": FORMAT, "version": VERSION,
             "groups": list(F.GROUP_NAMES), "states": list(STATES), "state_edges_m": list(STATE_EDGES),
-            "mode_weight_min": MODE_WEIGHT_MIN, "bins_steps": [list(b) for b in BINS],
+            "mode_weight_min": MODE_WEIGHT_MIN, "stand_speed_mps": STAND_SPEED, "bins_steps": [list(b) for b in BINS],
             "bin_centres_s": [round(float(v), 6) for v in bin_centres()], "step_s": F.MODEL_DT,
             "scale_lon": np.round(self.scale[..., 0], 4).tolist(), "scale_lat": np.round(self.scale[..., 1], 4).tolist(),
             "n_points": self.n_points.astype(int).tolist(),
@@ -215,9 +232,13 @@ class Calibration:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Calibration":
-        if d.get("format") != FORMAT or d.get("version") != VERSION:
-            raise ValueError(f"not a version-{VERSION} {FORMAT} file")
-        if (tuple(d["states"]) != STATES or tuple(d["groups"]) != F.GROUP_NAMES
+        if d.get("format") != FORMAT or d.get("version") not in (1, VERSION):
+            raise ValueError(f"not a version-1 or -{VERSION} {FORMAT} file")
+        if d["version"] == 1:  # no ``standing`` cell: standing agents keep the steady factors, as then
+            d = {**d, "states": list(STATES), "stand_speed_mps": STAND_SPEED,
+                 **{k: [[*rows, rows[0]] for rows in d[k]] for k in ("scale_lon", "scale_lat")},
+                 "n_points": [[*rows, [0] * len(rows[0])] for rows in d["n_points"]]}
+        if (tuple(d["states"]) != STATES or d.get("stand_speed_mps") != STAND_SPEED or tuple(d["groups"]) != F.GROUP_NAMES
                 or tuple(d["state_edges_m"]) != STATE_EDGES or [tuple(b) for b in d["bins_steps"]] != list(BINS)
                 or d["mode_weight_min"] != MODE_WEIGHT_MIN):
             raise ValueError("calibration file was written for other states, groups or horizon bins")
@@ -312,13 +333,14 @@ def fit_cell(params: np.ndarray, fut: np.ndarray, w: np.ndarray | None = None,
     return a * lam, b * lam
 
 
-def fit(params: np.ndarray, weight: np.ndarray, group: np.ndarray, fut: np.ndarray, valid: np.ndarray | None = None,
-        sample_weight: np.ndarray | None = None, level: float = FIT_LEVEL, min_points: int = MIN_POINTS,
-        meta: dict | None = None, weights_sha256: str | None = None) -> Calibration:
+def fit(params: np.ndarray, weight: np.ndarray, group: np.ndarray, speed: np.ndarray, fut: np.ndarray,
+        valid: np.ndarray | None = None, sample_weight: np.ndarray | None = None, level: float = FIT_LEVEL,
+        min_points: int = MIN_POINTS, meta: dict | None = None, weights_sha256: str | None = None) -> Calibration:
     """Fit a :class:`Calibration` on held-out samples: params (S, M, FUT_STEPS, 5) in each agent's
-    heading frame [m] (modes by falling weight), weight (S, M), group (S,), fut (S, FUT_STEPS, 2) the
-    true positions, valid (S, FUT_STEPS) the observed ones; sample_weight (S,) (default equal; the
-    shipped files: :func:`balanced_weights`); level: the weighted share the 2-sigma ellipse holds."""
+    heading frame [m] (modes by falling weight), weight (S, M), group (S,), speed (S,) [m/s] now,
+    fut (S, FUT_STEPS, 2) the true positions, valid (S, FUT_STEPS) the observed ones; sample_weight
+    (S,) (default equal; the shipped files: :func:`balanced_weights`); level: the weighted share the
+    2-sigma ellipse holds."""
     params = np.asarray(params, dtype=float)
     if params.ndim == 3:
         params, weight = params[:, None], np.ones((len(params), 1))
@@ -328,7 +350,7 @@ def fit(params: np.ndarray, weight: np.ndarray, group: np.ndarray, fut: np.ndarr
     main = params[:, 0]
     sw = np.ones(len(fut)) if sample_weight is None else np.asarray(sample_weight, dtype=float)
     sw = np.broadcast_to(sw[:, None], valid.shape)
-    state = state_of(params[..., 1], weight)
+    state = state_of(params[..., 1], weight, speed)
     shape = (F.N_GROUPS, len(STATES), len(BINS))
     scale = np.ones(shape + (2,))
     n_points = np.zeros(shape, dtype=np.int64)

@@ -200,7 +200,7 @@ def evaluate(
             cal = load_for(path)
             if cal is not None:
                 params, weight = outputs[name]
-                outputs[f"{name}_calibrated"] = (cal.apply(params, weight, batch["tgt_group"]), weight)
+                outputs[f"{name}_calibrated"] = (cal.apply(params, weight, batch["tgt_group"], batch["tgt_speed"]), weight)
     fut = batch["fut"].astype(float)
     valid = batch["fut_valid"] if "fut_valid" in batch else np.ones(fut.shape[:2], dtype=bool)
     groups = batch["tgt_group"]

@@ -166,7 +166,7 @@ class LSTMPredictor:
         sx, sy, rho = out[..., 2] * s[:, None, None], out[..., 3] * s[:, None, None], out[..., 4]
         w = w / w.sum(axis=1, keepdims=True)
         if self.calibration is not None:  # factors along / across the heading now (calibration.py)
-            sx, sy = self.calibration.sigmas(g, mu[..., 1], w, sx, sy)
+            sx, sy = self.calibration.sigmas(g, mu[..., 1], w, np.asarray(cur.speed, dtype=float), sx, sy)
         # to the world frame: mean = xy + R mu, cov = R [[a, b], [b, d]] R^T with R = R(yaw), written
         # out elementwise (numpy's matmul over stacks of 2 x 2 matrices took 5x longer)
         c, s_ = np.cos(yaw)[:, None, None], np.sin(yaw)[:, None, None]
