@@ -148,3 +148,20 @@ def test_brake_candidates_follow_the_road_and_concat_keeps_it():
     mixed = concat(replace(s, road_curvature=None), b)
     np.testing.assert_array_equal(mixed.road_curvature[:3], 0.0)
     assert concat(replace(s, road_curvature=None), replace(b, road_curvature=None)).road_curvature is None
+
+
+def test_when_no_candidate_keeps_the_lateral_limit_the_least_excess_ones_remain():
+    # on the bend of radius 2 m (k = -0.5) at 3.0, 3.1 and 3.4 m/s: 4.5, 4.805 and 5.78 m/s^2, all over
+    # the limit of 4. With the slack of 0.25 the relaxed limit is 4.5 + 0.25 = 4.75: only the first
+    # remains. The fourth adds 0.06 1/m to the bend (curvature fails): never chosen, even at 1 m/s.
+    c = hand_made([-0.5, -0.5, -0.5, -0.56], [-0.5] * 4, [3.0, 3.1, 3.4, 1.0])
+    f = check(c, WIDE, EgoVehicle(), speed_limit_factor=None)
+    assert not f.feasible[:3].any() and not f.feasible[3]
+    np.testing.assert_allclose(f.lat_accel_peak, [4.5, 4.805, 5.78, 0.56], rtol=1e-12)
+    ok, limit = f.least_lateral()
+    assert limit == pytest.approx(4.75) and ok.tolist() == [True, False, False, False]
+    ok, limit = f.least_lateral(tol=0.4)  # 4.9: the second one too
+    assert ok.tolist() == [True, True, False, False]
+    none = check(hand_made([-0.56], [-0.5], [3.0]), WIDE, EgoVehicle(), speed_limit_factor=None)
+    ok, limit = none.least_lateral()
+    assert not ok.any() and math.isnan(limit)  # nothing keeps the other limits: the emergency brake

@@ -318,7 +318,10 @@ class EthicalPlanner:
         feas = check(cand, route, veh, speed_limit_factor=max(1.0, (v + 0.01) / max(v_limit, 0.1)))
         w2 = time.perf_counter()
         # only physically feasible candidates can be chosen: risk and cost are for those alone
-        keep = np.flatnonzero(feas.feasible)
+        feasible, lat_limit = feas.feasible, veh.max_lat_accel
+        if not feasible.any():  # the bend asks every candidate for more than the limit: the least excess
+            feasible, lat_limit = feas.least_lateral()
+        keep = np.flatnonzero(feasible)
         if len(keep) == 0:
             dec = self._emergency(scene, {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1)})
             dec.info["n_fallback"] = float(n_fallback)
@@ -360,7 +363,7 @@ class EthicalPlanner:
         info.update(cost_envelope=float(envelope[j]), cost_entry=float(entry[j]), cost_selection=float(total[j]),
                     n_rule_breakers=float(breakers.sum()), n_fallback=float(n_fallback), validity=float(cls),
                     n_candidates=float(len(cand)),
-                    n_feasible=float(feas.feasible.sum()), horizon=float(cand.horizon[k]),
+                    n_feasible=float(feas.feasible.sum()), lat_accel_limit=float(lat_limit), horizon=float(cand.horizon[k]),
                     utility_literal=float(self.cfg.cost.utility is UtilityMode.LITERAL))
         d0 = scene.d
         dt = sc.dt

@@ -29,10 +29,14 @@ from sumo_ethics.geometry import Polyline
 from sumo_ethics.plan.sampling import reference_heading
 from sumo_ethics.types import Candidates
 
-__all__ = ["Feasibility", "ROAD_CURVATURE_TOL", "RouteLike", "check"]
+__all__ = ["Feasibility", "LAT_ACCEL_RELAX", "ROAD_CURVATURE_TOL", "RouteLike", "check"]
 
 # absolute slack on every bound, for round-off in the sampled profiles
 _TOL = 1e-9
+
+#: [m/s^2] slack over the least peak lateral acceleration of any candidate when none keeps the limit
+#: (Feasibility.least_lateral)
+LAT_ACCEL_RELAX = 0.25
 
 #: curvature [1/m] a candidate may add to a road that bends tighter than the vehicle's
 #: ``max_curvature``: room to correct a small lateral offset inside such a bend (a 0.3 m
@@ -65,6 +69,7 @@ class Feasibility:
     lat_accel_ok: |speed^2 curvature| <= max_lat_accel. on_road: body inside the drivable area.
     beyond_limit: |curvature| > max_curvature at some step, i.e. the candidate (if curvature_ok)
     follows a road bend tighter than the vehicle's own limit.
+    lat_accel_peak: (K,) float, the largest |speed^2 curvature| over the valid steps [m/s^2].
     """
 
     speed_ok: np.ndarray
@@ -73,11 +78,25 @@ class Feasibility:
     lat_accel_ok: np.ndarray
     on_road: np.ndarray
     beyond_limit: np.ndarray
+    lat_accel_peak: np.ndarray
 
     @property
     def feasible(self) -> np.ndarray:
         """(K,) physically feasible: speed, acceleration, curvature and lateral acceleration ok."""
         return self.speed_ok & self.accel_ok & self.curvature_ok & self.lat_accel_ok
+
+    def least_lateral(self, tol: float = LAT_ACCEL_RELAX) -> tuple[np.ndarray, float]:
+        """((K,) bool, limit [m/s^2]) for when no candidate is feasible: the candidates feasible in
+        speed, acceleration and curvature whose peak lateral acceleration is within ``tol`` of the
+        least any of them reaches, and that relaxed limit (nan and none when no candidate keeps the
+        other three). Where the road bends tighter than the ego's speed allows (a takeover at
+        SUMO's speed on a ramp's junction lane) every candidate breaks max_lat_accel in its first
+        steps whatever it does; these are the ones that break it least."""
+        base = self.speed_ok & self.accel_ok & self.curvature_ok
+        if not base.any():
+            return base, float("nan")
+        limit = float(self.lat_accel_peak[base].min()) + tol
+        return base & (self.lat_accel_peak <= limit), limit
 
     @property
     def admissible(self) -> np.ndarray:
@@ -132,7 +151,8 @@ def check(cand: Candidates, route: RouteLike, vehicle: EgoVehicle,
         lower = np.where(kr < -c, kr - ROAD_CURVATURE_TOL, -c)
     curvature_ok = (k <= upper + _TOL) & (k >= lower - _TOL)
     beyond = np.abs(k) > c + _TOL
-    lat_accel_ok = np.abs(v * v * k) <= vehicle.max_lat_accel + _TOL
+    lat = np.abs(v * v * k)
+    lat_accel_ok = lat <= vehicle.max_lat_accel + _TOL
 
     psi = cand.yaw - reference_heading(path, cand.s)
     extent = 0.5 * vehicle.length * np.abs(np.sin(psi)) + 0.5 * vehicle.width * np.abs(np.cos(psi))
@@ -143,4 +163,5 @@ def check(cand: Candidates, route: RouteLike, vehicle: EgoVehicle,
     return Feasibility(
         speed_ok=every(speed_ok), accel_ok=every(accel_ok), curvature_ok=every(curvature_ok),
         lat_accel_ok=every(lat_accel_ok), on_road=every(on_road), beyond_limit=np.any(beyond & valid, axis=1),
+        lat_accel_peak=np.where(valid, lat, 0.0).max(axis=1),
     )
