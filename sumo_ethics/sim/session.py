@@ -1,4 +1,5 @@
-"""Starting and stopping SUMO through libsumo, with the user's config checked first.
+"""Starting and stopping SUMO (libsumo in this process, or a sumo-gui driven through TraCI),
+with the user's config checked first.
 
 The forced options make SUMO report collisions of a moveToXY-driven ego (see SUMO.md):
 ``--collision.action teleport`` skips vehicles moved in the last 10 s, and the default
@@ -14,10 +15,11 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-import libsumo
-import sumo
+from sumo import SUMO_HOME
 
 from sumo_ethics.errors import SimulationError
+from sumo_ethics.sim import backend
+from sumo_ethics.sim.backend import sumo
 from sumo_ethics.sim.scenario import ScenarioFiles, read_scenario  # noqa: F401 - re-exported
 
 #: SUMO options the run overrides, with the value it sets.
@@ -28,16 +30,13 @@ FORCED_OPTIONS: dict[str, str] = {
     "intermodal-collision.action": "warn",
 }
 
-TraCIException = libsumo.TraCIException
-
-
 def forced_option_report(files: ScenarioFiles) -> dict[str, dict[str, str | None]]:
     """For each forced option: the scenario's own value (None if unset) and the value forced."""
     return {k: {"scenario": files.options.get(k), "forced": v} for k, v in FORCED_OPTIONS.items()}
 
 
 def sumo_binary() -> str:
-    return str(Path(sumo.SUMO_HOME) / "bin" / "sumo")
+    return str(Path(SUMO_HOME) / "bin" / "sumo")
 
 
 def start(files: ScenarioFiles, seed: int, error_log: Path, extra: tuple[str, ...] = (),
@@ -65,8 +64,8 @@ def start(files: ScenarioFiles, seed: int, error_log: Path, extra: tuple[str, ..
     with tempfile.TemporaryFile() as captured:
         try:
             with _stderr_to(captured):  # SUMO prints the cause of a failed start there, not in the exception
-                libsumo.start(cmd)
-        except TraCIException as exc:
+                sumo.start(cmd)
+        except sumo.TraCIException as exc:
             captured.seek(0)
             cause = _first_error(captured.read().decode(errors="replace")) or first_line(exc, error_log)
             raise SimulationError(f"SUMO could not start {files.config.name}: {cause}") from None
@@ -116,30 +115,30 @@ def _first_error(text: str) -> str:
     return ""
 
 
-#: what libsumo raises when SUMO fails during a run
-SUMO_ERRORS = (libsumo.TraCIException, libsumo.FatalTraCIError)
+#: what libsumo or TraCI raises when SUMO fails during a run
+SUMO_ERRORS = backend.ERRORS
 
 
 def step_length() -> float:
     """The running simulation's step length [s]."""
-    return libsumo.simulation.getDeltaT()
+    return sumo.simulation.getDeltaT()
 
 
 def sim_time() -> float:
     """The running simulation's time [s]."""
-    return libsumo.simulation.getTime()
+    return sumo.simulation.getTime()
 
 
 def close() -> None:
     try:
-        libsumo.close()
+        sumo.close()
     except Exception:  # noqa: BLE001 - closing a dead simulation must not mask the real error
         pass
 
 
 def version() -> str:
     try:
-        return str(libsumo.getVersion()[1])
+        return str(sumo.getVersion()[1])
     except Exception:  # noqa: BLE001
         return "unknown"
 
