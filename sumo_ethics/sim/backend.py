@@ -10,11 +10,16 @@ module (``libsumo.constants is traci.constants``), and importing libsumo imports
 
 from __future__ import annotations
 
+import contextlib
+import io
+import subprocess
+import time
 from types import ModuleType
-from typing import Any
+from typing import IO, Any
 
 import libsumo
 import traci
+from sumolib.miscutils import getFreeSocketPort
 
 #: SUMO's constants (the same module for both APIs)
 tc = traci.constants
@@ -53,3 +58,62 @@ def use(gui: bool) -> None:
 def is_gui() -> bool:
     """Whether SUMO is driven through TraCI (a sumo-gui)."""
     return sumo.module is traci
+
+
+#: [s] how long a starting sumo-gui may take to accept the connection (it loads the network first)
+CONNECT_PATIENCE = 120.0
+_process: subprocess.Popen | None = None
+
+
+def start_gui(cmd: list[str], stderr: IO[bytes]) -> None:
+    """Start ``cmd`` (a sumo-gui command line) as a process writing its output to ``stderr``,
+    connect to it through TraCI and drive SUMO through it from now on.
+
+    Raises traci's FatalTraCIError if the process ends before it accepts the connection (no
+    display, a bad option) or does not accept it within CONNECT_PATIENCE. traci.start is not
+    used: it prints its retries and starts a failed SUMO again, up to 60 times.
+    """
+    global _process
+    port = getFreeSocketPort()
+    proc = subprocess.Popen([*cmd, "--remote-port", str(port)], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=stderr)
+    deadline = time.monotonic() + CONNECT_PATIENCE
+    try:
+        while True:
+            if proc.poll() is not None:
+                raise traci.FatalTraCIError(f"sumo-gui ended (exit code {proc.returncode}) before it could be driven")
+            try:
+                with contextlib.redirect_stdout(io.StringIO()):  # traci's notes on failed attempts
+                    traci.init(port, numRetries=0, proc=proc)
+                break
+            except traci.FatalTraCIError:  # not listening yet
+                if time.monotonic() > deadline:
+                    raise traci.FatalTraCIError(f"sumo-gui did not accept a connection within "
+                                                f"{CONNECT_PATIENCE:g} s") from None
+                time.sleep(0.2)
+    except BaseException:
+        _stop(proc, 0.0)
+        raise
+    _process = proc
+    use(True)
+
+
+def close() -> None:
+    """End the running simulation (a sumo-gui: its process too) and return to libsumo."""
+    global _process
+    try:
+        sumo.close(**({"wait": False} if is_gui() else {}))
+    finally:
+        if _process is not None:
+            _stop(_process)
+            _process = None
+        use(False)
+
+
+def _stop(proc: subprocess.Popen, patience: float = 10.0) -> None:
+    """Wait for ``proc`` to end (sumo-gui quits when the connection closes), else kill it."""
+    try:
+        proc.wait(timeout=patience)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
