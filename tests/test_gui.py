@@ -1,9 +1,9 @@
 """``sumo-ethics run --gui``: the run in sumo-gui through TraCI, under a virtual display (Xvfb).
 
 The screenshot comes from sumo-gui's own call (``gui.screenshot``, through tools/gui_screenshot.py,
-which runs ``runner.run(..., gui=...)`` as ``run --gui`` does); its pixels must show the ego
-(painted cyan) at the centre, since the view tracks it, and the chosen trajectory (magenta)
-ahead of it. The same run without --gui must write the same steps.parquet and collisions.parquet,
+which runs ``runner.run(..., gui=...)`` as ``run --gui`` does); its pixels must show the ego (a
+yellow car, sumo-gui's default colour, inside its cyan ring) at the centre, since the view tracks
+it, and the chosen trajectory (magenta) ahead of it. The same run without --gui must write the same steps.parquet and collisions.parquet,
 byte for byte. Without Xvfb (``apt-get install xvfb``) those tests are skipped.
 """
 
@@ -79,16 +79,20 @@ def test_gui_screenshot_shows_the_ego_and_its_trajectory_and_outputs_match(tmp_p
     h, w = image.shape[:2]
     assert w >= 400 and h >= 300, image.shape
     centre = np.array([w / 2, h / 2])
-    ego = _pixels(image, gui.EGO_COLOUR)
+    ring = _pixels(image, gui.EGO_COLOUR)
     line = _pixels(image, gui.TRAJECTORY_COLOUR)
-    # the ego: a car of 4.5 x 1.8 m at about 8 px/m is a few hundred pixels, at the centre (tracked)
-    assert len(ego) >= 50, f"{len(ego)} ego pixels"
-    assert np.linalg.norm(ego.mean(axis=0) - centre) < 0.1 * w, (ego.mean(axis=0), centre)
+    # the ego's ring, at the centre (tracked), and inside it the car: 4.5 x 1.8 m at about 8 px/m
+    assert len(ring) >= 200, f"{len(ring)} ring pixels"
+    ego = ring.mean(axis=0)
+    assert np.linalg.norm(ego - centre) < 0.05 * w, (ego, centre)
+    inner = np.linalg.norm(ring - ego, axis=1).min()
+    car = _pixels(image, (255, 255, 0))
+    assert (np.linalg.norm(car - ego, axis=1) < inner).sum() >= 100, "no yellow car inside the ego's ring"
     # the trajectory: a 0.5 m wide line from the ego's front bumper along its heading
     assert len(line) >= 50, f"{len(line)} trajectory pixels"
     steps = pd.read_parquet(run / "steps.parquet")
     yaw = float(steps.loc[(steps.time - AT).abs().idxmin(), "yaw"])  # counter-clockwise from east
-    ahead = line.mean(axis=0) - ego.mean(axis=0)
+    ahead = line.mean(axis=0) - ego
     heading = np.array([math.cos(yaw), -math.sin(yaw)])  # image rows grow downwards
     assert ahead @ heading > 0.9 * np.linalg.norm(ahead), (ahead, yaw)
     assert np.linalg.norm(line - centre, axis=1).min() < 0.1 * w  # it starts at the ego
@@ -154,3 +158,46 @@ def test_only_the_backend_imports_libsumo_or_traci():
     pattern = re.compile(r"^\s*(import|from)\s+(libsumo|traci)\b", re.M)
     found = [str(p.relative_to(ROOT)) for p in (ROOT / "sumo_ethics").rglob("*.py") if pattern.search(p.read_text())]
     assert found == ["sumo_ethics/sim/backend.py"]
+
+
+@pytest.mark.sumo
+@needs_xvfb
+def test_gui_marks_the_ego_collision_with_a_red_ring(tmp_path, display):
+    """A blind ego at 10 m/s into a parked car (tests/test_sim_collisions.py's rear-end), kept
+    going: a second after the impact the screenshot holds the red ring near the view's centre; five
+    seconds before it, that red is not there (sumo-gui draws some red itself: signals, tail lights)."""
+    code = f"""
+import sys
+from pathlib import Path
+sys.path.insert(0, {str(ROOT / "tests")!r})
+from conftest import Scripted, write_scenario
+from sumo_ethics.config import RunConfig
+from sumo_ethics.runner import run
+from sumo_ethics.sim.backend import sumo
+from sumo_ethics.sim.gui import VIEW, GuiOptions
+
+tmp = Path({str(tmp_path)!r})
+cfg = write_scenario(tmp / "s", '''
+  <vehicle id="parked" type="car" route="r_main" depart="0" departLane="2" departPos="124" departSpeed="0">
+    <stop lane="main_0_2" endPos="124.5" duration="1000"/></vehicle>
+  <vehicle id="ego" type="car" route="r_main" depart="0" departLane="2" departPos="20" departSpeed="10"/>''')
+def shot(snap, world, todo=[(5.0, "before.png"), (11.0, "hit.png")]):
+    if todo and snap.time >= todo[0][0]:
+        sumo.gui.screenshot(VIEW, str(tmp / todo.pop(0)[1]))
+run(RunConfig(cfg, tmp / "run", ego_id="ego", stop_at_collision=False, end=11.5, progress=False,
+              sumo_args=("--window-size", "800,700")), controller=Scripted(10.0), hooks=(shot,), gui=GuiOptions())
+"""
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                       env=_env(DISPLAY=display))
+    assert p.returncode == 0, p.stderr
+    from PIL import Image
+
+    rows = pd.read_parquet(tmp_path / "run" / "collisions.parquet")
+    assert rows.involves_ego.sum() == 1 and rows.time.iloc[0] < 11.0  # hit before the shot
+    image = np.asarray(Image.open(tmp_path / "hit.png").convert("RGB"))
+    red = _pixels(image, gui.COLLISION_COLOUR, tol=30)
+    before = _pixels(np.asarray(Image.open(tmp_path / "before.png").convert("RGB")), gui.COLLISION_COLOUR, tol=30)
+    assert len(red) >= len(before) + 100, f"{len(red)} red pixels, {len(before)} before the collision"
+    # the ring (3 m radius) is drawn where the two met: the ego, tracked at the centre, is 1 s past it
+    h, w = image.shape[:2]
+    assert np.linalg.norm(red.mean(axis=0) - [w / 2, h / 2]) < 0.25 * w

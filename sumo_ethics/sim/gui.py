@@ -1,10 +1,12 @@
 """sumo-gui as a live view of a run (``sumo-ethics run --gui``).
 
-The view follows the ego (painted cyan; sumo-gui's "real world" scheme). Each step the decision is drawn as polygons on a high
+The view follows the ego, ringed in cyan (``vehicle.highlight``), in sumo-gui's "real world"
+scheme. Each step the decision is drawn as polygons on a high
 layer: the chosen trajectory (magenta), the predictions of the road users the chosen trajectory
 puts at risk (orange: the predicted mean path and the 1-sigma ellipse every second) and, for the
-rest of the run, a red ring where the ego collided. Drawing only: polygons and a vehicle's
-colour take no part in the simulation, so a run gives the same steps.parquet as without --gui.
+rest of the run, a red ring where the ego collided. Drawing only: polygons (the highlight is one)
+take no part in the simulation, so a run writes the same steps.parquet as without --gui. The ego
+is not painted: ``vehicle.setColor`` would show in a scenario's vehroute-output.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import numpy as np
 from sumo_ethics.record.decisions import whole_seconds
 from sumo_ethics.sim.backend import sumo
 
-#: RGBA colours of what is drawn (pure hues, unlike anything sumo-gui draws itself)
+#: RGBA colours of what is drawn (pure hues, unlike anything sumo-gui draws itself); the ego's ring
 EGO_COLOUR = (0, 255, 255, 255)
 TRAJECTORY_COLOUR = (255, 0, 255, 255)
 RISK_COLOUR = (255, 140, 0, 255)
@@ -94,7 +96,7 @@ class View:
         self.ego_id = ego_id
         self.drawn: dict[str, tuple[tuple[int, ...], bool, float]] = {}  # id -> colour, fill, width
         self.rings = 0
-        sumo.vehicle.setColor(ego_id, EGO_COLOUR)
+        sumo.vehicle.highlight(ego_id, EGO_COLOUR)
         x, y = sumo.vehicle.getPosition(ego_id)
         sumo.gui.setBoundary(VIEW, x - SPAN[0], y - SPAN[1], x + SPAN[0], y + SPAN[1])
         sumo.gui.setSchema(VIEW, SCHEME)
