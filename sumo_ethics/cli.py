@@ -6,6 +6,7 @@ Every user-facing failure is printed as one line ``error: ...`` with a non-zero 
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -93,13 +94,19 @@ def cli() -> None:
 @click.option("--fleet", "fleet_shares", metavar="NAME=SHARE,...", help="Fleet: each ego's planner drawn by share, e.g. "
               "ethical=0.5,ego=0.5 (J_origin weight presets, baseline, or [planners.NAME] tables of --config); "
               "default all ethical.")
+@click.option("--gui", is_flag=True, help="Watch the run in sumo-gui: the view follows the ego, with its chosen "
+              "trajectory, the predictions of the road users at risk and its collisions drawn (single ego; needs a "
+              "display; the same outputs as without).")
+@click.option("--gui-delay", type=float, metavar="MS", help="With --gui: sumo-gui's pause between steps [ms] "
+              "(default 0).")
 @click.option("--quiet", is_flag=True, help="No progress display.")
 def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration: float | None,
         fleet_shares: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float | None,
         seed: int, end: float | None, step_length: float | None, sumo_arg: tuple[str, ...], out: Path | None,
         controller: str, omega_u: float | None, omega_o: float | None, weights: str | None, selection: str | None,
         utility: str | None, normalise: str | None, predictor: str | None, predictor_weights: Path | None, config_file: Path | None,
-        continue_after_collision: bool, radius: float, overwrite: bool, record_decisions: str, quiet: bool) -> None:
+        continue_after_collision: bool, radius: float, overwrite: bool, record_decisions: str, gui: bool,
+        gui_delay: float | None, quiet: bool) -> None:
     """Run SCENARIO (a .sumocfg) with one vehicle taken over by the ego controller, or a fleet of them
     (--egos, --penetration, several --ego, --fleet)."""
     from dataclasses import replace
@@ -107,6 +114,10 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
     from sumo_ethics.config import FleetSpec, RunConfig
     from sumo_ethics.sim import scenario as scenario_files
 
+    if gui_delay is not None and not gui:
+        raise ConfigError("--gui-delay is sumo-gui's pause between steps: give --gui too")
+    if gui_delay is not None and not gui_delay >= 0:
+        raise ConfigError(f"--gui-delay must be 0 or more milliseconds, got {gui_delay:g}")
     fleet = None
     if egos is not None or penetration is not None or fleet_shares is not None or len(ego_ids) > 1:
         if ego_from is not None or ego_depart is not None:
@@ -117,6 +128,9 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
                               "e.g. --fleet ethical=0.5,baseline=0.5")
         if record_decisions != "off":
             raise ConfigError("--record-decisions is for single-ego runs (explain and replay read one ego)")
+        if gui:
+            raise ConfigError("--gui shows a single ego; drop the fleet options (--egos, --penetration, "
+                              "several --ego, --fleet)")
         fleet = FleetSpec(egos=egos or 0, penetration=penetration or 0.0, ids=ego_ids,
                           shares=FleetSpec.parse_shares(fleet_shares) if fleet_shares is not None
                           else FleetSpec().shares)
@@ -133,6 +147,9 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
     scenario_files.plan(cfg.scenario, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id,
                         tuple(e for e in (ego_from, ego_to) if e is not None))
     scenario_files.check_out(out)
+    if gui and not os.environ.get("DISPLAY"):
+        raise ConfigError("--gui needs a display and DISPLAY is not set; run without --gui, or under a virtual "
+                          "display: xvfb-run sumo-ethics run ... --gui")
     if step_length is not None and step_length > scenario_files.MAX_TRUSTED_STEP and controller == "ethical":
         click.echo(f"note: --step-length {step_length:g} s: above {scenario_files.MAX_TRUSTED_STEP:g} s the planner's "
                    f"speed changes per step exceed its acceleration limits", err=True)
@@ -163,7 +180,12 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
         _print_fleet(run_fleet(cfg, make_fleet_controllers(cfg)))
         return
     # built before SUMO starts, so a bad weights file or setting fails at once
-    summary = run_scenario(cfg, controller=make_controller(cfg))
+    view = None
+    if gui:
+        from sumo_ethics.sim.gui import GuiOptions
+
+        view = GuiOptions(delay_ms=gui_delay or 0.0)
+    summary = run_scenario(cfg, controller=make_controller(cfg), gui=view)
     d = summary.data
     con = _console()
     h = d["harm"]

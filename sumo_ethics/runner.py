@@ -36,6 +36,7 @@ from sumo_ethics.safety.conflicts import ConflictBook, conflict_counts
 from sumo_ethics.safety.fault import RED_MEMORY, FaultContext
 from sumo_ethics.sim import preflight, scenario as scenario_files, session
 from sumo_ethics.sim.ego import start_ego
+from sumo_ethics.sim.gui import GuiOptions, View
 from sumo_ethics.sim.route import tight_bends
 from sumo_ethics.sim.rules import RuleMonitor
 from sumo_ethics.sim.scenario import format_time
@@ -138,10 +139,13 @@ def resolved_end(cfg: RunConfig, files: session.ScenarioFiles) -> float:
 class Run:
     """State of one run; :meth:`execute` is the loop."""
 
-    def __init__(self, cfg: RunConfig, controller: Controller, hooks: tuple[StepHook, ...] = ()) -> None:
+    def __init__(self, cfg: RunConfig, controller: Controller, hooks: tuple[StepHook, ...] = (),
+                 gui: GuiOptions | None = None) -> None:
         self.cfg = cfg
         self.controller = controller
         self.hooks = hooks
+        self.gui = gui  # run in sumo-gui, the decisions drawn (sim.gui.View)
+        self.view: View | None = None
         self.rec = RunRecorder(cfg.out)
         self.status = RunStatus.ERROR
         self.message = ""
@@ -196,7 +200,9 @@ class Run:
         if not (cfg.out / "sumo-errors.log").exists():
             self.written.append("sumo-errors.log")
         session.start(files, cfg.seed, cfg.out / "sumo-errors.log", cfg.sumo_args, step_length=plan.step_length,
-                      outputs=outputs)
+                      outputs=outputs, gui=self.gui)
+        if self.gui is not None:
+            self.meta["gui"] = asdict(self.gui)
         self.meta["sumo_version"] = session.version()
         try:
             self._loop(ego_id, end, plan.ego_depart)
@@ -213,6 +219,8 @@ class Run:
         self.cfg = cfg = replace(self.cfg, ego=ego)
         self.world = world = SumoWorld(ego_id, cfg.sensing_radius)
         route = world.takeover()
+        if self.gui is not None:
+            self.view = View(ego_id)
         for hook in self.hooks:
             if hasattr(hook, "at_takeover"):  # may return another reference path for the ego
                 route = hook.at_takeover(world) or route
@@ -264,7 +272,10 @@ class Run:
                 # act
                 decision = self.controller.act(scene)
                 self.n_fallback += int(decision.info.get("n_fallback", 0))
-                w1 = wallclock.perf_counter()
+                w1 = wd = wallclock.perf_counter()
+                if self.view is not None:  # drawn before the step that carries it out
+                    self.view.decided(decision)
+                    wd = wallclock.perf_counter()
                 # step
                 world.step(decision.command)
                 w2 = wallclock.perf_counter()
@@ -287,6 +298,8 @@ class Run:
                                    ego_ran_red=new.time - self.ran_red_at <= RED_MEMORY,
                                    ego_in_envelope=None if envelope is None else bool(envelope > 0))
                 ego_hit = collisions.detect(snap, new, self.step, ctx)
+                if ego_hit and self.view is not None:
+                    self.view.collided(self.rec.collisions)
                 w4 = wallclock.perf_counter()
                 if self.conflicts is not None:
                     self.conflicts.observe(new, self.step)
@@ -296,7 +309,7 @@ class Run:
                                                 near=(s - 5.0, s + 5.0 + 50.0 * dt))
                 if self.red_s is not None and s + half > self.red_s + 0.5:  # passed a stop line showing red
                     self.ran_red_at = new.time  # (known from the next step's collisions on)
-                row, timing = self._rows(new, snap, decision, s, d, dt, (w1 - w0, w2 - w1, w3 - w2, w4 - w3),
+                row, timing = self._rows(new, snap, decision, s, d, dt, (w1 - w0, w2 - wd, w3 - w2, w4 - w3),
                                          scene.stop_s)
                 timing["record_ms"] = 1e3 * (wallclock.perf_counter() - w5)
                 if self.conflicts is not None:
@@ -489,12 +502,14 @@ def _imported(cfg: RunConfig, hooks: tuple[StepHook, ...]) -> tuple[RunConfig, t
     return replace(cfg, ego_id="ego"), hooks + (CommonRoadHook(marker),)
 
 
-def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepHook, ...] = ()) -> RunSummary:
+def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepHook, ...] = (),
+        gui: GuiOptions | None = None) -> RunSummary:
     """Run one scenario; writes the run folder and returns the summary.
 
     hooks: callables ``hook(snapshot, world)`` called every ego step after the scene is read
     and before the controller acts (they may act on SUMO, e.g. inject hazards; only code
-    under ``sumo_ethics/sim`` should).
+    under ``sumo_ethics/sim`` should). gui: run in sumo-gui through TraCI, the view following
+    the ego and each decision drawn (single ego only; the same outputs as without).
 
     Raises ConfigError for bad input (the run folder is left as it was). Everything else ends
     with the outputs written so far and a summary saying how the run ended, then raises:
@@ -503,6 +518,9 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
     (status ``interrupted``).
     """
     if cfg.fleet is not None:
+        if gui is not None:
+            raise ConfigError("--gui shows a single ego; drop the fleet options (--egos, --penetration, "
+                              "several --ego, --fleet)")
         if hooks:
             raise ConfigError("a fleet run (--egos, --penetration, several --ego) takes no hooks (hazards)")
         from sumo_ethics.sim.commonroad import marker_of
@@ -515,7 +533,7 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
         return run_fleet(cfg)
     cfg, hooks = _imported(cfg, tuple(hooks))
     controller = controller or make_controller(cfg)
-    return execute(Run(cfg, controller, tuple(hooks)), cfg)
+    return execute(Run(cfg, controller, tuple(hooks), gui), cfg)
 
 
 def execute(r: Run, cfg: RunConfig) -> RunSummary:

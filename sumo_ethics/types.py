@@ -331,7 +331,9 @@ class DecisionTrace:
     first_hit: (K,) int first step entering a predicted envelope (T if never); risk: (K,) summed
     ex-ante risk over every party (ego's and the others') [-]; chosen: index of the chosen one;
     excluded: (K,) int8 the hard constraint that kept a candidate from being chosen
-    (:data:`EXCLUSIONS`; 0 none), None where not known.
+    (:data:`EXCLUSIONS`; 0 none), None where not known; agent_risk: (N,) the chosen candidate's
+    ex-ante risk with each neighbour (to the ego and to it, summed) [-], None where not known
+    (what ``run --gui`` draws: the road users at risk).
     """
 
     ego: AgentStates
@@ -346,3 +348,4 @@ class DecisionTrace:
     risk: np.ndarray
     chosen: int
     excluded: np.ndarray | None = None
+    agent_risk: np.ndarray | None = None

@@ -377,7 +377,8 @@ class EthicalPlanner:
             ego=scene.ego, agents=agents, prediction=pred, candidates=fc, cost=cost, selection=total,
             validity=validity_classes(classes), eligible=eligible, first_hit=first_hit,
             risk=(risk.ego_risk.sum(axis=1) + risk.other_risk.sum(axis=1)) if len(agents) else np.zeros(len(fc)),
-            chosen=j, excluded=exclusion_codes(legal, on_road, overlap, self.cfg.selection))
+            chosen=j, excluded=exclusion_codes(legal, on_road, overlap, self.cfg.selection),
+            agent_risk=risk.ego_risk[j] + risk.other_risk[j] if len(agents) else np.zeros(0))
         return Decision(cmd, info=info, timings_ms=timings, trace=trace)
 
     def pool(self, classes: list[np.ndarray], legal: np.ndarray, on_road: np.ndarray,

@@ -26,11 +26,11 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import libsumo
 import numpy as np
 
 from sumo_ethics.commonroad.goal import Goal
 from sumo_ethics.errors import ConfigError
+from sumo_ethics.sim.backend import sumo
 from sumo_ethics.sim.frames import centre_to_front, front_to_centre
 from sumo_ethics.types import RunStatus
 
@@ -99,15 +99,15 @@ class CommonRoadHook:
         from sumo_ethics.sim.route import build_route_path
         from sumo_ethics.sim.world import EgoCommand
 
-        dt = libsumo.simulation.getDeltaT()
-        self.t0 = libsumo.simulation.getTime() + dt
+        dt = sumo.simulation.getDeltaT()
+        self.t0 = sumo.simulation.getTime() + dt
         e = self.meta["ego"]
         world.apply(EgoCommand(e["x"], e["y"], e["yaw"], e["speed"]))
         self._place(self.t0)
         goal_lanes = frozenset(self.meta.get("goal_lanes", ()))
         if not goal_lanes:
             return None
-        v = libsumo.vehicle
+        v = sumo.vehicle
         ego = world.ego_id
         edges = tuple(v.getRoute(ego)[v.getRouteIndex(ego):])
         route = build_route_path(edges, v.getLaneID(ego), v.getVehicleClass(ego), np.array([e["x"], e["y"]]),
@@ -132,7 +132,7 @@ class CommonRoadHook:
             from sumo_ethics.runner import StopRun
 
             raise StopRun(RunStatus.COMPLETED, f"CommonRoad goal reached at t={snap.time:g} s (time step {k})")
-        self._place(snap.time + libsumo.simulation.getDeltaT())
+        self._place(snap.time + sumo.simulation.getDeltaT())
 
     def at_route_end(self, t: float) -> tuple[RunStatus, str]:
         """The ego passed its route's end (past the goal lanes) outside the goal region: not completed."""
@@ -168,7 +168,7 @@ class CommonRoadHook:
 
     def _place(self, t: float) -> None:
         """Every replayed obstacle at its recorded state for simulation time t (the coming step's end)."""
-        v = libsumo.vehicle
+        v = sumo.vehicle
         u = self.step_at(t)
         for sid, m in self.info.items():
             st = self._state(sid, u)
@@ -182,7 +182,7 @@ class CommonRoadHook:
                 edge = m.get("edge", self.meta["ego"]["route"][0])  # imports before the edge was chosen: the ego's
                 route = f"{_ROUTE}_{edge}"
                 if route not in self._routes:
-                    libsumo.route.add(route, [edge])
+                    sumo.route.add(route, [edge])
                     self._routes.add(route)
                 v.add(sid, route, typeID=f"{sid}_type", depart="now", departSpeed="0")
                 v.setSpeedMode(sid, 32)
@@ -195,7 +195,7 @@ class CommonRoadHook:
 
     def _check(self, t: float, u: float) -> None:
         """How far SUMO has each replayed obstacle from its record at time t (one getter pair each)."""
-        v = libsumo.vehicle
+        v = sumo.vehicle
         present = set(v.getIDList())
         for sid, m in self.info.items():
             st = self._state(sid, u)

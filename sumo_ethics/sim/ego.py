@@ -6,12 +6,12 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Callable
 
-import libsumo
 import numpy as np
 
 from sumo_ethics.config import EgoVehicle, RunConfig
 from sumo_ethics.errors import ConfigError, SimulationError
 from sumo_ethics.sim import scenario as scenario_files
+from sumo_ethics.sim.backend import sumo
 from sumo_ethics.sim.route import lane_allows
 from sumo_ethics.types import RoadUserClass
 
@@ -21,8 +21,8 @@ INSERT_PATIENCE = 120.0  # s of simulation time to wait for the ego's insertion
 
 
 def _step_until(pred: Callable[[], bool], limit: float) -> bool:
-    while libsumo.simulation.getTime() < limit:
-        libsumo.simulationStep()
+    while sumo.simulation.getTime() < limit:
+        sumo.simulationStep()
         if pred():
             return True
     return False
@@ -30,26 +30,26 @@ def _step_until(pred: Callable[[], bool], limit: float) -> bool:
 
 def wait_for_vehicle(ego_id: str, end: float) -> None:
     """Step until ``ego_id`` departs; ConfigError if it never does before ``end``."""
-    if ego_id in libsumo.vehicle.getIDList():
+    if ego_id in sumo.vehicle.getIDList():
         return
-    while libsumo.simulation.getTime() < end:
-        libsumo.simulationStep()
-        if ego_id in libsumo.simulation.getDepartedIDList():
+    while sumo.simulation.getTime() < end:
+        sumo.simulationStep()
+        if ego_id in sumo.simulation.getDepartedIDList():
             return
-        if libsumo.simulation.getMinExpectedNumber() == 0:
+        if sumo.simulation.getMinExpectedNumber() == 0:
             break
-    raise ConfigError(f"vehicle '{ego_id}' never departed (simulated until t={libsumo.simulation.getTime():g} s)")
+    raise ConfigError(f"vehicle '{ego_id}' never departed (simulated until t={sumo.simulation.getTime():g} s)")
 
 
 def check_ego_vehicle(ego_id: str) -> None:
     """ConfigError for a taken-over vehicle the planner does not model: not a motor road
     vehicle (a bicycle, tram, train), or one with stops or a taxi device (it would have to serve them)."""
-    v = libsumo.vehicle
+    v = sumo.vehicle
     scenario_files.check_ego_class(ego_id, v.getVehicleClass(ego_id))
     try:
         v.getParameter(ego_id, "device.taxi.state")
         scenario_files.refuse_stops(ego_id, "is a taxi")
-    except libsumo.TraCIException:
+    except sumo.TraCIException:
         pass
     if v.getStops(ego_id):
         scenario_files.refuse_stops(ego_id)
@@ -57,18 +57,18 @@ def check_ego_vehicle(ego_id: str) -> None:
 
 def _usable_edges() -> list[str]:
     """Non-internal edges with at least one lane a passenger car may use."""
-    return sorted(e for e in libsumo.edge.getIDList() if not e.startswith(":") and any(
-        lane_allows(f"{e}_{i}", "passenger") for i in range(libsumo.edge.getLaneNumber(e))))
+    return sorted(e for e in sumo.edge.getIDList() if not e.startswith(":") and any(
+        lane_allows(f"{e}_{i}", "passenger") for i in range(sumo.edge.getLaneNumber(e))))
 
 
 def find_ego_route(cfg: RunConfig) -> tuple[str, ...]:
     """Edges for the inserted ego: --ego-from/--ego-to, else a seeded random route."""
-    known = set(libsumo.edge.getIDList())
+    known = set(sumo.edge.getIDList())
     if cfg.ego_from is not None:
         for e in (cfg.ego_from, cfg.ego_to):
             if e not in known:
                 raise ConfigError(f"unknown edge '{e}' in --ego-from/--ego-to")
-        stage = libsumo.simulation.findRoute(cfg.ego_from, cfg.ego_to, vType=EGO_TYPE)
+        stage = sumo.simulation.findRoute(cfg.ego_from, cfg.ego_to, vType=EGO_TYPE)
         if not stage.edges:
             raise ConfigError(f"no route from edge '{cfg.ego_from}' to edge '{cfg.ego_to}'")
         return tuple(stage.edges)
@@ -87,7 +87,7 @@ def random_route(edges: list[str], rng: np.random.Generator, min_length: float) 
     best: tuple[float, tuple[str, ...]] = (0.0, ())
     for _ in range(300):
         a, b = rng.choice(len(edges), size=2)
-        stage = libsumo.simulation.findRoute(edges[a], edges[b], vType=EGO_TYPE)
+        stage = sumo.simulation.findRoute(edges[a], edges[b], vType=EGO_TYPE)
         if stage.edges and stage.length > best[0]:
             best = (stage.length, tuple(stage.edges))
             if stage.length >= min_length:
@@ -100,7 +100,7 @@ def ego_limits(ego_id: str, car: EgoVehicle) -> EgoVehicle:
     simulates, whatever its vClass: a 12 m vType left at the default vClass was planned and
     checked for collisions as a 4.5 m car), and a car's limits (``car``), but for a truck, bus or
     motorcycle no more than its vType's top speed, acceleration and decelerations."""
-    v, vt = libsumo.vehicle, libsumo.vehicletype
+    v, vt = sumo.vehicle, sumo.vehicletype
     own = replace(car, length=v.getLength(ego_id), width=v.getWidth(ego_id))
     if RoadUserClass.from_vclass(v.getVehicleClass(ego_id)) is RoadUserClass.CAR:
         return own
@@ -115,18 +115,18 @@ def insert_ego(cfg: RunConfig, ego_id: str, depart: float) -> tuple[str, ...]:
     define_ego_type(cfg.ego)
     edges = find_ego_route(cfg)
     _step_until(lambda: False, depart)
-    libsumo.route.add(EGO_ROUTE, list(edges))
-    libsumo.vehicle.add(ego_id, EGO_ROUTE, typeID=EGO_TYPE, depart="now", departLane=cfg.ego_depart_lane,
+    sumo.route.add(EGO_ROUTE, list(edges))
+    sumo.vehicle.add(ego_id, EGO_ROUTE, typeID=EGO_TYPE, depart="now", departLane=cfg.ego_depart_lane,
                        departSpeed="max")
-    limit = libsumo.simulation.getTime() + INSERT_PATIENCE
-    if not _step_until(lambda: ego_id in libsumo.simulation.getDepartedIDList(), limit):
+    limit = sumo.simulation.getTime() + INSERT_PATIENCE
+    if not _step_until(lambda: ego_id in sumo.simulation.getDepartedIDList(), limit):
         raise SimulationError(f"the ego could not be inserted on edge '{edges[0]}' within {INSERT_PATIENCE:g} s")
     return edges
 
 
 def define_ego_type(ego: EgoVehicle) -> None:
     """The vType of inserted egos (EGO_TYPE): a passenger car with ``ego``'s body and limits."""
-    vt = libsumo.vehicletype
+    vt = sumo.vehicletype
     vt.copy("DEFAULT_VEHTYPE", EGO_TYPE)
     vt.setVehicleClass(EGO_TYPE, "passenger")
     vt.setLength(EGO_TYPE, ego.length)
@@ -146,5 +146,5 @@ def start_ego(cfg: RunConfig, ego_id: str, end: float, depart: float) -> tuple[E
     if cfg.ego_id is not None:
         wait_for_vehicle(ego_id, end)
         check_ego_vehicle(ego_id)
-        return ego_limits(ego_id, cfg.ego), tuple(libsumo.vehicle.getRoute(ego_id))
+        return ego_limits(ego_id, cfg.ego), tuple(sumo.vehicle.getRoute(ego_id))
     return cfg.ego, insert_ego(cfg, ego_id, depart)

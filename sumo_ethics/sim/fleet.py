@@ -7,11 +7,11 @@ here are only the calls that concern the whole simulation (one ``simulationStep`
 
 from __future__ import annotations
 
-import libsumo
 import numpy as np
 
 from sumo_ethics.config import EgoVehicle
 from sumo_ethics.errors import ConfigError
+from sumo_ethics.sim.backend import sumo, tc
 from sumo_ethics.sim.ego import EGO_TYPE, _usable_edges, check_ego_vehicle, define_ego_type, random_route
 from sumo_ethics.sim.world import sumo_collisions  # noqa: F401 - re-exported for the fleet loop
 
@@ -34,8 +34,8 @@ def insert_egos(ids: list[str], departs: list[float], seed: int, ego: EgoVehicle
         route = random_route(edges, np.random.default_rng([seed, i]), min_length)
         if not route:
             raise ConfigError("found no route for the egos on this network")
-        libsumo.route.add(f"{vid}_route", list(route))
-        libsumo.vehicle.add(vid, f"{vid}_route", typeID=EGO_TYPE, depart=f"{depart:.3f}", departLane=lane,
+        sumo.route.add(f"{vid}_route", list(route))
+        sumo.vehicle.add(vid, f"{vid}_route", typeID=EGO_TYPE, depart=f"{depart:.3f}", departLane=lane,
                            departSpeed="max")
         routes[vid] = route
     return routes
@@ -43,12 +43,12 @@ def insert_egos(ids: list[str], departs: list[float], seed: int, ego: EgoVehicle
 
 def departed() -> tuple[str, ...]:
     """Vehicles that entered the network in the step just taken."""
-    return tuple(libsumo.simulation.getDepartedIDList())
+    return tuple(sumo.simulation.getDepartedIDList())
 
 
 def teleporting() -> frozenset[str]:
     """Vehicles SUMO started to teleport in the step just taken (jammed, or after a collision)."""
-    return frozenset(libsumo.simulation.getStartingTeleportIDList())
+    return frozenset(sumo.simulation.getStartingTeleportIDList())
 
 
 def eligible(vid: str) -> bool:
@@ -62,31 +62,31 @@ def eligible(vid: str) -> bool:
 
 
 def route_edges(vid: str) -> tuple[str, ...]:
-    return tuple(libsumo.vehicle.getRoute(vid))
+    return tuple(sumo.vehicle.getRoute(vid))
 
 
 def _unsubscribe(vid: str) -> None:
-    v = libsumo.vehicle
-    v.unsubscribeContext(vid, libsumo.constants.CMD_GET_VEHICLE_VARIABLE, 0)
-    v.unsubscribeContext(vid, libsumo.constants.CMD_GET_PERSON_VARIABLE, 0)
+    v = sumo.vehicle
+    v.unsubscribeContext(vid, tc.CMD_GET_VEHICLE_VARIABLE, 0)
+    v.unsubscribeContext(vid, tc.CMD_GET_PERSON_VARIABLE, 0)
 
 
 def speed_factor(vid: str) -> float:
     """A vehicle's own speedFactor (drawn by SUMO from its vType's speed distribution)."""
-    return float(libsumo.vehicle.getSpeedFactor(vid))
+    return float(sumo.vehicle.getSpeedFactor(vid))
 
 
 def hold_speed(vid: str) -> None:
     """For the step between a takeover and the ego's first planned step: keep its speed (the
     takeover switched SUMO's checks off and tripled its speed factor)."""
-    libsumo.vehicle.setSpeed(vid, libsumo.vehicle.getSpeed(vid))
+    sumo.vehicle.setSpeed(vid, sumo.vehicle.getSpeed(vid))
 
 
 def release(vid: str, factor: float = 1.0) -> None:
     """Hand an ego back to SUMO (its goal reached, or its control given up): SUMO's own car
     following and lane changing drive it from here, with its own speed ``factor``; its
     subscriptions end."""
-    v = libsumo.vehicle
+    v = sumo.vehicle
     if vid not in v.getIDList():
         return
     _unsubscribe(vid)
@@ -99,22 +99,22 @@ def release(vid: str, factor: float = 1.0) -> None:
 def remove(vid: str) -> None:
     """Take a crashed ego off the road (SUMO's collision.action remove does this to its own);
     its subscriptions end first (SUMO fails on a subscription of a vehicle that is gone)."""
-    if vid in libsumo.vehicle.getIDList():
+    if vid in sumo.vehicle.getIDList():
         _unsubscribe(vid)
-        libsumo.vehicle.remove(vid, libsumo.constants.REMOVE_VAPORIZED)
+        sumo.vehicle.remove(vid, tc.REMOVE_VAPORIZED)
 
 
 def advance() -> None:
     """One simulation step for everyone."""
-    libsumo.simulationStep()
+    sumo.simulationStep()
 
 
 def pending() -> int:
     """Vehicles and persons still running or waiting to depart (0: the scenario is over)."""
-    return int(libsumo.simulation.getMinExpectedNumber())
+    return int(sumo.simulation.getMinExpectedNumber())
 
 
 def vclasses() -> dict[str, str]:
     """vType id -> vClass of every vType SUMO knows (for the trips of the run)."""
-    vt = libsumo.vehicletype
+    vt = sumo.vehicletype
     return {t: vt.getVehicleClass(t) for t in vt.getIDList()}

@@ -17,9 +17,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
-import libsumo
 import numpy as np
 
+from sumo_ethics.sim.backend import sumo
 from sumo_ethics.sim.frames import centre_to_front
 
 _FALLBACK = {"ped": "DEFAULT_PEDTYPE", "bicycle": "DEFAULT_BIKETYPE"}
@@ -97,7 +97,7 @@ class HazardInjector:
                 continue
             try:
                 self._advance(st, scene, ego_front, v_ego)
-            except libsumo.TraCIException as exc:  # SUMO removed our actor (or refused it)
+            except sumo.TraCIException as exc:  # SUMO removed our actor (or refused it)
                 self._log(scene.time, st, "lost", ego_front, v_ego, message=str(exc).splitlines()[0] if str(exc) else "")
                 st.phase = "done"
 
@@ -107,8 +107,8 @@ class HazardInjector:
         path = scene.route.path
         ego_front = scene.s + float(scene.ego.length[0]) / 2.0
         self._route_id = "sumo_ethics_hazard_route"
-        if self._route_id not in libsumo.route.getIDList():  # hazard vehicles drive along the ego's
-            libsumo.route.add(self._route_id, list(scene.route.edges))  # route (junction lanes included)
+        if self._route_id not in sumo.route.getIDList():  # hazard vehicles drive along the ego's
+            sumo.route.add(self._route_id, list(scene.route.edges))  # route (junction lanes included)
         for st in self.states:
             xy = self._anchor_xy(st.spec.anchor)
             s, d = (float(v) for v in path.project(np.asarray(xy, dtype=float)))
@@ -142,11 +142,11 @@ class HazardInjector:
     @staticmethod
     def _anchor_xy(a: Any) -> tuple[float, float]:
         if a.edge is not None:
-            lane = f"{a.edge}_{libsumo.edge.getLaneNumber(a.edge) - 1}"
-            pos = min(a.pos, libsumo.lane.getLength(lane))
-            return libsumo.simulation.convert2D(a.edge, pos, libsumo.edge.getLaneNumber(a.edge) - 1)
+            lane = f"{a.edge}_{sumo.edge.getLaneNumber(a.edge) - 1}"
+            pos = min(a.pos, sumo.lane.getLength(lane))
+            return sumo.simulation.convert2D(a.edge, pos, sumo.edge.getLaneNumber(a.edge) - 1)
         if a.junction is not None:
-            return libsumo.junction.getPosition(a.junction)
+            return sumo.junction.getPosition(a.junction)
         return a.xy
 
     def _vtype(self, vtype: str) -> str:
@@ -157,7 +157,7 @@ class HazardInjector:
 
     def _known_types(self) -> set[str]:
         if not hasattr(self, "_types"):
-            self._types = set(libsumo.vehicletype.getIDList())
+            self._types = set(sumo.vehicletype.getIDList())
         return self._types
 
     def _parked(self, scene: Any, st: HazardState, s: float, side: str, intrusion: float, vtype: str,
@@ -175,7 +175,7 @@ class HazardInjector:
     # ---- actors -------------------------------------------------------------------------
     def _new_actor(self, name: str, vtype: str) -> Actor:
         tid = self._vtype(vtype)
-        vt = libsumo.vehicletype
+        vt = sumo.vehicletype
         a = Actor(sumo_id=f"hazard_{name}", is_person=vt.getVehicleClass(tid) == "pedestrian",
                   length=vt.getLength(tid), width=vt.getWidth(tid))
         a.type_id = tid  # type: ignore[attr-defined]
@@ -202,13 +202,13 @@ class HazardInjector:
         fx, fy, angle = (float(v) for v in centre_to_front(x, y, yaw, a.length))
         if a.is_person:
             if not a.added:
-                libsumo.person.add(a.sumo_id, self._walk_edge(scene), 0.0, typeID=a.type_id)  # type: ignore[attr-defined]
-                libsumo.person.appendWaitingStage(a.sumo_id, 3600.0)
+                sumo.person.add(a.sumo_id, self._walk_edge(scene), 0.0, typeID=a.type_id)  # type: ignore[attr-defined]
+                sumo.person.appendWaitingStage(a.sumo_id, 3600.0)
                 a.added = True
-            libsumo.person.moveToXY(a.sumo_id, "", fx, fy, angle, _KEEP_PERSON, 100.0)
-            libsumo.person.setSpeed(a.sumo_id, max(speed, 0.01))
+            sumo.person.moveToXY(a.sumo_id, "", fx, fy, angle, _KEEP_PERSON, 100.0)
+            sumo.person.setSpeed(a.sumo_id, max(speed, 0.01))
         else:
-            v = libsumo.vehicle
+            v = sumo.vehicle
             if not a.added:
                 v.add(a.sumo_id, self._route_id, typeID=a.type_id, depart="now", departSpeed="0")  # type: ignore[attr-defined]
                 v.setSpeedMode(a.sumo_id, 32)
@@ -223,10 +223,10 @@ class HazardInjector:
         """An edge of the ego's route a person may be put on (SUMO refuses edges without a
         lane pedestrians may use); the person is then moved off it with moveToXY."""
         for e in scene.route.edges:
-            for i in range(libsumo.edge.getLaneNumber(e)):
+            for i in range(sumo.edge.getLaneNumber(e)):
                 lane = f"{e}_{i}"
-                allowed = libsumo.lane.getAllowed(lane)
-                if ("pedestrian" in allowed) if allowed else ("pedestrian" not in libsumo.lane.getDisallowed(lane)):
+                allowed = sumo.lane.getAllowed(lane)
+                if ("pedestrian" in allowed) if allowed else ("pedestrian" not in sumo.lane.getDisallowed(lane)):
                     return e
         return scene.route.edges[0]
 
@@ -235,10 +235,10 @@ class HazardInjector:
             return
         try:
             if a.is_person:
-                libsumo.person.remove(a.sumo_id)
+                sumo.person.remove(a.sumo_id)
             else:
-                libsumo.vehicle.remove(a.sumo_id)
-        except libsumo.TraCIException:
+                sumo.vehicle.remove(a.sumo_id)
+        except sumo.TraCIException:
             pass
         a.added = False
 

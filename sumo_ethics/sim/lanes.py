@@ -22,10 +22,10 @@ from __future__ import annotations
 import heapq
 import re
 
-import libsumo
 import numpy as np
 
 from sumo_ethics.predict.features import MAP_VERSION, TLS_CODES, WALKING_AREA, LaneGraph, MapContext
+from sumo_ethics.sim.backend import sumo
 from sumo_ethics.sim.route import lane_allows
 
 CROSSING = re.compile(r":.+_c\d+_0")
@@ -33,7 +33,7 @@ CROSSING = re.compile(r":.+_c\d+_0")
 
 def lane_graph() -> LaneGraph:
     """Every lane of the loaded network (internal junction lanes included) as a LaneGraph."""
-    ln = libsumo.lane
+    ln = sumo.lane
     ids = tuple(ln.getIDList())
     shapes = [np.asarray(ln.getShape(k), dtype=float)[:, :2] for k in ids]
     speed = np.array([ln.getMaxSpeed(k) for k in ids], dtype=float)
@@ -85,12 +85,12 @@ class SignalClock:
         self._time = -1.0
 
     def _read(self, tls: str) -> tuple[str, int, float, tuple[str, str]]:
-        t = libsumo.simulation.getTime()
+        t = sumo.simulation.getTime()
         if t != self._time:
             self._now.clear()
             self._time = t
         if tls not in self._now:
-            tl = libsumo.trafficlight
+            tl = sumo.trafficlight
             key = (tls, tl.getProgram(tls))
             if key not in self._programs:
                 logic = next((lg for lg in tl.getAllProgramLogics(tls) if lg.programID == key[1]), None)
@@ -121,8 +121,8 @@ def crossing_signals() -> CrossingSignals:
     crossing lanes are the internal lanes ``:<junction>_c<k>_0``.
     """
     out: CrossingSignals = {}
-    for tls in libsumo.trafficlight.getIDList():
-        for index, links in enumerate(libsumo.trafficlight.getControlledLinks(tls)):
+    for tls in sumo.trafficlight.getIDList():
+        for index, links in enumerate(sumo.trafficlight.getControlledLinks(tls)):
             for link in links:
                 for lane in link[:2]:
                     if CROSSING.fullmatch(lane):
@@ -144,7 +144,7 @@ def pavement(graph: LaneGraph, edge: str) -> str:
     """
     cache = graph.__dict__.setdefault("_pavement", {})
     if edge not in cache:
-        lanes = (f"{edge}_{i}" for i in range(libsumo.edge.getLaneNumber(edge) if edge else 0))
+        lanes = (f"{edge}_{i}" for i in range(sumo.edge.getLaneNumber(edge) if edge else 0))
         cache[edge] = next((lane for lane in lanes if lane_allows(lane, "pedestrian")), "")
     return cache[edge]
 
@@ -211,7 +211,7 @@ def _person_context(graph: LaneGraph, signals: CrossingSignals, k: str, i: int, 
                     clock: SignalClock, switch_times: bool, after: bool = False) -> None:
     """Fill row ``i`` of ``ctx``'s arrays for person ``k`` (see :func:`agent_context`); ``after``:
     also its lane after a walking area (map version 4)."""
-    p = libsumo.person
+    p = sumo.person
     if p.getVehicle(k):  # riding: getLaneID is its vehicle's lane
         return
     lane_id = p.getLaneID(k) or pavement(graph, p.getRoadID(k))
@@ -276,7 +276,7 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
     if walks and signals is None and person.any():
         signals = crossing_signals()
     clock = SignalClock() if clock is None else clock
-    v = libsumo.vehicle
+    v = sumo.vehicle
     index = graph.index
     for i, k in enumerate(ids):
         if person[i]:
@@ -284,7 +284,7 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
                 continue
             try:
                 _person_context(graph, signals, k, i, ctx, clock, switch_times, after=v4)
-            except libsumo.TraCIException:  # left the simulation in between: no context
+            except sumo.TraCIException:  # left the simulation in between: no context
                 lane[i], pos[i], tls_dist[i], tls_state[i], ctx["next_lane"][i] = -1, 0.0, np.inf, 0, -1
                 ctx["tls_switch"][i], ctx["after_lane"][i] = np.inf, -1
             continue
@@ -299,7 +299,7 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
             nxt = v.getNextTLS(k)
             if v4:
                 ctx["blinker"][i] = v.getSignals(k) & 7  # right, left blinker, hazard flasher
-        except libsumo.TraCIException:  # left the simulation in between: no context
+        except sumo.TraCIException:  # left the simulation in between: no context
             lane[i] = -1
             continue
         if nxt:  # (light id, link index, distance, state)

@@ -19,10 +19,10 @@ from __future__ import annotations
 
 from typing import Any
 
-import libsumo
 import numpy as np
 
 from sumo_ethics.predict.features import LaneGraph, MapContext
+from sumo_ethics.sim.backend import sumo, tc
 from sumo_ethics.sim.lanes import SignalClock, agent_context, crossing_signals, lane_graph
 from sumo_ethics.types import RoadUserClass
 
@@ -35,7 +35,7 @@ def on_road(pos: tuple[float, float]) -> bool:
     """Whether SUMO gives the road user a position: not while it is inserted but not yet placed (a
     suite hazard's first step), parked off the road or teleporting (INVALID_DOUBLE_VALUE, -2^30 m,
     which became 1e9 m jumps in the samples of every dataset recorded before this check)."""
-    return pos[0] != libsumo.INVALID_DOUBLE_VALUE and pos[1] != libsumo.INVALID_DOUBLE_VALUE
+    return pos[0] != tc.INVALID_DOUBLE_VALUE and pos[1] != tc.INVALID_DOUBLE_VALUE
 
 
 class TypeInfo:
@@ -48,7 +48,7 @@ class TypeInfo:
     def __call__(self, type_id: str, person: bool = False) -> tuple[float, float, int]:
         key = (type_id, person)
         if key not in self._types:
-            vt = libsumo.vehicletype
+            vt = sumo.vehicletype
             cls = RoadUserClass.PEDESTRIAN if person else RoadUserClass.from_vclass(vt.getVehicleClass(type_id))
             self._types[key] = (vt.getLength(type_id), vt.getWidth(type_id), int(cls))
         return self._types[key]
@@ -61,8 +61,8 @@ def record_run(cmd: list[str], sim_seconds: float, sim_dt: float = 0.1, model_dt
     width, class) and the map context of :data:`CONTEXT_COLUMNS`, one entry per road user and
     step; the network's lane graph). Map context at the model rate only (other rows as
     :data:`CONTEXT_COLUMNS`)."""
-    libsumo.start(cmd)
-    vars_ = (libsumo.VAR_POSITION, libsumo.VAR_ANGLE, libsumo.VAR_SPEED)
+    sumo.start(cmd)
+    vars_ = (tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED)
     info = TypeInfo()
     agent_type: dict[str, tuple[float, float, int]] = {}
     cols: dict[str, list[Any]] = {k: [] for k in ("time", "agent_id", "x", "y", "angle", "speed", "type",
@@ -71,23 +71,23 @@ def record_run(cmd: list[str], sim_seconds: float, sim_dt: float = 0.1, model_dt
     signals = crossing_signals()
     clock = SignalClock()
     ratio = int(round(model_dt / sim_dt))
-    t0 = libsumo.simulation.getTime()
+    t0 = sumo.simulation.getTime()
     try:
-        while libsumo.simulation.getTime() - t0 < sim_seconds and libsumo.simulation.getMinExpectedNumber() > 0:
-            libsumo.simulationStep()
-            for v in libsumo.simulation.getDepartedIDList():
-                libsumo.vehicle.subscribe(v, vars_)
-                agent_type[v] = info(libsumo.vehicle.getTypeID(v))
-            for p in libsumo.simulation.getDepartedPersonIDList():
-                libsumo.person.subscribe(p, vars_ + (libsumo.VAR_VEHICLE,))
-                agent_type[p] = info(libsumo.person.getTypeID(p), person=True)
-            t = libsumo.simulation.getTime()
+        while sumo.simulation.getTime() - t0 < sim_seconds and sumo.simulation.getMinExpectedNumber() > 0:
+            sumo.simulationStep()
+            for v in sumo.simulation.getDepartedIDList():
+                sumo.vehicle.subscribe(v, vars_)
+                agent_type[v] = info(sumo.vehicle.getTypeID(v))
+            for p in sumo.simulation.getDepartedPersonIDList():
+                sumo.person.subscribe(p, vars_ + (tc.VAR_VEHICLE,))
+                agent_type[p] = info(sumo.person.getTypeID(p), person=True)
+            t = sumo.simulation.getTime()
             at_model_rate = int(round(t / sim_dt)) % ratio == 0
-            for is_person, res in enumerate((libsumo.vehicle.getAllSubscriptionResults(),
-                                             libsumo.person.getAllSubscriptionResults())):
+            for is_person, res in enumerate((sumo.vehicle.getAllSubscriptionResults(),
+                                             sumo.person.getAllSubscriptionResults())):
                 if is_person:  # a rider is in its vehicle, not a pedestrian (as at run time)
-                    res = {k: r for k, r in res.items() if not r[libsumo.VAR_VEHICLE]}
-                res = {k: r for k, r in res.items() if on_road(r[libsumo.VAR_POSITION])}
+                    res = {k: r for k, r in res.items() if not r[tc.VAR_VEHICLE]}
+                res = {k: r for k, r in res.items() if on_road(r[tc.VAR_POSITION])}
                 ids = list(res)
                 if at_model_rate:
                     ctx = agent_context(graph, ids, np.full(len(ids), bool(is_person)), signals, clock)
@@ -96,16 +96,16 @@ def record_run(cmd: list[str], sim_seconds: float, sim_dt: float = 0.1, model_dt
                 for name in CONTEXT_COLUMNS:
                     cols[name].extend(getattr(ctx, name).tolist())
                 for aid, r in res.items():
-                    pos = r[libsumo.VAR_POSITION]
+                    pos = r[tc.VAR_POSITION]
                     cols["time"].append(t)
                     cols["agent_id"].append(aid)
                     cols["x"].append(pos[0])
                     cols["y"].append(pos[1])
-                    cols["angle"].append(r[libsumo.VAR_ANGLE])
-                    cols["speed"].append(r[libsumo.VAR_SPEED])
+                    cols["angle"].append(r[tc.VAR_ANGLE])
+                    cols["speed"].append(r[tc.VAR_SPEED])
                     cols["type"].append(agent_type[aid])
     finally:
-        libsumo.close()
+        sumo.close()
     return cols, graph
 
 
@@ -130,9 +130,9 @@ class TrafficRecorder:
         """Record the simulation's current state."""
         from sumo_ethics.sim.frames import front_to_centre
 
-        t = libsumo.simulation.getTime()
+        t = sumo.simulation.getTime()
         at_rate = int(round(t / self.sim_dt)) % self.ratio == 0
-        for person, dom in ((False, libsumo.vehicle), (True, libsumo.person)):
+        for person, dom in ((False, sumo.vehicle), (True, sumo.person)):
             where = {k: dom.getPosition(k) for k in dom.getIDList()
                      if k not in self.skip and not (person and dom.getVehicle(k))}  # no riders
             ids = [k for k, pos in where.items() if on_road(pos)]

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import libsumo
 import numpy as np
 
 from sumo_ethics.errors import SimulationError
 from sumo_ethics.geometry import Polyline
+from sumo_ethics.sim.backend import sumo
 
 
 @dataclass(frozen=True)
@@ -21,7 +21,7 @@ class JunctionLink:
 
     s: float
     lane: str
-    index: int  # position of the link in libsumo.lane.getLinks(lane)
+    index: int  # position of the link in sumo.lane.getLinks(lane)
 
 
 @dataclass(frozen=True)
@@ -89,20 +89,20 @@ def tight_bends(route: RoutePath, limit: float) -> list[TightBend]:
 
 
 def lane_allows(lane: str, vclass: str) -> bool:
-    allowed = libsumo.lane.getAllowed(lane)
+    allowed = sumo.lane.getAllowed(lane)
     if allowed:
         return vclass in allowed
-    return vclass not in libsumo.lane.getDisallowed(lane)
+    return vclass not in sumo.lane.getDisallowed(lane)
 
 
 def _lanes(edge: str) -> list[str]:
-    return [f"{edge}_{i}" for i in range(libsumo.edge.getLaneNumber(edge))]
+    return [f"{edge}_{i}" for i in range(sumo.edge.getLaneNumber(edge))]
 
 
 def _drivable(edge: str, lane: str, vclass: str) -> tuple[float, float]:
     """Lateral extent [m] of the contiguous usable lanes of ``edge`` around ``lane``."""
     lanes = _lanes(edge) if not edge.startswith(":") else [lane]
-    widths = [libsumo.lane.getWidth(x) for x in lanes]
+    widths = [sumo.lane.getWidth(x) for x in lanes]
     usable = [lane_allows(x, vclass) for x in lanes]
     i = lanes.index(lane)
     left = widths[i] / 2
@@ -124,8 +124,8 @@ def lane_change_shape(lane: str, target: str, start_xy: np.ndarray | None, lengt
     The blend (smoothstep) runs over ``length`` metres starting at the point of ``lane``
     nearest ``start_xy`` (or 10% into the lane), ending by 90% of the lane at the latest.
     """
-    a = Polyline.from_points(np.asarray(libsumo.lane.getShape(lane), dtype=float))
-    b = Polyline.from_points(np.asarray(libsumo.lane.getShape(target), dtype=float))
+    a = Polyline.from_points(np.asarray(sumo.lane.getShape(lane), dtype=float))
+    b = Polyline.from_points(np.asarray(sumo.lane.getShape(target), dtype=float))
     n = max(len(a.s), len(b.s), int(np.ceil(a.length / 2.0)) + 1)
     f = np.linspace(0.0, 1.0, n)
     xa, ya, _ = a.to_xy(f * a.length, np.zeros(n))
@@ -173,7 +173,7 @@ def build_route_path(edges: tuple[str, ...], start_lane: str, vclass: str,
     exits[-1] = usable[-1]
     for i in range(len(edges) - 1):
         nxt = set(usable[i + 1])
-        exits[i] = [ln for ln in usable[i] if any(lk[0] in nxt for lk in libsumo.lane.getLinks(ln))]
+        exits[i] = [ln for ln in usable[i] if any(lk[0] in nxt for lk in sumo.lane.getLinks(ln))]
         if not exits[i]:
             raise SimulationError(f"the ego's route is not drivable: no lane of {edges[i]} leads to {edges[i + 1]}")
     if target_lanes:
@@ -191,10 +191,10 @@ def build_route_path(edges: tuple[str, ...], start_lane: str, vclass: str,
     link_at: list[tuple[int, str, int]] = []  # (vertex index of the stop line, lane, link index)
 
     def add(lane_id: str, edge_id: str, shape: np.ndarray | None = None) -> None:
-        shape = np.asarray(libsumo.lane.getShape(lane_id), dtype=float) if shape is None else shape
+        shape = np.asarray(sumo.lane.getShape(lane_id), dtype=float) if shape is None else shape
         pts.append(shape)
         lane_ids.extend([lane_id] * len(shape))
-        vmax.extend([libsumo.lane.getMaxSpeed(lane_id)] * len(shape))
+        vmax.extend([sumo.lane.getMaxSpeed(lane_id)] * len(shape))
         bounds.extend([_drivable(edge_id, lane_id, vclass)] * len(shape))
 
     for i, edge in enumerate(edges):
@@ -206,14 +206,14 @@ def build_route_path(edges: tuple[str, ...], start_lane: str, vclass: str,
         lane = target
         if i + 1 == len(edges):
             break
-        lane_links = libsumo.lane.getLinks(lane)
+        lane_links = sumo.lane.getLinks(lane)
         choices = [(j, lk) for j, lk in enumerate(lane_links) if lk[0] in usable[i + 1]]
         j, link = min(choices, key=lambda c: c[1][0] not in exits[i + 1])  # prefer no further lane change
         link_at.append((len(lane_ids) - 1, lane, j))
         via = link[4]
         while via and via.startswith(":"):
             add(via, via)
-            nxt = libsumo.lane.getLinks(via)
+            nxt = sumo.lane.getLinks(via)
             via = (nxt[0][4] or nxt[0][0]) if nxt else ""
         lane = link[0]
 

@@ -24,10 +24,10 @@ from __future__ import annotations
 
 import math
 
-import libsumo
 import numpy as np
 
 from sumo_ethics.geometry import Polyline, wrap_angle
+from sumo_ethics.sim.backend import sumo
 from sumo_ethics.types import AgentStates, RoadUserClass
 
 WRONG_WAY = math.radians(120.0)
@@ -58,13 +58,13 @@ class RuleMonitor:
     def _shape(self, lane: str) -> tuple[Polyline, float]:
         got = self._shapes.get(lane)
         if got is None:
-            line = Polyline.from_points(np.asarray(libsumo.lane.getShape(lane), dtype=float))
-            got = self._shapes[lane] = (line, libsumo.lane.getWidth(lane))
+            line = Polyline.from_points(np.asarray(sumo.lane.getShape(lane), dtype=float))
+            got = self._shapes[lane] = (line, sumo.lane.getWidth(lane))
         return got
 
     def _entry_state(self, approach: str, via: str) -> str:
         """Signal state now of the link from lane ``approach`` into junction lane ``via`` ('' if none)."""
-        for link in libsumo.lane.getLinks(approach):
+        for link in sumo.lane.getLinks(approach):
             if link[4] == via:
                 return link[5]
         return ""
@@ -73,13 +73,13 @@ class RuleMonitor:
         """Ids of the rule-breaking vehicles among ``others`` (their states now)."""
         out: set[str] = set()
         seen: dict[str, str] = {}
-        v = libsumo.vehicle
+        v = sumo.vehicle
         for i, vid in enumerate(others.ids):
             if int(others.cls[i]) == RoadUserClass.PEDESTRIAN:
                 continue
             try:
                 lane = v.getLaneID(vid)
-            except libsumo.TraCIException:
+            except sumo.TraCIException:
                 continue
             seen[vid] = lane
             if not lane:  # off every lane

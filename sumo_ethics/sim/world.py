@@ -17,11 +17,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import libsumo
 import numpy as np
-from libsumo import constants as tc
 
 from sumo_ethics.ethics.harm import MassModel, vtype_mass
+from sumo_ethics.sim.backend import sumo, tc
 from sumo_ethics.sim.frames import centre_to_front, front_to_centre
 from sumo_ethics.sim.route import JunctionLink, RoutePath, build_route_path
 from sumo_ethics.types import AgentStates, RoadUserClass
@@ -95,7 +94,7 @@ class SumoWorld:
         else the class's (MassModel)."""
         info = (self._person_types if person else self._types).get(type_id)
         if info is None:
-            vt = libsumo.vehicletype
+            vt = sumo.vehicletype
             vclass = vt.getVehicleClass(type_id)
             cls = RoadUserClass.PEDESTRIAN if person else RoadUserClass.from_vclass(vclass)
             length, width = vt.getLength(type_id), vt.getWidth(type_id)
@@ -108,7 +107,7 @@ class SumoWorld:
     # ---- takeover ----------------------------------------------------------------------
     def takeover(self) -> RoutePath:
         """Take control of the ego: speed/lane-change modes, context subscriptions, route path."""
-        v = libsumo.vehicle
+        v = sumo.vehicle
         ego = self.ego_id
         edges = v.getRoute(ego)
         lane = v.getLaneID(ego)
@@ -117,10 +116,10 @@ class SumoWorld:
         self.route = build_route_path(tuple(edges[v.getRouteIndex(ego):]), lane, vclass, start)
         self._crossing = crossings_without_junction(edges[v.getRouteIndex(ego):])
         if self._crossing:
-            pts = np.concatenate([np.asarray(libsumo.lane.getShape(k))[:, :2] for k in self._crossing])
+            pts = np.concatenate([np.asarray(sumo.lane.getShape(k))[:, :2] for k in self._crossing])
             self._crossing_box = np.r_[pts.min(axis=0) - 5.0, pts.max(axis=0) + 5.0]
         self.ego_length = v.getLength(ego)
-        self._dt = libsumo.simulation.getDeltaT()
+        self._dt = sumo.simulation.getDeltaT()
         speed = v.getSpeed(ego)
         v.setSpeedMode(ego, 32)  # no safety checks: the controller decides
         v.setLaneChangeMode(ego, 0)
@@ -142,7 +141,7 @@ class SumoWorld:
         and the planner then started from a standstill). SUMO's own value is kept in
         ``Snapshot.sumo_speed``.
         """
-        res = libsumo.vehicle.getContextSubscriptionResults(self.ego_id)
+        res = sumo.vehicle.getContextSubscriptionResults(self.ego_id)
         if self.ego_id not in res:
             res = self._read_off_network()
             if res is None:
@@ -156,12 +155,12 @@ class SumoWorld:
                                       np.array([(speed - self._speed) / self._dt]), ego.length, ego.width, ego.mass,
                                       ego.cls, ego.type_id)
         self._speed = float(ego.speed[0])
-        return Snapshot(libsumo.simulation.getTime(), ego, others, tuple(sumo_collisions()), sumo_speed)
+        return Snapshot(sumo.simulation.getTime(), ego, others, tuple(sumo_collisions()), sumo_speed)
 
     def step(self, cmd: EgoCommand | None = None) -> None:
         """Apply ``cmd`` (if any) and advance SUMO one step (then :meth:`read` the scene)."""
         self.command(cmd)
-        libsumo.simulationStep()
+        sumo.simulationStep()
 
     def command(self, cmd: EgoCommand | None) -> None:
         """Place the ego at ``cmd`` during the next step (None: SUMO drives it); a fleet commands
@@ -177,7 +176,7 @@ class SumoWorld:
     def _read_off_network(self) -> dict | None:
         """Context subscriptions return nothing while the ego is off every lane (moved there by
         moveToXY): read everyone within the radius one by one instead (slow, rare)."""
-        v, p = libsumo.vehicle, libsumo.person
+        v, p = sumo.vehicle, sumo.person
         if self.ego_id not in v.getIDList():
             return None
         ex, ey = v.getPosition(self.ego_id)
@@ -228,34 +227,34 @@ class SumoWorld:
 
     def link_state(self, link: JunctionLink) -> str:
         """Current signal state character of a link on the ego's path ('G', 'r', ...)."""
-        return libsumo.lane.getLinks(link.lane)[link.index][5]
+        return sumo.lane.getLinks(link.lane)[link.index][5]
 
     def sumo_lane(self) -> str:
-        return libsumo.vehicle.getLaneID(self.ego_id)
+        return sumo.vehicle.getLaneID(self.ego_id)
 
     def _on_crossing_road(self, ids: list[str], fx: np.ndarray, fy: np.ndarray, persons: list[bool]) -> np.ndarray:
         """(N,) bool: on a lane crossing the ego's current lane without a junction. Lanes are read
         (one call each) only for road users near those lanes, and only while the ego is on one
         of the route lanes they cross."""
         out = np.zeros(len(ids), dtype=bool)
-        ego_lane = libsumo.vehicle.getLaneID(self.ego_id)
+        ego_lane = sumo.vehicle.getLaneID(self.ego_id)
         if not any(ego_lane in crossed for crossed in self._crossing.values()):
             return out
         x0, y0, x1, y1 = self._crossing_box
         near = np.flatnonzero((fx >= x0) & (fx <= x1) & (fy >= y0) & (fy <= y1))
         for i in near[near > 0]:
-            dom = libsumo.person if persons[i] else libsumo.vehicle
+            dom = sumo.person if persons[i] else sumo.vehicle
             out[i] = ego_lane in self._crossing.get(dom.getLaneID(ids[i]), ())
         return out
 
     def sumo_speed(self) -> float:
-        return libsumo.vehicle.getSpeed(self.ego_id)
+        return sumo.vehicle.getSpeed(self.ego_id)
 
     # ---- acting ------------------------------------------------------------------------
     def apply(self, cmd: EgoCommand) -> None:
         """Place the ego at ``cmd`` during the next step, with its true speed."""
         fx, fy, angle = centre_to_front(cmd.x, cmd.y, cmd.yaw, self.ego_length)
-        v = libsumo.vehicle
+        v = sumo.vehicle
         # keepRoute 3 = 1 | 2: exact pose (may leave the road), matched onto the lanes of the ego's
         # own route; with 2 alone SUMO maps it onto the nearest lane in plan view, e.g. onto a road
         # on a bridge above, or a crossing movement's junction lane. Lanes searched within 10 m.
@@ -278,7 +277,7 @@ def crossings_without_junction(route_edges) -> dict[str, frozenset[str]]:
     from shapely import STRtree
     from shapely.geometry import LineString
 
-    edge, lane = libsumo.edge, libsumo.lane
+    edge, lane = sumo.edge, sumo.lane
     route = [e for e in dict.fromkeys(route_edges) if not e.startswith(":")]
     route_lanes = [f"{e}_{i}" for e in route for i in range(edge.getLaneNumber(e))]
     if not route_lanes:
@@ -307,16 +306,16 @@ def sumo_collisions() -> list[tuple[str, str, str, str, float, float, str, str]]
     """This step's SUMO collision reports: (collider, victim, colliderType, victimType,
     colliderSpeed, victimSpeed, type, lane)."""
     return [(c.collider, c.victim, c.colliderType, c.victimType, c.colliderSpeed, c.victimSpeed, c.type, c.lane)
-            for c in libsumo.simulation.getCollisions()]
+            for c in sumo.simulation.getCollisions()]
 
 
 def party_state(agent_id: str, world: SumoWorld) -> AgentStates | None:
     """Full state of any vehicle or person by id (for collisions outside the ego's range)."""
-    for dom, is_person in ((libsumo.vehicle, False), (libsumo.person, True)):
+    for dom, is_person in ((sumo.vehicle, False), (sumo.person, True)):
         try:
             x, y = dom.getPosition(agent_id)
             angle, speed, type_id = dom.getAngle(agent_id), dom.getSpeed(agent_id), dom.getTypeID(agent_id)
-        except libsumo.TraCIException:
+        except sumo.TraCIException:
             continue
         info = world.type_info(type_id, is_person)
         cx, cy, yaw = front_to_centre(np.array([x]), np.array([y]), np.array([angle]), np.array([info.length]))
