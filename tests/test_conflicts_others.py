@@ -70,7 +70,7 @@ def test_walker_crossing_after_a_car_party_a_is_the_car():
     assert pair_counts(sink.conflicts)["by_group"] == {"vehicle-vehicle": 0, "vehicle-vru": 1, "vru-vru": 0}
 
 
-def test_pairs_with_an_ego_and_far_pairs_are_not_measured():
+def test_pairs_with_an_ego_two_walkers_and_far_pairs_are_not_measured():
     sink = Sink()
     book = PairConflictBook(sink, EVERYONE, DT)
     for k in range(6):  # the head-on pair again, c1 now an ego (its own book measures it)
@@ -78,10 +78,17 @@ def test_pairs_with_an_ego_and_far_pairs_are_not_measured():
         observe(book, t, k, agents(["c1"], 10 * t, 0.0, 0.0, 10.0, 4.5, 1.8, C.CAR),
                 agents(["c2"], 40 - 10 * t, 0.0, math.pi, 10.0, 4.5, 1.8, C.CAR), exclude={"c1"})
     assert sink.conflicts == [] and book.pairs["candidates"] == 0
+    # two walkers walking into each other (SUMO's walkers overlap in crowds): no pair
+    book = PairConflictBook(sink, EVERYONE, DT)
+    for k in range(20):
+        t = round(k * DT, 10)
+        observe(book, t, k, agents(["w1", "w2"], [-1.0 + t, 1.0 - t], 0.0, [0.0, math.pi], 1.0, 0.3, 0.5,
+                                   C.PEDESTRIAN))
+    assert sink.conflicts == [] and book.pairs["candidates"] == 0
     # two cars at 10 m/s each, 100 m apart on parallel roads: R = 2.5 + 15 m each, 100 > 35: no candidate
     book = PairConflictBook(sink, EVERYONE, DT)
     observe(book, 0.0, 0, agents(["a", "b"], [0.0, 0.0], [0.0, 100.0], 0.0, 10.0, 4.5, 1.8, C.CAR))
-    assert book.pairs == {"candidates": 0, "ttc": 0, "pet": 0}
+    assert book.pairs == {"road_users": 2, "candidates": 0, "ttc": 0, "pet": 0}
 
 
 def test_a_road_user_that_leaves_frees_its_trail():
