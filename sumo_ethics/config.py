@@ -44,17 +44,23 @@ class EgoVehicle:
 class ConflictConfig:
     """Conflicts (near misses) measured every step between the ego and each road user in range
     (:mod:`sumo_ethics.safety.conflicts`). A pair is in conflict while its box time to collision
-    is below ``ttc`` or its post-encroachment time below ``pet``; TOML table ``[conflicts]``."""
+    is below ``ttc`` or its post-encroachment time below ``pet``; TOML table ``[conflicts]``.
+    ``everyone``: also every pair of road users of the network that involves no ego
+    (:mod:`sumo_ethics.safety.pairs`, ``conflicts_others.parquet``), with the same thresholds."""
 
     enabled: bool = True  # measure and write conflicts.parquet
     ttc: float = 1.5  # s, time-to-collision threshold (SUMO's SSM device default, 3 s there)
     pet: float = 1.0  # s, post-encroachment-time threshold
     gap: float = 1.0  # s, a pair back in conflict within this time continues its event
     crossing_angle: float = 30.0  # deg, PET counts only where the headings differ by at least this
+    everyone: bool = False  # also the pairs without an ego, network-wide (conflicts_others.parquet)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.enabled, bool):
-            raise ConfigError(f"conflicts.enabled must be true or false, got {self.enabled!r}")
+        for name in ("enabled", "everyone"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"conflicts.{name} must be true or false, got {getattr(self, name)!r}")
+        if self.everyone and not self.enabled:
+            raise ConfigError("conflicts.everyone = true needs conflicts.enabled = true")
         for name in ("ttc", "pet", "gap"):
             require_number(f"conflicts.{name}", getattr(self, name))
         if require_number("conflicts.crossing_angle", self.crossing_angle, allow_zero=True) > 90.0:
@@ -187,6 +193,8 @@ class RunConfig:
             del d["fleet"]
         else:
             d["fleet"] = _plain(d["fleet"])
+        if not self.conflicts.everyone:  # so does a run's without conflicts among the others
+            del d["conflicts"]["everyone"]
         return d
 
 

@@ -281,9 +281,11 @@ class FleetRun(Run):
         self.rec.tables["steps"] = ChunkedTable(self.rec.partial, "steps", STEPS)
         self.rec.tables["timings"] = ChunkedTable(self.rec.partial, "timings", TIMINGS)
         sink = _FleetCollisions(self.rec, self.egos)
-        self.book = CollisionBook(sink, cfg.collision_gap, SumoWorld("", cfg.sensing_radius).party_state)
+        types = SumoWorld("", cfg.sensing_radius)  # its vType cache and party_state
+        self.book = CollisionBook(sink, cfg.collision_gap, types.party_state)
         if cfg.conflicts.enabled:
             self.rec.record_conflicts()
+        self._start_pairs(types, dt)
         t = session.sim_time()
         inserted = [f"{INSERTED_PREFIX}{i}" for i in range(spec.egos)]
         if inserted:
@@ -385,6 +387,8 @@ class FleetRun(Run):
             new = _with_own_states(new, own)
             if self._record(a, new, dt, w, checked):
                 hit.add(a.id)
+        if self.pairs is not None:  # every pair without an ego measured this step
+            self._observe_pairs(now, frozenset(checked))
         # SUMO's reports of everyone else, egos driven by SUMO this step (just taken over, handed back) too
         self.book.detect_others(now, reports, self.step, frozenset(checked))
         for r in self.rec.collisions[rows_before:]:  # a new event names both egos (one detected it)
@@ -577,6 +581,7 @@ class FleetRun(Run):
                            "others": sum(not r["involves_ego"] for r in rows),
                            "fault": faults},
             **({"conflicts": conflict_counts(self.rec.conflicts)} if self.rec.conflicts is not None else {}),
+            **self._pairs_summary(),
             "seed": self.cfg.seed, "steps": self.step, "ego_steps": self.rec.n_steps,
             "n_fallback": sum(a.n_fallback for a in self.agents),
             "distance": float(sum(a.record()["distance"] for a in self.agents)),

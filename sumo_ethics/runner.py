@@ -34,6 +34,7 @@ from sumo_ethics.record.decisions import FOLDER as DECISIONS, SNAPSHOTS
 from sumo_ethics.record.writer import PARTIAL, write_json
 from sumo_ethics.safety.conflicts import ConflictBook, conflict_counts
 from sumo_ethics.safety.fault import RED_MEMORY, FaultContext
+from sumo_ethics.safety.pairs import PairConflictBook, pair_counts
 from sumo_ethics.sim import preflight, scenario as scenario_files, session
 from sumo_ethics.sim.ego import start_ego
 from sumo_ethics.sim.gui import GuiOptions, View
@@ -70,7 +71,7 @@ class RunSummary:
 
 #: every file or folder a run writes into its --out folder
 OUTPUT_NAMES = ("summary.json", "config.json", "steps.parquet", "timings.parquet", "collisions.parquet",
-                "conflicts.parquet", "sumo-errors.log", "sumo-outputs", PARTIAL, DECISIONS, SNAPSHOTS)
+                "conflicts.parquet", "conflicts_others.parquet", "sumo-errors.log", "sumo-outputs", PARTIAL, DECISIONS, SNAPSHOTS)
 
 
 def prepare_out(out: Path, overwrite: bool = False) -> tuple[bool, Path | None]:
@@ -157,6 +158,9 @@ class Run:
         self.step = 0
         self.n_fallback = 0  # predicted agents replaced by constant velocity (non-finite prediction), summed
         self.conflicts: ConflictBook | None = None
+        self.pairs: PairConflictBook | None = None  # conflicts among the others ([conflicts] everyone)
+        self.everyone: Any = None  # sim.everyone.Everyone: every road user, for self.pairs
+        self.pairs_wall = 0.0  # s spent reading everyone and measuring their pairs
         self.red_s: float | None = None  # arc length of the red stop line ahead at the last read
         self.ran_red_at = -float("inf")  # s, when the ego last passed a stop line at red
         self.t_start = wallclock.perf_counter()
@@ -242,6 +246,7 @@ class Run:
         if cfg.conflicts.enabled:
             self.conflicts = ConflictBook(self.rec, cfg.conflicts, dt)
             self.rec.record_conflicts()
+        self._start_pairs(world, dt)
         half = float(snap.ego.length[0]) / 2
         s, d = route.path.project_point(float(snap.ego.x[0]), float(snap.ego.y[0]))
         progress = _progress(cfg.progress, snap.time, end)
@@ -304,6 +309,7 @@ class Run:
                 if self.conflicts is not None:
                     self.conflicts.observe(new, self.step)
                 w5 = wallclock.perf_counter()
+                others_ms = self._observe_pairs(new.time, frozenset((world.ego_id,))) if self.pairs is not None else None
                 # record
                 s, d = route.path.project_point(float(new.ego.x[0]), float(new.ego.y[0]),
                                                 near=(s - 5.0, s + 5.0 + 50.0 * dt))
@@ -311,9 +317,11 @@ class Run:
                     self.ran_red_at = new.time  # (known from the next step's collisions on)
                 row, timing = self._rows(new, snap, decision, s, d, dt, (w1 - w0, w2 - wd, w3 - w2, w4 - w3),
                                          scene.stop_s)
-                timing["record_ms"] = 1e3 * (wallclock.perf_counter() - w5)
+                timing["record_ms"] = 1e3 * (wallclock.perf_counter() - w5) - (others_ms or 0.0)
                 if self.conflicts is not None:
                     timing["conflict_ms"] = 1e3 * (w5 - w4)
+                if others_ms is not None:
+                    timing["conflict_others_ms"] = others_ms
                 # flushes a chunk every CHUNK_SECONDS of simulated time; keeps the decision by mode
                 self.rec.step(row, timing, decision.trace, t, ego_hit)
                 notes.step(row["time"], s, row["speed"], row["n_neighbours"], row["stop_s"], row["lane"])
@@ -332,6 +340,35 @@ class Run:
             self.meta["loop_wall"] = wallclock.perf_counter() - self.t_start  # s, before outputs are written
             if progress is not None:
                 progress[0].stop()
+
+    def _start_pairs(self, types: SumoWorld, dt: float) -> None:
+        """With ``[conflicts] everyone``: read every road user from the next step on, and book their
+        pairs' conflicts (``types``: a world whose vType cache the reads share)."""
+        if not self.cfg.conflicts.everyone:
+            return
+        from sumo_ethics.sim.everyone import Everyone
+
+        self.everyone = Everyone(types)
+        self.pairs = PairConflictBook(self.rec.others_sink, self.cfg.conflicts, dt)
+        self.rec.record_conflicts_others()
+
+    def _observe_pairs(self, t: float, egos: frozenset[str]) -> float:
+        """The conflicts among every road user but ``egos`` after the step to time t [s]; the wall
+        time it took [ms]."""
+        w = wallclock.perf_counter()
+        states, z = self.everyone.read()
+        self.pairs.observe(t, self.step, states, z, egos)
+        took = wallclock.perf_counter() - w
+        self.pairs_wall += took
+        return 1e3 * took
+
+    def _pairs_summary(self) -> dict[str, Any]:
+        """summary.json's ``conflicts_others``: the counts, and what measuring them cost."""
+        if self.rec.conflicts_others is None:
+            return {}
+        cost = {} if self.pairs is None else {"steps": self.pairs.steps, "pairs_per_step": self.pairs.cost(),
+                                              "ms_per_step": 1e3 * self.pairs_wall / max(self.pairs.steps, 1)}
+        return {"conflicts_others": pair_counts(self.rec.conflicts_others) | cost}
 
     def _route_end(self, t: float) -> tuple[RunStatus, str]:
         """How the run ends when the ego passes its route's end at time t: completed, unless a hook
@@ -408,6 +445,7 @@ class Run:
                            "others": sum(not r["involves_ego"] for r in self.rec.collisions),
                            "fault": faults},
             **({"conflicts": conflict_counts(self.rec.conflicts)} if self.rec.conflicts is not None else {}),
+            **self._pairs_summary(),
             "seed": self.cfg.seed,
             "steps": self.rec.n_steps,
             "n_fallback": self.n_fallback,

@@ -1,7 +1,7 @@
 """Planner settings from the command line and TOML files, validated before SUMO starts.
 
 A TOML file for ``run`` may also have a ``[conflicts]`` table (:class:`~sumo_ethics.config.ConflictConfig`:
-enabled, ttc, pet, gap, crossing_angle; sweeps read ``[planner]`` alone). A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, normalise, predictor,
+enabled, ttc, pet, gap, crossing_angle, everyone; sweeps read ``[planner]`` alone). A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, normalise, predictor,
 predictor_weights, calibrated, max_risk, braking_prior, lateral_prior, selection, envelope, entry) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
 ``[planner.principles]`` (custom J_origin weights); unknown keys are errors. ``probability =
 "origin"`` (or ``"shapes"``) is short for ``[planner.probability] method = ...``.
@@ -60,7 +60,7 @@ def load_toml(path: Path) -> dict[str, Any]:
 
 def load_run_toml(path: Path):
     """The ``[planner]`` table and the :class:`~sumo_ethics.config.ConflictConfig` of ``[conflicts]``
-    (enabled, ttc, pet, gap, crossing_angle) of a TOML file for ``run``."""
+    (enabled, ttc, pet, gap, crossing_angle, everyone) of a TOML file for ``run``."""
     planner, data = _read_toml(path, {"planner", "conflicts", "planners"})
     return planner, conflicts_config(data.get("conflicts"), str(path))
 

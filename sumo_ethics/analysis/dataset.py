@@ -123,6 +123,7 @@ def _run_row(run: dict[str, Any], folder: Path, steps: pa.Table | None) -> dict[
     harm = s.get("harm", {})
     coll = s.get("collisions", {})
     conf = s.get("conflicts")  # absent: conflicts were not measured (NaN, not 0)
+    others = s.get("conflicts_others")  # absent: the pairs without an ego were not measured
     wall = s.get("wall_time")
     if (folder / "params.json").exists():
         wall = json.loads((folder / "params.json").read_text()).get("wall_time", wall)
@@ -139,6 +140,9 @@ def _run_row(run: dict[str, Any], folder: Path, steps: pa.Table | None) -> dict[
         "drive_time": drive_time(s),
         "conflicts_total": float(conf["total"]) if conf else float("nan"),
         "conflicts_vru": float(conf["vru"]) if conf else float("nan"),
+        "conflicts_others": float(others["total"]) if others else float("nan"),
+        "conflicts_others_vru": float(others["by_group"]["vehicle-vru"] + others["by_group"]["vru-vru"])
+        if others else float("nan"),
         "controller": s.get("controller"), "wall_time": float(wall) if wall is not None else None,
         **fleet_columns(s),
         "path": f"runs/{run['run_id']}",
@@ -153,6 +157,7 @@ RUN_COLUMNS = pa.schema([
     ("harm_total", pa.float64()), ("collisions_ego", pa.int64()), ("collisions_others", pa.int64()),
     ("steps", pa.int64()), ("distance", pa.float64()), ("sim_time", pa.float64()), ("route_length", pa.float64()),
     ("drive_time", pa.float64()), ("conflicts_total", pa.float64()), ("conflicts_vru", pa.float64()),
+    ("conflicts_others", pa.float64()), ("conflicts_others_vru", pa.float64()),
     ("controller", pa.string()), ("wall_time", pa.float64()),
     *((c, pa.float64()) for c in FLEET_COLUMNS), ("path", pa.string()),
     *((c, pa.float64()) for c in RISK_COLUMNS),

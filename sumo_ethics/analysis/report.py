@@ -124,13 +124,18 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
                   "[conflicts.csv](conflicts.csv).", "", to_markdown(c[cols])]
     if "traffic" in tables:
         t = tables["traffic"]
+        others = [f"conflicts_{n}_per_100vkm" for n in ("others", "others_vru", "everyone")]
+        others = others if t[others[0]].notna().any() else []
         cols = [*by, "n_runs", "egos", "vehicle_km", *(f"harm_{n}_per_Mvkm" for n, _ in TRAFFIC_HARM),
-                "conflicts_per_100km", *(f"time_loss_{n}" for n, _ in TRAFFIC_LOSS)]
+                "conflicts_per_100km", *others, *(f"time_loss_{n}" for n, _ in TRAFFIC_LOSS)]
         lines += ["## Traffic (fleet runs)", "",
                   "Everyone's harm by party (egos, other vehicles, VRUs: every confirmed collision of the run, the "
-                  "egos' and SUMO's own) per 10^6 vehicle-km of all trips; the egos' conflicts per 100 ego-km; mean "
-                  "time loss per trip [s] by party, from SUMO's tripinfo (`trips.parquet`). 95 % bootstrap CIs over "
-                  "runs in [traffic.csv](traffic.csv).", "", to_markdown(t[cols])]
+                  "egos' and SUMO's own) per 10^6 vehicle-km of all trips; the egos' conflicts per 100 ego-km; "
+                  + ("the conflicts among road users that are not egos (`conflicts_others.parquet`), all of them and "
+                     "those with a VRU, and every conflict of the run (the egos' and the others'), per 100 vehicle-km "
+                     "of all trips; " if others else "")
+                  + "mean time loss per trip [s] by party, from SUMO's tripinfo (`trips.parquet`). 95 % bootstrap CIs "
+                  "over runs in [traffic.csv](traffic.csv).", "", to_markdown(t[cols])]
     if has_risk:
         lines += ["## Ex-ante risk per class", "",
                   "Per run, the mean over planning steps of the risk (P x harm) the chosen trajectory puts on",

@@ -135,8 +135,11 @@ TRAFFIC_LOSS = (("egos", "time_loss_egos"), ("other_vehicles", "time_loss_other_
 def traffic_table(runs: pd.DataFrame, by: Sequence[str], n_boot: int = 2000, seed: int = 0) -> pd.DataFrame:
     """Fleet runs' traffic outcomes per group: everyone's harm by party per 10^6 vehicle-km (the
     group's summed harm over its summed vehicle-km of all trips), the egos' conflicts per 100
-    ego-km, mean time loss per trip by party (mean over runs), each with a bootstrap 95 % CI over
-    runs. Empty without fleet runs."""
+    ego-km, the conflicts among the road users that are not egos (``conflicts_others``, runs with
+    ``[conflicts] everyone``) per 100 vehicle-km of all trips, all of them and those with a VRU, and
+    every conflict of those runs (the egos' and the others') per 100 vehicle-km (NaN for a group
+    without such runs), mean time loss per trip by party (mean over runs), each with a bootstrap
+    95 % CI over runs. Empty without fleet runs."""
     by = check_groups(runs, by)
     if "vehicle_km" not in runs.columns or not runs["vehicle_km"].notna().any():
         return pd.DataFrame()
@@ -159,6 +162,13 @@ def traffic_table(runs: pd.DataFrame, by: Sequence[str], n_boot: int = 2000, see
         else:
             rate = lo = hi = float("nan")
         row.update(conflicts_per_100km=rate, conflicts_per_100km_ci_lo=lo, conflicts_per_100km_ci_hi=hi)
+        o = g[g["conflicts_others"].notna()] if "conflicts_others" in g else g.iloc[:0]
+        vkm = o["vehicle_km"].to_numpy(float)
+        for name, n in (("others", o.get("conflicts_others")), ("others_vru", o.get("conflicts_others_vru")),
+                        ("everyone", o.get("conflicts_others", 0.0) + o.get("conflicts_total", np.nan))):
+            rate, lo, hi = rate_ci(np.asarray(n, float), vkm, 100.0, n_boot, seed) if len(o) else (np.nan,) * 3
+            row.update({f"conflicts_{name}_per_100vkm": rate, f"conflicts_{name}_per_100vkm_ci_lo": lo,
+                        f"conflicts_{name}_per_100vkm_ci_hi": hi})
         for name, col in TRAFFIC_LOSS:
             lo, hi = bootstrap_ci(g[col], n_boot, seed)
             row.update({f"time_loss_{name}": float(g[col].mean()), f"time_loss_{name}_ci_lo": lo,

@@ -14,7 +14,7 @@ from sumo_ethics.record import schema
 from sumo_ethics.record.writer import PARTIAL, conform, read_segment, segments, union_schema
 
 BASES = {"steps": schema.STEPS_BASE, "timings": schema.TIMINGS_BASE, "collisions": schema.COLLISIONS,
-         "conflicts": schema.CONFLICTS}
+         "conflicts": schema.CONFLICTS, "conflicts_others": schema.CONFLICTS_OTHERS}
 
 
 def is_incomplete(folder: Path) -> bool:
@@ -31,7 +31,7 @@ def _readable(path: Path) -> pa.Table | None:
 
 
 def read_table(folder: Path, name: str) -> pa.Table:
-    """Table ``name`` (steps, timings, collisions, conflicts) of a run folder: the finished file, else the
+    """Table ``name`` (steps, timings, collisions, conflicts, conflicts_others) of a run folder: the finished file, else the
     rows a killed run left in ``partial/`` (up to its last flush), else empty."""
     folder = Path(folder)
     base = BASES.get(name, pa.schema([]))
@@ -43,7 +43,7 @@ def read_table(folder: Path, name: str) -> pa.Table:
 
             raise ConfigError(f"{final} is not a readable Parquet file (truncated or corrupt)")
         return t
-    if name in ("collisions", "conflicts"):  # rewritten whole at each flush
+    if name in ("collisions", "conflicts", "conflicts_others"):  # rewritten whole at each flush
         t = _readable(folder / PARTIAL / f"{name}.parquet")
         return t if t is not None else base.empty_table()
     parts = [(sch, batches) for p in segments(folder / PARTIAL, name) for sch, batches in [read_segment(p)]
@@ -59,6 +59,7 @@ def recover_summary(folder: Path) -> dict[str, Any]:
     the run was killed before writing it."""
     from sumo_ethics.collision import booked_outcome
     from sumo_ethics.safety.conflicts import conflict_counts
+    from sumo_ethics.safety.pairs import pair_counts
 
     folder = Path(folder)
     path = folder / "summary.json"
@@ -97,6 +98,8 @@ def recover_summary(folder: Path) -> dict[str, Any]:
                        "others": sum(not r.get("involves_ego") for r in coll), "fault": faults},
         **({"conflicts": conflict_counts(read_table(folder, "conflicts").to_pylist())}
            if cfg.get("conflicts", {}).get("enabled") else {}),
+        **({"conflicts_others": pair_counts(read_table(folder, "conflicts_others").to_pylist())}
+           if cfg.get("conflicts", {}).get("everyone") else {}),
         "seed": cfg.get("seed"), "steps": len(steps), "distance": distance,
         **({"fleet": {"spec": cfg.get("fleet"), "egos": len({r["ego_id"] for r in steps})}} if fleet else {}),
         "sim_time": float(steps[-1]["time"]) if steps else None,

@@ -27,7 +27,9 @@ class RunRecorder:
 
     Collision rows stay in memory (events are few, and one is updated while it lasts) and are
     rewritten to ``partial/collisions.parquet`` at a flush when they changed; so are conflict
-    rows (``partial/conflicts.parquet``, once :meth:`record_conflicts` was called).
+    rows (``partial/conflicts.parquet``, once :meth:`record_conflicts` was called) and the rows of
+    conflicts among the other road users (``partial/conflicts_others.parquet``, once
+    :meth:`record_conflicts_others` was called; written through :attr:`others_sink`).
     """
 
     def __init__(self, out: Path, chunk: int = 20) -> None:
@@ -40,6 +42,9 @@ class RunRecorder:
         self._collisions_dirty = False
         self.conflicts: list[dict[str, Any]] | None = None  # a list once conflicts are recorded
         self._conflicts_dirty = False
+        self.conflicts_others: list[dict[str, Any]] | None = None  # a list once recorded ([conflicts] everyone)
+        self._others_dirty = False
+        self.others_sink = _OthersSink(self)
         self.n_steps = 0
         self.first_step: dict[str, Any] | None = None
         self.last_step: dict[str, Any] | None = None
@@ -99,6 +104,11 @@ class RunRecorder:
         self.conflicts[index].update(changes)
         self._conflicts_dirty = True
 
+    def record_conflicts_others(self) -> None:
+        """Write conflicts_others.parquet (rows through :attr:`others_sink`) with the other outputs."""
+        if self.conflicts_others is None:
+            self.conflicts_others = []
+
     # -- files --
     def flush(self) -> None:
         """Append what is buffered to the streams in ``partial/`` (and write the collisions, if
@@ -113,6 +123,10 @@ class RunRecorder:
             self.partial.mkdir(parents=True, exist_ok=True)
             write_table(self.partial / "conflicts.parquet", self.conflicts, schema.CONFLICTS)
             self._conflicts_dirty = False
+        if self._others_dirty:
+            self.partial.mkdir(parents=True, exist_ok=True)
+            write_table(self.partial / "conflicts_others.parquet", self.conflicts_others, schema.CONFLICTS_OTHERS)
+            self._others_dirty = False
 
     def close(self) -> None:
         """Write the finished files and remove ``partial/``."""
@@ -121,4 +135,23 @@ class RunRecorder:
         write_table(self.out / "collisions.parquet", self.collisions, self.collision_schema)
         if self.conflicts is not None:
             write_table(self.out / "conflicts.parquet", self.conflicts, schema.CONFLICTS)
+        if self.conflicts_others is not None:
+            write_table(self.out / "conflicts_others.parquet", self.conflicts_others, schema.CONFLICTS_OTHERS)
         shutil.rmtree(self.partial, ignore_errors=True)
+
+
+class _OthersSink:
+    """The sink of :class:`~sumo_ethics.safety.pairs.PairConflictBook`: rows of conflicts_others.parquet."""
+
+    def __init__(self, rec: RunRecorder) -> None:
+        self.rec = rec
+
+    def add_conflict(self, row: dict[str, Any]) -> int:
+        self.rec.record_conflicts_others()
+        self.rec.conflicts_others.append(row)
+        self.rec._others_dirty = True
+        return len(self.rec.conflicts_others) - 1
+
+    def update_conflict(self, index: int, **changes: Any) -> None:
+        self.rec.conflicts_others[index].update(changes)
+        self.rec._others_dirty = True

@@ -51,6 +51,11 @@ CONFLICTS = pa.schema([
     ("time_worst", pa.float64()),   # s, the worst step: min TTC, else min PET
 ])
 
+#: one row per conflict event between two road users neither of which is an ego (``[conflicts]
+#: everyone``, sumo_ethics.safety.pairs): the columns of CONFLICTS and the vType of a; party a is
+#: the one whose class comes first (car ... pedestrian, other), then by id
+CONFLICTS_OTHERS = CONFLICTS.insert(CONFLICTS.get_field_index("type_b"), pa.field("type_a", pa.string()))
+
 #: one row per ego step, after the step
 STEPS_BASE = pa.schema([
     ("step", pa.int32()),

@@ -8,6 +8,7 @@ While a run is going (and after it was killed) its rows live under ``RUN/partial
                                      same chunks); a new segment (.001, ...) when columns are added
     partial/collisions.parquet       every collision event so far (rewritten at a flush when changed)
     partial/conflicts.parquet        every conflict event so far, the open ones as far as they went (the same)
+    partial/conflicts_others.parquet the same for the pairs without an ego ([conflicts] everyone)
 
 The file is flushed after each batch, so a run killed by any signal, even ``kill -9``, leaves
 streams holding every row up to the last flush (a batch cut off by the kill is dropped when

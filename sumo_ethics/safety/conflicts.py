@@ -142,48 +142,57 @@ class ConflictBook:
     # -- events ------------------------------------------------------------------------------
     def _event(self, t: float, step: int, e: AgentStates, o: AgentStates, i: int, ttc: float, pet: float,
                dr: float, gap: float) -> None:
-        cfg = self.cfg
         oid = o.ids[i]
-        finite_ttc = math.isfinite(ttc)
         state = {"speed_a": float(e.speed[0]), "speed_b": float(o.speed[i]), "x_a": float(e.x[0]),
                  "y_a": float(e.y[0]), "x_b": float(o.x[i]), "y_b": float(o.y[i]), "time_worst": t}
-        last = self.last.get(oid)
-        self.last[oid] = t
-        if last is None or t - last > cfg.gap + 1e-9:
-            row = {"event": len(self.rows), "id_a": e.ids[0], "id_b": oid,
-                   "class_a": _LABELS[int(e.cls[0])], "class_b": _LABELS[int(o.cls[i])], "type_b": o.type_id[i],
-                   "start": t, "end": t, "step_start": step, "n_steps": 1,
-                   "min_ttc": ttc if finite_ttc else math.nan, "min_pet": pet if math.isfinite(pet) else math.nan,
-                   "max_drac": dr if finite_ttc and ttc > 0 else 0.0, "min_distance": gap,
-                   "ttc_below": ttc < cfg.ttc, "pet_below": pet < cfg.pet, "contact": ttc == 0.0} | state
-            self.rows.append(row)
-            self.open[oid] = len(self.rows) - 1
-            self.sink.add_conflict(dict(row))
-            return
-        row = self.rows[self.open[oid]]
-        ch: dict[str, Any] = {"end": t, "n_steps": row["n_steps"] + 1, "min_distance": min(row["min_distance"], gap)}
-        if ttc < cfg.ttc:
-            ch["ttc_below"] = True
-        if pet < cfg.pet:
-            ch["pet_below"] = True
-        if ttc == 0.0:
-            ch["contact"] = True
-        if finite_ttc and ttc > 0:
-            ch["max_drac"] = max(row["max_drac"], dr)
-        worse = False
-        if finite_ttc and not ttc >= row["min_ttc"]:  # also when min_ttc is NaN
-            ch["min_ttc"], worse = ttc, True
-        if math.isfinite(pet) and not pet >= row["min_pet"]:
-            ch["min_pet"] = pet
-            worse = worse or math.isnan(row["min_ttc"]) and not finite_ttc
-        if worse:
-            ch.update(state)
-        row.update(ch)
-        self.sink.update_conflict(self.open[oid], **ch)  # the sink's rows: the same order as ours
+        head = {"id_a": e.ids[0], "id_b": oid, "class_a": _LABELS[int(e.cls[0])], "class_b": _LABELS[int(o.cls[i])],
+                "type_b": o.type_id[i]}
+        book_event(self, self.cfg, oid, t, step, ttc, pet, dr, gap, head, state)
 
     def counts(self) -> dict[str, Any]:
         """Conflict counts for summary.json: total, by measure and by the other party's class."""
         return conflict_counts(self.rows)
+
+
+def book_event(book: Any, cfg: ConflictConfig, key: Any, t: float, step: int, ttc: float, pet: float, dr: float,
+               gap: float, head: dict[str, Any], state: dict[str, Any]) -> None:
+    """One step in conflict of the pair ``key`` at time t [s]: opens an event (a new row: ``head``, the
+    parties' ids, classes and types, and the measures) or extends the pair's open one, keeping its
+    minima and maxima and the ``state`` (speeds, positions, time) of its worst step. ``book`` holds
+    ``open`` (key -> row index), ``last`` (key -> last time in conflict), ``rows`` and ``sink``."""
+    finite_ttc = math.isfinite(ttc)
+    last = book.last.get(key)
+    book.last[key] = t
+    if last is None or t - last > cfg.gap + 1e-9:
+        row = {"event": len(book.rows), **head,
+               "start": t, "end": t, "step_start": step, "n_steps": 1,
+               "min_ttc": ttc if finite_ttc else math.nan, "min_pet": pet if math.isfinite(pet) else math.nan,
+               "max_drac": dr if finite_ttc and ttc > 0 else 0.0, "min_distance": gap,
+               "ttc_below": ttc < cfg.ttc, "pet_below": pet < cfg.pet, "contact": ttc == 0.0} | state
+        book.rows.append(row)
+        book.open[key] = len(book.rows) - 1
+        book.sink.add_conflict(dict(row))
+        return
+    row = book.rows[book.open[key]]
+    ch: dict[str, Any] = {"end": t, "n_steps": row["n_steps"] + 1, "min_distance": min(row["min_distance"], gap)}
+    if ttc < cfg.ttc:
+        ch["ttc_below"] = True
+    if pet < cfg.pet:
+        ch["pet_below"] = True
+    if ttc == 0.0:
+        ch["contact"] = True
+    if finite_ttc and ttc > 0:
+        ch["max_drac"] = max(row["max_drac"], dr)
+    worse = False
+    if finite_ttc and not ttc >= row["min_ttc"]:  # also when min_ttc is NaN
+        ch["min_ttc"], worse = ttc, True
+    if math.isfinite(pet) and not pet >= row["min_pet"]:
+        ch["min_pet"] = pet
+        worse = worse or math.isnan(row["min_ttc"]) and not finite_ttc
+    if worse:
+        ch.update(state)
+    row.update(ch)
+    book.sink.update_conflict(book.open[key], **ch)  # the sink's rows: the same order as ours
 
 
 def conflict_counts(rows: list[dict[str, Any]]) -> dict[str, Any]:

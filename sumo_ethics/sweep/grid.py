@@ -44,6 +44,8 @@ RUN_KEYS: dict[str, tuple[str, type]] = {
     "egos": ("fleet.egos", int),
     "penetration": ("fleet.penetration", float),
     "fleet": ("fleet.shares", str),
+    # conflicts among the road users that are not egos (conflicts_others.parquet)
+    "conflicts_everyone": ("conflicts.everyone", bool),
 }
 #: decisions a sweep's runs keep unless --record-decisions says otherwise (not part of the
 #: sweep's definition then, so sweeps made before it resume as they were)
@@ -267,6 +269,10 @@ class RunSpec:
                 fleet["shares"] = FleetSpec.parse_shares(fleet["shares"])
             kw["fleet"] = FleetSpec(**fleet)
             kw["record_decisions"] = "off"  # explain and replay read single-ego runs
+        if "conflicts.everyone" in kw:
+            from sumo_ethics.config import ConflictConfig
+
+            kw["conflicts"] = ConflictConfig(everyone=kw.pop("conflicts.everyone"))
         kw.setdefault("record_decisions", SWEEP_RECORD_DECISIONS)
         return RunConfig(scenario=Path(self.scenario), out=out, seed=int(self.params["seed"]), planner=planner,
                          progress=False, **kw)
