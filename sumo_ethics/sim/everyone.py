@@ -10,9 +10,8 @@ results cost about 0.05 ms a step for some 10 road users, against 0.16 ms for pe
 
 from __future__ import annotations
 
-import libsumo
+from sumo_ethics.sim.backend import sumo, tc
 import numpy as np
-from libsumo import constants as tc
 
 from sumo_ethics.sim.frames import front_to_centre
 from sumo_ethics.sim.world import SumoWorld
@@ -29,17 +28,17 @@ class Everyone:
 
     def __init__(self, types: SumoWorld) -> None:
         self.types = types  # its vType cache: class, size and mass as the egos' scenes have them
-        (x0, y0), (x1, y1) = libsumo.simulation.getNetBoundary()
-        self.junction = min(libsumo.junction.getIDList())
-        jx, jy = libsumo.junction.getPosition(self.junction)
+        (x0, y0), (x1, y1) = sumo.simulation.getNetBoundary()
+        self.junction = min(sumo.junction.getIDList())
+        jx, jy = sumo.junction.getPosition(self.junction)
         radius = max(np.hypot(x - jx, y - jy) for x in (x0, x1) for y in (y0, y1)) + MARGIN
-        js = libsumo.junction
+        js = sumo.junction
         js.subscribeContext(self.junction, tc.CMD_GET_VEHICLE_VARIABLE, radius, _VEH_VARS)
         js.subscribeContext(self.junction, tc.CMD_GET_PERSON_VARIABLE, radius, _PER_VARS)
 
     def read(self) -> tuple[AgentStates, np.ndarray]:
         """Every road user now (riders left out), sorted by id, and their elevation z (N,) [m]."""
-        res = libsumo.junction.getContextSubscriptionResults(self.junction)
+        res = sumo.junction.getContextSubscriptionResults(self.junction)
         ids = sorted(k for k, r in res.items() if not r.get(tc.VAR_VEHICLE))
         if not ids:
             return AgentStates.empty(), np.empty(0)
