@@ -202,6 +202,8 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
         c = d["conflicts"]
         con.print(f"  conflicts: {c['total']} (TTC below threshold {c['ttc']}, PET {c['pet']}, with contact "
                   f"{c['contact']}; VRU {c['vru']}) in {summary.out / 'conflicts.parquet'}")
+    if "conflicts_others" in d:
+        con.print("  " + _others_line(d["conflicts_others"], summary.out))
     if d.get("decisions", {}).get("steps"):
         con.print(f"  decisions: {d['decisions']['steps']} steps kept ({d['decisions']['mode']}, "
                   f"{d['decisions']['bytes'] / 1e6:.1f} MB) in {summary.out / 'decisions'}: sumo-ethics explain / replay")
@@ -210,6 +212,14 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
     for line in notes.lines(d):  # tight bends, a lonely standstill
         con.print(f"  {line}", markup=False)
     con.print(f"  outputs in {summary.out}")
+
+
+def _others_line(c: dict, out: Path) -> str:
+    """The run's line for the conflicts among road users other than the egos ([conflicts] everyone)."""
+    g = c["by_group"]
+    return (f"conflicts among the others: {c['total']} (vehicle-vehicle {g['vehicle-vehicle']}, vehicle-VRU "
+            f"{g['vehicle-vru']}, VRU-VRU {g['vru-vru']}; with contact {c['contact']}) in "
+            f"{out / 'conflicts_others.parquet'}")
 
 
 def _print_fleet(summary: Any) -> None:
@@ -229,6 +239,8 @@ def _print_fleet(summary: Any) -> None:
                   f"({t['person_km']:.1f} km) in {summary.out / 'trips.parquet'}")
     if f["teleported"]:
         con.print(f"  SUMO teleported {len(f['teleported'])} egos (handed back): {', '.join(f['teleported'][:5])}")
+    if "conflicts_others" in d:
+        con.print("  " + _others_line(d["conflicts_others"], summary.out))
     con.print(f"  outputs in {summary.out}")
 
 
