@@ -274,14 +274,16 @@ def test_conflicts_settings():
             conflicts_config(bad)
 
 
-def test_bad_conflicts_setting_is_one_line_exit_2(tmp_path):
+@pytest.mark.parametrize("body, key", [("ttc = -1.5", "conflicts.ttc"),
+                                       ("enabled = false\neveryone = true", "conflicts.everyone")])
+def test_bad_conflicts_setting_is_one_line_exit_2(tmp_path, body, key):
     toml = tmp_path / "c.toml"
-    toml.write_text("[conflicts]\nttc = -1.5\n")
+    toml.write_text(f"[conflicts]\n{body}\n")
     p = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "run", str(SCENARIOS / "testbed" / "testbed.sumocfg"),
                         "--config", str(toml), "--quiet", "--out", str(tmp_path / "out")],
                        check=False, capture_output=True, text=True, timeout=120)
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
-    assert p.returncode == 2 and len(lines) == 1 and "conflicts.ttc" in lines[0], p.stderr
+    assert p.returncode == 2 and len(lines) == 1 and key in lines[0], p.stderr
     assert not (tmp_path / "out").exists()
 
 

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pandas as pd
@@ -21,7 +19,7 @@ from sumo_ethics.safety.pairs import PairConflictBook, pair_counts
 from sumo_ethics.settings import conflicts_config
 from sumo_ethics.types import RoadUserClass as C
 
-from conftest import SCENARIOS, write_scenario
+from conftest import write_scenario
 from test_conflicts import DT, Sink, agents
 
 EVERYONE = ConflictConfig(everyone=True)
@@ -134,16 +132,6 @@ def test_everyone_settings():
         with pytest.raises(ConfigError):
             conflicts_config(bad)
 
-
-def test_bad_everyone_setting_is_one_line_exit_2(tmp_path):
-    toml = tmp_path / "c.toml"
-    toml.write_text("[conflicts]\nenabled = false\neveryone = true\n")
-    p = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "run", str(SCENARIOS / "testbed" / "testbed.sumocfg"),
-                        "--config", str(toml), "--quiet", "--out", str(tmp_path / "out")],
-                       check=False, capture_output=True, text=True, timeout=120)
-    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
-    assert p.returncode == 2 and len(lines) == 1 and "conflicts.everyone" in lines[0], p.stderr
-    assert not (tmp_path / "out").exists()
 
 
 def test_traffic_table_others_per_100_vehicle_km_by_hand():
