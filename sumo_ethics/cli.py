@@ -85,7 +85,7 @@ def cli() -> None:
 @click.option("--overwrite", is_flag=True, help="Replace the outputs of an earlier run in --out (refused otherwise).")
 @click.option("--record-decisions", type=click.Choice(["off", "collisions", "risky", "all"]), default="off",
               show_default=True, help="Keep what the planner weighed, for 'explain' and 'replay': every step, the "
-              "steps with any risk and the 5 s before each ego collision, only those 5 s, or nothing but the last step "
+              "steps with any risk (at most one per 0.5 s of simulated time) and the 5 s before each ego collision, only those 5 s, or nothing but the last step "
               "before each ego collision.")
 @click.option("--egos", type=int, help="Fleet: insert this many egos of ours, departing evenly over the first half of "
               "the run on routes drawn with --seed.")

@@ -56,7 +56,7 @@ def generate_cmd(count: int, seed: int, out: Path, family: str) -> None:
 @click.option("--resume", is_flag=True, help="Keep finished runs found in OUT/runs, run only the rest.")
 @click.option("--record-decisions", type=click.Choice(["off", "collisions", "risky", "all"]), default="risky",
               show_default=True, help="Decisions each run keeps for 'explain'/'replay' (risky: the steps whose choice "
-                                      "carries risk and the 5 s before every ego collision).")
+                                      "carries risk, at most one per 0.5 s, and the 5 s before every ego collision).")
 @click.option("--mode", type=click.Choice(["replay", "reactive"]), default="replay", show_default=True,
               help="For a folder of CommonRoad files: how the recorded road users are driven (see import-commonroad).")
 @click.option("--quiet", is_flag=True, help="No per-run progress lines.")

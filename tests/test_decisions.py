@@ -229,12 +229,25 @@ def test_risky_past_its_budget_keeps_one_step_per_second(tmp_path, monkeypatch):
     a collision at step 100 in full."""
     monkeypatch.setattr(rec, "RISKY_BUDGET", 5)
     monkeypatch.setattr(rec, "THIN_SECONDS", 1.0)
+    monkeypatch.setattr(rec, "RISKY_SPACING", 0.1)
     log = rec.DecisionLog(tmp_path, "risky", dt=0.1)
     for k in range(1, 101):
         log.add(k, round(k * 0.1, 10), _trace(1e-3), collided=k == 100)
     assert log.written[:9] == [1, 2, 3, 4, 5, 15, 25, 35, 45]
     assert rec.recorded_steps(tmp_path) == [1, 2, 3, 4, 5, 15, 25, 35, 45] + list(range(51, 101))
     assert log.thinned == 100 - 14  # kept as risky: 1-5 and 15, 25, ..., 95
+
+
+def test_risky_keeps_at_most_one_step_per_half_second_of_simulated_time(tmp_path):
+    """Every step risky at 0.05 s steps (fokr_bs_demo's length) for 60 s: one kept every 0.5 s, i.e.
+    steps 1, 11, 21, ... (t = 0.05, 0.55, ...), 120 in the simulated minute, the other 1080 thinned;
+    a collision at step 1200 still keeps the 5 s (100 steps) before it in full."""
+    log = rec.DecisionLog(tmp_path, "risky", dt=0.05)
+    for k in range(1, 1201):
+        log.add(k, round(k * 0.05, 10), _trace(1e-3), collided=k == 1200)
+    spaced = list(range(1, 1201, 10))
+    assert log.written[:120] == spaced and log.risky_kept == 120 and log.thinned == 1080
+    assert rec.recorded_steps(tmp_path) == sorted(set(spaced) | set(range(1101, 1201)))
 
 
 def test_unreadable_or_empty_recordings_are_one_line_errors(urban_runs, tmp_path):
