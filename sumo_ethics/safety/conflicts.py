@@ -31,7 +31,8 @@ from sumo_ethics.types import AgentStates, RoadUserClass
 _LABELS = tuple(c.label for c in RoadUserClass)
 
 
-def _boxes(s: AgentStates, idx: np.ndarray | slice = slice(None)) -> OrientedBoxes:
+def boxes_of(s: AgentStates, idx: np.ndarray | slice = slice(None)) -> OrientedBoxes:
+    """The boxes of road users ``idx`` of ``s`` (all by default)."""
     return OrientedBoxes(s.x[idx], s.y[idx], s.yaw[idx], s.length[idx], s.width[idx])
 
 
@@ -61,7 +62,7 @@ class ConflictBook:
         """(len(idx),) PET [s] of others ``idx`` now entering where the ego was (inf where none)."""
         tr = self.ego_trail
         trail = OrientedBoxes(tr[:, 1:2], tr[:, 2:3], tr[:, 3:4], tr[:, 4:5], tr[:, 5:6])
-        return pet_from_trail(_boxes(o, idx), t, trail, tr[:, 0], self.min_angle)
+        return pet_from_trail(boxes_of(o, idx), t, trail, tr[:, 0], self.min_angle)
 
     def _pet_into_others_trail(self, t: float, e: AgentStates) -> dict[str, float]:
         """PET [s] of the ego now entering where other road users were: id -> PET, for those whose
@@ -74,10 +75,10 @@ class ConflictBook:
         out: dict[str, float] = {}
         if not near.any():
             return out
-        eb = _boxes(e, 0)
+        eb = boxes_of(e, 0)
         for w, i in zip(*np.nonzero(near)):  # few: those whose bounding circles touch the ego's
             s, tw = self.others_states[w], float(self.others_time[w])
-            if t - tw < out.get(s.ids[i], np.inf) and bool(boxes_overlap(eb, _boxes(s, i))) \
+            if t - tw < out.get(s.ids[i], np.inf) and bool(boxes_overlap(eb, boxes_of(s, i))) \
                     and bool(crossing(e.yaw[0], s.yaw[i], self.min_angle)):
                 out[s.ids[i]] = t - tw
         return out
@@ -122,7 +123,7 @@ class ConflictBook:
         else:  # nobody in range now: nobody to measure (PET counts for road users still in range)
             near_pet, idx = {}, np.empty(0, int)
         if len(idx):
-            ob, eb = _boxes(o, idx), _boxes(e, 0)  # only the few that could meet a threshold
+            ob, eb = boxes_of(o, idx), boxes_of(e, 0)  # only the few that could meet a threshold
             ttc = box_ttc(eb, (evx, evy), ob, (ovx[idx], ovy[idx]))
             pet = np.full(len(idx), np.inf)
             on_trail = near_trail[idx]
@@ -134,7 +135,7 @@ class ConflictBook:
             hit = np.flatnonzero((ttc < cfg.ttc) | (pet < cfg.pet))
             if len(hit):
                 dr = drac(ttc[hit], vrel[idx[hit]])
-                gap = box_distance(eb, _boxes(o, idx[hit]))
+                gap = box_distance(eb, boxes_of(o, idx[hit]))
                 for j, k in enumerate(hit):
                     self._event(t, step, e, o, int(idx[k]), float(ttc[k]), float(pet[k]), float(dr[j]), float(gap[j]))
         self._push(t, e, o)
@@ -201,9 +202,14 @@ def conflict_counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
     by: dict[str, int] = {}
     for r in rows:
         by[r["class_b"]] = by.get(r["class_b"], 0) + 1
-    return {"total": len(rows), "ttc": sum(bool(r["ttc_below"]) for r in rows),
-            "pet": sum(bool(r["pet_below"]) for r in rows), "contact": sum(bool(r["contact"]) for r in rows),
-            "vru": sum(RoadUserClass[r["class_b"].upper()].is_vulnerable for r in rows),
+    return {**event_counts(rows), "vru": sum(RoadUserClass[r["class_b"].upper()].is_vulnerable for r in rows),
             "by_class": dict(sorted(by.items()))}
+
+
+def event_counts(rows: list[dict[str, Any]]) -> dict[str, int]:
+    """``total``, ``ttc`` and ``pet`` (events whose TTC / PET fell below its threshold) and
+    ``contact`` (events whose boxes touched) of conflict rows."""
+    return {"total": len(rows), "ttc": sum(bool(r["ttc_below"]) for r in rows),
+            "pet": sum(bool(r["pet_below"]) for r in rows), "contact": sum(bool(r["contact"]) for r in rows)}
 
 

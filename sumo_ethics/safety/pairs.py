@@ -33,7 +33,7 @@ from scipy.spatial import cKDTree
 
 from sumo_ethics.config import ConflictConfig
 from sumo_ethics.geometry import OrientedBoxes
-from sumo_ethics.safety.conflicts import book_event
+from sumo_ethics.safety.conflicts import book_event, boxes_of, event_counts
 from sumo_ethics.safety.measures import box_distance, box_ttc, drac, pet_from_trail
 from sumo_ethics.types import AgentStates, RoadUserClass
 
@@ -132,7 +132,7 @@ class PairConflictBook:
         near = np.flatnonzero(dist - r[i] - r[j] < vrel * cfg.ttc)  # bounding circles can meet in time
         if len(near):
             a, b = i[near], j[near]
-            ttc[near] = box_ttc(_boxes(s, a), (vx[a], vy[a]), _boxes(s, b), (vx[b], vy[b]))
+            ttc[near] = box_ttc(boxes_of(s, a), (vx[a], vy[a]), boxes_of(s, b), (vx[b], vy[b]))
         self.pairs["ttc"] += len(near)
         pet = np.full(len(i), np.inf)
         if self.pushed:
@@ -144,7 +144,7 @@ class PairConflictBook:
                 if len(k):
                     sl = slots[past[k]]
                     tr = self.trail[:, :, sl]  # (5, W, K) the other's boxes on its trail
-                    pet[k] = np.minimum(pet[k], pet_from_trail(_boxes(s, now[k]), t, OrientedBoxes(*tr), self.times,
+                    pet[k] = np.minimum(pet[k], pet_from_trail(boxes_of(s, now[k]), t, OrientedBoxes(*tr), self.times,
                                                                self.min_angle))
                 self.pairs["pet"] += len(k)
         pet = np.where(ttc > 0, pet, np.inf)  # boxes in contact: a collision, no encroachment
@@ -155,7 +155,7 @@ class PairConflictBook:
         swap = s.cls[b] < s.cls[a]  # party a: the class first, then the id
         a, b = np.where(swap, b, a), np.where(swap, a, b)
         dr = drac(ttc[hit], vrel[hit])
-        gap = box_distance(_boxes(s, a), _boxes(s, b))
+        gap = box_distance(boxes_of(s, a), boxes_of(s, b))
         for n in range(len(hit)):
             self._event(t, step, s, int(a[n]), int(b[n]), float(ttc[hit[n]]), float(pet[hit[n]]), float(dr[n]),
                         float(gap[n]))
@@ -175,10 +175,6 @@ class PairConflictBook:
         return {k: v / n for k, v in self.pairs.items()}
 
 
-def _boxes(s: AgentStates, idx: np.ndarray) -> OrientedBoxes:
-    return OrientedBoxes(s.x[idx], s.y[idx], s.yaw[idx], s.length[idx], s.width[idx])
-
-
 def pair_group(class_a: str, class_b: str) -> str:
     """``vehicle-vehicle``, ``vehicle-vru`` or ``vru-vru`` for two class labels (VRU: pedestrian,
     cyclist, motorcyclist, as everywhere)."""
@@ -188,7 +184,7 @@ def pair_group(class_a: str, class_b: str) -> str:
 
 def pair_counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Counts for summary.json of the conflicts among the others: ``total``, ``ttc``, ``pet``,
-    ``contact`` (as :func:`~sumo_ethics.safety.conflicts.conflict_counts`), ``by_group``
+    ``contact`` (:func:`~sumo_ethics.safety.conflicts.event_counts`), ``by_group``
     (vehicle-vehicle, vehicle-vru, vru-vru, all three always present) and ``by_pair`` (class_a-class_b)."""
     groups = {"vehicle-vehicle": 0, "vehicle-vru": 0, "vru-vru": 0}
     by: dict[str, int] = {}
@@ -196,6 +192,4 @@ def pair_counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
         groups[pair_group(r["class_a"], r["class_b"])] += 1
         key = f"{r['class_a']}-{r['class_b']}"
         by[key] = by.get(key, 0) + 1
-    return {"total": len(rows), "ttc": sum(bool(r["ttc_below"]) for r in rows),
-            "pet": sum(bool(r["pet_below"]) for r in rows), "contact": sum(bool(r["contact"]) for r in rows),
-            "by_group": groups, "by_pair": dict(sorted(by.items()))}
+    return {**event_counts(rows), "by_group": groups, "by_pair": dict(sorted(by.items()))}
