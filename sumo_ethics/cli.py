@@ -113,6 +113,7 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
 
     from sumo_ethics.config import FleetSpec, RunConfig
     from sumo_ethics.sim import scenario as scenario_files
+    from sumo_ethics.sumo_options import parse_sumo_args
 
     if gui_delay is not None and not gui:
         raise ConfigError("--gui-delay is sumo-gui's pause between steps: give --gui too")
@@ -142,7 +143,7 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
     cfg = RunConfig(scenario=scenario, out=out, seed=seed, end=end, ego_id=ego_id, ego_from=ego_from, ego_to=ego_to,
                     ego_depart=ego_depart, stop_at_collision=not continue_after_collision, controller=controller,
                     sensing_radius=radius, progress=not quiet, overwrite=overwrite, step_length=step_length,
-                    sumo_args=scenario_files.parse_sumo_args(sumo_arg), record_decisions=record_decisions,
+                    sumo_args=parse_sumo_args(sumo_arg), record_decisions=record_decisions,
                     fleet=fleet)
     scenario_files.plan(cfg.scenario, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id,
                         tuple(e for e in (ego_from, ego_to) if e is not None))
@@ -166,7 +167,7 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
                    f"'sumo-ethics evaluate {scenario.parent}' runs the scenario as the suite defines it", err=True)
     cfg = replace(cfg, planner=planner, conflicts=conflicts)
     if fleet is not None:
-        from sumo_ethics.fleet import check_fleet_names, make_fleet_controllers, run_fleet
+        from sumo_ethics.runner.fleet import check_fleet_names, make_fleet_controllers, run_fleet
         from sumo_ethics.settings import named_planners
 
         named = named_planners(config_file) if config_file is not None else {}
@@ -259,7 +260,8 @@ def explain(run_dir: Path, step: int | None, at_time: float | None, collision: i
     Every run keeps the last decision before each ego collision (--collision K); other steps need a run made with
     --record-decisions risky, all or collisions. --time picks the nearest recorded step within 0.5 s.
     """
-    from sumo_ethics.analysis.explain import conflict_mark, explain as draw, hit_of, resolve_step
+    from sumo_ethics.analysis.recorded import conflict_mark, hit_of, resolve_step
+    from sumo_ethics.analysis.explain import explain as draw
 
     k = resolve_step(run_dir, step=step, time=at_time, collision=collision, conflict=conflict)
     mark = hit_of(run_dir, collision) if collision is not None else conflict_mark(run_dir, conflict) \
@@ -288,11 +290,11 @@ def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: flo
             suite_dirs: tuple[Path, ...], samples_from: Path | None) -> None:
     """Record trajectories of vehicles, cyclists and pedestrians (with their lanes and signals) from SUMO runs
     into a prediction dataset."""
-    from sumo_ethics.predict import dataset_main
+    from sumo_ethics.recording.commands import dataset_main
     from sumo_ethics.sweep import parse_seeds
 
     if samples_from is not None:
-        from sumo_ethics.predict.dataset import rebuild_samples
+        from sumo_ethics.predict.samples import rebuild_samples
 
         if scenarios or suite_dirs:
             raise click.BadParameter("--samples-from takes no scenarios or --suite: it simulates nothing")
@@ -304,7 +306,7 @@ def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: flo
             raise click.BadParameter(f"{samples_from} has no {', '.join(missing)}: not a dataset folder")
         if out.exists() and out.resolve() == samples_from.resolve():
             raise click.BadParameter("--out must be a new folder, not the --samples-from dataset")
-    from sumo_ethics.predict.runstore import PARTIAL
+    from sumo_ethics.recording.runstore import PARTIAL
 
     # a stopped build: its kept runs and, if it was stopped while writing the dataset, some of the
     # dataset's files (split.json is written last), which the resumed build writes again

@@ -14,7 +14,7 @@ class _SumoTime(click.ParamType):
         if isinstance(value, float):
             return value
         from sumo_ethics.errors import ConfigError
-        from sumo_ethics.sim.scenario import parse_time
+        from sumo_ethics.sumo_options import parse_time
 
         what = param.opts[0] if param is not None else "time"
         try:

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from sumo_ethics.errors import ConfigError
-from sumo_ethics.sim.scenario import check_sumo_args
+from sumo_ethics.sumo_options import check_sumo_args
 
 
 def require_number(name: str, value: Any, allow_zero: bool = False) -> float:
@@ -69,11 +69,13 @@ class ConflictConfig:
 
 #: what ``--fleet`` names besides the J_origin weight presets: the route-following baseline
 FLEET_CONTROLLERS = ("baseline",)
+#: --record-decisions: which steps keep the planner's whole decision (:mod:`sumo_ethics.record.decisions`)
+DECISION_MODES = ("off", "collisions", "risky", "all")
 
 
 @dataclass(frozen=True)
 class FleetSpec:
-    """Several egos in one run (:mod:`sumo_ethics.fleet`).
+    """Several egos in one run (:mod:`sumo_ethics.runner.fleet`).
 
     egos: inserted egos, departures spread over the first half of the run, routes drawn with the
     seed; penetration: share of the scenario's own eligible vehicles taken over when they depart
@@ -157,13 +159,11 @@ class RunConfig:
     planner: Any = None  # sumo_ethics.plan.ethical.PlannerConfig for the "ethical" controller (None: defaults)
     record_decisions: str = "off"  # off | collisions | risky | all (sumo_ethics.record.decisions)
     conflicts: ConflictConfig = field(default_factory=ConflictConfig)  # near misses (conflicts.parquet)
-    fleet: FleetSpec | None = None  # several egos (sumo_ethics.fleet); None: the single-ego run
+    fleet: FleetSpec | None = None  # several egos (sumo_ethics.runner.fleet); None: the single-ego run
 
     def __post_init__(self) -> None:
-        from sumo_ethics.record.decisions import MODES
-
-        if self.record_decisions not in MODES:
-            raise ConfigError(f"--record-decisions must be one of {', '.join(MODES)}, got {self.record_decisions!r}")
+        if self.record_decisions not in DECISION_MODES:
+            raise ConfigError(f"--record-decisions must be one of {', '.join(DECISION_MODES)}, got {self.record_decisions!r}")
         object.__setattr__(self, "scenario", Path(self.scenario))
         object.__setattr__(self, "out", Path(self.out))
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed < 2**31:

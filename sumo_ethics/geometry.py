@@ -324,3 +324,13 @@ class Polyline:
             dtheta = wrap_angle(np.diff(self.heading))
             k[1:-1] = dtheta / (0.5 * (seg_len[:-1] + seg_len[1:]))
         return np.interp(s, self.s, k, left=0.0, right=0.0)
+
+
+def ellipses(mean: np.ndarray, cov: np.ndarray, k: float = 1.0, n: int = 32) -> np.ndarray:
+    """(..., n, 2) closed outlines (first point repeated last) of the k-sigma ellipses of 2-D
+    Gaussians: mean (..., 2) [m], cov (..., 2, 2) [m^2]."""
+    mean, cov = np.asarray(mean, dtype=float), np.asarray(cov, dtype=float)
+    vals, vecs = np.linalg.eigh(cov)  # (..., 2), (..., 2, 2): columns are the axes
+    a = np.linspace(0.0, 2.0 * np.pi, n)
+    circle = np.stack([np.cos(a), np.sin(a)], -1) * (k * np.sqrt(np.maximum(vals, 0.0)))[..., None, :]
+    return np.einsum("...nj,...ij->...ni", circle, vecs) + mean[..., None, :]

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from typing import Any, Sequence
 
-from sumo_ethics.sim.route import TightBend
+from sumo_ethics.contract import TightBend
 
 __all__ = ["RunNotes", "STANDSTILL_NOTE", "STILL_SPEED", "lines"]
 

@@ -7,8 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sumo_ethics.plan.controller import Decision, Scene
-from sumo_ethics.sim.world import EgoCommand
+from sumo_ethics.contract import Decision, EgoCommand, Scene
 
 ROOT = Path(__file__).resolve().parents[1]
 TESTBED_NET = ROOT / "networks" / "testbed" / "testbed.net.xml"

@@ -197,7 +197,7 @@ def test_sumo_stays_silent_whatever_the_scenario_asks(tmp_path):
 
 
 def test_times_from_one_hour_on_are_printed_in_sumos_clock_form_too():
-    from sumo_ethics.sim.scenario import format_time, parse_time
+    from sumo_ethics.sumo_options import format_time, parse_time
 
     assert format_time(8.0) == "8 s" and format_time(3599.5) == "3599.5 s"
     assert format_time(parse_time("15:07:00", "--end")) == "54420 s (15:07:00)"  # as the user gave it

@@ -20,7 +20,7 @@ import pytest
 from shapely.geometry import Polygon
 
 from sumo_ethics.cli import main
-from sumo_ethics.commonroad.goal import Goal, GoalState
+from sumo_ethics.goal import Goal, GoalState
 
 DATA = Path(__file__).parent / "data" / "commonroad"
 ZAM = DATA / "ZAM_Tutorial-1_1_T-1.xml.gz"

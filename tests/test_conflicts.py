@@ -336,8 +336,8 @@ class DriveThenStand:
         self.speed, self.stop_s, self.d = speed, stop_s, d
 
     def act(self, scene):
-        from sumo_ethics.plan.controller import Decision
-        from sumo_ethics.sim.world import EgoCommand
+        from sumo_ethics.contract import Decision
+        from sumo_ethics.contract import EgoCommand
 
         v = self.speed if scene.s < self.stop_s else 0.0
         s = min(scene.s + v * scene.dt, max(scene.s, self.stop_s))
@@ -380,8 +380,8 @@ class FollowThenMatch:
         self.matched = False
 
     def act(self, scene):
-        from sumo_ethics.plan.controller import Decision
-        from sumo_ethics.sim.world import EgoCommand
+        from sumo_ethics.contract import Decision
+        from sumo_ethics.contract import EgoCommand
 
         o = scene.others
         if self.leader in o.index:

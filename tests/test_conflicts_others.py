@@ -27,7 +27,7 @@ EVERYONE = ConflictConfig(everyone=True)
 
 def observe(book, t, step, *parts, exclude=()):
     """One step of ``book`` with the road users of ``parts`` (ids sorted, as the sim reads them)."""
-    from sumo_ethics.fleet import union_states
+    from sumo_ethics.runner.fleet import union_states
 
     s = union_states(list(parts))
     book.observe(t, step, s, np.zeros(len(s)), frozenset(exclude))

@@ -94,7 +94,8 @@ def test_explain_draws_every_candidate_and_marks_the_chosen(urban_runs, tmp_path
     matplotlib.use("Agg")
     from matplotlib.collections import LineCollection
 
-    from sumo_ethics.analysis.explain import decision_figure, explain, road_of
+    from sumo_ethics.analysis.recorded import road_of
+    from sumo_ethics.analysis.explain import decision_figure, explain
 
     run = urban_runs["all"]
     k = rec.recorded_steps(run)[40]
@@ -144,7 +145,7 @@ def test_explain_draws_a_conflict_at_its_worst_moment(urban_runs, tmp_path):
     assert res.exit_code == 0, res.output
     assert f"step {d.step} " in res.output
     assert (tmp_path / "c.png").is_file() and (tmp_path / "c.svg").is_file()
-    from sumo_ethics.analysis.explain import conflict_mark
+    from sumo_ethics.analysis.recorded import conflict_mark
 
     assert conflict_mark(run, 0) == (row["x_b"], row["y_b"], "conflict 0: pedestrian 'walker7', min TTC 0.84 s")
     assert_one_line_error(sumo_ethics("explain", str(run), "--conflict", "5"), "has no conflict event 5 (events: 0)", 2)

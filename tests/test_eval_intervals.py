@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sumo_ethics.predict.evaluate import ci_markdown, ratio_intervals
+from sumo_ethics.predict.accuracy import ci_markdown, ratio_intervals
 
 
 def gaussians(offset: np.ndarray, modes: int | None = None) -> np.ndarray:

@@ -8,7 +8,8 @@ import pytest
 
 from sumo_ethics.record import schema
 from sumo_ethics.record.writer import write_json, write_table
-from sumo_ethics.suite.evaluate import _outcome, safety_markdown, safety_table
+from sumo_ethics.suite.evaluate import safety_markdown, safety_table
+from sumo_ethics.suite.outcome import outcome
 
 
 def _row(planner, km, total, vru, **harm):
@@ -41,19 +42,19 @@ def test_a_run_folder_gives_its_conflicts_and_harm_by_fault(tmp_path):
     write_table(tmp_path / "collisions.parquet", rows, schema.COLLISIONS)
     summary = {"distance": 250.0, "sim_time": 40.0, "takeover_time": 10.0, "conflicts": {"total": 3, "vru": 1}}
     write_json(tmp_path / "summary.json", summary)
-    s = _outcome(tmp_path, summary)
+    s = outcome(tmp_path, summary)
     assert (s["distance"], s["drive_time"], s["conflicts_total"], s["conflicts_vru"]) == (250.0, 30.0, 3.0, 1.0)
     # unconfirmed contacts and collisions without the ego book nothing
     assert s["harm_fault_ego"] == pytest.approx(0.4) and s["harm_fault_other"] == pytest.approx(0.03)
     assert s["harm_fault_shared"] == s["harm_fault_unknown"] == 0.0
-    assert math.isnan(_outcome(tmp_path, {"distance": 1.0})["conflicts_total"])  # conflicts off: not 0
+    assert math.isnan(outcome(tmp_path, {"distance": 1.0})["conflicts_total"])  # conflicts off: not 0
 
 
 def test_overcautious_brakings_by_hand():
     import numpy as np
     import pandas as pd
 
-    from sumo_ethics.suite.evaluate import overcautious_brakings
+    from sumo_ethics.suite.outcome import overcautious_brakings
 
     t = np.round(np.arange(0, 100) * 0.1, 1)
     accel = np.full(100, -1.0)

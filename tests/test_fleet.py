@@ -1,4 +1,4 @@
-"""Fleets: several egos in one run (sumo_ethics.fleet), on the bundled testbed and urban_grid."""
+"""Fleets: several egos in one run (sumo_ethics.runner.fleet), on the bundled testbed and urban_grid."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ import sumo
 from conftest import SCENARIOS, Scripted, write_scenario
 from sumo_ethics.config import FleetSpec, RunConfig
 from sumo_ethics.errors import ConfigError
-from sumo_ethics.fleet import draw, fleet_booking, inserted_departs, planner_of, run_fleet, union_states
+from sumo_ethics.runner.fleet import draw, fleet_booking, inserted_departs, planner_of, run_fleet, union_states
 from sumo_ethics.plan.baseline import RouteFollower
-from sumo_ethics.plan.controller import Decision, Scene
+from sumo_ethics.contract import Decision, Scene
 from sumo_ethics.sim.session import FORCED_OPTIONS
 from sumo_ethics.types import AgentStates, Prediction
 
@@ -336,7 +336,7 @@ def test_a_fleet_run_is_the_same_bytes_with_the_same_seed(tmp_path):
 
 
 def test_shared_prediction_is_one_call_giving_each_ego_its_rows():
-    from sumo_ethics.fleet import SharedPrediction
+    from sumo_ethics.runner.fleet import SharedPrediction
     from sumo_ethics.plan.history import History
     from sumo_ethics.predict import ConstantVelocityPredictor
 

@@ -14,7 +14,7 @@ import pytest
 from sumo_ethics.predict.features import LaneGraph
 from sumo_ethics.predict.graph_files import (DATASET_GRAPHS, LEGACY_GRAPHS, decode_graph, encode_graph,
                                              read_dataset_graphs, write_dataset_graphs)
-from sumo_ethics.predict.runstore import RunStore
+from sumo_ethics.recording.runstore import RunStore
 
 
 def _graph() -> LaneGraph:

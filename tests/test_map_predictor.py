@@ -619,7 +619,8 @@ def test_a_person_waiting_for_a_ride_stands_on_the_pavement_of_its_edge(tmp_path
 @pytest.mark.sumo
 @pytest.mark.skipif(not URBAN.exists(), reason="bundled urban scenario missing")
 def test_dataset_carries_map_context_from_sumo(tmp_path):
-    from sumo_ethics.predict.dataset import MANOEUVRES, build_dataset, load_samples
+    from sumo_ethics.predict.samples import MANOEUVRES, load_samples
+    from sumo_ethics.recording.build import build_dataset
 
     out = build_dataset([URBAN], [1, 2, 3], tmp_path / "ds", sim_seconds=60.0, anchor_every=1.0)
     s = load_samples(out)
@@ -688,7 +689,8 @@ def test_suite_runs_bring_hazard_actors_into_the_data(tmp_path):
     its samples are labelled 'hazard' with a future observed for at least 1 s. The step the actor
     is inserted in, SUMO gives it no position yet (-2^30 m): that row used to be recorded, and the
     actor's first samples had a 1.5e9 m jump in their history."""
-    from sumo_ethics.predict.dataset import HAZARD_MIN_FUTURE, MANOEUVRES, build_dataset, load_samples
+    from sumo_ethics.predict.samples import HAZARD_MIN_FUTURE, MANOEUVRES, load_samples
+    from sumo_ethics.recording.build import build_dataset
 
     out = build_dataset([], [], tmp_path / "ds", suite=[SUITE / "s0002"], suite_anchor_every=0.4)
     traj = __import__("pandas").read_parquet(out / "trajectories.parquet")

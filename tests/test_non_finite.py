@@ -16,10 +16,10 @@ from sumo_ethics.config import EgoVehicle
 from sumo_ethics.ethics.cost import CostConfig, score
 from sumo_ethics.ethics.risk import RiskTerms
 from sumo_ethics.geometry import Polyline
-from sumo_ethics.plan.controller import Scene
+from sumo_ethics.contract import Scene
 from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig, select
 from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor, replace_non_finite
-from sumo_ethics.sim.route import RoutePath
+from sumo_ethics.contract import RoutePath
 from sumo_ethics.types import AgentStates, Candidates, Observation, Prediction
 
 DT = 0.1

@@ -9,7 +9,8 @@ import pytest
 
 from sumo_ethics.geometry import Polyline
 from sumo_ethics.notes import STANDSTILL_NOTE, RunNotes, lines
-from sumo_ethics.sim.route import RoutePath, TightBend, tight_bends
+from sumo_ethics.contract import RoutePath, TightBend
+from sumo_ethics.sim.route import tight_bends
 
 NAN = float("nan")
 

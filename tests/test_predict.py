@@ -18,7 +18,7 @@ torch = pytest.importorskip("torch")
 from sumo_ethics.predict import PredictorError  # noqa: E402
 from sumo_ethics.predict import features as F  # noqa: E402
 from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor  # noqa: E402
-from sumo_ethics.predict.dataset import samples_from_run, subset  # noqa: E402
+from sumo_ethics.predict.samples import samples_from_run, subset  # noqa: E402
 from sumo_ethics.predict.models import (  # noqa: E402
     TrajectoryLSTM,
     batch_to_tensors,
@@ -94,7 +94,7 @@ def test_samples_from_synthetic_run():
 
 
 def test_add_train_samples_takes_only_the_extra_training_samples_of_the_groups():
-    from sumo_ethics.predict.dataset import add_train_samples
+    from sumo_ethics.predict.samples import add_train_samples
 
     # base: 2 samples with 1 and 2 neighbours; extra: 4 samples (vehicle/cyclist/pedestrian in
     # train, a cyclist in val) with 1, 0, 2 and 1 neighbours, told apart by their nbr_cell

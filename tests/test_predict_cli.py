@@ -293,7 +293,7 @@ def test_runs_in_fresh_processes_come_as_they_finish_and_a_crash_is_named():
     import time
 
     from sumo_ethics.errors import SimulationError
-    from sumo_ethics.predict.isolated import isolated_map
+    from sumo_ethics.recording.isolated import isolated_map
 
     def crashed(job: int) -> SimulationError:
         return SimulationError(f"SUMO crashed while simulating job {job}")

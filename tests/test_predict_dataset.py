@@ -10,7 +10,8 @@ import pandas as pd
 import pytest
 
 from sumo_ethics.predict import features as F
-from sumo_ethics.predict.dataset import build_dataset, rebuild_samples, split_seeds
+from sumo_ethics.predict.samples import rebuild_samples, split_seeds
+from sumo_ethics.recording.build import build_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 URBAN = ROOT / "scenarios" / "urban" / "urban.sumocfg"
@@ -189,7 +190,7 @@ def test_isolated_map_terminates_its_running_workers_when_interrupted():
     import signal
     import time
 
-    from sumo_ethics.predict.isolated import isolated_map
+    from sumo_ethics.recording.isolated import isolated_map
 
     class Stop(Exception):
         pass
@@ -217,7 +218,7 @@ def test_run_store_keeps_finished_runs_whole_and_refuses_another_plan(tmp_path):
     come back as given; a write cut short (a .part file) is not a finished run and is cleared; the
     finished runs of another build are refused in one line, never mixed or deleted."""
     from sumo_ethics.errors import ConfigError
-    from sumo_ethics.predict.runstore import RunStore, kept_runs
+    from sumo_ethics.recording.runstore import RunStore, kept_runs
 
     out = tmp_path / "ds"
     plan = {"runs": [{"run_id": 0, "seed": 1, "scale": 0.7}, {"run_id": 1, "seed": 2, "scale": 1.0}], "suite": []}
@@ -261,7 +262,7 @@ def test_a_stopped_dataset_keeps_its_finished_runs_and_the_same_command_resumes_
     import sys
     import time
 
-    import sumo_ethics.predict.dataset as D
+    import sumo_ethics.recording.build as D
     from sumo_ethics.cli import main
 
     out = tmp_path / "ds"
@@ -309,10 +310,10 @@ def test_a_stopped_dataset_keeps_its_finished_runs_and_the_same_command_resumes_
 def test_a_failed_run_names_the_finished_runs_it_keeps(tmp_path, monkeypatch):
     """A SUMO run failing after another one finished: the one line names what is kept and how to
     go on (the kept run is not lost with the failure); with nothing finished, the failure alone."""
-    import sumo_ethics.predict.dataset as D
+    import sumo_ethics.recording.build as D
     from sumo_ethics.errors import SimulationError
-    from sumo_ethics.predict.commands import dataset_main
-    from sumo_ethics.predict.runstore import RunStore
+    from sumo_ethics.recording.commands import dataset_main
+    from sumo_ethics.recording.runstore import RunStore
 
     out = tmp_path / "ds"
 
@@ -336,7 +337,7 @@ def test_rows_without_a_position_are_steps_not_seen():
     """Datasets recorded before sim.recorder.on_road hold SUMO's INVALID_DOUBLE_VALUE (-2^30 m) as
     the position of a road user SUMO had not placed yet (a suite hazard's first step, a car leaving
     a parking area): their samples are those of the track without those rows, not a 1.5e9 m jump."""
-    from sumo_ethics.predict.dataset import samples_from_run
+    from sumo_ethics.predict.samples import samples_from_run
 
     t = np.round(np.arange(0.0, 20.0, 0.1), 1)
     rows = []
@@ -364,7 +365,7 @@ def test_the_first_worker_of_a_fresh_process_holds_ctrl_c_and_sigterm_too():
     import sys
 
     code = ("import functools, signal\n"
-            "from sumo_ethics.predict.isolated import isolated_map\n"
+            "from sumo_ethics.recording.isolated import isolated_map\n"
             "mask = functools.partial(signal.pthread_sigmask, signal.SIG_BLOCK)\n"
             "print(sorted(int(s) for _, blocked in isolated_map(mask, [[], []], 1, RuntimeError) for s in blocked))\n"
             "print(sorted(int(s) for s in signal.pthread_sigmask(signal.SIG_BLOCK, [])))\n")
@@ -378,7 +379,7 @@ def test_a_track_is_cut_where_the_road_user_was_not_seen_or_jumped():
     """A pedestrian who rides a bus (not seen as a pedestrian meanwhile) or whom SUMO places 100 m
     away: its samples after the gap start a new track, instead of a history that bridges the gap
     (in the shipped data: 66 samples with histories reaching 2.5 km back)."""
-    from sumo_ethics.predict.dataset import samples_from_run, track_pieces
+    from sumo_ethics.predict.samples import samples_from_run, track_pieces
 
     ids = np.array(["a", "b", "a", "b", "a", "a", "c"], dtype=object)
     codes, names = track_pieces(ids, np.array([0, 0, 1, 1, 3, 4, 2]), np.array([0, 0, 1, 1, 2, 100, 5.0]), np.zeros(7))
@@ -404,7 +405,7 @@ def test_a_worker_dies_with_its_killed_parent():
     import sys
     import time
 
-    code = ("import time\nfrom sumo_ethics.predict.isolated import isolated_map\n"
+    code = ("import time\nfrom sumo_ethics.recording.isolated import isolated_map\n"
             "list(isolated_map(time.sleep, [60.0], 1, RuntimeError))\n")
     parent = subprocess.Popen([sys.executable, "-c", code])
     deadline = time.monotonic() + 60

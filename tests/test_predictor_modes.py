@@ -13,7 +13,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from sumo_ethics.predict.evaluate import metrics, mixture_nll_points, nll_points  # noqa: E402
+from sumo_ethics.predict.accuracy import metrics, mixture_nll_points, nll_points  # noqa: E402
 from sumo_ethics.predict.models import (  # noqa: E402
     TrajectoryLSTM,
     bivariate_nll,
@@ -142,7 +142,7 @@ def test_evaluation_metrics_of_a_mixture_by_hand():
 def test_improvement_summary_names_models_given_by_the_user():
     import pandas as pd
 
-    from sumo_ethics.predict.evaluate import improvement_summary
+    from sumo_ethics.predict.accuracy import improvement_summary
 
     df = pd.DataFrame({"model": ["constant_velocity", "constant_velocity_calibrated", "mine"],
                        "group": ["vehicle"] * 3, "ade": [2.0, 2.0, 1.5]})
@@ -319,7 +319,7 @@ def test_selection_score_by_hand():
     """Mean over (table, class) of ADE / constant velocity's ADE, classes under min_samples left out."""
     import pandas as pd
 
-    from sumo_ethics.predict.evaluate import selection_scores
+    from sumo_ethics.predict.accuracy import selection_scores
 
     def table(rows):
         return pd.DataFrame([{"model": m, "group": g, "ade": a, "n": n} for m, g, a, n in rows])

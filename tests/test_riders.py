@@ -56,7 +56,7 @@ def test_the_ego_scene_has_the_vehicle_but_not_its_rider(tmp_path):
 
 
 def test_a_dataset_records_no_rider_while_it_rides(tmp_path):
-    from sumo_ethics.predict.dataset import RunSpec, _simulate
+    from sumo_ethics.recording.build import RunSpec, _simulate
 
     rows, _ = _simulate(RunSpec(0, _config(tmp_path), seed=1, scale=1.0, sim_seconds=30.0))
     assert "rider" not in set(rows["agent_id"])

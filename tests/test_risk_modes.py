@@ -18,11 +18,11 @@ from sumo_ethics.config import EgoVehicle
 from sumo_ethics.ethics.probability import ProbabilityConfig
 from sumo_ethics.ethics.risk import RiskTerms, assess_risk
 from sumo_ethics.geometry import Polyline
-from sumo_ethics.plan.controller import Scene
+from sumo_ethics.contract import Scene
 from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior
 from sumo_ethics.record import decisions as rec
-from sumo_ethics.sim.route import RoutePath
+from sumo_ethics.contract import RoutePath
 from sumo_ethics.types import AgentStates, Candidates, Observation, Prediction, RoadUserClass
 
 DT = 0.1
@@ -282,7 +282,7 @@ def test_planner_runs_on_two_modes_and_the_priors_keep_them(tmp_path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sumo_ethics.analysis.explain import draw_agents
+    from sumo_ethics.analysis.drawing import draw_agents
 
     from dataclasses import replace
 

@@ -21,7 +21,8 @@ import sumo
 from sumo_ethics.config import RunConfig
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.runner import run
-from sumo_ethics.sim.scenario import parse_time, redirected_outputs, read_scenario
+from sumo_ethics.sim.scenario import redirected_outputs, read_scenario
+from sumo_ethics.sumo_options import parse_time
 
 from conftest import Scripted, TESTBED_NET, write_scenario
 

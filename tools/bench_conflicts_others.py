@@ -31,7 +31,7 @@ def fokr() -> Path:
 
 def one(scenario: Path, end: float, penetration: float, seed: int, out: Path, on: bool) -> dict:
     from sumo_ethics.config import ConflictConfig, FleetSpec, RunConfig
-    from sumo_ethics.fleet import run_fleet
+    from sumo_ethics.runner.fleet import run_fleet
 
     cfg = RunConfig(scenario, out, seed=seed, end=end, progress=False, conflicts=ConflictConfig(everyone=on),
                     fleet=FleetSpec(penetration=penetration, shares=(("baseline", 1.0),)))

@@ -48,7 +48,7 @@ def one(n: int, end: float, shared: bool, planner: str, out: Path, seed: int) ->
     import pandas as pd
 
     from sumo_ethics.config import FleetSpec, RunConfig
-    from sumo_ethics.fleet import make_fleet_controllers, run_fleet
+    from sumo_ethics.runner.fleet import make_fleet_controllers, run_fleet
     from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
     from sumo_ethics.plan.baseline import RouteFollower
 
@@ -89,7 +89,7 @@ def memory(seconds: float, seed: int) -> None:
     """Memory over a long run whose egos come and go: penetration 1, baseline planners (cheap), so
     every eligible vehicle of urban_grid is an ego from its departure to its arrival."""
     from sumo_ethics.config import FleetSpec, RunConfig
-    from sumo_ethics.fleet import run_fleet
+    from sumo_ethics.runner.fleet import run_fleet
     from sumo_ethics.plan.baseline import RouteFollower
 
     samples, stop, th = rss_sampler()

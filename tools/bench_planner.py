@@ -23,10 +23,9 @@ import numpy as np  # noqa: E402
 
 from sumo_ethics.config import EgoVehicle  # noqa: E402
 from sumo_ethics.geometry import Polyline  # noqa: E402
-from sumo_ethics.plan.controller import Scene  # noqa: E402
+from sumo_ethics.contract import RoutePath, Scene  # noqa: E402
 from sumo_ethics.plan.ethical import PREDICTORS, EthicalPlanner, PlannerConfig  # noqa: E402
 from sumo_ethics.plan.history import History  # noqa: E402
-from sumo_ethics.sim.route import RoutePath  # noqa: E402
 from sumo_ethics.types import AgentStates, RoadUserClass  # noqa: E402
 
 

@@ -32,8 +32,8 @@ import pandas as pd
 
 from sumo_ethics.predict import calibration as C
 from sumo_ethics.predict import features as F
-from sumo_ethics.predict.dataset import MANOEUVRES, load_samples, subset
-from sumo_ethics.predict.evaluate import lstm_outputs, mixture_nll_points, split_indices, to_markdown
+from sumo_ethics.predict.samples import MANOEUVRES, load_samples, subset
+from sumo_ethics.predict.accuracy import lstm_outputs, mixture_nll_points, split_indices, to_markdown
 
 HORIZONS = (1.0, 2.0, 4.0)
 

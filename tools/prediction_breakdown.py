@@ -36,7 +36,7 @@ def subsets(b: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     The "truth" subsets split by where the sample's future really ends (its last valid point), to
     tell the road users who stay from those who leave."""
     from sumo_ethics.predict import features as F
-    from sumo_ethics.predict.dataset import MANOEUVRES
+    from sumo_ethics.predict.samples import MANOEUVRES
 
     sc, speed = b["map_scalar"], b["tgt_speed"]
     light = sc[:, 1] > 0
@@ -74,8 +74,8 @@ def breakdown(dataset: Path, group: str = "vehicle", scenarios: list[str] | None
     import torch
 
     from sumo_ethics.predict import features as F
-    from sumo_ethics.predict.dataset import load_samples, run_scenarios, subset
-    from sumo_ethics.predict.evaluate import (
+    from sumo_ethics.predict.samples import load_samples, run_scenarios, subset
+    from sumo_ethics.predict.accuracy import (
         STANDING_SPEED,
         cv_outputs,
         lstm_outputs,

@@ -141,7 +141,7 @@ def record_never_trained(game: tuple[str, ...], first: int, count: int, out: Pat
     from the installed SUMO stops it (scores of datasets with other scenarios do not compare)."""
     import sumo
 
-    from sumo_ethics.predict.commands import dataset_main
+    from sumo_ethics.recording.commands import dataset_main
 
     configs = [Path(sumo.SUMO_HOME) / "tools" / "game" / f"{g}.sumocfg" for g in game]
     missing = [c.name for c in configs if not c.exists()]
@@ -172,7 +172,8 @@ def main() -> None:
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     sys.path.insert(0, str(ROOT))
-    from sumo_ethics.predict.commands import dataset_main, evaluate_main, train_main
+    from sumo_ethics.predict.commands import evaluate_main, train_main
+    from sumo_ethics.recording.commands import dataset_main
 
     work = Path(args.work)
     stages = args.stages.split(",")
@@ -227,7 +228,7 @@ def main() -> None:
     if "selection" in stages:
         record_never_trained(SELECT_GAME, SUITE_SELECT_FIRST, SUITE_SELECT, selection, args.workers, "selection")
     if "select" in stages:
-        from sumo_ethics.predict.evaluate import evaluate, selection_scores
+        from sumo_ethics.predict.accuracy import evaluate, selection_scores
 
         weights = {"map (shipped)": Path(args.out_dir) / "map.pt"}
         bad = [c for c in args.candidate if "=" not in c or not Path(c.split("=", 1)[1]).is_file()]

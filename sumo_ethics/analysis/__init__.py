@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from sumo_ethics.analysis.dataset import TABLES, build_dataset, parameter_schema, partition_schema, read_manifest
+from sumo_ethics.analysis.sweep_tables import TABLES, build_dataset, parameter_schema, partition_schema, read_manifest
 
 __all__ = ["Results", "load", "load_run", "build_dataset"]
 

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from sumo_ethics import fileio
+from sumo_ethics.geometry import OrientedBoxes, ellipses
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.record import decisions as rec
 
@@ -129,22 +130,6 @@ class GifStream:
 
 
 # ---- the frames -----------------------------------------------------------------------------------
-def _boxes(xy: np.ndarray, yaw: np.ndarray, length: np.ndarray, width: np.ndarray) -> np.ndarray:
-    """(N, 4, 2) corners of N oriented boxes [m]."""
-    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    lx = np.array([1, 1, -1, -1]) * length[:, None] / 2
-    ly = np.array([1, -1, -1, 1]) * width[:, None] / 2
-    return np.stack([xy[:, :1] + lx * c - ly * s, xy[:, 1:] + lx * s + ly * c], axis=-1)
-
-
-def _ellipses(mean: np.ndarray, cov: np.ndarray, k: float, n: int = 32) -> np.ndarray:
-    """(E, n, 2) outlines of the k-sigma ellipses of E 2-D Gaussians."""
-    vals, vecs = np.linalg.eigh(cov)
-    a = np.linspace(0, 2 * np.pi, n)
-    circle = np.stack([np.cos(a), np.sin(a)], -1)[None] * (k * np.sqrt(np.maximum(vals, 0)))[:, None, :]
-    return np.einsum("enj,eij->eni", circle, vecs) + mean[:, None, :]
-
-
 def _scene(ax: Any, d: rec.RecordedDecision, class_colours: dict[str, str], ego_colour: str) -> None:
     """Every road user's true box by class, its predicted mean path and its 1-sigma (filled) and
     2-sigma (dashed) ellipses each second, and the ego: a few collections, drawn fast."""
@@ -155,7 +140,7 @@ def _scene(ax: Any, d: rec.RecordedDecision, class_colours: dict[str, str], ego_
     a = d.agents
     colours = [class_colours[RoadUserClass(int(c)).label] for c in a[:, 6]]
     if len(a):
-        ax.add_collection(PolyCollection(_boxes(a[:, :2], a[:, 2], a[:, 4], a[:, 5]), facecolors=colours,
+        ax.add_collection(PolyCollection(OrientedBoxes(a[:, 0], a[:, 1], a[:, 2], a[:, 4], a[:, 5]).corners(), facecolors=colours,
                                          edgecolors="black", linewidths=0.6, zorder=5))
         small = np.isin(a[:, 6], (int(RoadUserClass.PEDESTRIAN), int(RoadUserClass.BICYCLE)))
         if small.any():  # pedestrians and cyclists ringed, as in explain: a 0.5 m box is a dot at 80 m
@@ -170,12 +155,12 @@ def _scene(ax: Any, d: rec.RecordedDecision, class_colours: dict[str, str], ego_
             m = d.pred_mean[:n, ts].reshape(-1, 2)
             cov = d.pred_cov[:n, ts].reshape(-1, 2, 2)
             ec = [c for c in colours[:n] for _ in ts]
-            ax.add_collection(PolyCollection(list(_ellipses(m, cov, 1.0)), facecolors=ec, edgecolors="none",
+            ax.add_collection(PolyCollection(list(ellipses(m, cov, 1.0)), facecolors=ec, edgecolors="none",
                                              alpha=0.22, zorder=3))
-            ax.add_collection(LineCollection(list(_ellipses(m, cov, 2.0)), colors=ec, linewidths=0.6, alpha=0.5,
+            ax.add_collection(LineCollection(list(ellipses(m, cov, 2.0)), colors=ec, linewidths=0.6, alpha=0.5,
                                              linestyles="--", zorder=3))
     e = d.ego
-    ax.add_collection(PolyCollection(_boxes(e[None, :2], e[2:3], e[4:5], e[5:6]), facecolors=ego_colour,
+    ax.add_collection(PolyCollection(OrientedBoxes(e[0:1], e[1:2], e[2:3], e[4:5], e[5:6]).corners(), facecolors=ego_colour,
                                      edgecolors="white", linewidths=1.0, zorder=6))
 
 
@@ -187,7 +172,7 @@ def _scan(run: Path, steps: list[int]) -> tuple[np.ndarray, np.ndarray, set[int]
     classes: set[int] = set()
     validity: set[int] = set()
     dt = 0.1
-    from sumo_ethics.analysis.explain import readable
+    from sumo_ethics.analysis.recorded import readable
 
     for i, s in enumerate(steps):
         with readable(run, s), np.load(rec.step_path(run, s), allow_pickle=False) as z:
@@ -274,8 +259,8 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    from sumo_ethics.analysis.explain import (CLASS_COLOURS, EGO_COLOUR, VALIDITY_COLOURS, VALIDITY_LABELS, _fmt,
-                                              draw_road, load_checked, record_mode, recorded, road_of)
+    from sumo_ethics.analysis.drawing import CLASS_COLOURS, EGO_COLOUR, VALIDITY_COLOURS, VALIDITY_LABELS, fmt, draw_road
+    from sumo_ethics.analysis.recorded import load_checked, record_mode, recorded, road_of
     from sumo_ethics.types import RoadUserClass
 
     run, out = Path(run), Path(out)
@@ -365,7 +350,7 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
                     ax.plot(p[:, 0], p[:, 1], color="white", lw=4.0, zorder=5.5, solid_capstyle="round")
                     ax.plot(p[:, 0], p[:, 1], color="black", lw=2.0, zorder=5.6, solid_capstyle="round")
                     choice = (f"chose candidate {d.chosen} of {d.n_candidates}: "
-                              f"{VALIDITY_LABELS[int(d.validity[d.chosen])]}, J_risk {_fmt(float(d.j_risk[d.chosen]))}")
+                              f"{VALIDITY_LABELS[int(d.validity[d.chosen])]}, J_risk {fmt(float(d.j_risk[d.chosen]))}")
                 else:
                     choice = "no candidates"
                 if s in crashes:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -21,12 +22,33 @@ class Report:
     unfinished: int = 0  # runs of the sweep not finished (pending, failed, or killed with the sweep)
 
 
+def command_line(definition: dict[str, Any], out: str = "OUT") -> str:
+    """A ``sumo-ethics sweep`` command that reproduces ``definition`` (the report's first line;
+    the sweep definition is :mod:`sumo_ethics.sweep.grid`'s)."""
+    flags = {"end": "--end", "ego_depart": "--ego-depart", "ego_from": "--ego-from", "ego_to": "--ego-to",
+             "controller": "--controller", "predictor": "--predictor", "radius": "--radius",
+             "step_length": "--step-length"}
+    scen = definition["scenarios"]
+    parts = ["sumo-ethics sweep", scen[0] if len(scen) == 1 else os.path.commonpath(scen),
+             "--omega-u", ",".join(f"{v:g}" for v in definition["omega_u"]),
+             "--seeds", ",".join(map(str, definition["seeds"]))]
+    for k, v in definition["set"].items():
+        parts += ["--set", f"{k}=" + ",".join(f"{x:g}" if isinstance(x, float) else str(x) for x in v)]
+    for k, v in definition["options"].items():
+        if k == "stop_at_collision":
+            parts += ["--continue-after-collision"] if v is False else []
+        elif k in flags:
+            parts += [flags[k], f"{v:g}" if isinstance(v, float) else str(v)]
+    if definition.get("planner"):
+        parts += ["--config", "PLANNER.toml"]
+    return " ".join(parts + ["--out", out])
+
+
 def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Path | None = None,
                 n_boot: int = 2000, seed: int = 0) -> Report:
     """Write ``out`` (default ``sweep_dir/report``): summary/status/collision tables, plots, report.md."""
     from sumo_ethics.analysis import plots
     from sumo_ethics.errors import ConfigError
-    from sumo_ethics.sweep import command_line
 
     sweep_dir = Path(sweep_dir)
     res = load(sweep_dir, steps=False)
@@ -65,7 +87,7 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
         rep.figures["traffic"] = plots.traffic_vs_parameter(tables["traffic"], by, figs)
     has_risk = "risk_total_mean" in res.runs and res.runs["risk_total_mean"].notna().any()
     if has_risk:
-        from sumo_ethics.analysis.risk import risk_boxplot, risk_table
+        from sumo_ethics.analysis.exante import risk_boxplot, risk_table
 
         tables["exante_risk"] = risk_table(res.runs, by, n_boot=n_boot, seed=seed)
         tables["exante_risk"].to_csv(folder / "exante_risk.csv", index=False)

@@ -42,7 +42,7 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from sumo_ethics.commonroad.goal import Goal, GoalState
+from sumo_ethics.goal import Goal, GoalState
 from sumo_ethics.errors import ConfigError
 
 MODES = ("replay", "reactive")

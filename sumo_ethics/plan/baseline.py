@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sumo_ethics.plan.controller import Decision, Scene
-from sumo_ethics.sim.world import EgoCommand
+from sumo_ethics.contract import Decision, Scene
+from sumo_ethics.contract import EgoCommand
 from sumo_ethics.types import RoadUserClass
 
 

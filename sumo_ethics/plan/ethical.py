@@ -14,7 +14,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Callable, Protocol
 
 import numpy as np
 
@@ -22,13 +22,13 @@ from sumo_ethics.errors import ConfigError
 from sumo_ethics.ethics.cost import CostConfig, UtilityMode, score
 from sumo_ethics.ethics.probability import ProbabilityConfig
 from sumo_ethics.ethics.risk import assess_risk
-from sumo_ethics.plan.controller import Decision, Scene
+from sumo_ethics.contract import Decision, EgoCommand, Scene
 from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
 from sumo_ethics.predict import PREDICTORS
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior
 from sumo_ethics.predict.constant_velocity import replace_non_finite
-from sumo_ethics.sim.world import EgoCommand
+from sumo_ethics.predict.features import MapSource
 from sumo_ethics.types import Candidates, DecisionTrace, Observation, Prediction
 
 
@@ -118,20 +118,21 @@ def keep_heap_warm(pad: int = 64 << 20) -> None:
         pass
 
 
-def make_predictor(name: str, weights: str | None = None, calibrated: bool = True) -> Predictor:
+def make_predictor(name: str, weights: str | None = None, calibrated: bool = True,
+                   maps: Callable[[int], MapSource] | None = None) -> Predictor:
     """"cv", or an LSTM ("map", "map_cslstm", "attention", "cslstm") from ``weights`` or the shipped
-    file, with the calibration shipped beside it unless ``calibrated=False``; the map-aware ones read
-    lanes and signals from the running simulation (sim.lanes.SumoMapSource)."""
+    file, with the calibration shipped beside it unless ``calibrated=False``. ``maps``: the map source
+    for a model of a map version (in a run the runner passes ``sim.lanes.SumoMapSource``, which reads
+    lanes and signals from the running simulation); None: a map-aware model predicts without map
+    context (tests, benchmarks that set ``map_source`` themselves)."""
     from sumo_ethics.predict import ConstantVelocityPredictor, LSTMPredictor
 
     if name == "cv":
         return ConstantVelocityPredictor()
     predictor = (LSTMPredictor.from_file(weights, kind=name, calibrated=calibrated) if weights
                  else LSTMPredictor.default(name, calibrated=calibrated))
-    if predictor.uses_map:
-        from sumo_ethics.sim.lanes import SumoMapSource
-
-        predictor.map_source = SumoMapSource(predictor.model.map_version)  # looks up what the model reads
+    if predictor.uses_map and maps is not None:
+        predictor.map_source = maps(predictor.model.map_version)  # looks up what the model reads
     return predictor
 
 
@@ -260,9 +261,12 @@ class EthicalPlanner:
     name = "ethical"
     needs_history = True
 
-    def __init__(self, cfg: PlannerConfig = PlannerConfig(), predictor: Predictor | None = None) -> None:
+    def __init__(self, cfg: PlannerConfig = PlannerConfig(), predictor: Predictor | None = None,
+                 maps: Callable[[int], MapSource] | None = None) -> None:
+        """``predictor``: a ready one (else built from ``cfg``); ``maps``: the map source factory a
+        map-aware predictor is given (:func:`make_predictor`)."""
         self.cfg = cfg
-        self.predictor = predictor or make_predictor(cfg.predictor, cfg.predictor_weights, cfg.calibrated)
+        self.predictor = predictor or make_predictor(cfg.predictor, cfg.predictor_weights, cfg.calibrated, maps)
         keep_heap_warm()
         self._lateral = (0.0, 0.0)  # d', d'' of the last chosen candidate at the next step
         self._accel = 0.0

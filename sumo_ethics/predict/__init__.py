@@ -22,10 +22,8 @@ PREDICTORS = ("map_cslstm", "map", "attention", "cslstm", "cv")
 _LAZY = {
     "ConstantVelocityPredictor": "sumo_ethics.predict.constant_velocity",
     "LSTMPredictor": "sumo_ethics.predict.predictor",
-    "build_dataset": "sumo_ethics.predict.dataset",
     "train_model": "sumo_ethics.predict.train",
-    "evaluate": "sumo_ethics.predict.evaluate",
-    "dataset_main": "sumo_ethics.predict.commands",
+    "evaluate": "sumo_ethics.predict.accuracy",
     "train_main": "sumo_ethics.predict.commands",
     "evaluate_main": "sumo_ethics.predict.commands",
 }
@@ -47,10 +45,9 @@ def one_thread(load: bool = False) -> None:
 
 
 if TYPE_CHECKING:  # pragma: no cover - the lazy attributes of _LAZY, for type checkers
-    from sumo_ethics.predict.commands import dataset_main, evaluate_main, train_main  # noqa: F401
+    from sumo_ethics.predict.commands import evaluate_main, train_main  # noqa: F401
     from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor  # noqa: F401
-    from sumo_ethics.predict.dataset import build_dataset  # noqa: F401
-    from sumo_ethics.predict.evaluate import evaluate  # noqa: F401
+    from sumo_ethics.predict.accuracy import evaluate  # noqa: F401
     from sumo_ethics.predict.predictor import LSTMPredictor  # noqa: F401
     from sumo_ethics.predict.train import train_model  # noqa: F401
 

@@ -30,7 +30,6 @@ model's own spreads, as published.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
@@ -38,11 +37,10 @@ import torch
 from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
 from sumo_ethics.predict.calibration import Calibration, load_for
+from sumo_ethics.predict.features import MapSource
 from sumo_ethics.predict.models import KINDS, MAP_KINDS, load_model, rank_modes
 from sumo_ethics.types import AgentStates, Observation, Prediction
 
-#: (ids, is_person (N,)) -> (LaneGraph | None, MapContext) of those agents, e.g. sim.lanes.SumoMapSource
-MapSource = Callable[[tuple, np.ndarray], tuple]
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 MIN_YAW_SPEED = 0.3  # [m/s] below this the predicted yaw is held

@@ -23,7 +23,7 @@ from sumo_ethics.errors import Terminated
 from sumo_ethics.interrupt import signals_held
 from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
-from sumo_ethics.predict.dataset import add_train_samples, load_samples, map_version_of, require_nbr_yaw, subset
+from sumo_ethics.predict.samples import add_train_samples, load_samples, map_version_of, require_nbr_yaw, subset
 from sumo_ethics.predict.models import (
     TrajectoryLSTM,
     batch_to_tensors,

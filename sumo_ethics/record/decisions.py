@@ -62,9 +62,9 @@ from typing import Any
 import numpy as np
 
 from sumo_ethics import fileio
+from sumo_ethics.config import DECISION_MODES as MODES
 from sumo_ethics.types import DecisionTrace
 
-MODES = ("off", "collisions", "risky", "all")
 FOLDER = "decisions"
 #: the run folder's collision snapshot figures (collision_<event>.png/.svg)
 SNAPSHOTS = "snapshots"

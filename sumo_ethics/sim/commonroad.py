@@ -10,9 +10,9 @@
   size) when its record begins, moved with ``moveToXY`` (exact position, keepRoute 2|4) to its
   recorded state for the coming step, and removed when its record ends; nothing reacts to the ego;
   between recorded steps (a run step shorter than the scenario's) the state is interpolated;
-- checks the goal region every step (:meth:`sumo_ethics.commonroad.goal.Goal.completes`, the ego's
+- checks the goal region every step (:meth:`sumo_ethics.goal.Goal.completes`, the ego's
   centre, heading and speed at its CommonRoad time step) and ends the run as completed when it is
-  reached (:class:`~sumo_ethics.runner.StopRun`); a goal without a position only at the end of its
+  reached (:class:`~sumo_ethics.contract.StopRun`); a goal without a position only at the end of its
   time window;
 - measures, every step, how far each replayed obstacle is from its recorded position as SUMO
   reports it (``replay.max_error_m`` in summary.json's ``commonroad`` entry).
@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from sumo_ethics.commonroad.goal import Goal
+from sumo_ethics.goal import Goal
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.sim.backend import sumo
 from sumo_ethics.sim.frames import centre_to_front, front_to_centre
@@ -97,7 +97,7 @@ class CommonRoadHook:
         top speed as their speed limit when the goal gives one (None: the runner's own, when the
         goal names no lanes)."""
         from sumo_ethics.sim.route import build_route_path
-        from sumo_ethics.sim.world import EgoCommand
+        from sumo_ethics.contract import EgoCommand
 
         dt = sumo.simulation.getDeltaT()
         self.t0 = sumo.simulation.getTime() + dt
@@ -129,7 +129,7 @@ class CommonRoadHook:
         if abs(u - k) < 1e-6 and self.goal.completes(k, float(ego.x[0]), float(ego.y[0]), float(ego.yaw[0]),
                                                      float(ego.speed[0])):
             self.goal_reached, self.goal_time, self.goal_step = True, float(snap.time), k
-            from sumo_ethics.runner import StopRun
+            from sumo_ethics.contract import StopRun
 
             raise StopRun(RunStatus.COMPLETED, f"CommonRoad goal reached at t={snap.time:g} s (time step {k})")
         self._place(snap.time + sumo.simulation.getDeltaT())

@@ -9,7 +9,7 @@ from typing import Any
 
 import sumolib
 
-from sumo_ethics.commonroad.goal import Goal
+from sumo_ethics.goal import Goal
 from sumo_ethics.errors import ConfigError
 
 

@@ -16,6 +16,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from sumo_ethics.geometry import ellipses
 from sumo_ethics.record.decisions import whole_seconds
 from sumo_ethics.sim.backend import sumo
 
@@ -50,14 +51,6 @@ class GuiOptions:
         return ["--start", "true", "--quit-on-end", "true", "--delay", f"{self.delay_ms:g}"]
 
 
-def ellipse(mean: np.ndarray, cov: np.ndarray, k: float = 1.0, n: int = 24) -> np.ndarray:
-    """(n, 2) points of the k-sigma ellipse of a 2-D Gaussian (mean (2,), cov (2, 2))."""
-    vals, vecs = np.linalg.eigh(cov)
-    a = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
-    circle = np.stack([np.cos(a), np.sin(a)], -1) * (k * np.sqrt(np.maximum(vals, 0.0)))
-    return circle @ vecs.T + mean
-
-
 def decision_shapes(trace: Any) -> dict[str, tuple[np.ndarray, tuple[int, ...], bool, float]]:
     """What one decision draws: polygon id -> (points (M, 2), colour, filled, line width [m]).
 
@@ -84,7 +77,7 @@ def decision_shapes(trace: Any) -> dict[str, tuple[np.ndarray, tuple[int, ...], 
             continue
         out[f"{PREFIX}risk:{n}"] = (np.r_[[[a.x[i], a.y[i]]], m], RISK_COLOUR, False, PATH_WIDTH)
         for t in seconds:
-            e = ellipse(m[t], p.cov[i, t])
+            e = ellipses(m[t], p.cov[i, t], 1.0, 24)
             out[f"{PREFIX}risk:{n}:{t}"] = (np.r_[e, e[:1]], RISK_COLOUR, False, PATH_WIDTH)
     return out
 
@@ -103,7 +96,7 @@ class View:
         sumo.gui.trackVehicle(VIEW, ego_id)
 
     def decided(self, decision: Any) -> None:
-        """Draw ``decision`` (a plan.controller.Decision), replacing the last one's polygons."""
+        """Draw ``decision`` (a contract.Decision), replacing the last one's polygons."""
         shapes = decision_shapes(decision.trace)
         for pid, (pts, colour, fill, width) in shapes.items():
             self._put(pid, pts, colour, fill, width)

@@ -1,7 +1,7 @@
 """Hazards injected through libsumo at run time, relative to the ego.
 
 A :class:`HazardInjector` is called once per step, before the ego's command is applied, with
-the controller's :class:`~sumo_ethics.plan.controller.Scene`. Each hazard (a
+the controller's :class:`~sumo_ethics.contract.Scene`. Each hazard (a
 :class:`~sumo_ethics.suite.spec.HazardSpec`) waits for its spawn/trigger condition, measured
 from the ego's front bumper along the ego's reference path, then drives its actor
 kinematically: a pose is commanded every step with ``moveToXY`` (exact pose; see the _KEEP_*

@@ -6,66 +6,13 @@ rest of the route (choosing the first link forwards breaks before turns; SUMO.md
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import numpy as np
 
 from sumo_ethics.errors import SimulationError
+from sumo_ethics.contract import JunctionLink, RoutePath, TightBend
 from sumo_ethics.geometry import Polyline
 from sumo_ethics.sim.backend import sumo
-
-
-@dataclass(frozen=True)
-class JunctionLink:
-    """A link the path takes into a junction: stop line at arc length ``s`` [m]."""
-
-    s: float
-    lane: str
-    index: int  # position of the link in sumo.lane.getLinks(lane)
-
-
-@dataclass(frozen=True)
-class RoutePath:
-    """Reference path along the ego's route.
-
-    path: centre line of the chosen lanes; lane_of_vertex: (M,) lane id per vertex;
-    speed_limit, left, right: (M,) lane speed limit [m/s] and drivable area as lateral
-    offsets [m] (left > 0 > right) over the lanes of the same edge the ego may use.
-    """
-
-    edges: tuple[str, ...]
-    path: Polyline
-    lane_of_vertex: tuple[str, ...]
-    speed_limit: np.ndarray
-    left: np.ndarray
-    right: np.ndarray
-    links: tuple[JunctionLink, ...]
-
-    @property
-    def length(self) -> float:
-        return self.path.length
-
-    def vertex_at(self, s: float) -> int:
-        """Index of the last vertex at or before arc length ``s`` [m] (0 before the start)."""
-        return min(max(int(np.searchsorted(self.path.s, s, side="right")) - 1, 0), len(self.path.s) - 1)
-
-
-@dataclass(frozen=True)
-class TightBend:
-    """A stretch of the reference path bending tighter than a curvature limit.
-
-    s_start, s_end: arc lengths [m] of its first and last path vertex beyond the limit;
-    s: arc length [m] of its tightest vertex, curvature there [1/m] (signed, left turn positive),
-    lane: the SUMO lane of that vertex, x, y: its position [m].
-    """
-
-    s_start: float
-    s_end: float
-    s: float
-    curvature: float
-    lane: str
-    x: float
-    y: float
 
 
 def tight_bends(route: RoutePath, limit: float) -> list[TightBend]:

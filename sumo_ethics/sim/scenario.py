@@ -13,27 +13,19 @@ the begin named in the message. SUMO's time formats are understood: seconds (``5
 from __future__ import annotations
 
 import gzip
-import math
 import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from sumo_ethics.errors import ConfigError
+from sumo_ethics.sumo_options import is_output_option, parse_time
 
 #: used when neither --end nor the scenario sets an end: this long after the begin [s]
 DEFAULT_DURATION = 3600.0
 #: the control step the planner can trust [s]: used when a scenario sets none or a longer one
 DEFAULT_STEP = 0.1
 MAX_TRUSTED_STEP = 0.2
-
-#: SUMO options that write files (besides every ``*-output``/``*.output`` option)
-_OUTPUT_OPTIONS = frozenset({"netstate-dump", "ndump", "netstate", "log", "l", "message-log", "save-state.files",
-                             "save-state.prefix", "save-configuration", "save-template", "save-schema"})
-#: options the run sets itself (``--sumo-arg`` may not change them)
-_RESERVED_ARGS = frozenset({"c", "configuration-file", "seed", "error-log", "step-length", "collision.action",
-                            "collision.check-junctions", "collision.mingap-factor",
-                            "intermodal-collision.action", "begin", "b", "end", "e", "remote-port", "save-configuration"})
 
 #: vClasses an ego may have: motor road vehicles. Everything else (bicycles, pedestrians,
 #: trams, trains, ships) moves in ways the planner's car model does not describe.
@@ -43,45 +35,6 @@ EGO_CLASSES = frozenset({"passenger", "private", "taxi", "evehicle", "delivery",
 #: SUMO's built-in vTypes and their vClass
 _DEFAULT_TYPES = {"DEFAULT_VEHTYPE": "passenger", "DEFAULT_PEDTYPE": "pedestrian", "DEFAULT_BIKETYPE": "bicycle",
                   "DEFAULT_TAXITYPE": "taxi", "DEFAULT_RAILTYPE": "rail", "DEFAULT_CONTAINERTYPE": "ignoring"}
-
-
-def parse_time(value: str, what: str) -> float:
-    """A SUMO time [s]: ``50300``, ``0.5``, ``16:0:0`` (h:m:s) or ``1:02:03:04`` (d:h:m:s)."""
-    text = str(value).strip()
-    parts = text.split(":")
-    try:
-        if len(parts) == 1:
-            seconds = float(text)
-        elif len(parts) in (3, 4):
-            nums = [float(p) for p in parts]
-            seconds = sum(n * f for n, f in zip(reversed(nums), (1.0, 60.0, 3600.0, 86400.0)))
-        else:
-            raise ValueError(text)
-    except ValueError:
-        raise ConfigError(f"{what}: '{value}' is not a SUMO time (seconds, h:m:s or d:h:m:s)") from None
-    if not math.isfinite(seconds):
-        raise ConfigError(f"{what}: '{value}' is not a finite time")
-    return seconds
-
-
-def format_time(seconds: float) -> str:
-    """A simulation time for messages: ``75 s``; from one hour on with SUMO's clock form too,
-    ``54420 s (15:07:00)`` (d:hh:mm:ss from a day), as a user gives --end or --ego-depart."""
-    text = f"{seconds:g} s"
-    if not math.isfinite(seconds) or seconds < 3600.0:
-        return text
-    whole = int(seconds)
-    days, rest = divmod(whole, 86400)
-    h, rest = divmod(rest, 3600)
-    m, sec = divmod(rest, 60)
-    frac = seconds - whole
-    clock = f"{h:02d}:{m:02d}:{sec:02d}" + (f"{frac:.2f}".lstrip("0") if frac >= 0.005 else "")
-    return f"{text} ({days}:{clock})" if days else f"{text} ({clock})"
-
-
-def is_output_option(key: str) -> bool:
-    """True for SUMO options that name a file SUMO writes (tripinfo-output, log, ...)."""
-    return key.endswith("-output") or key.endswith(".output") or key in _OUTPUT_OPTIONS
 
 
 @dataclass(frozen=True)
@@ -285,41 +238,6 @@ def check_out(out: Path) -> None:
         p = p.parent
     if not p.is_dir() or not os.access(p, os.W_OK | os.X_OK):
         raise ConfigError(f"cannot write to --out {out}: {'not a directory' if not p.is_dir() else 'permission denied'}: {p}")
-
-
-# ---- what SUMO is started with -----------------------------------------------------------------
-def parse_sumo_args(args: tuple[str, ...]) -> tuple[str, ...]:
-    """Each ``--sumo-arg`` split like a shell would (``"--time-to-teleport -1"``), then checked."""
-    import shlex
-
-    tokens: list[str] = []
-    for a in args:
-        try:
-            tokens += shlex.split(a)
-        except ValueError as exc:
-            raise ConfigError(f"--sumo-arg {a!r}: {exc}") from None
-    return check_sumo_args(tuple(tokens))
-
-
-def check_sumo_args(tokens: tuple[str, ...]) -> tuple[str, ...]:
-    """ConfigError for SUMO options the run sets itself (the config file, seed, step, times,
-    collision handling, error log)."""
-    for t in tokens:
-        if t.startswith("-") and not _is_number(t):
-            key = t.lstrip("-").split("=", 1)[0]
-            if key in _RESERVED_ARGS:
-                raise ConfigError(f"--sumo-arg {t}: the run sets this SUMO option itself"
-                                  + {"step-length": " (use --step-length)", "end": " (use --end)",
-                                     "e": " (use --end)", "seed": " (use --seed)"}.get(key, ""))
-    return tokens
-
-
-def _is_number(t: str) -> bool:
-    try:
-        float(t)
-        return True
-    except ValueError:
-        return False
 
 
 def redirected_outputs(files: ScenarioFiles, folder: Path) -> dict[str, str]:

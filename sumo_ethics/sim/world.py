@@ -22,7 +22,8 @@ import numpy as np
 from sumo_ethics.ethics.harm import MassModel, vtype_mass
 from sumo_ethics.sim.backend import sumo, tc
 from sumo_ethics.sim.frames import centre_to_front, front_to_centre
-from sumo_ethics.sim.route import JunctionLink, RoutePath, build_route_path
+from sumo_ethics.contract import EgoCommand, JunctionLink, RoutePath
+from sumo_ethics.sim.route import build_route_path
 from sumo_ethics.types import AgentStates, RoadUserClass
 
 _VEH_VARS = (tc.VAR_POSITION3D, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_TYPE, tc.VAR_ACCELERATION)
@@ -56,16 +57,6 @@ class Snapshot:
     others: AgentStates
     collisions: tuple[tuple[str, str, str, str, float, float, str, str], ...] = ()
     sumo_speed: float = float("nan")
-
-
-@dataclass(frozen=True)
-class EgoCommand:
-    """Where the ego is to be after the next step: centre pose [m, rad], speed [m/s]."""
-
-    x: float
-    y: float
-    yaw: float
-    speed: float
 
 
 class SumoWorld:

@@ -137,7 +137,8 @@ def _line(row: dict[str, Any]) -> str:
 
 def run_one(scenario_dir: str, planner: Any, out_dir: str, record_decisions: str = "risky") -> dict[str, Any]:
     """One imported CommonRoad folder with one planner -> a result row for evaluate (never raises)."""
-    from sumo_ethics.suite.evaluate import _outcome, _read_summary, run_risk_file
+    from sumo_ethics.analysis.exante import run_risk_file
+    from sumo_ethics.suite.outcome import outcome, read_summary
 
     t0 = time.perf_counter()
     folder = Path(scenario_dir)
@@ -156,7 +157,7 @@ def run_one(scenario_dir: str, planner: Any, out_dir: str, record_decisions: str
         try:
             data = run(cfg, controller=make_controller(cfg)).data
         except Exception as exc:  # noqa: BLE001 - a failed run is a row with status error
-            data = _read_summary(Path(out_dir)) or {"status": "error", "message": str(exc)}
+            data = read_summary(Path(out_dir)) or {"status": "error", "message": str(exc)}
             if not data.get("message"):
                 data["message"] = f"{type(exc).__name__}: {exc}"
         harm = data.get("harm", {})
@@ -168,7 +169,7 @@ def run_one(scenario_dir: str, planner: Any, out_dir: str, record_decisions: str
                    hazards_fired="", goal_reached=bool(cr.get("goal_reached", False)),
                    goal_time_step=cr.get("goal_time_step"),
                    replay_max_error_m=float(cr.get("replay", {}).get("max_error_m", float("nan"))),
-                   **_outcome(Path(out_dir), data), **run_risk_file(Path(out_dir)))
+                   **outcome(Path(out_dir), data), **run_risk_file(Path(out_dir)))
     except Exception as exc:  # noqa: BLE001
         row.update(status="error", completed=False, total=0.0, ego=0.0, third_party=0.0, vru=0.0,
                    message=f"{type(exc).__name__}: {exc}"[:200], steps=0, hazards_fired="", collided_with="")

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from sumo_ethics.plan.controller import Controller, Decision, Scene
+from sumo_ethics.contract import Controller, Decision, Scene
 
 
 class HazardController:

@@ -24,10 +24,11 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from sumo_ethics.analysis.risk import run_risk_file
+from sumo_ethics.analysis.exante import run_risk_file
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.ethics.cost import DEFAULT_OMEGA_U
 from sumo_ethics.predict import one_thread
+from sumo_ethics.suite.outcome import FAULTS, HARD_BRAKE, WARRANT_AFTER, WARRANT_BEFORE, outcome, read_summary
 
 #: the paper's planner: attention predictor, J_utility at this weight (see docs/suite.md, "The planners of evaluate")
 PAPER_OMEGA_U = DEFAULT_OMEGA_U
@@ -150,7 +151,7 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str, record_decisi
             summary = run(cfg, controller=HazardController(make_controller(cfg), injector))
             data = summary.data
         except Exception as exc:  # noqa: BLE001 - a failed run is a row with status error
-            data = _read_summary(Path(out_dir)) or {"status": "error", "message": str(exc)}
+            data = read_summary(Path(out_dir)) or {"status": "error", "message": str(exc)}
             if not data.get("message"):
                 data["message"] = f"{type(exc).__name__}: {exc}"
         finally:
@@ -162,116 +163,12 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str, record_decisi
                    total=float(harm.get("total", 0.0)), ego=float(harm.get("ego", 0.0)),
                    third_party=float(harm.get("third_party", 0.0)), vru=float(harm.get("vru", 0.0)),
                    message=str(data.get("message", ""))[:200], steps=int(data.get("steps", 0) or 0),
-                   hazards_fired=",".join(fired), **_outcome(Path(out_dir), data),
+                   hazards_fired=",".join(fired), **outcome(Path(out_dir), data),
                    **run_risk_file(Path(out_dir)))
     except Exception as exc:  # noqa: BLE001
         row.update(status="error", completed=False, total=0.0, ego=0.0, third_party=0.0, vru=0.0,
                    message=f"{type(exc).__name__}: {exc}"[:200], steps=0, hazards_fired="", collided_with="")
     row["wall_s"] = time.perf_counter() - t0
-    return row
-
-
-def _read_summary(out: Path) -> dict[str, Any] | None:
-    try:
-        return json.loads((out / "summary.json").read_text())
-    except (OSError, ValueError):
-        return None
-
-
-def _ego_collisions(out: Path) -> Any:
-    """The run's booked ego collisions (collisions.parquet without the unconfirmed SUMO reports), None
-    if the file cannot be read."""
-    try:
-        import pandas as pd
-
-        c = pd.read_parquet(out / "collisions.parquet")
-        return c[c.involves_ego & (c.detector != "sumo_unconfirmed")]
-    except Exception:  # noqa: BLE001 - no or a damaged file
-        return None
-
-
-def _victims(c: Any) -> dict[str, Any]:
-    """``collided_with`` (class and origin of the ego's first victim, '' if none) and
-    ``harm_worst`` (the largest harm booked to a single party, the ego included, 0 if none) of the
-    booked ego collisions ``c`` (:func:`_ego_collisions`; None: unreadable)."""
-    if c is None:
-        return {"collided_with": "", "harm_worst": float("nan")}
-    try:
-        if not len(c):
-            return {"collided_with": "", "harm_worst": 0.0}
-        r = c.iloc[0]
-        return {"collided_with": f"{r['class_b']}:{'hazard' if str(r['id_b']).startswith('hazard_') else 'traffic'}",
-                "harm_worst": float(max(c.harm_ego.max(), c.harm_third_party.max()))}
-    except Exception:  # noqa: BLE001
-        return {"collided_with": "", "harm_worst": float("nan")}
-
-
-def _outcome(out: Path, summary: dict[str, Any]) -> dict[str, Any]:
-    """:func:`_victims` and :func:`_safety` of a run folder, collisions.parquet read once."""
-    c = _ego_collisions(out)
-    return {**_victims(c), **_safety(out, summary, c)}
-
-
-#: fault values of collisions.parquet, in the order the tables list them
-FAULTS = ("ego", "other", "shared", "unknown")
-#: over-caution: a hard braking (below -HARD_BRAKE m/s^2, 0.3 g, the harsh-braking threshold common
-#: in naturalistic driving studies) with no conflict under way or starting from WARRANT_BEFORE s
-#: before it to WARRANT_AFTER s after it, and no red light ahead
-HARD_BRAKE = 0.3 * 9.81
-WARRANT_BEFORE, WARRANT_AFTER = 1.0, 3.0
-
-
-def overcautious_brakings(steps: Any, conflicts: Any) -> int:
-    """Number of hard-braking episodes (consecutive steps with accel < -HARD_BRAKE) of a run with
-    no conflict (``conflicts.parquet``: ``start``, ``end``) overlapping [t0 - WARRANT_BEFORE,
-    t0 + WARRANT_AFTER] around the episode's first step t0 and no red/yellow stop line ahead
-    (``stop_s``) at t0."""
-    import pandas as pd
-
-    if steps is None or len(steps) == 0 or "accel" not in steps:
-        return 0
-    hard = (steps["accel"].to_numpy(float) < -HARD_BRAKE)
-    first = np.flatnonzero(hard & ~np.r_[False, hard[:-1]])
-    t = steps["time"].to_numpy(float)
-    red = steps["stop_s"].notna().to_numpy() if "stop_s" in steps else np.zeros(len(steps), bool)
-    c = conflicts if conflicts is not None else pd.DataFrame({"start": [], "end": []})
-    n = 0
-    for i in first:
-        lo, hi = t[i] - WARRANT_BEFORE, t[i] + WARRANT_AFTER
-        warranted = bool(((c["start"] <= hi) & (c["end"] >= lo)).any()) if len(c) else False
-        n += int(not warranted and not red[i])
-    return n
-
-
-def _safety(out: Path, summary: dict[str, Any], c: Any) -> dict[str, Any]:
-    """Per run: ``distance`` [m] and ``drive_time`` [s] of the ego, ``conflicts_total``,
-    ``conflicts_vru`` and ``overcautious`` (NaN where conflicts were not measured) and
-    ``harm_fault_<f>``: the harm (ego + third party) of the booked ego collisions ``c``
-    (:func:`_ego_collisions`) whose ``fault`` is f (docs/conflicts.md)."""
-    from sumo_ethics.analysis.dataset import drive_time
-
-    conf = summary.get("conflicts")
-    driven = drive_time(summary)
-    row: dict[str, Any] = {
-        "distance": float(summary.get("distance", 0.0) or 0.0),
-        "drive_time": float("nan") if driven is None else driven,
-        "conflicts_total": float(conf["total"]) if conf else float("nan"),
-        "conflicts_vru": float(conf["vru"]) if conf else float("nan"),
-        **{f"harm_fault_{f}": 0.0 for f in FAULTS}, "overcautious": float("nan")}
-    if conf:  # conflicts were measured: a braking without one under way is over-cautious
-        try:
-            import pandas as pd
-
-            steps = pd.read_parquet(out / "steps.parquet", columns=["time", "accel", "stop_s"])
-            cpath = out / "conflicts.parquet"
-            row["overcautious"] = float(overcautious_brakings(steps, pd.read_parquet(cpath) if cpath.exists() else None))
-        except Exception:  # noqa: BLE001 - no steps: nothing to count
-            pass
-    if c is None or "fault" not in c.columns:  # no collisions file, or one from before fault: nothing booked
-        return row
-    for f in FAULTS:
-        sel = c[c.fault == f]
-        row[f"harm_fault_{f}"] = float(sel.harm_ego.sum() + sel.harm_third_party.sum())
     return row
 
 
@@ -347,7 +244,7 @@ def _dead_row(scenario: str, planner: PlannerSpec, why: str) -> dict[str, Any]:
 def _row_from_folder(scenario: str, planner: PlannerSpec, out_dir: str, *_: Any) -> dict[str, Any] | None:
     """The row of a finished run (for --resume), None if the folder holds no finished run."""
     out = Path(out_dir)
-    data = _read_summary(out)
+    data = read_summary(out)
     if (Path(scenario) / "commonroad.json").is_file():  # CommonRoad runs are not resumed: run again
         return None
     if data is None or not (out / "hazard_events.json").is_file():
@@ -364,7 +261,7 @@ def _row_from_folder(scenario: str, planner: PlannerSpec, out_dir: str, *_: Any)
             "vru": float(h.get("vru", 0.0)), "message": str(data.get("message", ""))[:200],
             "steps": int(data.get("steps", 0) or 0),
             "hazards_fired": ",".join(sorted({e["type"] for e in events if e["event"] == "trigger"})),
-            **_outcome(out, data), "wall_s": float(data.get("wall_time", 0.0) or 0.0),
+            **outcome(out, data), "wall_s": float(data.get("wall_time", 0.0) or 0.0),
             **run_risk_file(out)}
 
 
@@ -554,7 +451,7 @@ def hazard_breakdown(rows: list[dict[str, Any]], planners: list[str]) -> list[di
     return out
 
 
-#: per-run metrics compared as paired means: the ex-ante risk (sumo_ethics.analysis.risk) and the
+#: per-run metrics compared as paired means: the ex-ante risk (sumo_ethics.analysis.exante) and the
 #: harm of the worst-off party of the ego's collisions (what Maximin is about)
 RISK_METRICS = ("risk_ego_mean", "risk_third_party_mean", "risk_vru_mean", "risk_total_mean", "risk_worst_peak",
                 "harm_worst")
@@ -615,7 +512,7 @@ def write_outputs(rows: list[dict[str, Any]], planners: list[PlannerSpec], out: 
                   meta: dict[str, Any]) -> tuple[Path, Path]:
     import pandas as pd
 
-    from sumo_ethics.analysis.risk import risk_boxplot, risk_table
+    from sumo_ethics.analysis.exante import risk_boxplot, risk_table
 
     names = [p.name for p in planners]
     out.mkdir(parents=True, exist_ok=True)
@@ -696,7 +593,7 @@ def rows_from_runs(out: Path, suite: Path) -> list[dict[str, Any]]:
     planners = sorted(p.name for p in (out / "runs").iterdir() if p.is_dir())
     for p in planners:
         for run_dir in sorted((out / "runs" / p).iterdir()):
-            data = _read_summary(run_dir)
+            data = read_summary(run_dir)
             if data is None:
                 continue
             spec = load(Path(suite) / run_dir.name)

@@ -2,7 +2,7 @@
 training and evaluation data (``sumo-ethics dataset --suite``).
 
 The scenario runs as the suite defines it (its seed, ego route and hazards) with the ethical planner
-(constant-velocity prediction) driving the ego; a :class:`~sumo_ethics.sim.recorder.TrafficRecorder` reads every road
+(constant-velocity prediction) driving the ego; a :class:`~sumo_ethics.sim.trajectories.TrafficRecorder` reads every road
 user but the ego each step, so cut-ins, drifts, emergency stops, red-light runners and
 pedestrians stepping out appear in the data as they appear to the planner.
 """
@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from sumo_ethics.plan.controller import Decision, Scene
+from sumo_ethics.contract import Decision, Scene
 
 
 class _Recording:
@@ -30,7 +30,7 @@ class _Recording:
         self.recorder: Any = None
 
     def act(self, scene: Scene) -> Decision:
-        from sumo_ethics.sim.recorder import TrafficRecorder
+        from sumo_ethics.sim.trajectories import TrafficRecorder
 
         if self.recorder is None:
             self.recorder = TrafficRecorder(skip=tuple(scene.ego.ids))
@@ -42,7 +42,7 @@ class _Recording:
 def record_scenario(scenario_dir: Path | str, scratch_root: str | None = None) -> tuple[pd.DataFrame, Any]:
     """Run one suite scenario (ethical planner with constant velocity, its hazards) -> (trajectory rows, lane graph).
 
-    Rows have the columns of ``predict.dataset``'s trajectories but run_id/seed/scenario/scale,
+    Rows have the columns of ``predict.samples``' trajectories but run_id/seed/scenario/scale,
     which the caller adds. Runs SUMO in this process (call it in a worker process); the run's
     outputs go to a temporary folder inside ``scratch_root`` (None: the system's)."""
     from sumo_ethics.runner import make_controller, run

@@ -31,7 +31,7 @@ files of a killed start are removed at the next start.
 Modules: :mod:`~sumo_ethics.sweep.grid` (parsing, the grid, bounds), :mod:`~sumo_ethics.sweep.manifest`
 (manifest.json, folder checks, leftovers), :mod:`~sumo_ethics.sweep.executors` (one run, local
 processes, Dask); this module runs a sweep. The sweep's Parquet dataset is built by
-:func:`sumo_ethics.analysis.dataset.build_dataset`.
+:func:`sumo_ethics.analysis.sweep_tables.build_dataset`.
 """
 
 from __future__ import annotations
@@ -45,14 +45,14 @@ from typing import Any, Callable
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.sweep.executors import (DaskPool, LocalPool, RunProcess, execute_run, execute_run_isolated,
                                          main_one)
-from sumo_ethics.sweep.grid import (MAX_RUNS, MAX_VALUES, PLANNER_SIMPLE, RUN_KEYS, RunSpec, Sweep, command_line,
+from sumo_ethics.sweep.grid import (MAX_RUNS, MAX_VALUES, PLANNER_SIMPLE, RUN_KEYS, RunSpec, Sweep,
                                     find_scenarios, known_set_keys, make_run_id, make_sweep, parse_range,
                                     parse_seeds, parse_set, planner_keys, scenario_names)
 from sumo_ethics.sweep.manifest import (FAILED, FINISHED, MANIFEST_VERSION, PENDING, Manifest, check_finished,
                                         check_out, clean_temporaries, result_from_folder)
 
 __all__ = ["DaskPool", "LocalPool", "RunProcess", "execute_run", "execute_run_isolated", "main_one", "MAX_RUNS",
-           "MAX_VALUES", "PLANNER_SIMPLE", "RUN_KEYS", "RunSpec", "Sweep", "command_line", "find_scenarios",
+           "MAX_VALUES", "PLANNER_SIMPLE", "RUN_KEYS", "RunSpec", "Sweep", "find_scenarios",
            "known_set_keys", "make_run_id", "make_sweep", "parse_range", "parse_seeds", "parse_set",
            "planner_keys", "scenario_names", "FAILED", "FINISHED", "MANIFEST_VERSION", "PENDING", "Manifest",
            "check_finished", "check_out", "clean_temporaries", "result_from_folder", "SweepResult", "run_sweep"]
@@ -189,7 +189,7 @@ def _run_sweep(sweep: Sweep, out: Path, workers: int, scheduler: str | None, pro
             raise
     executor.close()
     manifest.write()
-    from sumo_ethics.analysis.dataset import build_dataset
+    from sumo_ethics.analysis.sweep_tables import build_dataset
 
     build_dataset(out)
     done = sum(1 for r in manifest.runs.values() if r["status"] in FINISHED)

@@ -40,7 +40,7 @@ RUN_KEYS: dict[str, tuple[str, type]] = {
     "ego_to": ("ego_to", str),
     "step_length": ("step_length", float),
     "record_decisions": ("record_decisions", str),
-    # a fleet (sumo_ethics.fleet): any of these makes each run a fleet run
+    # a fleet (sumo_ethics.runner.fleet): any of these makes each run a fleet run
     "egos": ("fleet.egos", int),
     "penetration": ("fleet.penetration", float),
     "fleet": ("fleet.shares", str),
@@ -356,27 +356,6 @@ class Sweep:
             except ConfigError as exc:
                 raise ConfigError(f"{spec.params['scenario']}: {exc}") from None
         return specs
-
-
-def command_line(definition: dict[str, Any], out: str = "OUT") -> str:
-    """A ``sumo-ethics sweep`` command that reproduces ``definition`` (for reports)."""
-    flags = {"end": "--end", "ego_depart": "--ego-depart", "ego_from": "--ego-from", "ego_to": "--ego-to",
-             "controller": "--controller", "predictor": "--predictor", "radius": "--radius",
-             "step_length": "--step-length"}
-    scen = definition["scenarios"]
-    parts = ["sumo-ethics sweep", scen[0] if len(scen) == 1 else os.path.commonpath(scen),
-             "--omega-u", ",".join(f"{v:g}" for v in definition["omega_u"]),
-             "--seeds", ",".join(map(str, definition["seeds"]))]
-    for k, v in definition["set"].items():
-        parts += ["--set", f"{k}=" + ",".join(f"{x:g}" if isinstance(x, float) else str(x) for x in v)]
-    for k, v in definition["options"].items():
-        if k == "stop_at_collision":
-            parts += ["--continue-after-collision"] if v is False else []
-        elif k in flags:
-            parts += [flags[k], f"{v:g}" if isinstance(v, float) else str(v)]
-    if definition.get("planner"):
-        parts += ["--config", "PLANNER.toml"]
-    return " ".join(parts + ["--out", out])
 
 
 def make_sweep(scenario: Path, omega_u: str, seeds: str, sets: Iterable[str] = (), options: dict | None = None,

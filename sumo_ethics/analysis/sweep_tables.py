@@ -20,7 +20,7 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from sumo_ethics.analysis.risk import COLUMNS as RISK_COLUMNS, INPUTS as RISK_INPUTS, run_risk
+from sumo_ethics.analysis.exante import COLUMNS as RISK_COLUMNS, INPUTS as RISK_INPUTS, run_risk
 
 TABLES = ("runs", "collisions", "steps")
 FINISHED = ("completed", "collision", "timeout", "error")
@@ -89,7 +89,7 @@ def drive_time(summary: dict[str, Any]) -> float | None:
 
 #: a fleet run's traffic outcomes (NaN for a single-ego run): egos, everyone's harm by party
 #: (summed over every confirmed collision of the run), kilometres driven and walked by all
-#: trips, mean time loss per trip by party (sumo_ethics.fleet, trips.parquet)
+#: trips, mean time loss per trip by party (sumo_ethics.runner.fleet, trips.parquet)
 FLEET_COLUMNS = ("fleet_egos", "harm_all_egos", "harm_all_other_vehicles", "harm_all_vru", "harm_all_total",
                  "vehicle_km", "person_km", "time_loss_egos", "time_loss_other_vehicles", "time_loss_persons")
 

@@ -1,5 +1,5 @@
 """Every road user's state each step, with map context at the predictor's rate: the libsumo side
-of the prediction datasets (:mod:`sumo_ethics.predict.dataset` turns the rows into samples).
+of the prediction datasets (:mod:`sumo_ethics.predict.samples` turns the rows into samples).
 
 Two ways in, one set of columns (those of a dataset's ``trajectories.parquet`` but run_id, seed,
 scenario and scale, which the caller adds):
@@ -112,7 +112,7 @@ def record_run(cmd: list[str], sim_seconds: float, sim_dt: float = 0.1, model_dt
 class TrafficRecorder:
     """Every road user's state each step (the whole simulation, not only the ego's
     neighbours), with map context at the predictor's rate: the rows of a prediction dataset
-    (columns as ``sumo_ethics.predict.dataset``'s trajectories) from a run driven by someone
+    (columns as ``sumo_ethics.predict.samples``'s trajectories) from a run driven by someone
     else, e.g. a suite scenario with its hazards. ``skip``: ids left out (the ego)."""
 
     def __init__(self, skip: tuple[str, ...] = (), sim_dt: float = 0.1, model_dt: float = 0.2) -> None:

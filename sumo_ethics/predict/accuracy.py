@@ -1,6 +1,6 @@
 """Held-out evaluation: constant velocity vs CS-LSTM vs attention vs map, per agent group and manoeuvre.
 
-On the TEST seeds of a dataset (split by run seed, see dataset.py), for each model and
+On the TEST seeds of a dataset (split by run seed, see samples.py), for each model and
 agent group (vehicle, cyclist, pedestrian, all): RMSE of the mean at 1, 2, 3, 4 s,
 ADE (mean displacement over the 20 steps of 0.2 s), FDE (at 4 s) [m], and the mean
 bivariate Gaussian NLL per predicted point [nats, positions in metres].
@@ -18,7 +18,7 @@ import pandas as pd
 
 from sumo_ethics.predict import features as F
 from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor
-from sumo_ethics.predict.dataset import load_samples, map_version_of, require_nbr_yaw, run_scenarios, subset
+from sumo_ethics.predict.samples import load_samples, map_version_of, require_nbr_yaw, run_scenarios, subset
 
 HORIZONS_S = (1.0, 2.0, 3.0, 4.0)
 
@@ -170,7 +170,7 @@ def evaluate(
     is fitted on the train split of ``calibration_dataset`` (default: ``dataset``). ``calibrated``:
     also a row ``<name>_calibrated`` for every model with a covariance calibration beside its
     weights file (predict/calibration.py: the same means, other spreads)."""
-    from sumo_ethics.predict.dataset import MANOEUVRES
+    from sumo_ethics.predict.samples import MANOEUVRES
     from sumo_ethics.predict.models import KINDS, MAP_KINDS, load_model
     from sumo_ethics.predict.predictor import default_weights
 

@@ -1,4 +1,4 @@
-"""The one simulation loop: ``run(config) -> RunSummary``.
+"""The one simulation loop, one ego (:class:`Run`, :func:`execute`); several: :mod:`sumo_ethics.runner.fleet`.
 
 Each step: read (``SumoWorld.read`` -> Scene) -> act (``controller.act`` -> Decision) -> step
 (``SumoWorld.step``: moveToXY, simulationStep) -> detect (``collision.CollisionBook``) -> record
@@ -26,7 +26,7 @@ from sumo_ethics.interrupt import sigterm_as_interrupt, sigterm_deferred
 from sumo_ethics.config import RunConfig
 from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEthicsError, Terminated
 from sumo_ethics.notes import RunNotes
-from sumo_ethics.plan.controller import Controller, Scene
+from sumo_ethics.contract import Controller, Scene, StopRun
 from sumo_ethics.plan.feasibility import ROAD_CURVATURE_TOL
 from sumo_ethics.plan.history import History
 from sumo_ethics.record.recorder import RunRecorder
@@ -40,7 +40,7 @@ from sumo_ethics.sim.ego import start_ego
 from sumo_ethics.sim.gui import GuiOptions, View
 from sumo_ethics.sim.route import tight_bends
 from sumo_ethics.sim.rules import RuleMonitor
-from sumo_ethics.sim.scenario import format_time
+from sumo_ethics.sumo_options import format_time
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld
 from sumo_ethics.types import VULNERABLE, RunStatus
 
@@ -51,14 +51,6 @@ from sumo_ethics.types import VULNERABLE, RunStatus
 #: instead of completed) and ``summary() -> dict`` (merged into summary.json); it ends the run by
 #: raising :class:`StopRun`. sumo_ethics.sim.commonroad uses all of them.
 StepHook = Callable[[Snapshot, SumoWorld], None]
-
-
-class StopRun(Exception):
-    """Raised by a hook to end the run with ``status`` and ``message`` (e.g. a goal region reached)."""
-
-    def __init__(self, status: RunStatus, message: str) -> None:
-        super().__init__(message)
-        self.status, self.message = status, message
 
 
 @dataclass(frozen=True)
@@ -505,73 +497,6 @@ def _progress(enabled: bool, start: float, end: float) -> Any:
     task = prog.add_task("sim", total=end, completed=start)
     prog.start()
     return prog, task
-
-
-CONTROLLERS = ("ethical", "baseline")
-
-
-def make_controller(cfg: RunConfig) -> Controller:
-    """The controller named by ``cfg.controller``: "ethical" (the planner) or "baseline"."""
-    if cfg.controller == "baseline":
-        from sumo_ethics.plan.baseline import RouteFollower
-
-        return RouteFollower()
-    if cfg.controller == "ethical":
-        from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
-        from sumo_ethics.settings import check_grid_bounds
-
-        planner = cfg.planner or PlannerConfig()
-        check_grid_bounds(planner.sampling)  # also for a PlannerConfig built in Python, not from settings
-        return EthicalPlanner(planner)
-    raise ConfigError(f"unknown controller '{cfg.controller}'; known: {', '.join(CONTROLLERS)}")
-
-
-def _imported(cfg: RunConfig, hooks: tuple[StepHook, ...]) -> tuple[RunConfig, tuple[StepHook, ...]]:
-    """A folder written by ``import-commonroad`` (``commonroad.json`` beside the sumocfg): its own ego
-    (the planning problem's) and the hook that places it, replays the obstacles and checks the goal."""
-    from sumo_ethics.sim.commonroad import CommonRoadHook, marker_of
-
-    marker = marker_of(cfg.scenario)
-    if marker is None:
-        return cfg, hooks
-    if cfg.ego_id not in (None, "ego") or cfg.ego_from is not None:
-        raise ConfigError(f"{cfg.scenario.name} is an imported CommonRoad scenario: its ego is the planning "
-                          "problem's; drop --ego/--ego-from/--ego-to")
-    return replace(cfg, ego_id="ego"), hooks + (CommonRoadHook(marker),)
-
-
-def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepHook, ...] = (),
-        gui: GuiOptions | None = None) -> RunSummary:
-    """Run one scenario; writes the run folder and returns the summary.
-
-    hooks: callables ``hook(snapshot, world)`` called every ego step after the scene is read
-    and before the controller acts (they may act on SUMO, e.g. inject hazards; only code
-    under ``sumo_ethics/sim`` should). gui: run in sumo-gui through TraCI, the view following
-    the ego and each decision drawn (single ego only; the same outputs as without).
-
-    Raises ConfigError for bad input (the run folder is left as it was). Everything else ends
-    with the outputs written so far and a summary saying how the run ended, then raises:
-    SimulationError (SUMO failed, status ``error``), OutputError (the outputs could not be
-    written, e.g. a full disk), KeyboardInterrupt on Ctrl-C and :class:`Terminated` on SIGTERM
-    (status ``interrupted``).
-    """
-    if cfg.fleet is not None:
-        if gui is not None:
-            raise ConfigError("--gui shows a single ego; drop the fleet options (--egos, --penetration, "
-                              "several --ego, --fleet)")
-        if hooks:
-            raise ConfigError("a fleet run (--egos, --penetration, several --ego) takes no hooks (hazards)")
-        from sumo_ethics.sim.commonroad import marker_of
-
-        if marker_of(cfg.scenario) is not None:
-            raise ConfigError(f"{cfg.scenario.name} is an imported CommonRoad scenario: its one ego is the planning "
-                              "problem's; drop --egos/--penetration/--fleet")
-        from sumo_ethics.fleet import run_fleet
-
-        return run_fleet(cfg)
-    cfg, hooks = _imported(cfg, tuple(hooks))
-    controller = controller or make_controller(cfg)
-    return execute(Run(cfg, controller, tuple(hooks), gui), cfg)
 
 
 def execute(r: Run, cfg: RunConfig) -> RunSummary:

@@ -1,4 +1,4 @@
-"""The libsumo side of a fleet run (:mod:`sumo_ethics.fleet`): inserting egos, noticing which
+"""The libsumo side of a fleet run (:mod:`sumo_ethics.runner.fleet`): inserting egos, noticing which
 vehicles depart, arrive or teleport, telling which may become egos, and letting go of an ego.
 
 An ego is driven by :class:`~sumo_ethics.sim.world.SumoWorld` exactly as in the single-ego run;

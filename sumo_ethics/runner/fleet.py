@@ -3,7 +3,7 @@
 
 Which vehicles become egos: ``--egos`` inserts N of ours (departures spread evenly over the first
 half of the run, routes drawn with the seed); ``--penetration`` takes over each eligible vehicle of
-the scenario (a motor road vehicle without stops, :func:`sumo_ethics.sim.fleet.eligible`) when it
+the scenario (a motor road vehicle without stops, :func:`sumo_ethics.sim.egos.eligible`) when it
 departs, by its own seeded draw :func:`draw`: a vehicle's draw does not depend on the others, so
 the egos at penetration 0.1 are among those at 0.25 (common random numbers across a sweep);
 ``--ego`` names vehicles. Each ego's planner is drawn by share (``--fleet``) from a second draw.
@@ -35,17 +35,17 @@ import numpy as np
 from sumo_ethics.collision import CollisionBook, booked_outcome, is_booked
 from sumo_ethics.config import FLEET_CONTROLLERS, FleetSpec, RunConfig
 from sumo_ethics.errors import ConfigError, SumoEthicsError
-from sumo_ethics.plan.controller import Controller, Decision, Scene
+from sumo_ethics.contract import Controller, Decision, Scene
 from sumo_ethics.plan.history import History
 from sumo_ethics.record import schema
 from sumo_ethics.record.writer import ChunkedTable
-from sumo_ethics.runner import Run, RunSummary, _progress, execute, step_row, stop_line
+from sumo_ethics.runner.loop import Run, RunSummary, _progress, execute, step_row, stop_line
 from sumo_ethics.safety.conflicts import ConflictBook, conflict_counts
 from sumo_ethics.safety.fault import RED_MEMORY, FaultContext
-from sumo_ethics.sim import fleet as sim_fleet, scenario as scenario_files, session
+from sumo_ethics.sim import egos as sim_egos, scenario as scenario_files, session
 from sumo_ethics.sim.ego import ego_limits
 from sumo_ethics.sim.rules import RuleMonitor
-from sumo_ethics.sim.scenario import format_time
+from sumo_ethics.sumo_options import format_time
 from sumo_ethics.sim.world import Snapshot, SumoWorld
 from sumo_ethics.types import AgentStates, Observation, Prediction, RoadUserClass, RunStatus
 
@@ -100,6 +100,7 @@ def make_fleet_controllers(cfg: RunConfig) -> Callable[[str, str], Controller]:
     from sumo_ethics.ethics.cost import PrincipleWeights
     from sumo_ethics.plan.baseline import RouteFollower
     from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig, make_predictor
+    from sumo_ethics.sim.lanes import SumoMapSource
 
     spec = cfg.fleet
     assert spec is not None
@@ -118,7 +119,7 @@ def make_fleet_controllers(cfg: RunConfig) -> Callable[[str, str], Controller]:
             pc = replace(base, cost=replace(base.cost, weights=PrincipleWeights.preset(name)))
         key = (pc.predictor, pc.predictor_weights, pc.calibrated)
         if key not in shared:
-            shared[key] = SharedPrediction(make_predictor(*key))
+            shared[key] = SharedPrediction(make_predictor(*key, maps=SumoMapSource))
         return EthicalPlanner(pc, predictor=shared[key])
 
     make.shared = shared  # type: ignore[attr-defined]
@@ -289,7 +290,7 @@ class FleetRun(Run):
         t = session.sim_time()
         inserted = [f"{INSERTED_PREFIX}{i}" for i in range(spec.egos)]
         if inserted:
-            routes = sim_fleet.insert_egos(inserted, inserted_departs(spec.egos, t, end, dt), cfg.seed, cfg.ego,
+            routes = sim_egos.insert_egos(inserted, inserted_departs(spec.egos, t, end, dt), cfg.seed, cfg.ego,
                                            cfg.min_route_length, cfg.ego_depart_lane)
             self.meta["inserted_routes"] = {k: len(v) for k, v in routes.items()}
         self.wanted = {k: True for k in inserted} | {k: False for k in spec.ids}
@@ -302,7 +303,7 @@ class FleetRun(Run):
             while True:
                 t = session.sim_time()
                 self.meta["last_time"] = t
-                if t >= end - 1e-9 or (t > self.meta["takeover_time"] and sim_fleet.pending() == 0):
+                if t >= end - 1e-9 or (t > self.meta["takeover_time"] and sim_egos.pending() == 0):
                     self.status = RunStatus.COMPLETED
                     self.message = (f"time limit {format_time(end)} reached" if t >= end - 1e-9 else
                                     f"every trip ended at t={format_time(t)}")
@@ -317,19 +318,19 @@ class FleetRun(Run):
                 for a in self.active:
                     a.world.command(a.decision.command if a.decision is not None and a.snap is not None else None)
                 w1 = wallclock.perf_counter()
-                sim_fleet.advance()
+                sim_egos.advance()
                 self.step += 1
                 w2 = wallclock.perf_counter()
                 now = session.sim_time()
                 self._observe_all(now, dt, (w1 - w0, w2 - w1))
-                for vid in sim_fleet.departed():
+                for vid in sim_egos.departed():
                     self._maybe_take_over(vid, now, end)
                 if progress is not None and self.step % 50 == 0:
                     progress[0].update(progress[1], completed=min(now, end))
         finally:
             self.meta["loop_wall"] = wallclock.perf_counter() - self.t_start
             self.meta["shared_predictions"] = sum(p.calls for p in shared)
-            self.meta["vclass_of"] = sim_fleet.vclasses()
+            self.meta["vclass_of"] = sim_egos.vclasses()
             if progress is not None:
                 progress[0].stop()
 
@@ -364,7 +365,7 @@ class FleetRun(Run):
             a.decision = None
             self._end(a, "error", f"its planner failed at t={format_time(t)}: {type(exc).__name__}: {exc}; "
                                   "handed back to SUMO", t)
-            sim_fleet.release(a.id, a.speed_factor)
+            sim_egos.release(a.id, a.speed_factor)
             return
         a.extra["controller_ms"] = 1e3 * (wallclock.perf_counter() - w)
         a.n_fallback += int(a.decision.info.get("n_fallback", 0))
@@ -372,8 +373,8 @@ class FleetRun(Run):
     def _observe_all(self, now: float, dt: float, w: tuple[float, float]) -> None:
         """After a step: read every ego, give each ego's own state to the others' views of it, then
         each ego's collisions, conflicts and steps row; the others' collisions; the egos' ends."""
-        gone = sim_fleet.teleporting() & self.egos
-        reports = tuple(sim_fleet.sumo_collisions())
+        gone = sim_egos.teleporting() & self.egos
+        reports = tuple(sim_egos.sumo_collisions())
         rows_before = len(self.rec.collisions)
         read: list[tuple[Agent, Snapshot]] = []
         for a in list(self.active):
@@ -402,11 +403,11 @@ class FleetRun(Run):
                     other = row["id_b"] if row["id_a"] == a.id else row["id_a"]
                     self._end(a, "collision", f"collided with '{other}' at t={format_time(row['time'])}; "
                                               "taken off the road", now)
-                    sim_fleet.remove(a.id)
+                    sim_egos.remove(a.id)
         for a, _ in read:
             if a in self.active and a.snap is not None and a.s + a.half >= a.route_length - 0.5:
                 self._end(a, "completed", f"goal reached at t={format_time(now)}; handed back to SUMO", now)
-                sim_fleet.release(a.id, a.speed_factor)
+                sim_egos.release(a.id, a.speed_factor)
 
     def _read(self, a: Agent, now: float, dt: float, gone: frozenset[str]) -> Snapshot | None:
         """Ego ``a``'s snapshot after the step, or None when it ended (teleported, left, arrived)
@@ -415,7 +416,7 @@ class FleetRun(Run):
         if a.id in gone:
             self.teleported.append(a.id)
             self._end(a, "teleported", f"SUMO started to teleport it at t={format_time(now)}; handed back", now)
-            sim_fleet.release(a.id, a.speed_factor)
+            sim_egos.release(a.id, a.speed_factor)
             return None
         new = a.world.read()
         if new is None:
@@ -485,7 +486,7 @@ class FleetRun(Run):
             inserted = self.wanted[vid]
         elif spec.penetration > 0.0:
             self.considered += 1
-            if not sim_fleet.eligible(vid):
+            if not sim_egos.eligible(vid):
                 return
             self.eligible += 1
             if draw(self.cfg.seed, 0, vid) >= spec.penetration:
@@ -493,18 +494,18 @@ class FleetRun(Run):
             inserted = False
         else:
             return
-        if not inserted and not sim_fleet.eligible(vid):  # named by --ego
+        if not inserted and not sim_egos.eligible(vid):  # named by --ego
             self.refused[vid] = "not a motor road vehicle, or it has stops (the rules of --ego)"
             return
         name = planner_of(self.cfg.seed, vid, spec.shares)
         world = SumoWorld(vid, self.cfg.sensing_radius)
-        factor = sim_fleet.speed_factor(vid)
+        factor = sim_egos.speed_factor(vid)
         try:
             route = world.takeover()
         except (SumoEthicsError, *session.SUMO_ERRORS) as exc:  # e.g. a route the planner cannot follow
             self.refused[vid] = str(exc)
             return
-        sim_fleet.hold_speed(vid)  # its first step, before its planner acts: no faster than now
+        sim_egos.hold_speed(vid)  # its first step, before its planner acts: no faster than now
         vehicle = self.cfg.ego if inserted else ego_limits(vid, self.cfg.ego)
         ctl = self.make(name, vid)
         a = Agent(vid, name, inserted, ctl, world, t, vehicle=vehicle, route_length=float(route.length),
