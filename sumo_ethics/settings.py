@@ -9,13 +9,18 @@ predictor_weights, calibrated, max_risk, braking_prior, lateral_prior, selection
 
 from __future__ import annotations
 
-import tomllib
+import sys
 from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
 from sumo_ethics.config import require_number
 from sumo_ethics.errors import ConfigError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # tomllib is Python 3.11+; tomli is the same parser (a dependency on 3.10 only)
+    import tomli as tomllib
 
 
 #: bounds on the candidate grid, checked before anything is allocated: the planner holds

@@ -19,7 +19,7 @@ import torch
 from torch.optim import swa_utils
 
 from sumo_ethics import fileio
-from sumo_ethics.errors import Terminated
+from sumo_ethics.errors import Terminated, add_note
 from sumo_ethics.interrupt import signals_held
 from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
@@ -331,6 +331,6 @@ def train_model(
         if interrupted is None:
             raise
     if interrupted is not None:
-        interrupted.add_note(f"the best epoch so far ({best_epoch}, validation NLL {best:.3f}) is written to {out}")
+        add_note(interrupted, f"the best epoch so far ({best_epoch}, validation NLL {best:.3f}) is written to {out}")
         raise interrupted
     return info

@@ -25,7 +25,7 @@ def dataset_main(
     (:class:`sumo_ethics.errors.Terminated`): its SUMO runs killed, no dataset written (a signal
     while the folder is written waits until it is whole); the interrupt's note says which, and how
     many finished runs are kept."""
-    from sumo_ethics.errors import SimulationError
+    from sumo_ethics.errors import SimulationError, add_note
     from sumo_ethics.interrupt import sigterm_as_interrupt
     from sumo_ethics.recording.build import build_dataset
 
@@ -38,7 +38,7 @@ def dataset_main(
             )
         except KeyboardInterrupt as exc:  # the command's one line says what is on disk
             done = (Path(out) / "split.json").is_file()
-            exc.add_note(f"the dataset was written whole to {out}" if done else f"no dataset is written{_kept_note(out)}")
+            add_note(exc, f"the dataset was written whole to {out}" if done else f"no dataset is written{_kept_note(out)}")
             raise
         except SimulationError as exc:  # a SUMO run failed: the others' work is not lost either
             note = _kept_note(out)

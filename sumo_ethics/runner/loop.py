@@ -24,7 +24,7 @@ from sumo_ethics import __version__
 from sumo_ethics.collision import CollisionBook, booked_outcome, is_booked
 from sumo_ethics.interrupt import sigterm_as_interrupt, sigterm_deferred
 from sumo_ethics.config import RunConfig
-from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEthicsError, Terminated
+from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEthicsError, Terminated, add_note
 from sumo_ethics.notes import RunNotes
 from sumo_ethics.contract import Controller, Scene, StopRun
 from sumo_ethics.plan.feasibility import ROAD_CURVATURE_TOL
@@ -527,7 +527,7 @@ def execute(r: Run, cfg: RunConfig) -> RunSummary:
         with sigterm_deferred():  # a SIGTERM now waits until the outputs are whole
             data, error = r.finish(wallclock.perf_counter() - t0, error)
     if isinstance(error, KeyboardInterrupt) and (cfg.out / "summary.json").is_file():  # the command's line says so
-        error.add_note(f"the steps so far and a summary (status interrupted) are written to {cfg.out}")
+        add_note(error, f"the steps so far and a summary (status interrupted) are written to {cfg.out}")
     if error is not None:
         raise error
     return RunSummary(r.status, r.message, cfg.out, data)

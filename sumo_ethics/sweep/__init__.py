@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from sumo_ethics.errors import ConfigError
+from sumo_ethics.errors import ConfigError, add_note
 from sumo_ethics.sweep.executors import (DaskPool, LocalPool, RunProcess, execute_run, execute_run_isolated,
                                          main_one)
 from sumo_ethics.sweep.grid import (MAX_RUNS, MAX_VALUES, PLANNER_SIMPLE, RUN_KEYS, RunSpec, Sweep,
@@ -101,8 +101,8 @@ def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None =
             raise OutputError(f"cannot write the sweep to {out}: {exc.strerror or exc}") from None
         except KeyboardInterrupt as exc:  # the command's one line says what is kept
             finished = sum(1 for p in (Path(out) / "runs").glob("*/summary.json") if not p.parent.name.startswith("."))
-            exc.add_note(f"{finished} of {len(sweep.specs())} runs are finished in {out}: the same command "
-                         "resumes the others")
+            add_note(exc, f"{finished} of {len(sweep.specs())} runs are finished in {out}: the same command "
+                           "resumes the others")
             raise
 
 
