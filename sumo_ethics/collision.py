@@ -260,7 +260,7 @@ class CollisionBook:
             b = self._party_before(other, before, now)
             if b is None:
                 continue
-            new = collision_row(len(rows) if row is None else idx, t, step, before.ego, b, True, detector,
+            new = collision_row(len(rows) if row is None or idx is None else idx, t, step, before.ego, b, True, detector,
                                 report[6] if report else "", ctx)
             if row is None:
                 self._book(new, ego_id, other)

@@ -30,11 +30,11 @@ class OrientedBoxes:
     length, width: full extents [m] along and across the heading.
     """
 
-    x: np.ndarray
-    y: np.ndarray
-    yaw: np.ndarray
-    length: np.ndarray
-    width: np.ndarray
+    x: np.ndarray | float
+    y: np.ndarray | float
+    yaw: np.ndarray | float
+    length: np.ndarray | float
+    width: np.ndarray | float
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -287,7 +287,7 @@ class Polyline:
         side = np.sign(np.where(use_bis, cross_v, cross_j))
         return s, side * dist
 
-    def to_xy(self, s: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def to_xy(self, s: np.ndarray | float, d: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Frenet (s, d) [m] -> (x, y, yaw) of the broadcast shape.
 
         Piecewise linear: the point at arc length s, moved d to the left of its segment;
@@ -303,11 +303,11 @@ class Polyline:
         y = self.xy[j, 1] + ds * sn + d * c
         return x, y, self.heading[j]
 
-    def heading_at(self, s: np.ndarray) -> np.ndarray:
+    def heading_at(self, s: np.ndarray | float) -> np.ndarray:
         """Heading [rad] of the segment at arc length s (same convention as :meth:`to_xy`)."""
         return self.heading[self._segment_index(np.asarray(s, dtype=float))]
 
-    def curvature_at(self, s: np.ndarray) -> np.ndarray:
+    def curvature_at(self, s: np.ndarray | float) -> np.ndarray:
         """Signed curvature [1/m] (left turn positive) at arc length s.
 
         Method: each interior vertex i turns the heading by dtheta_i = wrap(h_i - h_{i-1});

@@ -174,7 +174,8 @@ class FrenetState:
 
 
 # --------------------------------------------------------------------------- polynomials
-def quartic_coeffs(v0: np.ndarray, a0: np.ndarray, v_end: np.ndarray, T: np.ndarray) -> np.ndarray:
+def quartic_coeffs(v0: np.ndarray | float, a0: np.ndarray | float, v_end: np.ndarray | float,
+                   T: np.ndarray | float) -> np.ndarray:
     """Quartic s(t) - s0 = c1 t + c2 t^2 + c3 t^3 + c4 t^4 with s'(0) = v0, s''(0) = a0,
     s'(T) = v_end, s''(T) = 0. Inputs broadcast [m/s, m/s^2, m/s, s]; returns (..., 5)
     coefficients c0..c4 (c0 = 0) in ascending powers of t.
@@ -187,7 +188,8 @@ def quartic_coeffs(v0: np.ndarray, a0: np.ndarray, v_end: np.ndarray, T: np.ndar
     return np.stack([np.zeros_like(v0), v0, a0 / 2.0, c3, c4], axis=-1)
 
 
-def quintic_coeffs(x0: np.ndarray, x1: np.ndarray, x2: np.ndarray, x_end: np.ndarray, T: np.ndarray) -> np.ndarray:
+def quintic_coeffs(x0: np.ndarray | float, x1: np.ndarray | float, x2: np.ndarray | float, x_end: np.ndarray | float,
+                   T: np.ndarray | float) -> np.ndarray:
     """Quintic x(u) = c0 + ... + c5 u^5 with x(0) = x0, x'(0) = x1, x''(0) = x2, x(T) = x_end,
     x'(T) = x''(T) = 0, for u in [0, T] (time [s] or arc length [m]). Inputs broadcast;
     returns (..., 6) coefficients in ascending powers of u.
@@ -486,6 +488,7 @@ def sample(path: Polyline, start: FrenetState, cfg: SamplingConfig, v_max: float
 
 
 if __name__ == "__main__":  # timing: python -m sumo_ethics.plan.sampling
+    import functools
     import timeit
 
     pts = np.stack([np.linspace(0, 400, 201), 5 * np.sin(np.linspace(0, 400, 201) / 40)], axis=-1)
@@ -494,6 +497,7 @@ if __name__ == "__main__":  # timing: python -m sumo_ethics.plan.sampling
     for v in (12.0, 1.0):
         st = FrenetState(s=20.0, d=0.3, s_dot=v, s_ddot=0.5, d_dot=0.1)
         sample(p, st, c, 14.0, left=3.0, right=-4.0, margin=0.8)
-        ts = timeit.repeat(lambda st=st: sample(p, st, c, 14.0, left=3.0, right=-4.0, margin=0.8), number=1, repeat=200)
+        ts = timeit.repeat(functools.partial(sample, p, st, c, 14.0, left=3.0, right=-4.0, margin=0.8), number=1,
+                           repeat=200)
         print(f"v0={v}: K={c.n_candidates} T={c.n_steps}: median {1e3 * float(np.median(ts)):.3f} ms, "
               f"min {1e3 * min(ts):.3f} ms")

@@ -31,7 +31,7 @@ from sumo_ethics.types import AgentStates, RoadUserClass
 _LABELS = tuple(c.label for c in RoadUserClass)
 
 
-def boxes_of(s: AgentStates, idx: np.ndarray | slice = slice(None)) -> OrientedBoxes:
+def boxes_of(s: AgentStates, idx: np.ndarray | slice | int = slice(None)) -> OrientedBoxes:
     """The boxes of road users ``idx`` of ``s`` (all by default)."""
     return OrientedBoxes(s.x[idx], s.y[idx], s.yaw[idx], s.length[idx], s.width[idx])
 

@@ -37,8 +37,8 @@ def _floats(v) -> np.ndarray:
     return np.asarray(v, dtype=float)
 
 
-def box_ttc(a: OrientedBoxes, va: tuple[np.ndarray, np.ndarray], b: OrientedBoxes,
-            vb: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+def box_ttc(a: OrientedBoxes, va: tuple[np.ndarray | float, np.ndarray | float], b: OrientedBoxes,
+            vb: tuple[np.ndarray | float, np.ndarray | float]) -> np.ndarray:
     """Time to collision [s] of boxes a and b moving at constant velocity and heading.
 
     a, b: boxes (broadcastable shapes); va, vb: (vx, vy) velocities [m/s] of each, broadcastable
@@ -118,7 +118,7 @@ def box_distance(a: OrientedBoxes, b: OrientedBoxes) -> np.ndarray:
     return np.where(boxes_overlap(a, b), 0.0, d)
 
 
-def crossing(yaw_a: np.ndarray, yaw_b: np.ndarray, min_angle: float) -> np.ndarray:
+def crossing(yaw_a: np.ndarray | float, yaw_b: np.ndarray | float, min_angle: float) -> np.ndarray:
     """Whether two headings [rad] cross: their angle, folded into [0, pi/2], is at least
     ``min_angle`` [rad] (same-direction and opposite traffic is not a crossing)."""
     d = np.abs(wrap_angle(np.asarray(yaw_a, dtype=float) - np.asarray(yaw_b, dtype=float)))

@@ -30,7 +30,7 @@ def front_to_centre(
 
 
 def centre_to_front(
-    x: np.ndarray, y: np.ndarray, yaw: np.ndarray, length: np.ndarray
+    x: np.ndarray | float, y: np.ndarray | float, yaw: np.ndarray | float, length: np.ndarray | float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Internal centre pose (x, y [m], yaw [rad]) -> SUMO front bumper (x, y [m], angle [deg])."""
     half = 0.5 * np.asarray(length, dtype=float)
