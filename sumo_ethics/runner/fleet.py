@@ -166,10 +166,13 @@ def union_states(parts: list[AgentStates]) -> AgentStates:
     if not len(ids):
         return AgentStates.empty()
     uniq, first = np.unique(ids, return_index=True)  # sorted, and where each id is seen first
-    cols = (np.concatenate([getattr(s, name) for s in parts])[first]
-            for name in ("x", "y", "yaw", "speed", "accel", "length", "width", "mass", "cls"))
+
+    def col(name: str) -> np.ndarray:
+        return np.concatenate([getattr(s, name) for s in parts])[first]
+
     types = [t for s in parts for t in s.type_id]
-    return AgentStates.trusted(tuple(uniq.tolist()), *cols, tuple(types[i] for i in first))
+    return AgentStates.trusted(tuple(uniq.tolist()), col("x"), col("y"), col("yaw"), col("speed"), col("accel"),
+                               col("length"), col("width"), col("mass"), col("cls"), tuple(types[i] for i in first))
 
 
 # ---- booking ------------------------------------------------------------------------------------

@@ -87,6 +87,8 @@ class CommonRoadHook:
     # ---- time ---------------------------------------------------------------------------
     def step_at(self, t: float) -> float:
         """CommonRoad time step (fractional between recorded steps) at simulation time t."""
+        if self.t0 is None:
+            raise RuntimeError("the CommonRoad replay has no start time before at_takeover")
         return self.first + (t - self.t0) / self.dt_cr
 
     # ---- the runner's calls -------------------------------------------------------------
@@ -113,8 +115,8 @@ class CommonRoadHook:
         route = build_route_path(edges, v.getLaneID(ego), v.getVehicleClass(ego), np.array([e["x"], e["y"]]),
                                  target_lanes=goal_lanes)
         # the goal's top speed, where every goal state gives one, as the speed limit on the goal lanes
-        tops = [st.velocity[1] if st.velocity is not None else None for st in self.goal.states]
-        if tops and None not in tops:
+        tops = [st.velocity[1] for st in self.goal.states if st.velocity is not None]
+        if tops and len(tops) == len(self.goal.states):
             on_goal = np.array([lane in goal_lanes for lane in route.lane_of_vertex])
             route = replace(route, speed_limit=np.where(on_goal, np.minimum(route.speed_limit, max(tops)),
                                                         route.speed_limit))

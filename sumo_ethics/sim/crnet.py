@@ -120,12 +120,12 @@ def ego_route(net: Any, start: Any, goal: Goal, vclass: str = "passenger") -> tu
                             .intersects(region)) or sorted(lane.getID() for lane in lanes if hits(lane))
     else:
         goal_edges, goal_lanes = [], []
-        options = []
+        reachable: list[tuple[float, list[int], list[str]]] = []  # (length, [-edges], path)
         for e in sorted(edges, key=lambda e: e.getID()):
             p = shortest_path(net, start, e, vclass)
             if p is not None:
-                options.append((sum(net.getEdge(x).getLength() for x in p), [-len(p)], p))
-        route = max(options, key=lambda o: (o[0], o[1]))[2]
+                reachable.append((sum(net.getEdge(x).getLength() for x in p), [-len(p)], p))
+        route = max(reachable, key=lambda o: (o[0], o[1]))[2]
     nxt = sorted(e.getID() for e in net.getEdge(route[-1]).getOutgoing() if e.allows(vclass))
     if nxt:
         route = route + [nxt[0]]

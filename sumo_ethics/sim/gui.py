@@ -65,7 +65,8 @@ def decision_shapes(trace: Any) -> dict[str, tuple[np.ndarray, tuple[int, ...], 
     pts = np.c_[c.x[k][c.valid[k]], c.y[k][c.valid[k]]]
     ahead = pts[np.hypot(pts[:, 0] - x, pts[:, 1] - y) > half]
     front = [x + half * np.cos(yaw), y + half * np.sin(yaw)]
-    out = {f"{PREFIX}trajectory": (np.r_[[front], ahead], TRAJECTORY_COLOUR, False, TRAJECTORY_WIDTH)}
+    out: dict[str, tuple[np.ndarray, tuple[int, ...], bool, float]] = {
+        f"{PREFIX}trajectory": (np.r_[[front], ahead], TRAJECTORY_COLOUR, False, TRAJECTORY_WIDTH)}
     risk = trace.agent_risk
     if risk is None or not len(risk):
         return out

@@ -59,8 +59,16 @@ class Actor:
     # straight-line motion (frame "line"): position and unit direction in world coordinates
     line: tuple[float, float, float, float] | None = None
     travelled: float = 0.0
+    line_length: float = 0.0  # frame "line": removed once it has travelled this far [m]
     added: bool = False
     parked: bool = False
+    type_id: str = ""  # the SUMO vehicle type it is added with
+    x: float = 0.0  # its centre pose as last commanded [m, m, rad]
+    y: float = 0.0
+    yaw: float = 0.0
+    d_last: float | None = None  # d [m] and yaw [rad] at the last placement (None before the first)
+    yaw_last: float | None = None
+    ego_speeds: list[float] = field(default_factory=list)  # tailgater: the ego's speeds over its reaction time
 
 
 @dataclass
@@ -74,6 +82,20 @@ class HazardState:
     d0: float = 0.0
     v0: float = 0.0
     d_prev: float = 0.0
+
+    def anchor(self) -> float:
+        """anchor_s [m]: placed by the injector's set-up, before any hazard advances."""
+        if self.anchor_s is None:
+            raise RuntimeError(f"hazard {self.spec.id}: its anchor is not placed on the ego's path yet")
+        return self.anchor_s
+
+    def since_trigger(self, t: float) -> float:
+        """Time [s] from the trigger to t; 0 unless triggered."""
+        if self.phase != "triggered":
+            return 0.0
+        if self.t_trigger is None:
+            raise RuntimeError(f"hazard {self.spec.id}: triggered without a trigger time")
+        return t - self.t_trigger
 
 
 class HazardInjector:
@@ -178,7 +200,7 @@ class HazardInjector:
         vt = sumo.vehicletype
         a = Actor(sumo_id=f"hazard_{name}", is_person=vt.getVehicleClass(tid) == "pedestrian",
                   length=vt.getLength(tid), width=vt.getWidth(tid))
-        a.type_id = tid  # type: ignore[attr-defined]
+        a.type_id = tid
         return a
 
     def _place(self, scene: Any, a: Actor) -> None:
@@ -190,19 +212,19 @@ class HazardInjector:
         else:
             px, py, h = path.to_xy(np.array(a.s), np.array(a.d))
             x, y, h = float(px), float(py), float(h)
-            dd = a.d - getattr(a, "_d_last", a.d)
-            a._d_last = a.d  # type: ignore[attr-defined]
+            dd = a.d - (a.d if a.d_last is None else a.d_last)
+            a.d_last = a.d
             vs = a.v if a.v != 0.0 else 0.0
             lat = dd / scene.dt
             yaw = h + math.atan2(lat, vs) if (abs(vs) > 0.05 or abs(lat) > 0.05) else (h + (math.pi if a.v < 0 else 0.0))
             if a.is_person and abs(vs) <= 0.05 and abs(lat) <= 0.05:
-                yaw = getattr(a, "_yaw_last", h)
+                yaw = h if a.yaw_last is None else a.yaw_last
             speed = math.hypot(vs, lat)
-        a._yaw_last = yaw  # type: ignore[attr-defined]
+        a.yaw_last = yaw
         fx, fy, angle = (float(v) for v in centre_to_front(x, y, yaw, a.length))
         if a.is_person:
             if not a.added:
-                sumo.person.add(a.sumo_id, self._walk_edge(scene), 0.0, typeID=a.type_id)  # type: ignore[attr-defined]
+                sumo.person.add(a.sumo_id, self._walk_edge(scene), 0.0, typeID=a.type_id)
                 sumo.person.appendWaitingStage(a.sumo_id, 3600.0)
                 a.added = True
             sumo.person.moveToXY(a.sumo_id, "", fx, fy, angle, _KEEP_PERSON, 100.0)
@@ -210,14 +232,14 @@ class HazardInjector:
         else:
             v = sumo.vehicle
             if not a.added:
-                v.add(a.sumo_id, self._route_id, typeID=a.type_id, depart="now", departSpeed="0")  # type: ignore[attr-defined]
+                v.add(a.sumo_id, self._route_id, typeID=a.type_id, depart="now", departSpeed="0")
                 v.setSpeedMode(a.sumo_id, 32)
                 v.setLaneChangeMode(a.sumo_id, 0)
                 v.setSpeedFactor(a.sumo_id, 3.0)
                 a.added = True
             v.moveToXY(a.sumo_id, "", -1, fx, fy, angle, _KEEP_PARKED if a.parked else _KEEP_VEHICLE, 100.0)
             v.setSpeed(a.sumo_id, speed)
-        a.x, a.y, a.yaw = x, y, yaw  # type: ignore[attr-defined]
+        a.x, a.y, a.yaw = x, y, yaw
 
     def _walk_edge(self, scene: Any) -> str:
         """An edge of the ego's route a person may be put on (SUMO refuses edges without a
@@ -249,7 +271,7 @@ class HazardInjector:
             if prop.added:
                 self._place(scene, prop)
         if st.phase == "wait":
-            spawn_now = spec.spawn is not None and st.anchor_s - ego_front <= spec.spawn
+            spawn_now = spec.spawn is not None and st.anchor() - ego_front <= spec.spawn
             if spawn_now or self._triggered(st, ego_front, v_ego):
                 self._spawn(st, scene, ego_front, v_ego)
                 st.phase = "spawned"
@@ -257,20 +279,21 @@ class HazardInjector:
             else:
                 return
         a = st.actor
+        if a is None:  # spawned in the wait phase above, or parked at set-up
+            raise RuntimeError(f"hazard {spec.id} is {st.phase} without an actor")
         if st.phase == "spawned" and spec.type != "parked" and self._triggered(st, ego_front, v_ego):
             st.phase, st.t_trigger = "triggered", t
             st.d0, st.v0 = a.d, a.v
             self._log(t, st, "trigger", ego_front, v_ego)
         self._move(st, scene, t, dt)
-        if a is not None and self._finished(st, scene, ego_front):
+        if self._finished(st, a, scene, ego_front):
             self._remove(a)
             for prop in st.props:
                 self._remove(prop)
             st.phase = "done"
             self._log(t, st, "remove", ego_front, v_ego)
             return
-        if a is not None:
-            self._place(scene, a)
+        self._place(scene, a)
 
     def _triggered(self, st: HazardState, ego_front: float, v_ego: float) -> bool:
         spec = st.spec
@@ -278,7 +301,7 @@ class HazardInjector:
         if kind is None:
             return False
         if kind in ("distance", "ttc") or st.actor is None:
-            gap, closing = st.anchor_s - ego_front, v_ego
+            gap, closing = st.anchor() - ego_front, v_ego
         else:
             a = st.actor
             gap = a.s - a.length / 2.0 - ego_front
@@ -292,9 +315,10 @@ class HazardInjector:
         a = self._new_actor(spec.id, p["vtype"])
         route = scene.route
         kind = spec.type
+        anchor_s = st.anchor()
         if kind == "pedestrian":
-            i = route.vertex_at(st.anchor_s)
-            a.s = st.anchor_s
+            i = route.vertex_at(anchor_s)
+            a.s = anchor_s
             a.d = float(route.right[i]) - p["offset"] if p["side"] == "right" else float(route.left[i]) + p["offset"]
             a.v = 0.0
         elif kind == "emergency_stop":
@@ -305,10 +329,10 @@ class HazardInjector:
             a.d = p["lane_offset"] if p["side"] == "left" else -p["lane_offset"]
             a.v = max(v_ego * p["speed_ratio"], 1.0)
         elif kind == "oncoming_drift":
-            a.s, a.d, a.v = st.anchor_s, p["lane_offset"], -p["speed"]
+            a.s, a.d, a.v = anchor_s, p["lane_offset"], -p["speed"]
         elif kind == "cyclist_swerve":  # placed so that the ego comes up to it at the anchor
-            eta = max(st.anchor_s - ego_front, 0.0) / max(v_ego, 1.0)
-            a.s = max(st.anchor_s - p["speed"] * eta, ego_front + 15.0 + a.length / 2.0)  # never on the ego
+            eta = max(anchor_s - ego_front, 0.0) / max(v_ego, 1.0)
+            a.s = max(anchor_s - p["speed"] * eta, ego_front + 15.0 + a.length / 2.0)  # never on the ego
             a.d, a.v = p["offset"], p["speed"]
         elif kind == "escort":  # alongside in the next lane, at the ego's speed
             a.s = scene.s + p["ahead"]
@@ -317,17 +341,17 @@ class HazardInjector:
         elif kind == "tailgater":  # close behind, following with a reaction time
             a.s = ego_front - float(scene.ego.length[0]) - p["gap"] - a.length / 2.0
             a.d, a.v = 0.0, v_ego
-            a.ego_speeds = [v_ego]  # type: ignore[attr-defined]
+            a.ego_speeds = [v_ego]
         elif kind == "red_light_runner":
-            px, py, h = (float(v) for v in route.path.to_xy(np.array(st.anchor_s), np.array(0.0)))
-            eta = max(st.anchor_s - ego_front, 0.0) / max(v_ego, 0.1)
+            px, py, h = (float(v) for v in route.path.to_xy(np.array(anchor_s), np.array(0.0)))
+            eta = max(anchor_s - ego_front, 0.0) / max(v_ego, 0.1)
             dist = p["speed"] * max(eta - p["lead"], 0.5) + a.length / 2.0
             sign = 1.0 if p["side"] == "left" else -1.0
             nx, ny = -math.sin(h) * sign, math.cos(h) * sign  # unit vector towards the start side
             a.line = (px + nx * dist, py + ny * dist, -nx, -ny)
             a.v = p["speed"]
-            a.s = st.anchor_s
-            a.line_length = 2.0 * dist + 30.0  # type: ignore[attr-defined]
+            a.s = anchor_s
+            a.line_length = 2.0 * dist + 30.0
         st.actor = a
 
     def _move(self, st: HazardState, scene: Any, t: float, dt: float) -> None:
@@ -335,7 +359,7 @@ class HazardInjector:
         if a is None:
             return
         trig = st.phase == "triggered"
-        since = t - st.t_trigger if trig else 0.0
+        since = st.since_trigger(t)
         if kind == "pedestrian":
             if trig:
                 a.v = 0.0
@@ -353,7 +377,7 @@ class HazardInjector:
             if since >= p["hold"]:
                 a.v = max(0.0, a.v - p["decel"] * dt)
         elif kind == "tailgater":
-            speeds = a.ego_speeds  # type: ignore[attr-defined]
+            speeds = a.ego_speeds
             speeds.append(float(scene.ego.speed[0]))
             lag = int(round(p["reaction"] / dt))
             target = speeds[max(len(speeds) - 1 - lag, 0)]
@@ -385,15 +409,15 @@ class HazardInjector:
             a.d = st.d0 + p["swerve"] * (_smooth(u / dur) - _smooth(back / dur))
         a.s += a.v * dt
 
-    def _finished(self, st: HazardState, scene: Any, ego_front: float) -> bool:
-        a, kind = st.actor, st.spec.type
+    def _finished(self, st: HazardState, a: Actor, scene: Any, ego_front: float) -> bool:
+        kind = st.spec.type
         if kind == "parked":
             return False
         if kind == "red_light_runner":
-            return a.travelled > a.line_length  # type: ignore[attr-defined]
+            return a.travelled > a.line_length
         if kind == "pedestrian":
             route = scene.route
-            i = route.vertex_at(st.anchor_s)
+            i = route.vertex_at(st.anchor())
             width = float(route.left[i] - route.right[i]) + 2.0 * st.spec.params["offset"] + 1.0
             return abs(a.d - st.d0) > width if st.phase == "triggered" else False
         ego_s = ego_front

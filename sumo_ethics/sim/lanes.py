@@ -282,6 +282,8 @@ def agent_context(graph: LaneGraph, ids: list[str] | tuple[str, ...], person: np
         if person[i]:
             if not walks:
                 continue
+            if signals is None:  # read above: there are persons
+                raise RuntimeError("agent_context: the crossing signals are not read for the persons")
             try:
                 _person_context(graph, signals, k, i, ctx, clock, switch_times, after=v4)
             except sumo.TraCIException:  # left the simulation in between: no context

@@ -9,10 +9,10 @@ run once per distinct scenario of a sweep before any run starts.
 from __future__ import annotations
 
 import gzip
+import io
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
 
 from sumo_ethics.errors import ConfigError
 
@@ -28,7 +28,7 @@ class NetInfo:
     passenger: dict[str, bool]
 
 
-def _open(path: Path) -> IO[bytes]:
+def _open(path: Path) -> gzip.GzipFile | io.BufferedReader:
     return gzip.open(path, "rb") if path.suffix == ".gz" else open(path, "rb")
 
 

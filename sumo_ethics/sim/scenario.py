@@ -13,6 +13,7 @@ the begin named in the message. SUMO's time formats are understood: seconds (``5
 from __future__ import annotations
 
 import gzip
+import io
 import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -137,7 +138,7 @@ class Declared:
     distributions: set[str] = field(default_factory=set)
 
 
-def _open(p: Path):
+def _open(p: Path) -> gzip.GzipFile | io.BufferedReader:
     return gzip.open(p, "rb") if p.suffix == ".gz" else open(p, "rb")
 
 
@@ -174,7 +175,8 @@ def declared(files: ScenarioFiles) -> Declared | None:
                     if not stack or stack[-1].tag in ("routes", "additional", "additionals"):
                         el.clear()  # keep memory flat on big demand files
     except (ET.ParseError, OSError, EOFError):
-        out = None
+        _cache[key] = None
+        return None
     _cache[key] = out
     return out
 
@@ -305,11 +307,11 @@ def redirected_additionals(files: ScenarioFiles, folder: Path) -> tuple[str | No
                   if el.get(a) and _ADDITIONAL_OUTPUTS.get(el.tag) != a]
         if not outs or inputs:
             if outs:
-                left[str(p)] = sorted({el.get(a) for el, a in outs})
+                left[str(p)] = sorted({el.attrib[a] for el, a in outs})
             paths.append(str(p))
             continue
         for el, attr in outs:
-            el.set(attr, str(folder / Path(el.get(attr)).name))
+            el.set(attr, str(folder / Path(el.attrib[attr]).name))
         copy = folder / "additional-files" / f"{i}_{p.name.removesuffix('.gz')}"
         copy.parent.mkdir(parents=True, exist_ok=True)
         tree.write(copy, encoding="unicode")

@@ -210,10 +210,11 @@ class SumoWorld:
             types, info = tuple(types[i] for i in keep), [info[i] for i in keep]
         fx, fy, _, angle, speed, accel, length, width, mass = num
         x, y, yaw = front_to_centre(fx, fy, angle, length)
-        cols = (x, y, yaw, speed, accel, length, width, mass, np.array([t.cls for t in info], dtype=np.int8))
+        cls = np.array([t.cls for t in info], dtype=np.int8)
         # the arrays are (N,) by construction: skip AgentStates' checks (this runs every step)
-        ego = AgentStates.trusted(tuple(ids[:1]), *(c[:1] for c in cols), types[:1])
-        others = AgentStates.trusted(tuple(ids[1:]), *(c[1:] for c in cols), types[1:])
+        ego, others = (AgentStates.trusted(tuple(ids[part]), x[part], y[part], yaw[part], speed[part], accel[part],
+                                           length[part], width[part], mass[part], cls[part], types[part])
+                       for part in (slice(None, 1), slice(1, None)))
         return ego, others
 
     def link_state(self, link: JunctionLink) -> str:
