@@ -194,8 +194,11 @@ def concat(a: Candidates, b: Candidates) -> Candidates:
     if a.road_curvature is not None or b.road_curvature is not None:
         road = np.concatenate([np.zeros_like(c.curvature) if c.road_curvature is None else c.road_curvature
                                for c in (a, b)])
-    return Candidates(a.dt, *(np.concatenate([getattr(a, f), getattr(b, f)]) for f in (
-        "x", "y", "yaw", "speed", "accel", "curvature", "s", "d", "horizon", "valid")), road_curvature=road)
+    def cat(f: str) -> np.ndarray:
+        return np.concatenate([getattr(a, f), getattr(b, f)])
+
+    return Candidates(a.dt, cat("x"), cat("y"), cat("yaw"), cat("speed"), cat("accel"), cat("curvature"), cat("s"),
+                      cat("d"), cat("horizon"), cat("valid"), road_curvature=road)
 
 
 def select(classes: list[np.ndarray], total: np.ndarray, first_hit: np.ndarray | None = None, steps: int = 0,
@@ -296,6 +299,8 @@ class EthicalPlanner:
         w0 = time.perf_counter()
         horizon_steps = int(round(max(sc.horizons) / sc.dt))
         obs = scene.history
+        if obs is None:
+            raise ValueError("the ethical planner needs the neighbours' history in its scene (needs_history)")
         agents = scene.others
         pred = self.predictor.predict(obs, horizon_steps, sc.dt)
         # the priors treat every mode of a multi-modal prediction alike (they map over the modes)

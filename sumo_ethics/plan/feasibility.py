@@ -52,9 +52,14 @@ class RouteLike(Protocol):
     vertices, left > 0 > right; speed_limit: (M,) [m/s] (optional attribute).
     """
 
-    path: Polyline
-    left: np.ndarray
-    right: np.ndarray
+    @property
+    def path(self) -> Polyline: ...
+
+    @property
+    def left(self) -> np.ndarray: ...
+
+    @property
+    def right(self) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ class History:
         for i, k in enumerate(others.ids):
             xy, valid = self._xy.get(k), self._valid.get(k)
             gap = self._step - self._last.get(k, self._step - self.h)
-            if xy is None or gap >= self.h:
+            if xy is None or valid is None or gap >= self.h:  # the two are kept together
                 xy, valid = np.zeros((self.h, 2)), np.zeros(self.h, dtype=bool)
                 self._xy[k], self._valid[k] = xy, valid
             else:
