@@ -50,7 +50,7 @@ def calibrate_cv(samples: dict[str, np.ndarray], split_code: int = 0, sigma0: fl
         err[..., 0] -= samples["tgt_speed"][m][:, None] * t
         rms = np.sqrt((err**2).mean(axis=0)) - sigma0  # (T, 2)
         rates.append(np.maximum((t @ rms) / (t @ t), 0.0))
-    r = [tuple(float(v) for v in x) for x in rates]
+    r = [(float(x[0]), float(x[1])) for x in rates]  # (along, across) per group
     return ConstantVelocityPredictor(sigma0=sigma0, growth=r[0], growth_cyclist=r[1], growth_pedestrian=r[2])
 
 
@@ -179,8 +179,8 @@ def evaluate(
     batch = subset(samples, idx)
     if weights is None:
         weights = {k: default_weights(k) for k in KINDS if default_weights(k).is_file()}
-    cal = samples if calibration_dataset is None else load_samples(calibration_dataset)
-    cv_cal = calibrate_cv(cal)
+    cal_samples = samples if calibration_dataset is None else load_samples(calibration_dataset)
+    cv_cal = calibrate_cv(cal_samples)
     outputs: dict[str, tuple[np.ndarray, np.ndarray | None]] = {
         "constant_velocity": (cv_outputs(batch), None), "constant_velocity_calibrated": (cv_outputs(batch, cv_cal), None)}
     data_map_version = map_version_of(dataset)
@@ -193,14 +193,15 @@ def evaluate(
                                  f"dataset {dataset} has version {data_map_version}: build the dataset again")
         if model.nbr_frame == "agent":
             require_nbr_yaw(batch, dataset, who=f"{name} ({path})")
-        outputs[name] = lstm_outputs(model, batch)
+        model_out = outputs[name] = lstm_outputs(model, batch)
         if calibrated:
             from sumo_ethics.predict.calibration import load_for
 
             cal = load_for(path)
             if cal is not None:
-                params, weight = outputs[name]
-                outputs[f"{name}_calibrated"] = (cal.apply(params, weight, batch["tgt_group"], batch["tgt_speed"]), weight)
+                lstm_params, lstm_weight = model_out  # with the model's weights (never None)
+                outputs[f"{name}_calibrated"] = (cal.apply(lstm_params, lstm_weight, batch["tgt_group"], batch["tgt_speed"]),
+                                                 lstm_weight)
     fut = batch["fut"].astype(float)
     valid = batch["fut_valid"] if "fut_valid" in batch else np.ones(fut.shape[:2], dtype=bool)
     groups = batch["tgt_group"]

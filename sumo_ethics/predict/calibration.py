@@ -84,6 +84,7 @@ import logging
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import overload
 
 import numpy as np
 
@@ -123,6 +124,10 @@ def ellipse_mass(k: float | np.ndarray) -> float | np.ndarray:
     return 1.0 - np.exp(-0.5 * np.asarray(k, dtype=float) ** 2)
 
 
+@overload
+def ellipse_k(p: float) -> float: ...
+@overload
+def ellipse_k(p: np.ndarray) -> np.ndarray: ...
 def ellipse_k(p: float | np.ndarray) -> float | np.ndarray:
     """The k whose k-sigma ellipse holds mass p: sqrt(-2 ln(1 - p))."""
     return np.sqrt(-2.0 * np.log1p(-np.asarray(p, dtype=float)))

@@ -54,7 +54,7 @@ def train_main(
                       stay_speed=stay_speed,
                       residual_groups=None if residual_groups is None else tuple(residual_groups),
                       map_version=map_version,
-                      ped_speed_scale=None if ped_speed_scale is None else tuple(ped_speed_scale), ema=ema,
+                      ped_speed_scale=None if ped_speed_scale is None else (ped_speed_scale[0], ped_speed_scale[1]), ema=ema,
                       extra_dataset=None if extra_dataset is None else str(extra_dataset),
                       extra_groups=None if extra_groups is None else tuple(extra_groups))
     from sumo_ethics.interrupt import sigterm_as_interrupt

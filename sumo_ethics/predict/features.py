@@ -27,7 +27,7 @@ Layout (FEATURE_VERSION 1):
 from __future__ import annotations
 
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -502,7 +502,7 @@ def sample_path(graph: LaneGraph, path: tuple[int, ...], start: float, ds: float
     return np.stack([np.interp(s, cum, pts[:, 0]), np.interp(s, cum, pts[:, 1])], -1)
 
 
-def _sample_many(lines: list[tuple[np.ndarray, np.ndarray]], s: np.ndarray) -> np.ndarray:
+def _sample_many(lines: Sequence[tuple[np.ndarray, np.ndarray]], s: np.ndarray) -> np.ndarray:
     """Points at arc lengths s (R, K) along R polylines (pts (P_r, 2), cum (P_r,)), held at
     the ends: :func:`sample_path` for all rows in one vectorised pass."""
     r = len(lines)

@@ -172,6 +172,15 @@ FILE_FORMAT_VERSION = 1
 class TrajectoryLSTM(nn.Module):
     """CS-LSTM (kind="cslstm"), + cosine attention ("attention"), + lanes ("map_cslstm", "map")."""
 
+    # the buffers (register_buffer in __init__), typed here: nn.Module's __getattr__ gives Tensor | Module
+    pos_scale: torch.Tensor
+    residual_mask: torch.Tensor
+    single_mode_mask: torch.Tensor
+    one_mode_log_w: torch.Tensor
+    stay_mode_mask: torch.Tensor
+    stay_barred: torch.Tensor
+    stay_params: torch.Tensor
+
     def __init__(
         self,
         kind: str = "attention",
@@ -446,10 +455,13 @@ class TrajectoryLSTM(nn.Module):
         win = grid.unfold(1, 3 * row, row).reshape(-1, 3 * row)  # (B * 11, 3 rows)
         c1, c2 = self.soc_conv.out_channels, self.conv_3x1.out_channels
         rows1, rows2 = F.GRID_LON - 2, F.GRID_LON - 4  # output rows of the 3x3 and the 3x1 convolution
-        soc = self.act(torch.addmm(self.soc_conv.bias, win, w1.t())).reshape(b, rows1 * c1)  # (B, 11 x 64)
+        bias1, bias2 = self.soc_conv.bias, self.conv_3x1.bias
+        if bias1 is None or bias2 is None:  # both are built with one (nn.Conv2d's default)
+            raise RuntimeError("the social convolutions have no bias")
+        soc = self.act(torch.addmm(bias1, win, w1.t())).reshape(b, rows1 * c1)  # (B, 11 x 64)
         w2 = self.conv_3x1.weight.permute(0, 2, 3, 1).reshape(c2, -1)
         win = soc.unfold(1, 3 * c1, c1).reshape(-1, 3 * c1)  # (B * 9, 3 rows)
-        soc = self.act(torch.addmm(self.conv_3x1.bias, win, w2.t())).reshape(b, rows2, c2)
+        soc = self.act(torch.addmm(bias2, win, w2.t())).reshape(b, rows2, c2)
         # MaxPool2d((2, 1), padding=(1, 0)) over the 9 rows: row 0 alone, then the pairs (1, 2), (3, 4), ...
         pooled = torch.cat([soc[:, :1], torch.maximum(soc[:, 1::2], soc[:, 2::2])], 1)  # (B, 5, 16)
         return pooled.transpose(1, 2).reshape(b, self.soc_size)
@@ -465,9 +477,10 @@ class TrajectoryLSTM(nn.Module):
         if self.nbr_frame != "agent" or torch.is_grad_enabled():
             h_dec, _ = self.decoder(enc[:, None, :].expand(b, self.dec_steps, enc.shape[-1]))
             return h_dec
-        d = self.decoder
-        pre = torch.addmm(d.bias_ih_l0 + d.bias_hh_l0, enc, d.weight_ih_l0.t())
-        return lstm_recurrence(pre, d.weight_hh_l0.t(), self.dec_steps)
+        d = self.decoder  # its parameters by name, as nn.LSTM declares no attribute for them
+        pre = torch.addmm(d.get_parameter("bias_ih_l0") + d.get_parameter("bias_hh_l0"), enc,
+                          d.get_parameter("weight_ih_l0").t())
+        return lstm_recurrence(pre, d.get_parameter("weight_hh_l0").t(), self.dec_steps)
 
     def map_context(self, tgt_enc: torch.Tensor, pts: torch.Tensor | None, valid: torch.Tensor | None,
                     scalar: torch.Tensor | None) -> torch.Tensor:
@@ -481,6 +494,8 @@ class TrajectoryLSTM(nn.Module):
             valid = torch.zeros(b, F.MAP_LANES, dtype=torch.bool)
         if scalar is None:
             scalar = tgt_enc.new_zeros(b, self.n_scalars)
+        if valid is None:
+            raise ValueError("map_context: lane points without their valid mask")
         valid = valid.to(torch.bool)
         kind = torch.zeros(F.MAP_LANES, 3, dtype=pts.dtype)
         kind[: F.MAP_AHEAD, F.MAP_KIND_AHEAD] = 1.0

@@ -38,7 +38,7 @@ from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
 from sumo_ethics.predict.calibration import Calibration, load_for
 from sumo_ethics.predict.features import MapSource
-from sumo_ethics.predict.models import KINDS, MAP_KINDS, load_model, rank_modes
+from sumo_ethics.predict.models import KINDS, MAP_KINDS, TrajectoryLSTM, load_model, rank_modes
 from sumo_ethics.types import AgentStates, Observation, Prediction
 
 
@@ -61,7 +61,7 @@ def straight_history(xy: np.ndarray, yaw: np.ndarray, speed: np.ndarray) -> np.n
 class LSTMPredictor:
     """A trained TrajectoryLSTM behind the ``predict(obs, horizon_steps, dt)`` interface."""
 
-    def __init__(self, model: torch.nn.Module, header: dict, path: Path | None = None, sigma0: float = 0.1,
+    def __init__(self, model: TrajectoryLSTM, header: dict, path: Path | None = None, sigma0: float = 0.1,
                  map_source: MapSource | None = None, calibration: Calibration | None = None) -> None:
         self.model = model.eval()
         # one batched forward pass of a small LSTM per step: extra threads only add contention
@@ -159,9 +159,9 @@ class LSTMPredictor:
                     **extra, all_modes=True,
                 )
         out, log_w = rank_modes(out, log_w)  # most likely mode first
-        out, w = out.numpy().astype(float), np.exp(log_w.numpy().astype(float))
-        mu = out[..., :2] * s[:, None, None, None]
-        sx, sy, rho = out[..., 2] * s[:, None, None], out[..., 3] * s[:, None, None], out[..., 4]
+        params, w = out.numpy().astype(float), np.exp(log_w.numpy().astype(float))
+        mu = params[..., :2] * s[:, None, None, None]
+        sx, sy, rho = params[..., 2] * s[:, None, None], params[..., 3] * s[:, None, None], params[..., 4]
         w = w / w.sum(axis=1, keepdims=True)
         if self.calibration is not None:  # factors along / across the heading now (calibration.py)
             sx, sy = self.calibration.sigmas(g, mu[..., 1], w, np.asarray(cur.speed, dtype=float), sx, sy)
@@ -172,7 +172,7 @@ class LSTMPredictor:
         mean = np.stack([xy[:, None, None, 0] + c * mu[..., 0] - s_ * mu[..., 1],
                          xy[:, None, None, 1] + s_ * mu[..., 0] + c * mu[..., 1]], -1)
         cs = c * s_
-        cov = np.empty(out.shape[:3] + (2, 2))
+        cov = np.empty(params.shape[:3] + (2, 2))
         cov[..., 0, 0] = c * c * a - 2.0 * cs * b + s_ * s_ * d
         cov[..., 1, 1] = s_ * s_ * a + 2.0 * cs * b + c * c * d
         cov[..., 0, 1] = cov[..., 1, 0] = cs * (a - d) + (c * c - s_ * s_) * b
@@ -193,6 +193,8 @@ class LSTMPredictor:
                 torch.from_numpy(own.astype(np.float32)), torch.from_numpy(g_all), torch.arange(n),
                 torch.from_numpy(feats["nbr_agent"]), torch.from_numpy(nb), torch.from_numpy(feats["nbr_cell"]),
                 torch.from_numpy(pose.astype(np.float32)), **extra, all_modes=True)
+        if not isinstance(out, tuple):  # all_modes=True: (every mode, log weights)
+            raise TypeError("scene_forward(all_modes=True) gave one tensor, not the modes and their weights")
         return out
 
     def predict(self, obs: Observation, horizon_steps: int, dt: float) -> Prediction:

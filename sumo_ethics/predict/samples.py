@@ -319,7 +319,7 @@ def rebuild_samples(src: Path, out: Path, anchor_every: float = 2.0, suite_ancho
         meta["map_version"] = F.MAP_VERSION
     samples = build_samples(traj, meta["split"], anchor_every=meta["anchor_every"], graphs=graphs,
                             suite_anchor_every=meta["suite_anchor_every"])
-    np.savez_compressed(out / "samples.npz", **samples)
+    np.savez_compressed(out / "samples.npz", **samples)  # type: ignore[arg-type]  # array names, no allow_pickle
     shutil.copyfile(src / "trajectories.parquet", out / "trajectories.parquet")
     write_dataset_graphs(out, graphs)
     meta["n_samples"] = split_counts(samples)

@@ -12,7 +12,7 @@ import signal
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -229,19 +229,20 @@ def train_model(
         if getattr(config, given) is not None and getattr(config, default) is None:  # a group asked for one way
             options[default] = tuple(g for g in options[default] if g not in options[given])  # leaves the other
     config = replace(config, nbr_frame=nbr_frame, modes=modes, **options)  # as trained, in the log
-    model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=config.modes, dec=config.dec, cv_mode=config.cv_mode,
+    model = TrajectoryLSTM(kind=kind, nbr_frame=nbr_frame, modes=modes, dec=options["dec"], cv_mode=options["cv_mode"],
                            dec_steps=config.dec_steps,
-                           single_mode_groups=tuple(config.single_mode_groups),
-                           stay_mode_groups=tuple(config.stay_mode_groups), stay_speed=config.stay_speed,
-                           residual_groups=tuple(config.residual_groups),
-                           map_version=map_version)
+                           single_mode_groups=tuple(options["single_mode_groups"]),
+                           stay_mode_groups=tuple(options["stay_mode_groups"]), stay_speed=config.stay_speed,
+                           residual_groups=tuple(options["residual_groups"]),
+                           map_version=map_version)  # the options as resolved into config above
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     averaged = None if config.ema is None else swa_utils.AveragedModel(
         model, multi_avg_fn=swa_utils.get_ema_multi_avg_fn(config.ema))
-    judged = model if averaged is None else averaged.module  # the weights validated and written
+    # the weights validated and written; AveragedModel holds a deep copy of the model (typed nn.Module)
+    judged = model if averaged is None else cast(TrajectoryLSTM, averaged.module)
     n_batches = math.ceil(len(train_idx) / config.batch_size)
     best, best_state, best_epoch, bad = math.inf, None, -1, 0
-    history: list[dict[str, float]] = []
+    history: list[dict[str, float | str]] = []  # numbers, and the phase's name
     t0 = time.monotonic()
     clock = time.process_time if config.budget_clock == "cpu" else time.monotonic
     c0 = clock()

@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import signal
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import closing, contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -255,7 +255,7 @@ def build_dataset(
     seeds: list[int],
     out: Path,
     *,
-    suite: list[Path] = (),
+    suite: Sequence[Path] = (),
     suite_anchor_every: float = 0.4,
     scales: tuple[float, ...] = DEFAULT_SCALES,
     sim_seconds: float = 600.0,
@@ -277,7 +277,7 @@ def build_dataset(
     out = Path(out)
     seeds = sorted(set(int(s) for s in seeds))
     split = split_seeds(seeds, val_fraction, test_fraction) if seeds else {"train": [], "val": [], "test": []}
-    specs = []
+    specs: list[RunSpec] = []
     for scenario in scenarios:
         for i, seed in enumerate(seeds):
             specs.append(RunSpec(len(specs), Path(scenario).resolve(), seed, float(scales[i % len(scales)]), sim_seconds))
@@ -296,7 +296,8 @@ def build_dataset(
     simulate_runs(specs, store, workers=workers)
     simulate_suite(suite_dirs, len(specs), store, workers=workers)
     # every run read back from its file, a resumed one or not: the dataset is the same bytes either way
-    frames, graphs = [], {}
+    frames: list[pd.DataFrame] = []
+    graphs: dict[str, F.LaneGraph] = {}
     for spec in specs:
         df, graph = store.get(spec.run_id)
         frames.append(df)
@@ -320,7 +321,7 @@ def build_dataset(
         out.mkdir(parents=True, exist_ok=True)
         traj.to_parquet(out / "trajectories.parquet", index=False)
         write_dataset_graphs(out, graphs)
-        np.savez_compressed(out / "samples.npz", **samples)
+        np.savez_compressed(out / "samples.npz", **samples)  # type: ignore[arg-type]  # array names, no allow_pickle
         meta = {
             "split": split,
             "scenarios": [str(Path(s)) for s in scenarios],

@@ -12,14 +12,15 @@ import os
 import pickle
 import signal
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator
 from multiprocessing import resource_tracker
 from multiprocessing.connection import wait
 from typing import Any, TypeVar
 
 from sumo_ethics.interrupt import signals_held
 
-T, R = TypeVar("T"), TypeVar("R")
+T = TypeVar("T")
+R = TypeVar("R")
 
 
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
@@ -63,7 +64,7 @@ def _kill(proc: mp.process.BaseProcess) -> None:
         proc.join(timeout=5)
 
 
-def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Callable[[T], Exception]) -> Iterator[tuple[T, R]]:
+def isolated_map(fn: Callable[[T], R], jobs: list[T], workers: int, crashed: Callable[[T], Exception]) -> Generator[tuple[T, R], None, None]:
     """``(job, fn(job))`` for every job, each in a fresh spawned process, at most ``workers`` at a
     time, in the order they finish (of those finished, the first started), so a finished result is
     never held back behind a longer job. A worker's exception is raised here; a process that dies
