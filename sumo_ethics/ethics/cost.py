@@ -218,7 +218,10 @@ def score(
     if N:
         bayes = j_total / (2 * n_norm)
         equality = np.abs(er - orr).sum(axis=1) / n_norm
-        responsibility = (orr * ~risk.rule_breaker).sum(axis=1) / n_norm
+        breakers = risk.rule_breaker
+        if breakers is None:  # RiskTerms.__post_init__ makes it all False when unknown
+            raise ValueError("RiskTerms.rule_breaker is not set")
+        responsibility = (orr * ~breakers).sum(axis=1) / n_norm
         h_max = np.maximum(np.maximum(risk.ego_harm_max.max(axis=1), risk.other_harm_max.max(axis=1)), bh)
         maxes = er.max(axis=1), orr.max(axis=1), vru_risk.max(axis=1)
     else:

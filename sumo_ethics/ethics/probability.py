@@ -84,8 +84,8 @@ class EthicsConfigError(ConfigError, ValueError):
 
 
 def _check_number(owner: str, name: str, value: object, *, positive: bool = False) -> None:
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    ok = ok and (value > 0 if positive else value >= 0)
+    ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+          and (value > 0 if positive else value >= 0))
     if not ok:
         kind = "a positive" if positive else "a non-negative"
         raise EthicsConfigError(f"{owner}.{name} must be {kind} finite number, got {value!r}")

@@ -89,25 +89,29 @@ class RunRecorder:
         self.collisions[index].update(changes)
         self._collisions_dirty = True
 
-    def record_conflicts(self) -> None:
-        """Write conflicts.parquet (rows from :meth:`add_conflict`) with the other outputs."""
+    def record_conflicts(self) -> list[dict[str, Any]]:
+        """Write conflicts.parquet (rows from :meth:`add_conflict`) with the other outputs; its rows."""
         if self.conflicts is None:
             self.conflicts = []
+        return self.conflicts
 
     def add_conflict(self, row: dict[str, Any]) -> int:
-        self.record_conflicts()
-        self.conflicts.append(row)
+        rows = self.record_conflicts()
+        rows.append(row)
         self._conflicts_dirty = True
-        return len(self.conflicts) - 1
+        return len(rows) - 1
 
     def update_conflict(self, index: int, **changes: Any) -> None:
+        if self.conflicts is None:
+            raise IndexError(f"conflict {index}: no conflicts are recorded")
         self.conflicts[index].update(changes)
         self._conflicts_dirty = True
 
-    def record_conflicts_others(self) -> None:
-        """Write conflicts_others.parquet (rows through :attr:`others_sink`) with the other outputs."""
+    def record_conflicts_others(self) -> list[dict[str, Any]]:
+        """Write conflicts_others.parquet (rows through :attr:`others_sink`) with the other outputs; its rows."""
         if self.conflicts_others is None:
             self.conflicts_others = []
+        return self.conflicts_others
 
     # -- files --
     def flush(self) -> None:
@@ -119,11 +123,11 @@ class RunRecorder:
             self.partial.mkdir(parents=True, exist_ok=True)
             write_table(self.partial / "collisions.parquet", self.collisions, self.collision_schema)
             self._collisions_dirty = False
-        if self._conflicts_dirty:
+        if self._conflicts_dirty and self.conflicts is not None:  # dirty: rows were added
             self.partial.mkdir(parents=True, exist_ok=True)
             write_table(self.partial / "conflicts.parquet", self.conflicts, schema.CONFLICTS)
             self._conflicts_dirty = False
-        if self._others_dirty:
+        if self._others_dirty and self.conflicts_others is not None:
             self.partial.mkdir(parents=True, exist_ok=True)
             write_table(self.partial / "conflicts_others.parquet", self.conflicts_others, schema.CONFLICTS_OTHERS)
             self._others_dirty = False
@@ -147,11 +151,14 @@ class _OthersSink:
         self.rec = rec
 
     def add_conflict(self, row: dict[str, Any]) -> int:
-        self.rec.record_conflicts_others()
-        self.rec.conflicts_others.append(row)
+        rows = self.rec.record_conflicts_others()
+        rows.append(row)
         self.rec._others_dirty = True
-        return len(self.rec.conflicts_others) - 1
+        return len(rows) - 1
 
     def update_conflict(self, index: int, **changes: Any) -> None:
-        self.rec.conflicts_others[index].update(changes)
+        rows = self.rec.conflicts_others
+        if rows is None:
+            raise IndexError(f"conflict {index}: no conflicts among the others are recorded")
+        rows[index].update(changes)
         self.rec._others_dirty = True

@@ -97,6 +97,8 @@ class ChunkedTable:
         if self._writer is None or not sch.equals(self.schema):
             self._open(sch)
         self._writer.write_batch(pa.RecordBatch.from_pylist(self.rows, schema=sch))
+        if self._file is None:  # opened with the writer
+            raise RuntimeError(f"{self.name}: no segment is open to flush")
         self._file.flush()  # to the OS: survives the process being killed
         self.rows = []
 
@@ -113,7 +115,8 @@ class ChunkedTable:
         if self._writer is not None:
             try:
                 self._writer.close()
-                self._file.close()
+                if self._file is not None:  # opened with the writer
+                    self._file.close()
             finally:
                 self._writer = self._file = None
 
