@@ -210,7 +210,8 @@ class _ConflictRows:
     """One ego's ConflictBook sink inside the run's: its rows numbered among all egos' rows."""
 
     def __init__(self, rec: Any) -> None:
-        self.rec, self.where = rec, []
+        self.rec = rec
+        self.where: list[int] = []  # the run's row of each of this ego's conflicts
 
     def add_conflict(self, row: dict[str, Any]) -> int:
         self.where.append(self.rec.add_conflict(row | {"event": len(self.rec.conflicts or [])}))
@@ -342,14 +343,17 @@ class FleetRun(Run):
         """The union of what the acting egos see (and the egos) into the history, every step (an
         empty one when nobody acts: a road user's rows keep their times), and the step's
         observation of it for the shared predictions."""
-        union = union_states([a.snap.ego for a in acting] + [a.snap.others for a in acting])
+        snaps = [a.snap for a in acting if a.snap is not None]  # all: the acting egos were read
+        union = union_states([s.ego for s in snaps] + [s.others for s in snaps])
         self.union_history.push(union)
         self._union_obs = obs = self.union_history.observation(t, AgentStates.empty(), union)
         for p in shared:
             p.begin(obs)
 
     def _act(self, a: Agent, t: float, dt: float) -> None:
-        snap = a.snap
+        snap, route = a.snap, a.world.route
+        if snap is None or route is None:  # only egos read after their takeover act
+            raise RuntimeError(f"ego {a.id} acts before its first read")
         ctl = a.controller
         obs = None
         if getattr(ctl, "needs_history", False):
@@ -358,7 +362,7 @@ class FleetRun(Run):
             obs = Observation(time=t, dt=dt, history=u.history[idx], valid=u.valid[idx], current=snap.others,
                               ego=snap.ego)
         line, a.red_s = stop_line(a.world, a.s + a.half)
-        a.scene = Scene(time=t, dt=dt, ego=snap.ego, others=snap.others, route=a.world.route, s=a.s, d=a.d,
+        a.scene = Scene(time=t, dt=dt, ego=snap.ego, others=snap.others, route=route, s=a.s, d=a.d,
                         stop_s=line, vehicle=a.vehicle, history=obs,
                         rule_breakers=a.rules.breakers(snap.others) if a.rules is not None else frozenset())
         w = wallclock.perf_counter()
@@ -392,7 +396,7 @@ class FleetRun(Run):
             if self._record(a, new, dt, w, checked):
                 hit.add(a.id)
         if self.pairs is not None:  # every pair without an ego measured this step
-            self._observe_pairs(now, frozenset(checked))
+            self._observe_pairs(self.pairs, now, frozenset(checked))
         # SUMO's reports of everyone else, egos driven by SUMO this step (just taken over, handed back) too
         self.book.detect_others(now, reports, self.step, frozenset(checked))
         for r in self.rec.collisions[rows_before:]:  # a new event names both egos (one detected it)
@@ -426,6 +430,8 @@ class FleetRun(Run):
             if before is None:
                 self._end(a, "left", f"left the simulation right after the takeover (t={format_time(now)})", now)
                 return None
+            if decision is None:  # read before: it has acted since
+                raise RuntimeError(f"ego {a.id} has no decision after its first read")
             reach = a.s + a.half + max(float(before.ego.speed[0]), decision.command.speed) * dt + 1.0
             if reach >= a.route_length - 0.5:
                 self._end(a, "completed", f"goal reached at t={format_time(now)}", now)
@@ -434,6 +440,8 @@ class FleetRun(Run):
                                      f"{a.route_length - a.s - a.half:.1f} m before its goal", now)
             return None
         if before is None:  # the first read after the takeover
+            if a.world.route is None:  # set by its takeover
+                raise RuntimeError(f"ego {a.id} has no route after its takeover")
             a.vehicle = replace(a.vehicle, mass=float(new.ego.mass[0]))
             a.half = float(new.ego.length[0]) / 2
             a.s, a.d = a.world.route.path.project_point(float(new.ego.x[0]), float(new.ego.y[0]))
@@ -446,11 +454,13 @@ class FleetRun(Run):
 
     def _record(self, a: Agent, new: Snapshot, dt: float, w: tuple[float, float], checked: set[str]) -> bool:
         """Ego ``a``'s collisions (True: a new one), conflicts and steps row of the step to ``new``."""
-        before, decision = a.snap, a.decision
+        before, decision, scene, route = a.snap, a.decision, a.scene, a.world.route
+        if before is None or decision is None or scene is None or route is None:  # it acted on its last read
+            raise RuntimeError(f"ego {a.id} is recorded without its last snapshot, scene and decision")
         w3 = wallclock.perf_counter()
         envelope = decision.info.get("cost_envelope")
         ctx = FaultContext(ego_accel=(float(new.ego.speed[0]) - float(before.ego.speed[0])) / dt,
-                           decel_limit=a.vehicle.max_decel, rule_breakers=a.scene.rule_breakers,
+                           decel_limit=a.vehicle.max_decel, rule_breakers=scene.rule_breakers,
                            ego_ran_red=new.time - a.ran_red_at <= RED_MEMORY,
                            ego_in_envelope=None if envelope is None else bool(envelope > 0))
         hit = self.book.detect_ego(before, new, self.step, ctx)
@@ -461,12 +471,11 @@ class FleetRun(Run):
                                 replace(new, others=new.others.take(keep)), self.step)
         checked.add(a.id)
         w5 = wallclock.perf_counter()
-        route = a.world.route
         a.s, a.d = route.path.project_point(float(new.ego.x[0]), float(new.ego.y[0]), near=(a.s - 5.0, a.s + 5.0 + 50.0 * dt))
         if a.red_s is not None and a.s + a.half > a.red_s + 0.5:
             a.ran_red_at = new.time
         row = {"ego_id": a.id, "planner": a.planner} | step_row(self.step, new, before, decision, a.s, a.d, dt,
-                                                                  a.world.sumo_lane(), a.scene.stop_s)
+                                                                  a.world.sumo_lane(), scene.stop_s)
         timing = {"ego_id": a.id, "step": self.step, "controller_ms": a.extra.get("controller_ms", 0.0),
                   "sumo_ms": 1e3 * w[1] / max(len(self.active), 1), "collision_ms": 1e3 * (w4 - w3),
                   "conflict_ms": 1e3 * (w5 - w4), "wall_s": w5 - self.t_start} | decision.timings_ms
@@ -503,9 +512,10 @@ class FleetRun(Run):
         name = planner_of(self.cfg.seed, vid, spec.shares)
         world = SumoWorld(vid, self.cfg.sensing_radius)
         factor = sim_egos.speed_factor(vid)
+        refusals: tuple[type[BaseException], ...] = (SumoEthicsError, *session.SUMO_ERRORS)
         try:
             route = world.takeover()
-        except (SumoEthicsError, *session.SUMO_ERRORS) as exc:  # e.g. a route the planner cannot follow
+        except refusals as exc:  # e.g. a route the planner cannot follow
             self.refused[vid] = str(exc)
             return
         sim_egos.hold_speed(vid)  # its first step, before its planner acts: no faster than now

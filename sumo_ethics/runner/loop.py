@@ -183,14 +183,13 @@ class Run:
             outputs.setdefault("tripinfo-output", str(cfg.out / "sumo-outputs" / "tripinfo.xml"))
             outputs["tripinfo-output.write-unfinished"] = "true"
             self.meta["tripinfo"] = outputs["tripinfo-output"]
-        if cfg.fleet is not None:
-            ego_id = None
-        self.meta.update(scenario=str(files.config), ego_id=ego_id, **plan.record(),
+        recorded_ego = None if cfg.fleet is not None else ego_id  # a fleet has no one ego
+        self.meta.update(scenario=str(files.config), ego_id=recorded_ego, **plan.record(),
                          forced_sumo_options=session.forced_option_report(files), redirected_outputs=outputs,
                          outputs_not_redirected=left, sumo_args=list(cfg.sumo_args))
         write_json(cfg.out / "config.json", cfg.to_dict() | {"resolved": {
             "scenario": str(files.config.resolve()), "net": str(files.net.resolve()),
-            "end": end, "ego_id": ego_id, "begin": plan.begin, "ego_depart": plan.ego_depart,
+            "end": end, "ego_id": recorded_ego, "begin": plan.begin, "ego_depart": plan.ego_depart,
             "step_length": plan.step_length}})
         self.written.append("config.json")
         if not (cfg.out / "sumo-errors.log").exists():
@@ -301,7 +300,8 @@ class Run:
                 if self.conflicts is not None:
                     self.conflicts.observe(new, self.step)
                 w5 = wallclock.perf_counter()
-                others_ms = self._observe_pairs(new.time, frozenset((world.ego_id,))) if self.pairs is not None else None
+                others_ms = (self._observe_pairs(self.pairs, new.time, frozenset((world.ego_id,)))
+                             if self.pairs is not None else None)
                 # record
                 s, d = route.path.project_point(float(new.ego.x[0]), float(new.ego.y[0]),
                                                 near=(s - 5.0, s + 5.0 + 50.0 * dt))
@@ -322,6 +322,8 @@ class Run:
                     progress[0].update(progress[1], completed=min(snap.time, end))
                 if ego_hit and cfg.stop_at_collision:
                     first = collisions.first_booked()
+                    if first is None:  # ego_hit: detect booked the ego's collision
+                        raise RuntimeError("the ego's collision is not in the collision book")
                     self.status = RunStatus.COLLISION
                     self.message = f"ego collided with {first['class_b']} '{first['id_b']}' at t={format_time(first['time'])}"
                     return
@@ -344,12 +346,12 @@ class Run:
         self.pairs = PairConflictBook(self.rec.others_sink, self.cfg.conflicts, dt)
         self.rec.record_conflicts_others()
 
-    def _observe_pairs(self, t: float, egos: frozenset[str]) -> float:
-        """The conflicts among every road user but ``egos`` after the step to time t [s]; the wall
-        time it took [ms]."""
+    def _observe_pairs(self, pairs: PairConflictBook, t: float, egos: frozenset[str]) -> float:
+        """The conflicts among every road user but ``egos`` after the step to time t [s] into
+        ``pairs`` (self.pairs); the wall time it took [ms]."""
         w = wallclock.perf_counter()
         states, z = self.everyone.read()
-        self.pairs.observe(t, self.step, states, z, egos)
+        pairs.observe(t, self.step, states, z, egos)
         took = wallclock.perf_counter() - w
         self.pairs_wall += took
         return 1e3 * took
@@ -441,7 +443,7 @@ class Run:
             "seed": self.cfg.seed,
             "steps": self.rec.n_steps,
             "n_fallback": self.n_fallback,
-            "distance": float(last["s"] - first["s"]) if last is not None else 0.0,
+            "distance": float(last["s"] - first["s"]) if first is not None and last is not None else 0.0,  # set together
             "sim_time": float(last["time"]) if last is not None else None,
             "wall_time": wall,
             **{k: v for k, v in self.meta.items() if k != "last_time"},
@@ -455,6 +457,8 @@ class Run:
 def stop_line(world: SumoWorld, s_front: float) -> tuple[float | None, float | None]:
     """(arc length of the next red/yellow stop line within 100 m ahead of the ego's front s_front
     [m] on its route, that arc length again if the line shows red), each None if there is none."""
+    if world.route is None:
+        raise RuntimeError("stop_line: the ego has no route before the takeover")
     for link in world.route.links:
         if link.s < s_front - 0.5:
             continue
@@ -494,7 +498,7 @@ def _progress(enabled: bool, start: float, end: float) -> Any:
                     TimeRemainingColumn(), transient=True)
     if not prog.console.is_terminal:
         return None
-    task = prog.add_task("sim", total=end, completed=start)
+    task = prog.add_task("sim", total=end, completed=start)  # type: ignore[arg-type]  # rich: int, but a float works (update takes one)
     prog.start()
     return prog, task
 
