@@ -95,7 +95,7 @@ def draw_agents(ax: Any, d: RecordedDecision, predictions: bool = True) -> list[
                 e1, e2 = ellipses(m[t], d.pred_cov[i, t], 1.0, 40), ellipses(m[t], d.pred_cov[i, t], 2.0, 40)
                 ax.fill(e1[:, 0], e1[:, 1], color=colour, alpha=0.22, lw=0, zorder=3)
                 ax.plot(e2[:, 0], e2[:, 1], color=colour, alpha=0.5, lw=0.6, ls="--", zorder=3)
-            if d.pred_alt_mean is not None:  # the other modes of a multi-modal prediction: dotted mean paths,
+            if d.pred_alt_mean is not None and d.pred_weight is not None:  # other modes (recorded together): dotted mean paths,
                 w = d.pred_weight[i]  # as wide as they are likely; where the main mode is not nearly sure,
                 for alt, wk in zip(d.pred_alt_mean[:, i], w[1:]):  # every mode of 5 % or more is labelled
                     if wk <= 0.0:  # no prediction (a one-mode pedestrian's other modes)

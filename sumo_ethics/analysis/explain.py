@@ -128,6 +128,7 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.artist import Artist
     from matplotlib.colors import LogNorm
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -153,8 +154,8 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
         if i == 0:
             n_drawn = draw_candidates(ax, d, [VALIDITY_COLOURS[int(v)] for v in d.validity])
             ax.set_title(f"Candidates by validity class ({d.n_candidates}; chosen in black)", fontsize=10)
-            handles = [Line2D([], [], color=VALIDITY_COLOURS[c], lw=2, label=VALIDITY_LABELS[c])
-                       for c in sorted(set(int(v) for v in d.validity))]
+            handles: list[Artist] = [Line2D([], [], color=VALIDITY_COLOURS[c], lw=2, label=VALIDITY_LABELS[c])
+                                     for c in sorted(set(int(v) for v in d.validity))]
             handles.append(Line2D([], [], color="black", lw=2.5, marker="o", mfc="white", mec="black",
                                   label="chosen (dots: each second)"))
             in_view = {RoadUserClass(int(a[6])).label for a in d.agents if x0 <= a[0] <= x1 and y0 <= a[1] <= y1}
@@ -234,7 +235,7 @@ def collision_snapshots(run: Path, rows: list[dict[str, Any]]) -> list[Path]:
     to RUN/snapshots/collision_<event>.png/.svg (the decisions must be recorded)."""
     from sumo_ethics.collision import is_booked
 
-    out = []
+    out: list[Path] = []
     have = set(rec.recorded_steps(run))
     for r in rows:
         if not is_booked(r) or int(r["step"]) not in have:

@@ -252,6 +252,7 @@ def harm_per_collision(collisions: pd.DataFrame, folder: Path) -> list[Path]:
 def tradeoff(runs: pd.DataFrame, folder: Path, by: Sequence[str] = ("omega_u",)) -> list[Path]:
     """Ego vs third-party harm per run: colour by the first ``--by`` key (one colour per value),
     marker by the combination of the others; the mean of each group as a large marker."""
+    from matplotlib.artist import Artist
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
     from matplotlib.ticker import MaxNLocator
@@ -268,7 +269,7 @@ def tradeoff(runs: pd.DataFrame, folder: Path, by: Sequence[str] = ("omega_u",))
     groups = [((), runs)] if not rest else [((k if isinstance(k, tuple) else (k,)), g)
                                             for k, g in runs.groupby(rest, sort=True, dropna=False)]
     xs_all, ys_all = [], []
-    handles = []
+    handles: list[Artist] = []
     for gi, (_gkey, g) in enumerate(groups):
         marker = MARKERS[gi % len(MARKERS)]
         for v in values:
@@ -277,7 +278,8 @@ def tradeoff(runs: pd.DataFrame, folder: Path, by: Sequence[str] = ("omega_u",))
                 continue
             xs = sub["harm_ego"].to_numpy(dtype=float) + rng.normal(0, jitter, len(sub))
             ys = sub["harm_third_party"].to_numpy(dtype=float) + rng.normal(0, jitter, len(sub))
-            xs_all.append(xs), ys_all.append(ys)
+            xs_all.append(xs)
+            ys_all.append(ys)
             ax.scatter(xs, ys, color=colours[v], marker=marker, s=26, alpha=0.6, edgecolors="k", linewidths=0.3)
             ax.scatter([sub["harm_ego"].mean()], [sub["harm_third_party"].mean()], color=colours[v], marker=marker,
                        s=150, edgecolors="k", linewidths=1.2, zorder=4)

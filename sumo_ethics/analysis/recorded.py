@@ -73,6 +73,8 @@ def resolve_step(run: Path, step: int | None = None, time: float | None = None, 
             raise ConfigError(f"no decision recorded near t={time:g} s; the nearest is at t={times[i]:g} s "
                               f"(recorded: {_spans(times)})")
         return steps[i]
+    if step is None:  # exactly one of the four is given: a collision's step, or the step itself
+        raise ConfigError("give exactly one of --step, --time, --collision and --conflict")
     if step not in steps:
         near = min(steps, key=lambda s: abs(s - step))
         raise ConfigError(f"step {step} of {run} has no recorded decision; the nearest recorded step is {near}")

@@ -140,8 +140,8 @@ def _scene(ax: Any, d: rec.RecordedDecision, class_colours: dict[str, str], ego_
     a = d.agents
     colours = [class_colours[RoadUserClass(int(c)).label] for c in a[:, 6]]
     if len(a):
-        ax.add_collection(PolyCollection(OrientedBoxes(a[:, 0], a[:, 1], a[:, 2], a[:, 4], a[:, 5]).corners(), facecolors=colours,
-                                         edgecolors="black", linewidths=0.6, zorder=5))
+        ax.add_collection(PolyCollection(OrientedBoxes(a[:, 0], a[:, 1], a[:, 2], a[:, 4], a[:, 5]).corners(),  # type: ignore[arg-type]  # stub: a Sequence; set_verts takes an (N, M, 2) array (its fast path)
+                                         facecolors=colours, edgecolors="black", linewidths=0.6, zorder=5))
         small = np.isin(a[:, 6], (int(RoadUserClass.PEDESTRIAN), int(RoadUserClass.BICYCLE)))
         if small.any():  # pedestrians and cyclists ringed, as in explain: a 0.5 m box is a dot at 80 m
             ax.scatter(a[small, 0], a[small, 1], s=90, facecolors="none",
@@ -160,8 +160,8 @@ def _scene(ax: Any, d: rec.RecordedDecision, class_colours: dict[str, str], ego_
             ax.add_collection(LineCollection(list(ellipses(m, cov, 2.0)), colors=ec, linewidths=0.6, alpha=0.5,
                                              linestyles="--", zorder=3))
     e = d.ego
-    ax.add_collection(PolyCollection(OrientedBoxes(e[0:1], e[1:2], e[2:3], e[4:5], e[5:6]).corners(), facecolors=ego_colour,
-                                     edgecolors="white", linewidths=1.0, zorder=6))
+    ax.add_collection(PolyCollection(OrientedBoxes(e[0:1], e[1:2], e[2:3], e[4:5], e[5:6]).corners(),  # type: ignore[arg-type]  # stub: a Sequence; set_verts takes an (N, M, 2) array (its fast path)
+                                     facecolors=ego_colour, edgecolors="white", linewidths=1.0, zorder=6))
 
 
 def _scan(run: Path, steps: list[int]) -> tuple[np.ndarray, np.ndarray, set[int], set[int], float]:
@@ -331,7 +331,7 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
 
     out.parent.mkdir(parents=True, exist_ok=True)
     # codec h264 gets -pix_fmt yuv420p from matplotlib: plays in browsers and QuickTime (yuv444p would not)
-    writer = GifStream(fps, dynamic=ax) if writer_name == "gif" else animation.FFMpegWriter(fps=fps, codec="h264")
+    writer = GifStream(fps, dynamic=ax) if writer_name == "gif" else animation.FFMpegWriter(fps=fps, codec="h264")  # type: ignore[arg-type]  # stub: int; ffmpeg takes any rate
     bar = _progress(progress, len(steps))
     try:
         # the temporary name keeps the suffix: the writer picks the format by it

@@ -22,7 +22,7 @@ MAX_BOOT = 100_000
 HARM_UNIT = "harm [-] (P(MAIS 3+), summed over the run's ego collisions)"
 
 
-def bootstrap_ci(values: Sequence[float] | np.ndarray, n_boot: int = 2000, seed: int = 0,
+def bootstrap_ci(values: Sequence[float] | np.ndarray | pd.Series, n_boot: int = 2000, seed: int = 0,
                  level: float = 0.95) -> tuple[float, float]:
     """Percentile bootstrap CI of the mean of ``values`` (NaN, NaN for no values)."""
     x = np.asarray(values, dtype=float)
@@ -56,10 +56,10 @@ def summary_table(runs: pd.DataFrame, by: Sequence[str], n_boot: int = 2000, see
         row = dict(zip(by, key))
         row["n_runs"] = len(g)
         row["n_errors"] = int((g["status"] == "error").sum())
-        for name, col in (("completion_rate", g["completed"].astype(float)),
-                          ("collision_rate", (g["collisions_ego"] > 0).astype(float))):
-            lo, hi = bootstrap_ci(col, n_boot, seed)
-            row.update({name: float(col.mean()), f"{name}_ci_lo": lo, f"{name}_ci_hi": hi})
+        for name, rate in (("completion_rate", g["completed"].astype(float)),
+                           ("collision_rate", (g["collisions_ego"] > 0).astype(float))):
+            lo, hi = bootstrap_ci(rate, n_boot, seed)
+            row.update({name: float(rate.mean()), f"{name}_ci_lo": lo, f"{name}_ci_hi": hi})
         for col, _ in HARM_CLASSES:
             lo, hi = bootstrap_ci(g[col], n_boot, seed)
             row.update({f"{col}_mean": float(g[col].mean()), f"{col}_sum": float(g[col].sum()),
