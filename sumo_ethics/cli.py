@@ -172,11 +172,12 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
 
         named = named_planners(config_file) if config_file is not None else {}
         used = [n for n, _ in fleet.shares if n in named]
-        cfg = replace(cfg, fleet=replace(fleet, planners=tuple(
+        spec = replace(fleet, planners=tuple(
             (n, planner_config({**(table or {}), **named[n]}, omega_u=omega_u, omega_o=omega_o, weights=weights,
                                utility=utility, normalise=normalise, predictor=predictor,
-                               predictor_weights=predictor_weights, selection=selection)) for n in used)))
-        check_fleet_names(cfg.fleet)
+                               predictor_weights=predictor_weights, selection=selection)) for n in used))
+        cfg = replace(cfg, fleet=spec)
+        check_fleet_names(spec)
 
         _print_fleet(run_fleet(cfg, make_fleet_controllers(cfg)))
         return
@@ -479,7 +480,7 @@ def evaluate_predictor(dataset_dir: Path, out: Path, models: tuple[str, ...], sp
     per agent class and per manoeuvre."""
     from sumo_ethics.predict import evaluate_main
 
-    weights = {}
+    weights: dict[str, Path | str] = {}
     for text in models:
         name, sep, path = text.partition("=")
         if not sep or not name or not path:

@@ -163,7 +163,8 @@ def goal_of(problem: Any) -> Goal:
     """The planning problem's goal region as :class:`Goal` (what ``GoalRegion.is_reached`` checks)."""
     states = []
     for s in problem.goal.state_list:
-        polys, circles = ([], [])
+        polys: list[Any] = []
+        circles: list[tuple[float, float, float]] = []
         if s.has_value("position"):
             polys, circles = _shapes(s.position)
         ts = s.time_step
@@ -427,10 +428,10 @@ def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
             st = by_id[sid]
             if math.hypot(st[-1]["x"] - st[0]["x"], st[-1]["y"] - st[0]["y"]) < 1.0 and max(r["speed"] for r in st) < 0.5:
                 continue  # standing all along (parked, waiting): SUMO would drive it off
-            r = obstacle_route(net, st, meta["vclass"])
-            if r is None:
+            found = obstacle_route(net, st, meta["vclass"])
+            if found is None:
                 continue
-            lane, pos, edges = r
+            lane, pos, edges = found
             routes[sid] = edges
             departs[sid] = (lane.getID(), min(pos + meta["length"] / 2.0, lane.getLength()), lane.getIndex(),
                             max(0.0, float(st[0]["speed"])))

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # pragma: no cover - pandas is imported by the command itself, not by the CLI's start
+    import pandas as pd
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +77,7 @@ def evaluate_main(
     calibration_dataset: Path | str | None = None,
     title: str | None = None,
     calibrated: bool = False,
-) -> "object":
+) -> pd.DataFrame:
     """Evaluate constant velocity and the LSTM models on the test seeds of ``dataset``.
 
     ``weights`` maps model name -> weights file (default: the shipped map, attention and
