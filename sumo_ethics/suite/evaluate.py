@@ -20,7 +20,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, cast
 
 import numpy as np
 
@@ -39,14 +39,16 @@ PAPER_OMEGA_U = DEFAULT_OMEGA_U
 #: user in range, as published (normalise "in_range"); ours: this project's planner, what ``run``
 #: and ``sweep`` use by default (PlannerConfig's defaults: the map-aware attention predictor,
 #: the collision probability over true shapes, principles on one scale); "default" names it too.
+#: the paper's planner, and the base of a planner defined as NAME=key=value;...
+PAPER: dict[str, Any] = {"weights": "ethical", "predictor": "attention", "omega_u": PAPER_OMEGA_U, "selection": "cost",
+                         "normalise": "in_range", "probability": "origin", "calibrated": False}
 BUILTIN: dict[str, dict[str, Any] | None] = {
     "baseline": None,  # the route-following controller
     # as published: Origin's probability and normalisation, their predictors' own spreads without the
     # calibration (predict/calibration.py)
     "origin": {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0, "selection": "validity",
                "normalise": "in_range", "probability": "origin", "calibrated": False},
-    "paper": {"weights": "ethical", "predictor": "attention", "omega_u": PAPER_OMEGA_U, "selection": "cost",
-              "normalise": "in_range", "probability": "origin", "calibrated": False},
+    "paper": PAPER,
     "ours": {},
 }
 #: other names of built-in planners
@@ -102,7 +104,7 @@ def parse_planner(text: str) -> PlannerSpec:
         name = name.strip()
         if not name or not name.replace("_", "").replace("-", "").isalnum():
             raise ConfigError(f"planner name must be letters, digits, '-' or '_', got {name!r} in {text!r}")
-        opts = dict(BUILTIN["paper"])
+        opts = dict(PAPER)
         for item in filter(None, (p.strip() for p in rest.split(";"))):
             key, eq, val = item.partition("=")
             if not eq or not key.strip():
@@ -276,7 +278,7 @@ def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, wor
     back instead of run again.
     """
     import multiprocessing as mp
-    from multiprocessing.connection import wait
+    from multiprocessing.connection import Connection, wait
 
     if workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
@@ -298,7 +300,7 @@ def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, wor
             todo.append(t)
     ctx = mp.get_context("forkserver")
     ctx.set_forkserver_preload(["sumo_ethics._worker_signals", "sumo_ethics.suite.preload"])
-    running: dict[Any, tuple[Any, tuple]] = {}
+    running: dict[Connection, tuple[Any, tuple]] = {}
     try:
         while todo or running:
             while todo and len(running) < workers:
@@ -308,16 +310,17 @@ def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, wor
                 running[recv] = (proc, t)  # before start: an interrupt during start still stops it
                 proc.start()
                 send.close()
-            for conn in wait(list(running)):
+            for ready in wait(list(running)):
+                conn = cast(Connection, ready)  # wait gives back the pipe ends it is given
                 proc, t = running.pop(conn)
                 try:
-                    row = conn.recv()
+                    result = conn.recv()
                 except (EOFError, OSError):
                     proc.join()
-                    row = _dead_row(t[0], t[1], f"run process died (exit code {proc.exitcode})")
+                    result = _dead_row(t[0], t[1], f"run process died (exit code {proc.exitcode})")
                 conn.close()
                 proc.join()
-                done(row)
+                done(result)
     finally:
         for proc, _ in running.values():
             if proc.pid is not None:  # started
@@ -577,7 +580,9 @@ def evaluate(suite: Path, planner_texts: list[str], out: Path, workers: int = 2,
         specs = load_suite(suite)  # validates every hazard file before anything runs
         if limit is not None:
             specs = specs[:limit]
-        folders = [s.folder for s in specs]
+        folders = [s.folder for s in specs if s.folder is not None]
+        if len(folders) != len(specs):  # load_suite gives every scenario its folder
+            raise ConfigError(f"a scenario of {suite} has no folder")
     rows = run_suite(folders, planners, Path(out), workers, progress, resume, record_decisions)
     meta = {"suite": str(suite), "scenarios": len(folders), "workers": workers, "wall_s": time.perf_counter() - t0,
             "planners": {p.name: p.describe() for p in planners}, "reference": ref, **extra}

@@ -128,7 +128,7 @@ def _hazard(rng: np.random.Generator, rt: RoadType, kind: str, route: tuple[str,
     if kind == "pedestrian":
         if rt.network in ("junction_tls", "junction_prio", "roundabout"):
             at_crossing = rng.random() < 0.5
-            anchor = {"edge": to, "pos": 2.5} if at_crossing else {"edge": fr, "pos": _r(u(0.45, 0.8) * L, 1)}
+            anchor: dict[str, Any] = {"edge": to, "pos": 2.5} if at_crossing else {"edge": fr, "pos": _r(u(0.45, 0.8) * L, 1)}
         else:
             anchor = {"edge": fr if rng.random() < 0.5 else to, "pos": _r(u(0.5, 0.85) * L, 1)}
         left = two_way and rng.random() < 0.25
@@ -266,7 +266,7 @@ def _dilemma_hazards(rng: np.random.Generator, variant: str, lane: int, pos: flo
     if variant == "pedestrian":
         ttc = _r(u(0.55, 0.9))
         trigger: dict[str, float] = {"ttc": ttc}
-        main = {"id": "h0", "type": "pedestrian", "anchor": {"edge": "a_e", "pos": _r(pos, 1)}, "trigger": trigger,
+        main: dict[str, Any] = {"id": "h0", "type": "pedestrian", "anchor": {"edge": "a_e", "pos": _r(pos, 1)}, "trigger": trigger,
                 "params": {"side": "right", "offset": _r(u(0.1, 0.5)), "speed": _r(u(2.0, 3.0)), "occluder": True}}
         extra: list[dict[str, Any]] = []
     else:
@@ -279,7 +279,7 @@ def _dilemma_hazards(rng: np.random.Generator, variant: str, lane: int, pos: flo
                   "spawn": _r(dist + u(60, 100), 1),
                   "params": {"gap": _r(u(3, 8)), "reaction": _r(u(0.8, 1.2)), "decel": _r(u(4, 6)),
                              "vtype": "truck" if rng.random() < 0.7 else "bus"}}]
-    escort = {"id": "h1", "type": "escort", "anchor": {"edge": "a_e", "pos": _r(pos, 1)}, "trigger": trigger,
+    escort: dict[str, Any] = {"id": "h1", "type": "escort", "anchor": {"edge": "a_e", "pos": _r(pos, 1)}, "trigger": trigger,
               "spawn": _r(u(60, 100), 1) + (trigger.get("distance", 0.0)),
               "params": {"side": other_side, "lane_offset": _r(u(2.6, 3.0)), "ahead": _r(u(-3, 1)),
                          "hold": _r(u(2.0, 3.0)), "decel": 4.0, "vtype": escort_vt}}

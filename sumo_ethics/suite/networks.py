@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 from sumo_ethics.sim.netbuild import PlainNet
 
@@ -36,7 +37,7 @@ def _junction(name: str, signalised: bool) -> PlainNet:
         net.node(a, ARM * dx, ARM * dy)
     for a in ARMS:
         prio = 3 if signalised or a in "WE" else 1
-        road = dict(numLanes=1, speed=13.89, width=3.5, sidewalkWidth=2.0, priority=prio)
+        road: dict[str, Any] = dict(numLanes=1, speed=13.89, width=3.5, sidewalkWidth=2.0, priority=prio)
         net.edge(f"{a}_in", a, "C", **road)
         net.edge(f"{a}_out", "C", a, **road)
     for a in ARMS:
@@ -61,7 +62,7 @@ def _roundabout() -> PlainNet:
         net.edge(f"ring_{a}{b}", f"R{a}", f"R{b}", shape=arc, numLanes=1, speed=8.33, width=4.0, priority=4,
                  disallow="pedestrian")
     for a in ARMS:
-        road = dict(numLanes=1, speed=13.89, width=3.5, sidewalkWidth=2.0, priority=2)
+        road: dict[str, Any] = dict(numLanes=1, speed=13.89, width=3.5, sidewalkWidth=2.0, priority=2)
         net.edge(f"{a}_in", a, f"R{a}", **road)
         net.edge(f"{a}_out", f"R{a}", a, **road)
         net.crossing(f"R{a}", [f"{a}_in", f"{a}_out"], priority="true")
@@ -74,7 +75,7 @@ def _rural() -> PlainNet:
     net.node("R1", 225, 0, "priority")
     net.node("R2", 450, 0)
     bend = [(225 + 225 * k / 12, 18 * math.sin(math.pi * k / 12)) for k in range(13)]
-    road = dict(numLanes=1, speed=22.22, width=3.5, priority=3)  # no sidewalk: people walk on the road
+    road: dict[str, Any] = dict(numLanes=1, speed=22.22, width=3.5, priority=3)  # no sidewalk: people walk on the road
     net.two_way("e0", "w0", "R0", "R1", **road)
     net.two_way("e1", "w1", "R1", "R2", shape=bend, **road)
     return net
@@ -87,7 +88,7 @@ def _multilane() -> PlainNet:
     net.node("A", 300, 0)
     net.node("H3", 500, 0)
     net.node("RS", 0, -70)
-    hw = dict(speed=27.78, width=3.75, priority=10, disallow="pedestrian bicycle")
+    hw: dict[str, Any] = dict(speed=27.78, width=3.75, priority=10, disallow="pedestrian bicycle")
     net.edge("hw_0", "H0", "M", numLanes=3, **hw)
     net.edge("hw_1", "M", "A", numLanes=4, **hw)
     net.edge("hw_2", "A", "H3", numLanes=3, **hw)
@@ -106,7 +107,7 @@ def _narrow() -> PlainNet:
     net.node("N0", 0, 0)
     net.node("N1", 90, 0, "priority")
     net.node("N2", 180, 0)
-    road = dict(numLanes=1, speed=8.33, width=3.0, sidewalkWidth=1.5, priority=2)
+    road: dict[str, Any] = dict(numLanes=1, speed=8.33, width=3.0, sidewalkWidth=1.5, priority=2)
     net.two_way("n_e0", "n_w0", "N0", "N1", **road)
     net.two_way("n_e1", "n_w1", "N1", "N2", **road)
     net.crossing("N1", ["n_e0", "n_w0"], priority="true")
@@ -118,7 +119,7 @@ def _arterial() -> PlainNet:
     net = PlainNet("arterial")
     net.node("A0", 0, 0)
     net.node("A1", 320, 0)
-    road = dict(numLanes=2, speed=16.67, width=3.25, sidewalkWidth=2.0, priority=3)
+    road: dict[str, Any] = dict(numLanes=2, speed=16.67, width=3.25, sidewalkWidth=2.0, priority=3)
     net.two_way("a_e", "a_w", "A0", "A1", **road)
     return net
 

@@ -80,7 +80,8 @@ def _num(where: str, value: Any, lo: float = -math.inf, hi: float = math.inf) ->
     return float(value)
 
 
-def _keys(where: str, d: Any, allowed: set[str], required: set[str] = frozenset()) -> dict[str, Any]:
+def _keys(where: str, d: Any, allowed: set[str] | frozenset[str],
+          required: set[str] | frozenset[str] = frozenset()) -> dict[str, Any]:
     if not isinstance(d, dict):
         raise ConfigError(f"{where} must be an object, got {type(d).__name__}")
     unknown = set(d) - allowed
@@ -123,6 +124,8 @@ class Anchor:
             return {"edge": self.edge, "pos": self.pos}
         if self.junction is not None:
             return {"junction": self.junction}
+        if self.xy is None:  # parse requires one of edge, junction and xy
+            raise ValueError("an anchor needs an edge, a junction or xy")
         return {"xy": list(self.xy)}
 
 

@@ -174,7 +174,7 @@ def parse_set(items: Iterable[str]) -> dict[str, list[Any]]:
             raise ConfigError(f"malformed --set '{item}': no values")
         if key in RUN_KEYS:
             typ = RUN_KEYS[key][1]
-            conv = []
+            conv: list[float | int | str | bool] = []
             for v in values:
                 if typ is float and isinstance(v, (int, float)) and not isinstance(v, bool):
                     conv.append(float(v))
