@@ -122,7 +122,7 @@ def make_fleet_controllers(cfg: RunConfig) -> Callable[[str, str], Controller]:
             shared[key] = SharedPrediction(make_predictor(*key, maps=SumoMapSource))
         return EthicalPlanner(pc, predictor=shared[key])
 
-    make.shared = shared  # type: ignore[attr-defined]
+    make.shared = shared  # type: ignore[attr-defined]  # the factory carries its predictions (FleetRun reads them)
     for name, share in spec.shares:  # a bad weights file fails before SUMO starts
         if share > 0 and (name != "baseline" or name in named):
             make(name)
@@ -266,9 +266,11 @@ class FleetRun(Run):
     """State of one fleet run; :meth:`execute` (Run's) sets up SUMO, :meth:`_loop` drives the egos."""
 
     def __init__(self, cfg: RunConfig, make: Callable[[str, str], Controller]) -> None:
-        super().__init__(cfg, controller=None, hooks=())  # type: ignore[arg-type]
+        super().__init__(cfg, controller=None, hooks=())
+        if cfg.fleet is None:
+            raise ValueError("FleetRun needs a fleet (RunConfig.fleet)")
         self.make = make
-        self.spec: FleetSpec = cfg.fleet  # type: ignore[assignment]
+        self.spec: FleetSpec = cfg.fleet
         self.agents: list[Agent] = []
         self.active: list[Agent] = []
         self.egos: set[str] = set()
@@ -489,6 +491,7 @@ class FleetRun(Run):
         however many egos come and go)."""
         a.status, a.message, a.end_time = status, message, t
         self.active.remove(a)
+        # a finished ego lets go of its planner and world too (they are never read again)
         a.controller = a.world = a.snap = a.decision = a.scene = a.rules = None  # type: ignore[assignment]
         a.conflicts = None  # its rows are in the recorder; its trails go
 

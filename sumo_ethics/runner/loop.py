@@ -132,10 +132,10 @@ def resolved_end(cfg: RunConfig, files: session.ScenarioFiles) -> float:
 class Run:
     """State of one run; :meth:`execute` is the loop."""
 
-    def __init__(self, cfg: RunConfig, controller: Controller, hooks: tuple[StepHook, ...] = (),
+    def __init__(self, cfg: RunConfig, controller: Controller | None, hooks: tuple[StepHook, ...] = (),
                  gui: GuiOptions | None = None) -> None:
         self.cfg = cfg
-        self.controller = controller
+        self.controller = controller  # None: a fleet's (FleetRun: one controller per ego)
         self.hooks = hooks
         self.gui = gui  # run in sumo-gui, the decisions drawn (sim.gui.View)
         self.view: View | None = None
@@ -208,6 +208,9 @@ class Run:
             session.close()
 
     def _loop(self, ego_id: str, end: float, depart: float) -> None:
+        controller = self.controller
+        if controller is None:
+            raise ValueError("a run needs a controller (a fleet is run by FleetRun)")
         dt = session.step_length()
         self.rec.start(dt, self.cfg.record_decisions)
         ego, edges = start_ego(self.cfg, ego_id, end, depart)
@@ -222,8 +225,8 @@ class Run:
         self.notes = notes = RunNotes(tight_bends(route, cfg.ego.max_curvature), cfg.ego.max_curvature,
                                       ROAD_CURVATURE_TOL)
         self.meta.update(step_length=dt, route_edges=list(edges), route_length=route.length,
-                         takeover_time=session.sim_time(), controller=self.controller.name,
-                         predictor=getattr(self.controller, "predictor_info", None),
+                         takeover_time=session.sim_time(), controller=controller.name,
+                         predictor=getattr(controller, "predictor_info", None),
                          takeover_wall=wallclock.perf_counter() - self.t_start)
         world.step()  # subscription results arrive with the next step
         snap = world.read()
@@ -241,8 +244,8 @@ class Run:
         half = float(snap.ego.length[0]) / 2
         s, d = route.path.project_point(float(snap.ego.x[0]), float(snap.ego.y[0]))
         progress = _progress(cfg.progress, snap.time, end)
-        history = History(dt) if getattr(self.controller, "needs_history", False) else None
-        rules = RuleMonitor() if getattr(self.controller, "needs_rules", False) else None
+        history = History(dt) if getattr(controller, "needs_history", False) else None
+        rules = RuleMonitor() if getattr(controller, "needs_rules", False) else None
         try:
             while True:
                 t = snap.time
@@ -266,7 +269,7 @@ class Run:
                               stop_s=self.stop_line(s + half), vehicle=cfg.ego, history=obs,
                               rule_breakers=rules.breakers(snap.others) if rules is not None else frozenset())
                 # act
-                decision = self.controller.act(scene)
+                decision = controller.act(scene)
                 self.n_fallback += int(decision.info.get("n_fallback", 0))
                 w1 = wd = wallclock.perf_counter()
                 if self.view is not None:  # drawn before the step that carries it out
