@@ -2,20 +2,17 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sumo_ethics.errors import ConfigError
+from sumo_ethics.errors import ConfigError, is_number
 from sumo_ethics.sumo_options import check_sumo_args
 
 
 def require_number(name: str, value: Any, allow_zero: bool = False) -> float:
     """``value`` as a float if it is a finite positive (or, with allow_zero, non-negative) number."""
-    ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-          and (value >= 0 if allow_zero else value > 0))
-    if not ok:
+    if not is_number(value, 0.0, lo_open=not allow_zero):
         raise ConfigError(f"{name} must be a finite {'non-negative' if allow_zero else 'positive'} number, "
                           f"got {value!r}")
     return float(value)
@@ -91,10 +88,11 @@ class FleetSpec:
     planners: tuple[tuple[str, Any], ...] = ()  # named PlannerConfigs ([planners.NAME] of --config)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.egos, int) or isinstance(self.egos, bool) or not 0 <= self.egos <= 10_000:
+        if not is_number(self.egos, 0, 10_000, integer=True):
             raise ConfigError(f"--egos must be a whole number from 0 to 10000, got {self.egos!r}")
+        object.__setattr__(self, "egos", int(self.egos))
         p = self.penetration
-        if not (isinstance(p, (int, float)) and not isinstance(p, bool) and 0.0 <= p <= 1.0):
+        if not is_number(p, 0.0, 1.0):
             raise ConfigError(f"--penetration must be a share from 0 to 1, got {p!r}")
         object.__setattr__(self, "penetration", float(p))
         if len(set(self.ids)) != len(self.ids):
@@ -105,7 +103,7 @@ class FleetSpec:
         if len(set(names)) != len(names):
             raise ConfigError(f"--fleet names a planner twice: {','.join(names)}")
         for name, share in self.shares:
-            if not (isinstance(share, (int, float)) and not isinstance(share, bool) and 0.0 <= share <= 1.0):
+            if not is_number(share, 0.0, 1.0):
                 raise ConfigError(f"--fleet share of '{name}' must be from 0 to 1, got {share!r}")
         total = sum(s for _, s in self.shares)
         if abs(total - 1.0) > 1e-6:
@@ -166,8 +164,9 @@ class RunConfig:
             raise ConfigError(f"--record-decisions must be one of {', '.join(DECISION_MODES)}, got {self.record_decisions!r}")
         object.__setattr__(self, "scenario", Path(self.scenario))
         object.__setattr__(self, "out", Path(self.out))
-        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed < 2**31:
+        if not is_number(self.seed, 0, 2**31, hi_open=True, integer=True):
             raise ConfigError(f"seed must be an integer in [0, 2^31), got {self.seed!r}")
+        object.__setattr__(self, "seed", int(self.seed))  # a numpy integer too, as a plain int (config.json)
         if self.end is not None:
             require_number("--end", self.end)
         if self.ego_depart is not None:

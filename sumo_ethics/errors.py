@@ -1,5 +1,7 @@
 """Errors a user can cause or meet; the CLI prints each as one line and exits non-zero."""
 
+import math
+import numbers
 import sys
 
 
@@ -44,3 +46,17 @@ def add_note(exc: BaseException, note: str) -> None:
             notes = []
             setattr(exc, "__notes__", notes)  # noqa: B010 (no such attribute in 3.10's BaseException)
         notes.append(note)
+
+
+def is_number(value: object, lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False,
+              hi_open: bool = False, integer: bool = False) -> bool:
+    """The package's one test of a number a user gave: a real number (Python or numpy, never a bool),
+    finite, an integer type if ``integer``, and within [lo, hi] (``lo_open``/``hi_open``: that end
+    excluded). Each caller words its own one-line message."""
+    # numpy's scalar types register with the numbers ABCs (numpy's bool does not), so no numpy import here
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral if integer else numbers.Real):
+        return False
+    v = float(value)
+    if not math.isfinite(v):
+        return False
+    return (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)

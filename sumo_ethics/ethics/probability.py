@@ -59,7 +59,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 from scipy.special import ndtr
 
-from sumo_ethics.errors import ConfigError
+from sumo_ethics.errors import ConfigError, is_number
 from sumo_ethics.types import Candidates, Prediction
 
 __all__ = [
@@ -84,9 +84,7 @@ class EthicsConfigError(ConfigError, ValueError):
 
 
 def _check_number(owner: str, name: str, value: object, *, positive: bool = False) -> None:
-    ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-          and (value > 0 if positive else value >= 0))
-    if not ok:
+    if not is_number(value, 0.0, lo_open=positive):
         kind = "a positive" if positive else "a non-negative"
         raise EthicsConfigError(f"{owner}.{name} must be {kind} finite number, got {value!r}")
 

@@ -18,7 +18,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from sumo_ethics.errors import ConfigError
+from sumo_ethics.errors import ConfigError, is_number
 from sumo_ethics.ethics.cost import CostConfig, UtilityMode, score
 from sumo_ethics.ethics.probability import ProbabilityConfig
 from sumo_ethics.ethics.risk import assess_risk
@@ -90,7 +90,7 @@ class PlannerConfig:
             raise ConfigError(f"unknown selection '{self.selection}'; known: {', '.join(SELECTIONS)}")
         for name in ("envelope", "entry"):
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 <= value < 1e12):
+            if not is_number(value, 0.0, 1e12, hi_open=True):
                 raise ConfigError(f"{name} must be a cost >= 0, got {value!r}")
         if self.predictor not in PREDICTORS:
             raise ConfigError(f"unknown predictor '{self.predictor}'; known: {', '.join(PREDICTORS)}")

@@ -21,9 +21,11 @@ import math
 import threading
 from dataclasses import dataclass, fields
 
+from typing import cast
+
 import numpy as np
 
-from sumo_ethics.errors import ConfigError
+from sumo_ethics.errors import ConfigError, is_number
 from sumo_ethics.geometry import Polyline, wrap_angle
 from sumo_ethics.types import Candidates
 
@@ -48,13 +50,13 @@ _MIN_TRAVEL = 1e-3
 
 
 def _finite(name: str, value: object) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not is_number(value):
         raise ConfigError(f"sampling.{name} must be a finite number, got {value!r}")
-    return float(value)
+    return float(cast(float, value))  # is_number: a finite real number
 
 
 def _count(name: str, value: object) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+    if not is_number(value, 1, integer=True):
         raise ConfigError(f"sampling.{name} must be an integer >= 1, got {value!r}")
 
 
@@ -129,7 +131,7 @@ class FrenetState:
     def __post_init__(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v):
+            if not is_number(v):
                 raise ConfigError(f"FrenetState.{f.name} must be a finite number, got {v!r}")
             object.__setattr__(self, f.name, float(v))
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sumo_ethics.errors import ConfigError
+from sumo_ethics.errors import ConfigError, is_number
 
 HAZARD_FILE = "hazards.json"
 
@@ -73,7 +73,7 @@ VTYPES = ("car", "truck", "bus", "motorcycle", "bicycle", "ped")
 
 
 def _num(where: str, value: Any, lo: float = -math.inf, hi: float = math.inf) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not is_number(value):
         raise ConfigError(f"{where} must be a number, got {value!r}")
     if not lo <= value <= hi:
         raise ConfigError(f"{where} must be in [{lo:g}, {hi:g}], got {value!r}")
@@ -215,7 +215,7 @@ class EgoSpec:
         if end <= depart:
             raise ConfigError(f"{where}.end ({end:g}) must be after depart ({depart:g})")
         lane = d.get("lane")
-        if lane is not None and (isinstance(lane, bool) or not isinstance(lane, int) or not 0 <= lane < 64):
+        if lane is not None and not is_number(lane, 0, 64, hi_open=True, integer=True):
             raise ConfigError(f"{where}.lane must be a lane index in [0, 64), got {lane!r}")
         return cls(d["from"], d["to"], depart, end, lane)
 
@@ -263,7 +263,7 @@ class ScenarioSpec:
         if d.get("version", 1) != 1:
             raise ConfigError(f"{where}: unsupported version {d['version']!r} (expected 1)")
         seed = d["seed"]
-        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**31:
+        if not is_number(seed, 0, 2**31, hi_open=True, integer=True):
             raise ConfigError(f"{where}.seed must be an integer in [0, 2^31), got {seed!r}")
         if not isinstance(d["hazards"], list):
             raise ConfigError(f"{where}.hazards must be a list")
