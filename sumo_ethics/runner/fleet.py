@@ -41,7 +41,7 @@ from sumo_ethics.record import schema
 from sumo_ethics.record.writer import ChunkedTable
 from sumo_ethics.runner.loop import Run, RunSummary, _progress, execute, step_row, stop_line
 from sumo_ethics.safety.conflicts import ConflictBook, conflict_counts
-from sumo_ethics.safety.fault import RED_MEMORY, FaultContext
+from sumo_ethics.safety.fault import FaultContext
 from sumo_ethics.sim import egos as sim_egos, scenario as scenario_files, session
 from sumo_ethics.sim.ego import ego_limits
 from sumo_ethics.sim.rules import RuleMonitor
@@ -460,11 +460,8 @@ class FleetRun(Run):
         if before is None or decision is None or scene is None or route is None:  # it acted on its last read
             raise RuntimeError(f"ego {a.id} is recorded without its last snapshot, scene and decision")
         w3 = wallclock.perf_counter()
-        envelope = decision.info.get("cost_envelope")
-        ctx = FaultContext(ego_accel=(float(new.ego.speed[0]) - float(before.ego.speed[0])) / dt,
-                           decel_limit=a.vehicle.max_decel, rule_breakers=scene.rule_breakers,
-                           ego_ran_red=new.time - a.ran_red_at <= RED_MEMORY,
-                           ego_in_envelope=None if envelope is None else bool(envelope > 0))
+        ctx = FaultContext.of_step(decision.info, float(before.ego.speed[0]), float(new.ego.speed[0]), dt,
+                                   a.vehicle.max_decel, scene.rule_breakers, new.time, a.ran_red_at)
         hit = self.book.detect_ego(before, new, self.step, ctx)
         w4 = wallclock.perf_counter()
         if a.conflicts is not None:  # a pair of egos once: by the ego measured first this step

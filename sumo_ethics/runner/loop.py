@@ -33,7 +33,7 @@ from sumo_ethics.record.recorder import RunRecorder
 from sumo_ethics.record.decisions import FOLDER as DECISIONS, SNAPSHOTS
 from sumo_ethics.record.writer import PARTIAL, write_json
 from sumo_ethics.safety.conflicts import ConflictBook, conflict_counts
-from sumo_ethics.safety.fault import RED_MEMORY, FaultContext
+from sumo_ethics.safety.fault import FaultContext
 from sumo_ethics.safety.pairs import PairConflictBook, pair_counts
 from sumo_ethics.sim import preflight, scenario as scenario_files, session
 from sumo_ethics.sim.ego import start_ego
@@ -291,11 +291,8 @@ class Run:
                                           f"{route.length - s - half:.1f} m before its goal")
                 w3 = wallclock.perf_counter()
                 # detect
-                envelope = decision.info.get("cost_envelope")
-                ctx = FaultContext(ego_accel=(float(new.ego.speed[0]) - float(snap.ego.speed[0])) / dt,
-                                   decel_limit=cfg.ego.max_decel, rule_breakers=scene.rule_breakers,
-                                   ego_ran_red=new.time - self.ran_red_at <= RED_MEMORY,
-                                   ego_in_envelope=None if envelope is None else bool(envelope > 0))
+                ctx = FaultContext.of_step(decision.info, float(snap.ego.speed[0]), float(new.ego.speed[0]), dt,
+                                           cfg.ego.max_decel, scene.rule_breakers, new.time, self.ran_red_at)
                 ego_hit = collisions.detect(snap, new, self.step, ctx)
                 if ego_hit and self.view is not None:
                     self.view.collided(self.rec.collisions)

@@ -53,6 +53,17 @@ class FaultContext:
     ego_ran_red: bool = False
     ego_in_envelope: bool | None = None
 
+    @classmethod
+    def of_step(cls, info: dict[str, float], speed_before: float, speed_after: float, dt: float,
+                decel_limit: float, rule_breakers: frozenset[str], time: float, ran_red_at: float) -> "FaultContext":
+        """The context of the ego step into ``time`` [s]: its speeds before and after [m/s] over dt [s],
+        the decision's ``info`` (``cost_envelope`` > 0: its candidate entered an envelope) and when the
+        ego last entered a junction at red (``ran_red_at``, -inf never)."""
+        envelope = info.get("cost_envelope")
+        return cls(ego_accel=(speed_after - speed_before) / dt, decel_limit=decel_limit, rule_breakers=rule_breakers,
+                   ego_ran_red=time - ran_red_at <= RED_MEMORY,
+                   ego_in_envelope=None if envelope is None else bool(envelope > 0))
+
 
 def fault(ego_speed: float, area_ego: str, other_id: str, other_cls: int, other_speed: float, area_other: str,
           ctx: FaultContext | None = None) -> tuple[str, str]:
