@@ -43,7 +43,9 @@ class ConflictConfig:
     (:mod:`sumo_ethics.safety.conflicts`). A pair is in conflict while its box time to collision
     is below ``ttc`` or its post-encroachment time below ``pet``; TOML table ``[conflicts]``.
     ``everyone``: also every pair of road users of the network that involves no ego
-    (:mod:`sumo_ethics.safety.pairs`, ``conflicts_others.parquet``), with the same thresholds."""
+    (:mod:`sumo_ethics.safety.pairs`, ``conflicts_others.parquet``), with the same thresholds.
+    ``turning``: TTC with each road user's turn rate (:func:`sumo_ethics.safety.measures.ttc_with_turns`)
+    instead of at constant heading (docs/conflicts.md says what each counts wrongly)."""
 
     enabled: bool = True  # measure and write conflicts.parquet
     ttc: float = 1.5  # s, time-to-collision threshold (SUMO's SSM device default, 3 s there)
@@ -51,9 +53,10 @@ class ConflictConfig:
     gap: float = 1.0  # s, a pair back in conflict within this time continues its event
     crossing_angle: float = 30.0  # deg, PET counts only where the headings differ by at least this
     everyone: bool = False  # also the pairs without an ego, network-wide (conflicts_others.parquet)
+    turning: bool = False  # TTC at constant speed and turn rate where a party turns (else constant heading)
 
     def __post_init__(self) -> None:
-        for name in ("enabled", "everyone"):
+        for name in ("enabled", "everyone", "turning"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"conflicts.{name} must be true or false, got {getattr(self, name)!r}")
         if self.everyone and not self.enabled:

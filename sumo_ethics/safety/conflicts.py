@@ -4,7 +4,11 @@
 against every road user of the snapshot (those within the sensing radius: vehicles, cyclists,
 pedestrians) it measures, with :mod:`sumo_ethics.safety.measures`:
 
-* TTC: box time to collision at constant velocity and heading (exact), and DRAC from it;
+* TTC: box time to collision at constant velocity and heading (exact); with ``turning``, where
+  either party turns (its mean yaw rate over the trail, about ``pet`` s, above
+  ``measures.TURNING``), at constant speed and yaw rate up to the TTC threshold
+  (:func:`~sumo_ethics.safety.measures.ttc_with_turns`: two cars passing on a bend are no
+  conflict, a car turning at a junction sweeps its arc on); DRAC from it;
 * the box-to-box distance now;
 * PET where the paths cross: the ego's box now against the other's boxes of the last
   ``pet`` seconds, and the other's box now against the ego's (each party's footprint trail);
@@ -25,10 +29,15 @@ import numpy as np
 
 from sumo_ethics.config import ConflictConfig
 from sumo_ethics.geometry import OrientedBoxes, boxes_overlap
-from sumo_ethics.safety.measures import box_distance, box_ttc, crossing, drac, pet_from_trail
+from sumo_ethics.safety.measures import box_distance, box_ttc, crossing, drac, pet_from_trail, ttc_with_turns, yaw_rates
 from sumo_ethics.types import AgentStates, RoadUserClass
 
 _LABELS = tuple(c.label for c in RoadUserClass)
+
+
+def oldest_slot(pushed: int, n: int) -> int:
+    """The slot of the oldest of the instants pushed so far into a ring buffer of ``n`` slots."""
+    return pushed % n if pushed >= n else 0
 
 
 def boxes_of(s: AgentStates, idx: np.ndarray | slice | int = slice(None)) -> OrientedBoxes:
@@ -99,6 +108,26 @@ class ConflictBook:
         self.others_time[w] = t
         self.others_states[w] = o
 
+    def _yaw_rates(self, t: float, e: AgentStates, o: AgentStates, idx: np.ndarray) -> tuple[float, np.ndarray]:
+        """The ego's yaw rate and those of road users ``idx`` of ``o`` [rad/s]: their mean since the
+        oldest instant on the trails (about ``pet`` seconds ago: a lane's polyline turns in steps, so
+        the heading change of one step is no turn rate); 0 for the first instant and for a road user
+        not there then."""
+        if not self.pushed:
+            return 0.0, np.zeros(len(idx))
+        w = oldest_slot(self.pushed, len(self.others_time))
+        dt = t - float(self.ego_trail[w, 0])
+        rate_e = float(yaw_rates(e.yaw[0], self.ego_trail[w, 3], dt, e.speed[0], False))
+        before = self.others_states[w]
+        yaw_before = np.full(len(idx), np.nan)
+        if before is not None and len(before):
+            where = {k: n for n, k in enumerate(before.ids)}
+            for j, i in enumerate(idx):
+                n = where.get(o.ids[i])
+                if n is not None:
+                    yaw_before[j] = before.yaw[n]
+        return rate_e, yaw_rates(o.yaw[idx], yaw_before, dt, o.speed[idx], o.cls[idx] == RoadUserClass.PEDESTRIAN)
+
     def observe(self, snap: Any, step: int) -> None:
         """Measure the pairs of snapshot ``snap`` (``time``, ``ego``, ``others``) at ego step ``step``;
         open, extend or leave events; then add the snapshot to the trails."""
@@ -124,7 +153,11 @@ class ConflictBook:
             near_pet, idx = {}, np.empty(0, int)
         if len(idx):
             ob, eb = boxes_of(o, idx), boxes_of(e, 0)  # only the few that could meet a threshold
-            ttc = box_ttc(eb, (evx, evy), ob, (ovx[idx], ovy[idx]))
+            if cfg.turning:
+                rate_e, rate_o = self._yaw_rates(t, e, o, idx)
+                ttc = ttc_with_turns(eb, e.speed[0], rate_e, ob, o.speed[idx], rate_o, cfg.ttc)
+            else:
+                ttc = box_ttc(eb, (evx, evy), ob, (ovx[idx], ovy[idx]))
             pet = np.full(len(idx), np.inf)
             on_trail = near_trail[idx]
             if on_trail.any():  # PET into the ego's footprint: only those that can reach it

@@ -33,8 +33,8 @@ from scipy.spatial import cKDTree
 
 from sumo_ethics.config import ConflictConfig
 from sumo_ethics.geometry import OrientedBoxes
-from sumo_ethics.safety.conflicts import book_event, boxes_of, event_counts
-from sumo_ethics.safety.measures import box_distance, box_ttc, drac, pet_from_trail
+from sumo_ethics.safety.conflicts import oldest_slot, book_event, boxes_of, event_counts
+from sumo_ethics.safety.measures import box_distance, box_ttc, drac, pet_from_trail, ttc_with_turns, yaw_rates
 from sumo_ethics.types import AgentStates, RoadUserClass
 
 _LABELS = tuple(c.label for c in RoadUserClass)
@@ -132,7 +132,15 @@ class PairConflictBook:
         near = np.flatnonzero(dist - r[i] - r[j] < vrel * cfg.ttc)  # bounding circles can meet in time
         if len(near):
             a, b = i[near], j[near]
-            ttc[near] = box_ttc(boxes_of(s, a), (vx[a], vy[a]), boxes_of(s, b), (vx[b], vy[b]))
+            if cfg.turning:
+                rate = np.zeros(len(s))
+                if self.pushed:  # the mean since the oldest instant on the trail (a slot new since: NaN, rate 0)
+                    w = oldest_slot(self.pushed, self.n_trail)
+                    rate = yaw_rates(s.yaw, self.trail[2, w, slots], t - float(self.times[w]), s.speed, walker)
+                ttc[near] = ttc_with_turns(boxes_of(s, a), s.speed[a], rate[a], boxes_of(s, b), s.speed[b], rate[b],
+                                           cfg.ttc)
+            else:
+                ttc[near] = box_ttc(boxes_of(s, a), (vx[a], vy[a]), boxes_of(s, b), (vx[b], vy[b]))
         self.pairs["ttc"] += len(near)
         pet = np.full(len(i), np.inf)
         if self.pushed:

@@ -46,6 +46,8 @@ RUN_KEYS: dict[str, tuple[str, type]] = {
     "fleet": ("fleet.shares", str),
     # conflicts among the road users that are not egos (conflicts_others.parquet)
     "conflicts_everyone": ("conflicts.everyone", bool),
+    # TTC with the road users' turn rates (safety.measures.ttc_with_turns)
+    "conflicts_turning": ("conflicts.turning", bool),
 }
 #: decisions a sweep's runs keep unless --record-decisions says otherwise (not part of the
 #: sweep's definition then, so sweeps made before it resume as they were)
@@ -269,10 +271,11 @@ class RunSpec:
                 fleet["shares"] = FleetSpec.parse_shares(fleet["shares"])
             kw["fleet"] = FleetSpec(**fleet)
             kw["record_decisions"] = "off"  # explain and replay read single-ego runs
-        if "conflicts.everyone" in kw:
+        conflicts = {k.split(".", 1)[1]: kw.pop(k) for k in [k for k in kw if k.startswith("conflicts.")]}
+        if conflicts:
             from sumo_ethics.config import ConflictConfig
 
-            kw["conflicts"] = ConflictConfig(everyone=kw.pop("conflicts.everyone"))
+            kw["conflicts"] = ConflictConfig(**conflicts)
         kw.setdefault("record_decisions", SWEEP_RECORD_DECISIONS)
         return RunConfig(scenario=Path(self.scenario), out=out, seed=int(self.params["seed"]), planner=planner,
                          progress=False, **kw)
