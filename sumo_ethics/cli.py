@@ -291,7 +291,7 @@ def dataset(scenarios: tuple[Path, ...], out: Path, seeds: str, sim_seconds: flo
             suite_dirs: tuple[Path, ...], samples_from: Path | None) -> None:
     """Record trajectories of vehicles, cyclists and pedestrians (with their lanes and signals) from SUMO runs
     into a prediction dataset."""
-    from sumo_ethics.recording.commands import dataset_main
+    from sumo_ethics.recording.build import dataset_main
     from sumo_ethics.sweep import parse_seeds
 
     if samples_from is not None:

@@ -312,7 +312,7 @@ def test_a_failed_run_names_the_finished_runs_it_keeps(tmp_path, monkeypatch):
     go on (the kept run is not lost with the failure); with nothing finished, the failure alone."""
     import sumo_ethics.recording.build as D
     from sumo_ethics.errors import SimulationError
-    from sumo_ethics.recording.commands import dataset_main
+    from sumo_ethics.recording.build import dataset_main
     from sumo_ethics.recording.runstore import RunStore
 
     out = tmp_path / "ds"

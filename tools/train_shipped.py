@@ -141,7 +141,7 @@ def record_never_trained(game: tuple[str, ...], first: int, count: int, out: Pat
     from the installed SUMO stops it (scores of datasets with other scenarios do not compare)."""
     import sumo
 
-    from sumo_ethics.recording.commands import dataset_main
+    from sumo_ethics.recording.build import dataset_main
 
     configs = [Path(sumo.SUMO_HOME) / "tools" / "game" / f"{g}.sumocfg" for g in game]
     missing = [c.name for c in configs if not c.exists()]
@@ -173,7 +173,7 @@ def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     sys.path.insert(0, str(ROOT))
     from sumo_ethics.predict.commands import evaluate_main, train_main
-    from sumo_ethics.recording.commands import dataset_main
+    from sumo_ethics.recording.build import dataset_main
 
     work = Path(args.work)
     stages = args.stages.split(",")

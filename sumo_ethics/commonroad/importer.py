@@ -14,7 +14,7 @@ The folder (``--out``)::
                           and how each obstacle is driven; its presence marks the folder as imported
 
 Only commonroad-io and commonroad-sumo (the ``commonroad`` extra) are used here; the net is read
-with sumolib in ``sumo_ethics.sim.crnet`` and the run side is ``sumo_ethics.sim.commonroad``.
+with sumolib in ``sumo_ethics.sim.crnet`` and the run side is ``sumo_ethics.sim.commonroad_run``.
 Everything that goes wrong with the input is a ConfigError (one line, exit 2); the folder is built
 in a temporary sibling and moved into place at the end, so a failed import leaves nothing behind
 and deletes nothing.

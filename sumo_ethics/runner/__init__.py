@@ -47,7 +47,7 @@ def make_controller(cfg: RunConfig) -> Controller:
 def _imported(cfg: RunConfig, hooks: tuple[StepHook, ...]) -> tuple[RunConfig, tuple[StepHook, ...]]:
     """A folder written by ``import-commonroad`` (``commonroad.json`` beside the sumocfg): its own ego
     (the planning problem's) and the hook that places it, replays the obstacles and checks the goal."""
-    from sumo_ethics.sim.commonroad import CommonRoadHook, marker_of
+    from sumo_ethics.sim.commonroad_run import CommonRoadHook, marker_of
 
     marker = marker_of(cfg.scenario)
     if marker is None:
@@ -79,7 +79,7 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
                               "several --ego, --fleet)")
         if hooks:
             raise ConfigError("a fleet run (--egos, --penetration, several --ego) takes no hooks (hazards)")
-        from sumo_ethics.sim.commonroad import marker_of
+        from sumo_ethics.sim.commonroad_run import marker_of
 
         if marker_of(cfg.scenario) is not None:
             raise ConfigError(f"{cfg.scenario.name} is an imported CommonRoad scenario: its one ego is the planning "

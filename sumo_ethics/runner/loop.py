@@ -49,7 +49,7 @@ from sumo_ethics.types import VULNERABLE, RunStatus
 #: step; a path returned replaces the ego's reference path),
 #: ``at_route_end(t) -> (status, message)`` (how a run ends when the ego passes its route's end,
 #: instead of completed) and ``summary() -> dict`` (merged into summary.json); it ends the run by
-#: raising :class:`StopRun`. sumo_ethics.sim.commonroad uses all of them.
+#: raising :class:`StopRun`. sumo_ethics.sim.commonroad_run uses all of them.
 StepHook = Callable[[Snapshot, SumoWorld], None]
 
 
