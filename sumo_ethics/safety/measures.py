@@ -103,6 +103,16 @@ def _arc(b: OrientedBoxes, speed: np.ndarray, rate: np.ndarray, t: np.ndarray) -
     return OrientedBoxes(f(b.x) + dx, f(b.y) + dy, yaw, b.length, b.width)
 
 
+def _take(v, shape: tuple[int, ...], k: np.ndarray) -> np.ndarray:
+    """Elements ``k`` (flat indices) of ``v`` broadcast to ``shape``."""
+    return np.broadcast_to(_floats(v), shape).ravel()[k]
+
+
+def _take_boxes(b: OrientedBoxes, shape: tuple[int, ...], k: np.ndarray) -> OrientedBoxes:
+    """Boxes ``k`` (flat indices) of ``b`` broadcast to ``shape``."""
+    return OrientedBoxes(*(_take(v, shape, k) for v in (b.x, b.y, b.yaw, b.length, b.width)))
+
+
 def turning_ttc(a: OrientedBoxes, speed_a, rate_a, b: OrientedBoxes, speed_b, rate_b, horizon: float) -> np.ndarray:
     """Time to collision [s] of boxes a and b each keeping its speed [m/s] and yaw rate [rad/s]
     (constant turn rate and velocity): 0 where they overlap now, the first time within
@@ -123,13 +133,8 @@ def turning_ttc(a: OrientedBoxes, speed_a, rate_a, b: OrientedBoxes, speed_b, ra
     if len(refine):  # bisection between the last grid time apart and the first together
         hi = times[first.ravel()[refine]]
         lo = hi - TURN_GRID
-
-        def sel(v):
-            return np.broadcast_to(f(v), shape).ravel()[refine]
-
-        pa = OrientedBoxes(sel(a.x), sel(a.y), sel(a.yaw), sel(a.length), sel(a.width))
-        pb = OrientedBoxes(sel(b.x), sel(b.y), sel(b.yaw), sel(b.length), sel(b.width))
-        va, wa, vb, wb = sel(speed_a), sel(rate_a), sel(speed_b), sel(rate_b)
+        pa, pb = _take_boxes(a, shape, refine), _take_boxes(b, shape, refine)
+        va, wa, vb, wb = (_take(v, shape, refine) for v in (speed_a, rate_a, speed_b, rate_b))
         while (hi - lo).max() > TURN_TOL:
             mid = 0.5 * (lo + hi)
             now = boxes_overlap(_arc(pa, va, wa, mid), _arc(pb, vb, wb, mid))
@@ -149,14 +154,9 @@ def ttc_with_turns(a: OrientedBoxes, speed_a, rate_a, b: OrientedBoxes, speed_b,
     turning = np.broadcast_to((np.abs(f(rate_a)) > TURNING) | (np.abs(f(rate_b)) > TURNING), out.shape)
     k = np.flatnonzero(turning.ravel() & (out.ravel() > 0))
     if len(k):
-        shape = out.shape
-
-        def sel(v):
-            return np.broadcast_to(f(v), shape).ravel()[k]
-
-        pa = OrientedBoxes(sel(a.x), sel(a.y), sel(a.yaw), sel(a.length), sel(a.width))
-        pb = OrientedBoxes(sel(b.x), sel(b.y), sel(b.yaw), sel(b.length), sel(b.width))
-        out.ravel()[k] = turning_ttc(pa, sel(speed_a), sel(rate_a), pb, sel(speed_b), sel(rate_b), horizon)
+        s = out.shape
+        out.ravel()[k] = turning_ttc(_take_boxes(a, s, k), _take(speed_a, s, k), _take(rate_a, s, k),
+                                     _take_boxes(b, s, k), _take(speed_b, s, k), _take(rate_b, s, k), horizon)
     return out
 
 
