@@ -70,6 +70,7 @@ __all__ = [
     "collision_probability",
     "sparse_collision_probability",
     "gaussian_box_mass",
+    "risk_steps",
 ]
 
 #: collision probability methods (ProbabilityConfig.method)
@@ -95,13 +96,16 @@ class ProbabilityConfig:
 
     method: "shapes" (true footprints, the default) or "origin" (Origin's three-point score);
     shape_margin: with "shapes", added to the agent's length and width [m] (0: true sizes);
-    gate_z: with "shapes", the gate and quick-exit width in standard deviations (P error < 4 Phi(-z)).
+    gate_z: with "shapes", the gate and quick-exit width in standard deviations (P error < 4 Phi(-z));
+    step: with "shapes", P is evaluated at the horizon's first step and then at every multiple of
+    ``step`` seconds (0.2: the LSTM predictors' own 5 Hz; see :func:`risk_steps`); 0: every step.
     The other fields but ``zero_cov_var``, ``min_var`` and ``p_min`` are Origin's method's.
     """
 
     method: str = "shapes"
     shape_margin: float = 0.0  # [m] "shapes": added to the agent's length and width
     gate_z: float = 6.0  # [std] "shapes": gate and quick exits (error < 4 Phi(-6) = 4e-9)
+    step: float = 0.2  # [s] "shapes": P at the first step and every step seconds (0: every step)
     length_margin: float = 1.0  # [m] added to the agent's length: Gaussians at +/- (length + margin) / 2
     width_margin: float = 0.5  # [m] added to the agent's width; used only with inflate_by_other_width
     gate_radius: float = 5.0  # [m] P = 0 when all three Gaussian centres are further from the ego centre
@@ -454,6 +458,27 @@ def _agent_cov(pred: Prediction, tp: int, cfg: ProbabilityConfig) -> tuple[np.nd
     return sxx, sxy, syy
 
 
+def risk_steps(dt: float, steps: int, step: float) -> np.ndarray:
+    """(S,) indices i of the horizon steps (at times (i + 1) dt [s]) the "shapes" P is evaluated
+    at: the first, then every one whose time is a multiple of ``step`` [s]. Every step when
+    ``step`` is 0, no longer than dt, or not a whole number of steps (e.g. dt = 0.3 s).
+
+    Why 0.2 s: the LSTM predictors predict at 5 Hz and the planner's finer steps interpolate their
+    means and covariances linearly, so a finer grid adds no information on the road users; the
+    risk is the maximum over the evaluated steps. A collision cannot fall between two of them
+    unless the two boxes close by more than their combined length along the closing direction
+    in 0.2 s (two cars: 9 m, i.e. 45 m/s closing; a car and a pedestrian crossing its path:
+    5 m, 25 m/s), and the envelope test (:func:`sumo_ethics.plan.ethical.first_overlap`) still
+    sees every step.
+    """
+    every = np.arange(steps)
+    ratio = step / dt if dt > 0.0 else 0.0
+    stride = round(ratio)
+    if step <= 0.0 or stride <= 1 or abs(ratio - stride) > 1e-6 * ratio:
+        return every
+    return every[(every == 0) | ((every + 1) % stride == 0)]
+
+
 def _shapes(cand: Candidates, pred: Prediction, ol: np.ndarray, ow: np.ndarray, ego_length: float,
             ego_width: float, cfg: ProbabilityConfig, tp: int) -> SparseProbability:
     """The "shapes" method: :func:`sumo_ethics.ethics.shapes.shapes_sparse` on floored covariances
@@ -466,12 +491,13 @@ def _shapes(cand: Candidates, pred: Prediction, ol: np.ndarray, ow: np.ndarray, 
     sxx, syy = np.maximum(sxx, cfg.min_var), np.maximum(syy, cfg.min_var)
     lim = 0.999 * np.sqrt(sxx * syy)
     sxy = np.clip(sxy, -lim, lim)
+    at = risk_steps(cand.dt, tp, cfg.step)  # (S,) the steps P is evaluated at
     k, n, t, p = shapes_sparse(
-        cand.x[:, :tp], cand.y[:, :tp], cand.yaw[:, :tp], cand.valid[:, :tp], pred.mean[:, :tp, 0],
-        pred.mean[:, :tp, 1], pred.yaw[:, :tp], sxx, sxy, syy, ol + cfg.shape_margin, ow + cfg.shape_margin,
-        ego_length, ego_width, cfg.gate_z, cfg.p_min,
+        cand.x[:, at], cand.y[:, at], cand.yaw[:, at], cand.valid[:, at], pred.mean[:, at, 0],
+        pred.mean[:, at, 1], pred.yaw[:, at], sxx[:, at], sxy[:, at], syy[:, at], ol + cfg.shape_margin,
+        ow + cfg.shape_margin, ego_length, ego_width, cfg.gate_z, cfg.p_min,
     )
-    return SparseProbability(k.astype(np.intp), n.astype(np.intp), t.astype(np.intp), p, (K, N, T))
+    return SparseProbability(k.astype(np.intp), n.astype(np.intp), at.take(t).astype(np.intp), p, (K, N, T))
 
 
 @dataclass(frozen=True)
