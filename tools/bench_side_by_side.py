@@ -1,10 +1,11 @@
 """tools/bench_planner.py on this tree and on another checkout, interleaved, on one core.
 
     git worktree add /tmp/base 0996b73
-    python tools/bench_side_by_side.py --base /tmp/base [--agents 20,60] [--rounds 5] [--repeats 100]
+    python tools/bench_side_by_side.py --base /tmp/base [--base /tmp/other ...] [--agents 20,60] [--rounds 5] [--repeats 100]
 
-Each round runs the planner benchmark once per tree and agent count, alternating the trees,
-each in a fresh process (``PYTHONPATH`` set to the tree, ``taskset -c 0`` where it exists, one
+Each round runs the planner benchmark once per tree and agent count, rotating the trees' order,
+each in a fresh process running the tree's own ``tools/bench_planner.py`` (the same scene; only
+its imports follow the tree's layout) with ``PYTHONPATH`` set to the tree, ``taskset -c 0`` where it exists, one
 BLAS and torch thread); the table gives the median over rounds of each run's median step and
 of its stages. The machines are shared: compare the two columns of one table, not tables of
 different days.
@@ -27,7 +28,8 @@ HERE = Path(__file__).resolve().parents[1]
 def one(tree: Path, agents: int, repeats: int, predictor: str) -> dict[str, float]:
     env = dict(os.environ, PYTHONPATH=str(tree), OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
                MKL_NUM_THREADS="1")
-    cmd = [sys.executable, str(HERE / "tools" / "bench_planner.py"), "--predictor", predictor, "--agents",
+    # each tree's own copy of the benchmark: the scene is the same, the imports follow the tree's layout
+    cmd = [sys.executable, str(tree / "tools" / "bench_planner.py"), "--predictor", predictor, "--agents",
            str(agents), "--repeats", str(repeats)]
     if shutil.which("taskset"):
         cmd = ["taskset", "-c", "0", *cmd]
@@ -39,27 +41,29 @@ def one(tree: Path, agents: int, repeats: int, predictor: str) -> dict[str, floa
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--base", type=Path, required=True, help="the other checkout (e.g. a worktree of 0996b73)")
+    ap.add_argument("--base", type=Path, action="append", required=True,
+                    help="another checkout (e.g. a worktree of 0996b73); repeat for several")
     ap.add_argument("--agents", default="20,60")
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--repeats", type=int, default=100)
     ap.add_argument("--predictor", default="map")
     a = ap.parse_args()
-    trees = {"base": a.base.resolve(), "this": HERE}
+    trees = {base.name: base.resolve() for base in a.base} | {"this": HERE}
+    names = list(trees)
     counts = [int(c) for c in a.agents.split(",")]
     runs: dict[tuple[str, int], list[dict[str, float]]] = {}
     for r in range(a.rounds):
         for n in counts:
-            for name in (("base", "this") if r % 2 == 0 else ("this", "base")):
+            for name in names[r % len(names):] + names[:r % len(names)]:  # each tree first in turn
                 runs.setdefault((name, n), []).append(one(trees[name], n, a.repeats, a.predictor))
     print(f"planning step, {a.predictor} predictor, 1 core: median over {a.rounds} interleaved rounds of each "
           f"run's median over {a.repeats} steps [ms]")
-    print("| agents | stage | base | this |")
-    print("| --- | --- | --- | --- |")
+    print("| agents | stage | " + " | ".join(names) + " |")
+    print("| --- | --- | " + " | ".join("---" for _ in names) + " |")
     for n in counts:
         for key in runs[("this", n)][0]:
-            vals = [statistics.median(x[key] for x in runs[(name, n)]) for name in ("base", "this")]
-            print(f"| {n} | {key} | {vals[0]:.2f} | {vals[1]:.2f} |")
+            vals = [statistics.median(x.get(key, float("nan")) for x in runs[(name, n)]) for name in names]
+            print(f"| {n} | {key} | " + " | ".join(f"{v:.2f}" for v in vals) + " |")
 
 
 if __name__ == "__main__":
