@@ -3,7 +3,8 @@
 
 One file per recorded planning step, ``RUN/decisions/step_NNNNNN.npz`` (a zip of ``.npy`` arrays,
 written under a temporary name and renamed, with fixed zip timestamps so the same seed gives the
-same bytes). ``step`` is the steps.parquet row the decision led to (the row of the state one
+same bytes); a fleet run keeps each ego's in its own folder,
+``RUN/decisions/<ego folder>/step_NNNNNN.npz`` (:func:`ego_folder`). ``step`` is the steps.parquet row the decision led to (the row of the state one
 step later) and the ``step`` of a collision it ended in; ``time`` is the planning time.
 
 What a step holds (float32 unless said; positions relative to the ego's centre at planning
@@ -53,6 +54,7 @@ it reads what the planner computed.
 from __future__ import annotations
 
 import io
+import urllib.parse
 import zipfile
 from collections import deque
 from dataclasses import dataclass
@@ -86,8 +88,18 @@ THIN_SECONDS = 10.0
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 
 
-def step_path(out: Path, step: int) -> Path:
-    return Path(out) / FOLDER / f"step_{step:06d}.npz"
+def ego_folder(ego: str) -> str:
+    """The folder name of fleet ego ``ego``'s decisions: its SUMO id percent-encoded (every
+    character but letters, digits and ``_.-~``; so ``/``, ``:``, ``#``, spaces and ``%`` itself),
+    one name per id and back (:func:`urllib.parse.unquote`); the names ``.`` and ``..`` as ``%2E``."""
+    name = urllib.parse.quote(ego, safe="")
+    return name.replace(".", "%2E") if name in (".", "..") else name
+
+
+def step_path(out: Path, step: int, ego: str | None = None) -> Path:
+    """The decision file of ``step`` in run folder ``out``: of fleet ego ``ego``, or of the one ego."""
+    folder = Path(out) / FOLDER
+    return (folder if ego is None else folder / ego_folder(ego)) / f"step_{step:06d}.npz"
 
 
 def encode(trace: DecisionTrace, step: int, time: float, dt: float) -> dict[str, np.ndarray]:
@@ -150,13 +162,14 @@ def write(path: Path, arrays: dict[str, np.ndarray]) -> int:
 
 @dataclass
 class DecisionLog:
-    """Keeps the decisions of one run by ``mode``; :meth:`add` once per planning step (after the
-    step's collisions were detected: ``collided`` says whether the step ended in a new ego
-    collision)."""
+    """Keeps the decisions of one run by ``mode`` (of its fleet ego ``ego``: one log per ego);
+    :meth:`add` once per planning step (after the step's collisions were detected: ``collided``
+    says whether the step ended in a new ego collision)."""
 
     out: Path
     mode: str
     dt: float
+    ego: str | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -193,6 +206,12 @@ class DecisionLog:
         if collided:
             self._flush_ring(step)
 
+    def collided(self, step: int) -> None:
+        """Step ``step``, already added, ended in an ego collision found after :meth:`add` (a fleet
+        ego hit by another ego whose check ran first, or reported by SUMO): keep what
+        ``add(..., collided=True)`` would have kept."""
+        self._flush_ring(step)
+
     def _flush_ring(self, now: int) -> None:
         """Write the kept decisions of the ``keep`` steps up to step ``now``."""
         while self.ring:
@@ -204,17 +223,26 @@ class DecisionLog:
             self._write(step, item)
 
     def _write(self, step: int, arrays: dict[str, np.ndarray]) -> None:
-        self.bytes += write(step_path(self.out, step), arrays)
+        self.bytes += write(step_path(self.out, step, self.ego), arrays)
         self.written.append(step)
 
 
 # ---- reading ------------------------------------------------------------------------------------
-def recorded_steps(run: Path) -> list[int]:
-    """The steps of ``run`` with a recorded decision, in order."""
-    folder = Path(run) / FOLDER
+def recorded_steps(run: Path, ego: str | None = None) -> list[int]:
+    """The steps of ``run`` with a recorded decision (of fleet ego ``ego``), in order."""
+    folder = step_path(run, 0, ego).parent
     if not folder.is_dir():
         return []
     return sorted(int(p.stem.removeprefix("step_")) for p in folder.glob("step_[0-9]*.npz"))
+
+
+def recorded_egos(run: Path) -> list[str]:
+    """The fleet egos of ``run`` with recorded decisions (a folder holding a step file), sorted by id."""
+    folder = Path(run) / FOLDER
+    if not folder.is_dir():
+        return []
+    return sorted(urllib.parse.unquote(p.name) for p in folder.iterdir()
+                  if p.is_dir() and next(p.glob("step_[0-9]*.npz"), None) is not None)
 
 
 @dataclass(frozen=True)
@@ -270,18 +298,18 @@ def whole_seconds(t: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.isclose(frac, 0.0, atol=1e-3) | np.isclose(frac, 1.0, atol=1e-3))
 
 
-def load(run: Path, step: int) -> RecordedDecision:
-    """The decision recorded for ``step`` of ``run`` (FileNotFoundError if none)."""
-    with np.load(step_path(run, step), allow_pickle=False) as z:
+def load(run: Path, step: int, ego: str | None = None) -> RecordedDecision:
+    """The decision recorded for ``step`` of ``run`` (of fleet ego ``ego``; FileNotFoundError if none)."""
+    with np.load(step_path(run, step, ego), allow_pickle=False) as z:
         d = {k: z[k] for k in z.files}
-    meta, ego = d["meta"], d["ego"]
-    origin = ego[:2].astype(np.float64)
+    meta, state = d["meta"], d["ego"]
+    origin = state[:2].astype(np.float64)
     agents = d["agents"].astype(np.float64)
     agents[:, :2] += origin
     c = d["pred_cov"].astype(np.float64)
     cov = np.stack([np.stack([c[..., 0], c[..., 1]], -1), np.stack([c[..., 1], c[..., 2]], -1)], -2)
     return RecordedDecision(
-        step=int(meta[0]), time=float(meta[1]), dt=float(meta[3]), chosen=int(meta[2]), ego=ego,
+        step=int(meta[0]), time=float(meta[1]), dt=float(meta[3]), chosen=int(meta[2]), ego=state,
         agent_ids=tuple(str(x) for x in d["agent_ids"]), agents=agents,
         pred_mean=d["pred_mean"].astype(np.float64) + origin, pred_cov=cov,
         pred_t=d["pred_t"].astype(np.float64) if "pred_t" in d else (np.arange(d["pred_mean"].shape[1]) + 1) * meta[3],

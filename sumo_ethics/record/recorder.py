@@ -49,12 +49,20 @@ class RunRecorder:
         self.first_step: dict[str, Any] | None = None
         self.last_step: dict[str, Any] | None = None
         self.decisions: DecisionLog | None = None
+        self.dt, self.mode = 0.1, "off"  # s, and the decisions' mode: set by start
 
-    def start(self, dt: float, decisions: str = "off") -> None:
+    def start(self, dt: float, decisions: str = "off", per_ego: bool = False) -> None:
         """Called once the step length ``dt`` [s] is known: chunks of CHUNK_SECONDS, and the
-        decisions kept by mode ``decisions`` (:mod:`sumo_ethics.record.decisions`)."""
+        decisions kept by mode ``decisions`` (:mod:`sumo_ethics.record.decisions`): the run's one
+        log, or with ``per_ego`` none but one per fleet ego (:meth:`ego_log`)."""
         self.chunk = chunk_steps(dt)
-        self.decisions = DecisionLog(self.out, decisions, dt)
+        self.dt, self.mode = dt, decisions
+        self.decisions = None if per_ego else DecisionLog(self.out, decisions, dt)
+
+    def ego_log(self, ego: str) -> DecisionLog:
+        """A new log of fleet ego ``ego``'s decisions (``RUN/decisions/<ego folder>/``) by the run's
+        mode; its holder passes it to :meth:`step` and drops it when the ego ends."""
+        return DecisionLog(self.out, self.mode, self.dt, ego)
 
     def table(self, name: str, base: pa.Schema) -> ChunkedTable:
         """A further per-step table ``name`` (file ``name.parquet``), flushed with the others."""
@@ -64,12 +72,14 @@ class RunRecorder:
 
     # -- the callback --
     def step(self, row: dict[str, Any], timing: dict[str, Any], trace: DecisionTrace | None = None,
-             plan_time: float | None = None, collided: bool = False) -> None:
+             plan_time: float | None = None, collided: bool = False, log: DecisionLog | None = None) -> None:
         """This step's rows; the decision that led to it (``trace``, made at ``plan_time`` [s]) and
-        whether the step ended in a new ego collision, for the recorded decisions."""
-        if self.decisions is not None:
+        whether the step ended in a new ego collision, for the recorded decisions (in ``log``, a
+        fleet ego's, else the run's)."""
+        log = self.decisions if log is None else log
+        if log is not None:
             w = time.perf_counter()
-            self.decisions.add(int(row["step"]), row["time"] if plan_time is None else plan_time, trace, collided)
+            log.add(int(row["step"]), row["time"] if plan_time is None else plan_time, trace, collided)
             timing["decisions_ms"] = 1e3 * (time.perf_counter() - w)
         self.tables["steps"].append(row)
         self.tables["timings"].append(timing)
