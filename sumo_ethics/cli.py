@@ -252,25 +252,28 @@ def _print_fleet(summary: Any) -> None:
 @click.option("--time", "at_time", type=float, help="The planning time [s] (the nearest recorded decision).")
 @click.option("--collision", type=int, help="A collision event of collisions.parquet: its last decision before impact.")
 @click.option("--conflict", type=int, help="A conflict event of conflicts.parquet: the decision nearest its worst moment.")
+@click.option("--ego", "ego", metavar="ID", help="Whose decision, in a fleet run (required there): an ego's SUMO id; "
+              "--collision and --conflict then need it to be a party.")
 @click.option("--out", type=click.Path(path_type=Path), help="Figure path without suffix; .png and .svg are written "
-              "(default RUN_DIR/explain/step_NNNNNN).")
+              "(default RUN_DIR/explain/step_NNNNNN; a fleet ego's in RUN_DIR/explain/<ego>/).")
 def explain(run_dir: Path, step: int | None, at_time: float | None, collision: int | None, conflict: int | None,
-            out: Path | None) -> None:
+            ego: str | None, out: Path | None) -> None:
     """Draw one recorded planning step of RUN_DIR: the scene, predictions, candidates and the cost terms of the choice.
 
     Every run keeps the last decision before each ego collision (--collision K); other steps need a run made with
     --record-decisions risky, all or collisions. --time picks the nearest recorded step within 0.5 s.
     """
-    from sumo_ethics.analysis.recorded import conflict_mark, hit_of, resolve_step
+    from sumo_ethics.analysis.recorded import conflict_mark, decisions_of, hit_of, resolve_step
     from sumo_ethics.analysis.explain import explain as draw
 
-    k = resolve_step(run_dir, step=step, time=at_time, collision=collision, conflict=conflict)
-    mark = hit_of(run_dir, collision) if collision is not None else conflict_mark(run_dir, conflict) \
+    who = decisions_of(run_dir, ego)
+    k = resolve_step(run_dir, step=step, time=at_time, collision=collision, conflict=conflict, ego=who)
+    mark = hit_of(run_dir, collision, who) if collision is not None else conflict_mark(run_dir, conflict, who) \
         if conflict is not None else None
-    res = draw(run_dir, k, out, hit=mark)
+    res = draw(run_dir, k, out, hit=mark, ego=who)
     d = res.decision
-    click.echo(f"step {d.step} (t={d.time:g} s): chose candidate {d.chosen} of {d.n_candidates}; "
-               f"figure {res.paths[0]} (+ .svg)")
+    click.echo(f"{'' if who is None else f'ego {who!r}, '}step {d.step} (t={d.time:g} s): chose candidate {d.chosen} "
+               f"of {d.n_candidates}; figure {res.paths[0]} (+ .svg)")
 
 
 @cli.command()
@@ -502,8 +505,9 @@ def evaluate_predictor(dataset_dir: Path, out: Path, models: tuple[str, ...], sp
               help="Draw every N-th recorded step (and always the step of each ego collision).")
 @click.option("--fps", type=float,
               help="Frames per second, at most 50 (default: real time, capped at 10 for a GIF and 30 for an MP4).")
+@click.option("--ego", "ego", metavar="ID", help="Whose decisions, in a fleet run (required there): an ego's SUMO id.")
 @click.option("--quiet", is_flag=True, help="No progress display.")
-def replay(run_dir: Path, out: Path, every: int, fps: float | None, quiet: bool) -> None:
+def replay(run_dir: Path, out: Path, every: int, fps: float | None, ego: str | None, quiet: bool) -> None:
     """Animate RUN_DIR's recorded decisions: an ego-centred view per planning step with the road users,
     their predictions, the candidates and the chosen trajectory.
 
@@ -512,7 +516,7 @@ def replay(run_dir: Path, out: Path, every: int, fps: float | None, quiet: bool)
     from sumo_ethics.analysis.replay import check_out, replay as animate
 
     check_out(out)
-    res = animate(run_dir, out, every=every, fps=fps, progress=not quiet)
+    res = animate(run_dir, out, every=every, fps=fps, progress=not quiet, ego=ego)
     for note in res.notes:
         click.echo(f"note: {note}", err=True)
     size = res.path.stat().st_size

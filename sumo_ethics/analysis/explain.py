@@ -19,7 +19,7 @@ import numpy as np
 
 from sumo_ethics.analysis.drawing import (CLASS_COLOURS, EGO_COLOUR, VALIDITY_COLOURS, VALIDITY_LABELS, draw_agents,
                                           draw_candidates, draw_road, fmt, window)
-from sumo_ethics.analysis.recorded import load_checked, road_of, weights_of
+from sumo_ethics.analysis.recorded import collision_mark, decisions_of, load_checked, road_of, weights_of
 from sumo_ethics.record import decisions as rec
 from sumo_ethics.record.decisions import RecordedDecision
 from sumo_ethics.types import EXCLUSIONS, RoadUserClass
@@ -201,24 +201,29 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
     return fig, n_drawn, alt
 
 
-def describe(run: Path, d: RecordedDecision) -> str:
-    """Title line: run, step, time, speed, the choice."""
+def describe(run: Path, d: RecordedDecision, ego: str | None = None) -> str:
+    """Title line: run (and fleet ego), step, time, speed, the choice."""
     speed = d.ego[3]
-    return (f"{Path(run).name}: step {d.step}, planning time t = {d.time:.2f} s, ego at {speed:.1f} m/s; "
+    who = "ego" if ego is None else f"ego '{ego}'"
+    return (f"{Path(run).name}: step {d.step}, planning time t = {d.time:.2f} s, {who} at {speed:.1f} m/s; "
             f"chose candidate {d.chosen} of {d.n_candidates} ({VALIDITY_LABELS[int(d.validity[d.chosen])]}), "
             f"J_risk {fmt(float(d.j_risk[d.chosen]))}")
 
 
 def explain(run: Path, step: int, out: Path | None = None, title: str | None = None,
-            hit: tuple[float, float, str] | None = None) -> Explained:
+            hit: tuple[float, float, str] | None = None, ego: str | None = None) -> Explained:
     """Draw the decision recorded for ``step`` of ``run`` to ``out`` (.png and .svg; default
-    RUN/explain/step_NNNNNN)."""
+    RUN/explain/step_NNNNNN); in a fleet run with per-ego decisions that of ``ego`` (required:
+    :func:`sumo_ethics.analysis.recorded.decisions_of`), with its planner's weights, by default
+    to RUN/explain/<ego folder>/step_NNNNNN."""
     import matplotlib.pyplot as plt
 
     run = Path(run)
-    d = load_checked(run, step)
-    fig, n, alt = decision_figure(d, road_of(run), title or describe(run, d), weights_of(run), hit)
-    base = Path(out) if out is not None else run / "explain" / f"step_{step:06d}"
+    ego = decisions_of(run, ego)
+    d = load_checked(run, step, ego)
+    fig, n, alt = decision_figure(d, road_of(run), title or describe(run, d, ego), weights_of(run, ego), hit)
+    folder = run / "explain" if ego is None else run / "explain" / rec.ego_folder(ego)
+    base = Path(out) if out is not None else folder / f"step_{step:06d}"
     base = base.with_suffix("") if base.suffix in (".png", ".svg") else base
     base.parent.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -230,20 +235,43 @@ def explain(run: Path, step: int, out: Path | None = None, title: str | None = N
     return Explained(tuple(paths), d, n, alt)
 
 
-def collision_snapshots(run: Path, rows: list[dict[str, Any]]) -> list[Path]:
+def collision_snapshots(run: Path, rows: list[dict[str, Any]], egos: frozenset[str] | None = None) -> list[Path]:
     """A figure of the last planning step before each booked ego collision in ``rows``, written
-    to RUN/snapshots/collision_<event>.png/.svg (the decisions must be recorded)."""
+    to RUN/snapshots/collision_<event>.png/.svg (the decisions must be recorded); in a fleet run
+    (``egos``: its egos) one per ego party whose decision is recorded,
+    RUN/snapshots/collision_<event>_<ego folder>.png/.svg."""
     from sumo_ethics.collision import is_booked
 
     out: list[Path] = []
-    have = set(rec.recorded_steps(run))
+    snaps = Path(run) / rec.SNAPSHOTS
+    if egos is None:
+        have = set(rec.recorded_steps(run))
+        for r in rows:
+            if not is_booked(r) or int(r["step"]) not in have:
+                continue
+            title = (f"Collision {r['event']}: ego and {r['class_b']} '{r['id_b']}' at t = {r['time']:.2f} s, "
+                     f"harm ego {r['harm_ego']:.3f}, third party {r['harm_third_party']:.3f}. "
+                     f"The last decision before impact:")
+            res = explain(run, int(r["step"]), snaps / f"collision_{r['event']}", title=title, hit=collision_mark(r))
+            out.extend(res.paths)
+        return out
+    kept: dict[str, set[int]] = {}
     for r in rows:
-        if not is_booked(r) or int(r["step"]) not in have:
+        if not is_booked(r):
             continue
-        title = (f"Collision {r['event']}: ego and {r['class_b']} '{r['id_b']}' at t = {r['time']:.2f} s, "
-                 f"harm ego {r['harm_ego']:.3f}, third party {r['harm_third_party']:.3f}. "
-                 f"The last decision before impact:")
-        res = explain(run, int(r["step"]), Path(run) / rec.SNAPSHOTS / f"collision_{r['event']}", title=title,
-                      hit=(float(r["x_b"]), float(r["y_b"]), f"hit: {r['class_b']} '{r['id_b']}'"))
-        out.extend(res.paths)
+        for p, q in (("a", "b"), ("b", "a")):
+            ego = r[f"id_{p}"]
+            if ego not in egos:
+                continue
+            if ego not in kept:
+                kept[ego] = set(rec.recorded_steps(run, ego))
+            if int(r["step"]) not in kept[ego]:
+                continue
+            title = (f"Collision {r['event']}: ego '{ego}' and {r[f'class_{q}']} '{r[f'id_{q}']}' at t = "
+                     f"{r['time']:.2f} s, harm to '{ego}' {r[f'harm_{p}']:.3f}, to '{r[f'id_{q}']}' "
+                     f"{r[f'harm_{q}']:.3f}. The last decision of '{ego}' before impact:")
+            # ".png" ends the name: explain drops it, and only it (an id may end in ".svg")
+            res = explain(run, int(r["step"]), snaps / f"collision_{r['event']}_{rec.ego_folder(ego)}.png",
+                          title=title, hit=collision_mark(r, ego), ego=ego)
+            out.extend(res.paths)
     return out

@@ -6,7 +6,8 @@ as its true box coloured by class with its predicted mean path and 1-sigma ellip
 second, all candidates faint by validity class, the chosen trajectory in black, the ego's trail,
 and a title with the time, the ego's speed and the choice (validity class, J_risk). The frames
 are every ``every``-th recorded step plus the recorded step of every ego collision, which is
-marked in red (who was hit, the harm booked).
+marked in red (who was hit, the harm booked). In a fleet run it is one ego's (``ego``): its
+decisions, its collisions, its name in the titles.
 
 Frames are rendered one at a time and handed to a writer: ``.mp4`` through ffmpeg (when it is
 missing a ``.gif`` is written next to the requested name, with a message saying so), ``.gif``
@@ -164,7 +165,7 @@ def _scene(ax: Any, d: rec.RecordedDecision, class_colours: dict[str, str], ego_
                                      facecolors=ego_colour, edgecolors="white", linewidths=1.0, zorder=6))
 
 
-def _scan(run: Path, steps: list[int]) -> tuple[np.ndarray, np.ndarray, set[int], set[int], float]:
+def _scan(run: Path, steps: list[int], ego: str | None = None) -> tuple[np.ndarray, np.ndarray, set[int], set[int], float]:
     """One cheap pass over the recorded steps (only the small arrays): the ego's centres (S, 2)
     [m], the planning times (S,) [s], the road-user classes and validity classes seen, the step
     length [s]."""
@@ -175,7 +176,7 @@ def _scan(run: Path, steps: list[int]) -> tuple[np.ndarray, np.ndarray, set[int]
     from sumo_ethics.analysis.recorded import readable
 
     for i, s in enumerate(steps):
-        with readable(run, s), np.load(rec.step_path(run, s), allow_pickle=False) as z:
+        with readable(run, s, ego), np.load(rec.step_path(run, s, ego), allow_pickle=False) as z:
             xy[i] = z["ego"][:2]
             classes.update(int(c) for c in np.unique(z["agents"][:, 6]))
             validity.update(int(v) for v in np.unique(z["validity"]))
@@ -183,17 +184,22 @@ def _scan(run: Path, steps: list[int]) -> tuple[np.ndarray, np.ndarray, set[int]
     return xy, times, classes, validity, dt
 
 
-def _total_steps(run: Path) -> int:
+def _total_steps(run: Path, ego: str | None = None) -> int:
+    """The steps.parquet rows of the run (of fleet ego ``ego``)."""
     from sumo_ethics.record.reader import read_table
 
     try:
-        return read_table(run, "steps").num_rows
+        t = read_table(run, "steps")
     except ConfigError:
         return 0
+    if ego is None or "ego_id" not in t.column_names:
+        return t.num_rows
+    return sum(k == ego for k in t.column("ego_id").to_pylist())
 
 
-def _collisions(run: Path) -> dict[int, str]:
-    """The run's booked ego collisions: step -> a line naming the other party and the harm booked."""
+def _collisions(run: Path, ego: str | None = None) -> dict[int, str]:
+    """The run's booked ego collisions (those of fleet ego ``ego``): step -> a line naming the
+    other party and the harm booked."""
     from sumo_ethics.collision import is_booked
     from sumo_ethics.record.reader import read_table
 
@@ -203,10 +209,18 @@ def _collisions(run: Path) -> dict[int, str]:
         return {}
     marks: dict[int, list[str]] = {}
     for r in rows:
-        if is_booked(r):
-            marks.setdefault(int(r["step"]), []).append(
-                f"COLLISION at t = {r['time']:.1f} s: ego and {r['class_b']} '{r['id_b']}'\n"
-                f"harm P(MAIS 3+): ego {r['harm_ego']:.3f}, third party {r['harm_third_party']:.3f}")
+        if not is_booked(r):
+            continue
+        if ego is None:
+            line = (f"COLLISION at t = {r['time']:.1f} s: ego and {r['class_b']} '{r['id_b']}'\n"
+                    f"harm P(MAIS 3+): ego {r['harm_ego']:.3f}, third party {r['harm_third_party']:.3f}")
+        elif ego in (r["id_a"], r["id_b"]):
+            p, q = ("a", "b") if r["id_a"] == ego else ("b", "a")
+            line = (f"COLLISION at t = {r['time']:.1f} s: ego '{ego}' and {r[f'class_{q}']} '{r[f'id_{q}']}'\n"
+                    f"harm P(MAIS 3+): '{ego}' {r[f'harm_{p}']:.3f}, '{r[f'id_{q}']}' {r[f'harm_{q}']:.3f}")
+        else:
+            continue
+        marks.setdefault(int(r["step"]), []).append(line)
     return {k: "\n".join(v) for k, v in marks.items()}
 
 
@@ -244,9 +258,10 @@ def _check(out: Path, every: int, fps: float | None, half: float) -> None:
 
 
 def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half: float = 40.0,
-           progress: bool = True) -> ReplayResult:
+           progress: bool = True, ego: str | None = None) -> ReplayResult:
     """Animate the recorded decisions of ``run`` (every ``every``-th, and the step of every ego
-    collision) to ``out`` (.mp4 or .gif).
+    collision) to ``out`` (.mp4 or .gif); of ``ego``, required in a fleet run with per-ego decisions
+    (:func:`sumo_ethics.analysis.recorded.decisions_of`).
 
     ``fps`` defaults to real time, 1 / (dt x every), capped at 10 for a GIF and 30 for an MP4.
     ConfigError for a bad suffix or value and for a run without recorded decisions (naming the
@@ -260,17 +275,18 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
     from matplotlib.patches import Patch
 
     from sumo_ethics.analysis.drawing import CLASS_COLOURS, EGO_COLOUR, VALIDITY_COLOURS, VALIDITY_LABELS, fmt, draw_road
-    from sumo_ethics.analysis.recorded import load_checked, record_mode, recorded, road_of
+    from sumo_ethics.analysis.recorded import decisions_of, load_checked, record_mode, recorded, road_of
     from sumo_ethics.types import RoadUserClass
 
     run, out = Path(run), Path(out)
     _check(out, every, fps, half)
-    all_steps = recorded(run)
-    crashes = _collisions(run)
+    ego = decisions_of(run, ego)
+    all_steps = recorded(run, ego)
+    crashes = _collisions(run, ego)
     steps = sorted(set(all_steps[::every]) | (set(crashes) & set(all_steps)))  # every collision is shown
     notes: list[str] = []
 
-    total = _total_steps(run)
+    total = _total_steps(run, ego)
     if total and len(all_steps) < total:
         if record_mode(run) == "all":
             notes.append(f"{len(all_steps)} of {total} steps have a decision (the others had no planner "
@@ -289,7 +305,7 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
                          + (f"; it replaced the {gif.name} that was there" if gif.exists() else ""))
             out = gif
 
-    ego_xy, times, classes, validity, dt = _scan(run, steps)
+    ego_xy, times, classes, validity, dt = _scan(run, steps, ego)
     real = 1.0 / (dt * every)
     if fps is None:
         fps = min(real, GIF_FPS_CAP if writer_name == "gif" else MP4_FPS_CAP)
@@ -323,7 +339,8 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
     handles += [Line2D([], [], color=VALIDITY_COLOURS[v], lw=1.5, alpha=0.6, label=f"candidate: {VALIDITY_LABELS[v]}")
                 for v in sorted(validity)]
     fig.legend(handles=handles, loc="center left", bbox_to_anchor=(0.71, 0.5), fontsize=8, frameon=False)
-    fig.text(0.99, 0.01, f"{run.name} · {len(steps)} frames · playback {_speed(speed)}", ha="right",
+    who = "" if ego is None else f" · ego '{ego}'"
+    fig.text(0.99, 0.01, f"{run.name}{who} · {len(steps)} frames · playback {_speed(speed)}", ha="right",
              va="bottom", fontsize=7.5, color="0.35")
     static = set(ax.get_children())
 
@@ -337,7 +354,7 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
         # the temporary name keeps the suffix: the writer picks the format by it
         with fileio.replacing(out, f".{out.stem}.part{out.suffix}") as tmp, writer.saving(fig, tmp, DPI):
             for i, s in enumerate(steps):
-                d = load_checked(run, s)
+                d = load_checked(run, s, ego)
                 ex, ey = float(d.ego[0]), float(d.ego[1])
                 _scene(ax, d, CLASS_COLOURS, EGO_COLOUR)
                 if d.n_candidates:
@@ -360,7 +377,7 @@ def replay(run: Path, out: Path, every: int = 1, fps: float | None = None, half:
                 trail.set_data(ego_xy[: i + 1, 0], ego_xy[: i + 1, 1])
                 ax.set_xlim(ex - half, ex + half)
                 ax.set_ylim(ey - half, ey + half)
-                ax.set_title(f"t = {d.time:.1f} s (step {d.step}) · ego {d.ego[3]:.1f} m/s "
+                ax.set_title(f"t = {d.time:.1f} s (step {d.step}) · ego{'' if ego is None else f' {ego!r}'} {d.ego[3]:.1f} m/s "
                              f"({d.ego[3] * 3.6:.0f} km/h)\n{choice}", fontsize=9.5)
                 writer.grab_frame()
                 for artist in ax.get_children():

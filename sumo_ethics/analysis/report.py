@@ -181,25 +181,38 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
 
 def snapshot_links(sweep_dir: Path, folder: Path, collisions: Any, limit: int = 200) -> list[str]:
     """report.md lines linking the snapshot figure of every booked ego collision (the last decision
-    before impact, written by the run into runs/<run_id>/snapshots/)."""
+    before impact, written by the run into runs/<run_id>/snapshots/; in a fleet run one per ego
+    party, collision_<event>_<ego folder>.png)."""
     import os
+
+    import pandas as pd
+
+    from sumo_ethics.record.decisions import ego_folder
 
     if collisions is None or len(collisions) == 0 or "run_id" not in collisions:
         return []
     booked = collisions[collisions["involves_ego"] & (collisions["detector"] != "sumo_unconfirmed")]
     rows = []
     for r in booked.sort_values(["run_id", "event"]).itertuples():
-        png = sweep_dir / "runs" / r.run_id / "snapshots" / f"collision_{r.event}.png"
-        if png.is_file():
-            rel = Path(os.path.relpath(png, folder)).as_posix()
+        snaps = sweep_dir / "runs" / r.run_id / "snapshots"
+        names = [(f"collision_{r.event}.png", "png")]
+        for p in "ab":  # a fleet run's ego parties (ego_a, ego_b: missing in the rows of single-ego runs)
+            flag = getattr(r, f"ego_{p}", None)
+            if pd.notna(flag) and bool(flag):
+                who = getattr(r, f"id_{p}")
+                names.append((f"collision_{r.event}_{ego_folder(who)}.png", f"png: ego '{who}'"))
+        links = [f"[{label}]({Path(os.path.relpath(snaps / n, folder)).as_posix()})" for n, label in names
+                 if (snaps / n).is_file()]
+        if links:
             rows.append(f"| {r.run_id} | {r.event} | {r.time:.1f} | {r.class_b} | {r.harm_ego:.3f} | "
-                        f"{r.harm_third_party:.3f} | [png]({rel}) |")
+                        f"{r.harm_third_party:.3f} | {', '.join(links)} |")
     if not rows:
         return []
     lines = ["## Collision snapshots", "",
              "The last planning step before each ego collision: the scene, the predictions, every candidate",
              "by validity class and by J_risk, and the chosen candidate's cost terms beside the best one of",
-             "another validity class (`sumo-ethics explain RUN --collision EVENT` redraws one).", "",
+             "another validity class (`sumo-ethics explain RUN --collision EVENT` redraws one; a fleet ego's with",
+             "`--ego ID`).", "",
              "| run | event | t [s] | other party | harm ego | harm third party | figure |",
              "| --- | --- | --- | --- | --- | --- | --- |", *rows[:limit]]
     if len(rows) > limit:
