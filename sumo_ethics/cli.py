@@ -86,7 +86,7 @@ def cli() -> None:
 @click.option("--record-decisions", type=click.Choice(["off", "collisions", "risky", "all"]), default="off",
               show_default=True, help="Keep what the planner weighed, for 'explain' and 'replay': every step, the "
               "steps with any risk (at most one per 0.5 s of simulated time) and the 5 s before each ego collision, only those 5 s, or nothing but the last step "
-              "before each ego collision.")
+              "before each ego collision (a fleet: of each ego, in decisions/<ego>/).")
 @click.option("--egos", type=int, help="Fleet: insert this many egos of ours, departing evenly over the first half of "
               "the run on routes drawn with --seed.")
 @click.option("--penetration", type=float, help="Fleet: take over each eligible vehicle of the scenario (a motor road "
@@ -127,8 +127,6 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
         if controller != "ethical":
             raise ConfigError("--controller sets the single ego's; a fleet names its planners with --fleet, "
                               "e.g. --fleet ethical=0.5,baseline=0.5")
-        if record_decisions != "off":
-            raise ConfigError("--record-decisions is for single-ego runs (explain and replay read one ego)")
         if gui:
             raise ConfigError("--gui shows a single ego; drop the fleet options (--egos, --penetration, "
                               "several --ego, --fleet)")
@@ -243,6 +241,12 @@ def _print_fleet(summary: Any) -> None:
         con.print(f"  SUMO teleported {len(f['teleported'])} egos (handed back): {', '.join(f['teleported'][:5])}")
     if "conflicts_others" in d:
         con.print("  " + _others_line(d["conflicts_others"], summary.out))
+    if d.get("decisions", {}).get("steps"):
+        k = d["decisions"]
+        con.print(f"  decisions: {k['steps']} steps of {k['egos']} egos kept ({k['mode']}, {k['bytes'] / 1e6:.1f} MB) in "
+                  f"{summary.out / 'decisions'}: sumo-ethics explain / replay --ego ID")
+    for snap in d.get("snapshots", []):
+        con.print(f"  collision snapshot: {summary.out / snap}")
     con.print(f"  outputs in {summary.out}")
 
 

@@ -19,7 +19,10 @@ reaches its goal is handed back to SUMO for its last metres (its trip ends in SU
 that collides is taken off the road (with ``--continue-after-collision`` it drives on); one SUMO
 starts to teleport is handed back and named in the summary. The run ends at ``--end`` (or the
 scenario's end, or when SUMO has nobody left). Every trip of the run, egos or not, goes to
-``trips.parquet`` from SUMO's tripinfo.
+``trips.parquet`` from SUMO's tripinfo. Each ego keeps its planner's decisions by
+``--record-decisions`` as the single ego does, in its own log and folder
+(``RUN/decisions/<ego folder>/``, :func:`sumo_ethics.record.decisions.ego_folder`), dropped when it
+ends; each ego party of a collision gets its own snapshot figure.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from sumo_ethics.errors import ConfigError, SumoEthicsError
 from sumo_ethics.contract import Controller, Decision, Scene
 from sumo_ethics.plan.history import History
 from sumo_ethics.record import schema
+from sumo_ethics.record.decisions import FOLDER as DECISIONS, DecisionLog, ego_folder
 from sumo_ethics.record.writer import ChunkedTable
 from sumo_ethics.runner.loop import Run, RunSummary, _progress, execute, step_row, stop_line
 from sumo_ethics.safety.conflicts import ConflictBook, conflict_counts
@@ -252,14 +256,24 @@ class Agent:
     n_fallback: int = 0
     decision: Decision | None = None
     scene: Scene | None = None
+    log: DecisionLog | None = None  # its recorded decisions (None once it ended: ``kept`` says what it kept)
+    kept: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
+
+    def decisions(self) -> dict[str, Any]:
+        """What its log kept: mode, steps, bytes, risky steps thinned, and the folder if any."""
+        log = self.log
+        if log is None:
+            return self.kept
+        return {"mode": log.mode, "steps": len(log.written), "bytes": log.bytes, "thinned": log.thinned,
+                **({"folder": f"{DECISIONS}/{ego_folder(self.id)}"} if log.written else {})}
 
     def record(self) -> dict[str, Any]:
         return {"id": self.id, "planner": self.planner, "inserted": self.inserted, "status": self.status,
                 "message": self.message, "takeover_time": self.takeover_time, "end_time": self.end_time,
                 "steps": self.steps, "distance": 0.0 if self.s0 != self.s0 else float(self.s - self.s0),
                 "route_length": self.route_length,
-                "collisions": self.collisions, "n_fallback": self.n_fallback}
+                "collisions": self.collisions, "n_fallback": self.n_fallback, "decisions": self.decisions()}
 
 
 class FleetRun(Run):
@@ -283,7 +297,7 @@ class FleetRun(Run):
     def _loop(self, ego_id: str, end: float, depart: float) -> None:
         cfg, spec = self.cfg, self.spec
         dt = session.step_length()
-        self.rec.start(dt, "off")
+        self.rec.start(dt, cfg.record_decisions, per_ego=True)
         self.rec.collision_schema = COLLISIONS
         self.rec.tables["steps"] = ChunkedTable(self.rec.partial, "steps", STEPS)
         self.rec.tables["timings"] = ChunkedTable(self.rec.partial, "timings", TIMINGS)
@@ -407,6 +421,8 @@ class FleetRun(Run):
         for a, _ in read:
             if a.id in hit:
                 a.collisions += 1
+                if a.log is not None:  # its decisions before impact, also when the other ego's check found it
+                    a.log.collided(self.step)
                 if self.cfg.stop_at_collision and a in self.active:
                     row = next(r for r in reversed(self.rec.collisions) if is_booked(r) and a.id in (r["id_a"], r["id_b"]))
                     other = row["id_b"] if row["id_a"] == a.id else row["id_a"]
@@ -478,7 +494,7 @@ class FleetRun(Run):
         timing = {"ego_id": a.id, "step": self.step, "controller_ms": a.extra.get("controller_ms", 0.0),
                   "sumo_ms": 1e3 * w[1] / max(len(self.active), 1), "collision_ms": 1e3 * (w4 - w3),
                   "conflict_ms": 1e3 * (w5 - w4), "wall_s": w5 - self.t_start} | decision.timings_ms
-        self.rec.step(row, timing, None, before.time, hit)
+        self.rec.step(row, timing, decision.trace, before.time, hit, log=a.log)
         a.steps += 1
         a.snap = new
         return hit
@@ -491,6 +507,7 @@ class FleetRun(Run):
         # a finished ego lets go of its planner and world too (they are never read again)
         a.controller = a.world = a.snap = a.decision = a.scene = a.rules = None  # type: ignore[assignment]
         a.conflicts = None  # its rows are in the recorder; its trails go
+        a.kept, a.log = a.decisions(), None  # its files are written; what it kept is counted
 
     def _maybe_take_over(self, vid: str, t: float, end: float) -> None:
         spec = self.spec
@@ -522,7 +539,8 @@ class FleetRun(Run):
         vehicle = self.cfg.ego if inserted else ego_limits(vid, self.cfg.ego)
         ctl = self.make(name, vid)
         a = Agent(vid, name, inserted, ctl, world, t, vehicle=vehicle, route_length=float(route.length),
-                  speed_factor=factor, rules=RuleMonitor() if getattr(ctl, "needs_rules", False) else None)
+                  speed_factor=factor, rules=RuleMonitor() if getattr(ctl, "needs_rules", False) else None,
+                  log=self.rec.ego_log(vid))
         self.agents.append(a)
         self.active.append(a)
         self.egos.add(vid)
@@ -534,7 +552,14 @@ class FleetRun(Run):
         return super().finish(wall, error)
 
     def _snapshots(self) -> None:
-        """No decisions are kept in a fleet run (explain and replay read single-ego runs)."""
+        """What the egos' logs kept (summary.json ``decisions``: the totals; each ego's in ``egos``)
+        and a figure of each ego party's last decision before each ego collision
+        (RUN/snapshots/collision_<event>_<ego folder>.png)."""
+        kept = [a.decisions() for a in self.agents]
+        self.meta["decisions"] = {"mode": self.cfg.record_decisions, "steps": sum(k["steps"] for k in kept),
+                                  "bytes": sum(k["bytes"] for k in kept), "thinned": sum(k["thinned"] for k in kept),
+                                  "egos": sum(k["steps"] > 0 for k in kept)}
+        self._draw_snapshots(frozenset(self.egos))
 
     def _trips(self) -> None:
         """trips.parquet from SUMO's tripinfo (written when SUMO closed)."""

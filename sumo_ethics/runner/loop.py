@@ -413,13 +413,18 @@ class Run:
             return
         self.meta["decisions"] = {"mode": log.mode, "steps": len(log.written), "bytes": log.bytes,
                                   "thinned": log.thinned}
+        self._draw_snapshots()
+
+    def _draw_snapshots(self, egos: frozenset[str] | None = None) -> None:
+        """The collision snapshot figures (of each ego party among a fleet's ``egos``), listed in
+        the summary; a failure is noted there (``snapshot_error``)."""
         if not any(is_booked(r) for r in self.rec.collisions):
             return
         w = wallclock.perf_counter()
         try:
             from sumo_ethics.analysis.explain import collision_snapshots
 
-            paths = collision_snapshots(self.cfg.out, self.rec.collisions)
+            paths = collision_snapshots(self.cfg.out, self.rec.collisions, egos)
             self.meta["snapshots"] = [str(p.relative_to(self.cfg.out)) for p in paths if p.suffix == ".png"]
         except Exception as exc:  # noqa: BLE001 - a figure must never cost the run's outputs
             self.meta["snapshot_error"] = f"{type(exc).__name__}: {exc}"

@@ -270,7 +270,6 @@ class RunSpec:
             if "shares" in fleet:
                 fleet["shares"] = FleetSpec.parse_shares(fleet["shares"])
             kw["fleet"] = FleetSpec(**fleet)
-            kw["record_decisions"] = "off"  # explain and replay read single-ego runs
         conflicts = {k.split(".", 1)[1]: kw.pop(k) for k in [k for k in kw if k.startswith("conflicts.")]}
         if conflicts:
             from sumo_ethics.config import ConflictConfig
