@@ -232,6 +232,27 @@ def test_replay_one_ego(runs, tmp_path, capsys):
     assert capsys.readouterr().err == ""  # every step of LEAD recorded: nothing to note
 
 
+def test_a_collision_found_after_the_step_keeps_what_add_would_have(tmp_path):
+    """DecisionLog.collided(step) after add(step, collided=False) keeps what add(collided=True) keeps:
+    with off the step itself, with collisions the 5 s (10 steps of 0.5 s) up to it; settled() then
+    lets go of what no later collision keeps (off: the step's trace), and only that."""
+    from test_decisions import _trace
+
+    logs = {m: rec.DecisionLog(tmp_path / m, m, dt=0.5, ego="e/1") for m in ("off", "collisions")}
+    for k in range(1, 13):
+        for log in logs.values():
+            log.add(k, k * 0.5, _trace(0.0), collided=False)
+            if k == 12:  # found by another ego's check, after this ego's step was added
+                log.collided(12)
+            log.settled()
+    assert logs["off"].written == [12] and logs["collisions"].written == list(range(3, 13))
+    assert rec.recorded_steps(tmp_path / "off", "e/1") == [12] and (tmp_path / "off" / "decisions" / "e%2F1").is_dir()
+    logs["off"].add(13, 6.5, _trace(0.0), collided=False)
+    logs["off"].settled()
+    logs["off"].collided(13)  # too late: settled said every collision of step 13 was known
+    assert logs["off"].written == [12]
+
+
 # ---- an ego-ego collision draws both egos' snapshots --------------------------------------------
 class Forced:
     """The ethical planner weighs each step (its decision is recorded), but the ego is driven at a

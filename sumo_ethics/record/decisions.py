@@ -212,6 +212,13 @@ class DecisionLog:
         ``add(..., collided=True)`` would have kept."""
         self._flush_ring(step)
 
+    def settled(self) -> None:
+        """Every collision of the step last added is known (:meth:`add`'s ``collided``, :meth:`collided`):
+        let go of what no later step can keep. With one step kept before a collision (mode off) that
+        is the ring's decision, whose trace (the candidates, K x T arrays) would wait for the next add."""
+        if self.keep == 1:
+            self.ring.clear()
+
     def _flush_ring(self, now: int) -> None:
         """Write the kept decisions of the ``keep`` steps up to step ``now``."""
         while self.ring:

@@ -429,6 +429,8 @@ class FleetRun(Run):
                     self._end(a, "collision", f"collided with '{other}' at t={format_time(row['time'])}; "
                                               "taken off the road", now)
                     sim_egos.remove(a.id)
+            if a.log is not None:  # its collisions are known: mode off lets go of the step's trace
+                a.log.settled()
         for a, _ in read:
             if a in self.active and a.snap is not None and a.s + a.half >= a.route_length - 0.5:
                 self._end(a, "completed", f"goal reached at t={format_time(now)}; handed back to SUMO", now)
