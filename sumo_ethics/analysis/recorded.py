@@ -149,8 +149,7 @@ def resolve_step(run: Path, step: int | None = None, time: float | None = None, 
         i = int(np.argmin(np.abs(times - time)))
         if abs(times[i] - time) > 0.5:
             raise ConfigError(f"no decision{'' if ego is None else f' of ego {ego!r}'} recorded near t={time:g} s; "
-                          f"the nearest is at t={times[i]:g} s "
-                              f"(recorded: {_spans(times)})")
+                              f"the nearest is at t={times[i]:g} s (recorded: {_spans(times)})")
         return steps[i]
     if step is None:  # exactly one of the four is given: a collision's step, or the step itself
         raise ConfigError("give exactly one of --step, --time, --collision and --conflict")

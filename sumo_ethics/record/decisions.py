@@ -4,8 +4,9 @@
 One file per recorded planning step, ``RUN/decisions/step_NNNNNN.npz`` (a zip of ``.npy`` arrays,
 written under a temporary name and renamed, with fixed zip timestamps so the same seed gives the
 same bytes); a fleet run keeps each ego's in its own folder,
-``RUN/decisions/<ego folder>/step_NNNNNN.npz`` (:func:`ego_folder`). ``step`` is the steps.parquet row the decision led to (the row of the state one
-step later) and the ``step`` of a collision it ended in; ``time`` is the planning time.
+``RUN/decisions/<ego folder>/step_NNNNNN.npz`` (:func:`ego_folder`). ``step`` is the steps.parquet
+row the decision led to (the row of the state one step later; in a fleet, that ego's row) and the
+``step`` of a collision it ended in; ``time`` is the planning time.
 
 What a step holds (float32 unless said; positions relative to the ego's centre at planning
 time, so float32 keeps millimetres):

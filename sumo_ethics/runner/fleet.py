@@ -558,9 +558,10 @@ class FleetRun(Run):
         and a figure of each ego party's last decision before each ego collision
         (RUN/snapshots/collision_<event>_<ego folder>.png)."""
         kept = [a.decisions() for a in self.agents]
-        self.meta["decisions"] = {"mode": self.cfg.record_decisions, "steps": sum(k["steps"] for k in kept),
-                                  "bytes": sum(k["bytes"] for k in kept), "thinned": sum(k["thinned"] for k in kept),
-                                  "egos": sum(k["steps"] > 0 for k in kept)}
+        self.meta["decisions"] = {"mode": self.cfg.record_decisions, "steps": sum(k.get("steps", 0) for k in kept),
+                                  "bytes": sum(k.get("bytes", 0) for k in kept),
+                                  "thinned": sum(k.get("thinned", 0) for k in kept),
+                                  "egos": sum(k.get("steps", 0) > 0 for k in kept)}
         self._draw_snapshots(frozenset(self.egos))
 
     def _trips(self) -> None:
