@@ -9,6 +9,7 @@ collision driven on purpose.
 from __future__ import annotations
 
 import json
+import re
 import math
 import shutil
 from dataclasses import asdict, replace
@@ -300,3 +301,27 @@ def test_a_sweeps_fleet_runs_keep_decisions_as_its_single_ego_runs(tmp_path):
         specs = make_sweep(cfg, "0.5", "1", ["egos=0,2"], options=options).specs()
         got = [s.run_config(tmp_path / s.run_id) for s in specs]
         assert [(c.fleet is not None, c.record_decisions) for c in got] == [(True, want), (True, want)]
+
+
+def test_analyze_links_each_egos_snapshot(tmp_path):
+    """A sweep's report links a fleet collision's figure of each ego party; the link target escapes
+    the folder name's '%' once more, so that it decodes to the file's name."""
+    from urllib.parse import unquote
+
+    from sumo_ethics.analysis.report import snapshot_links
+
+    snaps = tmp_path / "runs" / "r1" / "snapshots"
+    snaps.mkdir(parents=True)
+    (tmp_path / "report").mkdir()
+    for name in (f"collision_0_{rec.ego_folder(LEAD)}.png", "collision_0_b.png"):
+        (snaps / name).write_bytes(b"png")
+    coll = pd.DataFrame([{"run_id": "r1", "event": 0, "time": 4.2, "involves_ego": True, "detector": "geometry",
+                          "id_a": "b", "id_b": LEAD, "class_b": "car", "ego_a": True, "ego_b": True,
+                          "harm_ego": 0.3, "harm_third_party": 0.0}])
+    rows = [ln for ln in snapshot_links(tmp_path, tmp_path / "report", coll) if ln.startswith("| r1 ")]
+    assert len(rows) == 1
+    targets = [unquote(t) for t in re.findall(r"\]\(([^)]+)\)", rows[0])]
+    assert targets == ["../runs/r1/snapshots/collision_0_b.png",
+                       f"../runs/r1/snapshots/collision_0_{rec.ego_folder(LEAD)}.png"]
+    assert all((tmp_path / "report" / t).resolve().is_file() for t in targets)
+    assert "[png: ego 'b']" in rows[0] and f"[png: ego '{LEAD}']" in rows[0]

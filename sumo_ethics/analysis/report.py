@@ -184,6 +184,7 @@ def snapshot_links(sweep_dir: Path, folder: Path, collisions: Any, limit: int = 
     before impact, written by the run into runs/<run_id>/snapshots/; in a fleet run one per ego
     party, collision_<event>_<ego folder>.png)."""
     import os
+    from urllib.parse import quote
 
     import pandas as pd
 
@@ -201,7 +202,8 @@ def snapshot_links(sweep_dir: Path, folder: Path, collisions: Any, limit: int = 
             if pd.notna(flag) and bool(flag):
                 who = getattr(r, f"id_{p}")
                 names.append((f"collision_{r.event}_{ego_folder(who)}.png", f"png: ego '{who}'"))
-        links = [f"[{label}]({Path(os.path.relpath(snaps / n, folder)).as_posix()})" for n, label in names
+        # an ego folder's '%' escaped once more: a link's target is URL-decoded ('%2F' would be '/')
+        links = [f"[{label}]({quote(Path(os.path.relpath(snaps / n, folder)).as_posix())})" for n, label in names
                  if (snaps / n).is_file()]
         if links:
             rows.append(f"| {r.run_id} | {r.event} | {r.time:.1f} | {r.class_b} | {r.harm_ego:.3f} | "
