@@ -44,7 +44,8 @@ from sumo_ethics.predict import PREDICTORS
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file with a [planner] table.")
 @click.option("--record-decisions", type=click.Choice(["off", "collisions", "risky", "all"]),
               help="Decisions each run keeps for 'explain'/'replay' (default risky: the steps whose choice carries "
-                   "risk and the 5 s before every ego collision).")
+                   "risk and the 5 s before every ego collision; a fleet run's default off: each ego's step "
+                   "before its collisions).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def sweep(scenario_or_suite: Path, omega_u: str, seeds: str, sets: tuple[str, ...], out: Path, workers: int | None,
           scheduler: str | None, end: float | None, ego_depart: float | None, step_length: float | None,

@@ -291,16 +291,19 @@ def test_an_ego_ego_collision_keeps_and_draws_both_egos_last_decision(tmp_path):
                                          "thinned": 0, "egos": 2}
 
 
-def test_a_sweeps_fleet_runs_keep_decisions_as_its_single_ego_runs(tmp_path):
-    """A sweep's runs keep `risky` unless --record-decisions says otherwise, fleet runs too (they
-    were set to off before fleets kept decisions)."""
-    from sumo_ethics.sweep.grid import SWEEP_RECORD_DECISIONS, make_sweep
+def test_a_sweeps_fleet_runs_keep_only_the_step_before_a_collision_unless_asked(tmp_path):
+    """A sweep's single-ego runs keep `risky`, its fleet runs `off` (per-ego risky steps would grow
+    with the egos), and --record-decisions sets both."""
+    from sumo_ethics.sweep.grid import make_sweep
 
     cfg = write_scenario(tmp_path / "scenario", ROUTES, end=6.0)
-    for options, want in (({}, SWEEP_RECORD_DECISIONS), ({"record_decisions": "all"}, "all")):
-        specs = make_sweep(cfg, "0.5", "1", ["egos=0,2"], options=options).specs()
+    for omegas, grid, options, want in (("0.5", ["egos=0,2"], {}, "off"),
+                                        ("0.5", ["egos=0,2"], {"record_decisions": "all"}, "all"),
+                                        ("0,1", [], {}, "risky")):
+        specs = make_sweep(cfg, omegas, "1", grid, options=options).specs()
         got = [s.run_config(tmp_path / s.run_id) for s in specs]
-        assert [(c.fleet is not None, c.record_decisions) for c in got] == [(True, want), (True, want)]
+        fleet = bool(grid)
+        assert [(c.fleet is not None, c.record_decisions) for c in got] == [(fleet, want), (fleet, want)]
 
 
 def test_analyze_links_each_egos_snapshot(tmp_path):

@@ -50,8 +50,11 @@ RUN_KEYS: dict[str, tuple[str, type]] = {
     "conflicts_turning": ("conflicts.turning", bool),
 }
 #: decisions a sweep's runs keep unless --record-decisions says otherwise (not part of the
-#: sweep's definition then, so sweeps made before it resume as they were)
+#: sweep's definition then, so sweeps made before it resume as they were); a fleet run's egos keep
+#: only the step before each collision (SWEEP_FLEET_RECORD_DECISIONS): per-ego risky steps would make
+#: a penetration sweep's disk use and encoding time grow with its egos
 SWEEP_RECORD_DECISIONS = "risky"
+SWEEP_FLEET_RECORD_DECISIONS = "off"
 PLANNER_SIMPLE = ("omega_o", "weights", "utility", "normalise", "predictor", "max_risk", "selection", "envelope", "entry")
 
 
@@ -275,7 +278,7 @@ class RunSpec:
             from sumo_ethics.config import ConflictConfig
 
             kw["conflicts"] = ConflictConfig(**conflicts)
-        kw.setdefault("record_decisions", SWEEP_RECORD_DECISIONS)
+        kw.setdefault("record_decisions", SWEEP_FLEET_RECORD_DECISIONS if "fleet" in kw else SWEEP_RECORD_DECISIONS)
         return RunConfig(scenario=Path(self.scenario), out=out, seed=int(self.params["seed"]), planner=planner,
                          progress=False, **kw)
 
