@@ -464,8 +464,8 @@ def risk_steps(dt: float, steps: int, step: float) -> np.ndarray:
     ``step`` is 0, no longer than dt, or not a whole number of steps (e.g. dt = 0.3 s).
 
     Why 0.2 s: the LSTM predictors predict at 5 Hz and the planner's finer steps interpolate their
-    means and covariances linearly, so a finer grid adds no information on the road users; the
-    risk is the maximum over the evaluated steps. A collision cannot fall between two of them
+    means and covariances linearly, so a finer grid adds no information on the road users (the
+    constant-velocity predictor's means are straight lines at any step); the risk is the maximum over the evaluated steps. A collision cannot fall between two of them
     unless the two boxes close by more than their combined length along the closing direction
     in 0.2 s (two cars: 9 m, i.e. 45 m/s closing; a car and a pedestrian crossing its path:
     5 m, 25 m/s), and the envelope test (:func:`sumo_ethics.plan.ethical.first_overlap`) still
