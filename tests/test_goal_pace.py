@@ -1,4 +1,4 @@
-"""The pace to a CommonRoad goal (sumo_ethics.goal.Pace) by hand.
+"""The pace to a CommonRoad goal (sumo_ethics.goal.Pace) by hand, and the planner aiming at it.
 
 Path: the x axis from 0 to 300 m. Goal region: a 10 m x 4 m box from x = 95 to 105 m (middle
 100 m), window time steps [100, 110] at dt = 0.1 s (it opens at 10 s). The pace is
@@ -12,7 +12,13 @@ import numpy as np
 import pytest
 from shapely.geometry import Polygon
 
+from sumo_ethics.config import EgoVehicle
+from sumo_ethics.contract import RoutePath, Scene
+from sumo_ethics.geometry import Polyline
 from sumo_ethics.goal import Goal, GoalState, Pace, along
+from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
+from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor
+from sumo_ethics.types import AgentStates, Observation
 
 PATH = np.array([[0.0, 0.0], [300.0, 0.0]])
 BOX = Polygon([(95, -2), (105, -2), (105, 2), (95, 2)])
@@ -63,3 +69,30 @@ def test_pace_of_several_goal_states() -> None:
     # a goal state without a position or without a time window is met without timing: no pace
     assert Pace.of(Goal((near, GoalState(time_step=(100, 110)))), PATH, DT) is None
     assert Pace.of(Goal((GoalState(polygons=(BOX,)),)), PATH, DT) is None
+
+
+def _scene(desired: float | None) -> Scene:
+    """The ego at x = 10 m, 10 m/s, on an empty straight road limited to 14 m/s."""
+    path = Polyline.from_points(np.array([[0.0, 0.0], [500.0, 0.0]]))
+    route = RoutePath(edges=("e",), path=path, lane_of_vertex=("e_0", "e_0"), speed_limit=np.full(2, 14.0),
+                      left=np.full(2, 5.25), right=np.full(2, -1.75), links=())
+    ego = AgentStates(ids=("ego",), x=np.array([10.0]), y=np.zeros(1), yaw=np.zeros(1), speed=np.full(1, 10.0),
+                      accel=np.zeros(1), length=np.full(1, 4.508), width=np.full(1, 1.61),
+                      mass=np.full(1, 1475.0), cls=np.zeros(1, np.int8))
+    none = AgentStates(ids=(), x=np.zeros(0), y=np.zeros(0), yaw=np.zeros(0), speed=np.zeros(0), accel=np.zeros(0),
+                       length=np.zeros(0), width=np.zeros(0), mass=np.zeros(0), cls=np.zeros(0, np.int8))
+    obs = Observation(time=0.0, dt=DT, history=np.zeros((0, 5, 2)), valid=np.zeros((0, 5), bool), current=none,
+                      ego=ego)
+    return Scene(time=0.0, dt=DT, ego=ego, others=none, route=route, s=10.0, d=0.0, stop_s=None,
+                 vehicle=EgoVehicle(), history=obs, desired_speed=desired)
+
+
+def test_the_planner_aims_at_the_desired_speed() -> None:
+    def decide(desired):
+        return EthicalPlanner(PlannerConfig(predictor="cv"), predictor=ConstantVelocityPredictor()).act(_scene(desired))
+
+    free, slow, above = decide(None), decide(4.0), decide(20.0)
+    assert "desired_speed" not in free.info  # no hook asked: nothing new in steps.parquet
+    assert slow.info["desired_speed"] == 4.0 and above.info["desired_speed"] == 14.0  # capped at the limit
+    assert slow.command.speed < 10.0 < free.command.speed  # slows down for 4 m/s, speeds up for 14 m/s
+    assert above.command == free.command  # above the limit: as without
