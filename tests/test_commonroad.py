@@ -396,8 +396,8 @@ def test_the_ego_waits_for_the_goal_window(velocity, tmp_path: Path) -> None:
     """ZAM_Tutorial with its goal window moved from steps [35, 40] to [100, 110] (10-11 s) and without
     its car (which cuts in behind the ego at 23 m/s: a test of timing, not of traffic): the goal,
     lanelet 1, runs from x = 0 to 199 m; the ego starts at x = 15 m at 22 m/s and the road's limit is
-    36.1 m/s, so at the limit (as before the pace: end of the route at step 64) it leaves the region
-    long before the window opens. Paced, it aims at the region's middle (99.5 m) as the window opens:
+    36.1 m/s, so at the limit it leaves the region long before the window opens (before the pace: the
+    end of the route at step 64, 67 with the goal speed's 30 m/s as the lane's limit). Paced, it aims at the region's middle (99.5 m) as the window opens:
     (99.5 - 15) / 10 = 8.45 m/s, or the goal's lowest speed where that is higher, and completes in
     the window."""
     from sumo_ethics.commonroad.importer import import_commonroad
