@@ -98,7 +98,10 @@ class Scene:
     reference path; s, d: the ego's Frenet position on it [m]; stop_s: arc length of the
     next red/yellow stop line ahead [m] or None; history: the neighbours' recent past for a
     predictor (None until a controller asks for it); rule_breakers: ids of the neighbours that
-    break a traffic rule now (:mod:`sumo_ethics.sim.rules`; the responsibility principle).
+    break a traffic rule now (:mod:`sumo_ethics.sim.rules`; the responsibility principle);
+    desired_speed: the highest speed [m/s] a run hook asks the ego to aim at now (an imported
+    CommonRoad goal's time window, :class:`sumo_ethics.goal.Pace`; the planner aims at the lower of it
+    and the route's speed limit), or None: aim at the limit.
     """
 
     time: float
@@ -112,6 +115,7 @@ class Scene:
     vehicle: EgoVehicle
     history: Observation | None = None
     rule_breakers: frozenset[str] = frozenset()
+    desired_speed: float | None = None
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,9 @@ A goal state holds when every quantity it gives holds (those it leaves out are f
 :meth:`Goal.completes` is what ends a run: the same, but a goal state without a position holds
 only at the last step of its time window (see there).
 
+:class:`Pace` is how fast the ego should go so as not to reach the goal region before its time
+window opens (the speed an imported CommonRoad scenario's run asks the planner to aim at).
+
 The serialised form (one dict per goal state, written by the importer into ``commonroad.json``)
 keeps the run independent of commonroad-io: an imported folder runs with the base install.
 """
@@ -27,7 +30,7 @@ from typing import Any, Sequence
 
 import numpy as np
 import shapely
-from shapely.geometry import Point, Polygon
+from shapely.geometry import LineString, Point, Polygon
 
 TWO_PI = 2.0 * math.pi
 
@@ -69,6 +72,11 @@ class GoalState:
         if any(poly.intersects(p) for poly in self.polygons):
             return True
         return any(math.hypot(x - cx, y - cy) <= r for cx, cy, r in self.circles)
+
+    def region(self) -> Any:
+        """The union of this state's position shapes (None without a position)."""
+        geoms = list(self.polygons) + [Point(cx, cy).buffer(r, 32) for cx, cy, r in self.circles]
+        return shapely.union_all(geoms) if geoms else None
 
     def to_dict(self) -> dict[str, Any]:
         return {"time_step": list(self.time_step) if self.time_step else None,
@@ -124,3 +132,66 @@ class Goal:
     @classmethod
     def from_list(cls, items: Sequence[dict[str, Any]]) -> "Goal":
         return cls(tuple(GoalState.from_dict(d) for d in items))
+
+
+def along(region: Any, xy: np.ndarray) -> tuple[float, float]:
+    """(entry, exit) [m]: the arc lengths along the polyline ``xy`` (M, 2) [m] of the first and the
+    last of its points in ``region`` (a shapely geometry); where it never meets the region, both are
+    the arc length of its point nearest to it."""
+    line = LineString(np.asarray(xy, dtype=float))
+    inside = line.intersection(region)
+    if inside.is_empty:
+        nearest = float(line.project(Point(shapely.shortest_line(line, region).coords[0])))
+        return nearest, nearest
+    s = np.asarray(shapely.line_locate_point(line, shapely.points(shapely.get_coordinates(inside))))
+    return float(s.min()), float(s.max())
+
+
+@dataclass(frozen=True)
+class Pace:
+    """How fast the ego may go so as not to reach the goal region before its time window opens.
+
+    One entry per goal state, each (G,): ``entry``, ``exit``: arc lengths [m] along the ego's
+    reference path where it enters and leaves that state's region (:func:`along`); ``opens``,
+    ``closes``: its time window [CommonRoad time steps]; ``lowest``: its lowest speed [m/s] (0 where
+    it gives none). ``dt``: the scenario's time step [s]. Build it with :meth:`of`.
+    """
+
+    entry: np.ndarray
+    exit: np.ndarray
+    opens: np.ndarray
+    closes: np.ndarray
+    lowest: np.ndarray
+    dt: float
+
+    @classmethod
+    def of(cls, goal: Goal, xy: np.ndarray, dt: float) -> "Pace | None":
+        """The pace to ``goal`` along the reference path ``xy`` (M, 2) [m]; None when some goal state
+        gives no position or no time window (it is met without timing the arrival)."""
+        if not all(s.has_position and s.time_step is not None for s in goal.states):
+            return None
+        ends = np.array([along(s.region(), xy) for s in goal.states], dtype=float).reshape(-1, 2)
+        windows = np.array([s.time_step for s in goal.states], dtype=float).reshape(-1, 2)
+        lowest = np.array([max(s.velocity[0], 0.0) if s.velocity is not None else 0.0 for s in goal.states])
+        return cls(ends[:, 0], ends[:, 1], windows[:, 0], windows[:, 1], lowest, float(dt))
+
+    def speed(self, step: float, s: float) -> float | None:
+        """The highest speed [m/s] to aim at at CommonRoad time step ``step`` (fractional) with the
+        ego's centre at arc length ``s`` [m]; None: no limit (the route's own).
+
+        For each goal state still to be met (``s`` not past its region, ``step`` not past its window):
+        before its window opens, (middle - s) / (time until it opens), the speed that is halfway through
+        the region (middle = (entry + exit) / 2) as the window opens (past the middle: 0, wait), but
+        never below the state's lowest speed; once its window is open (or the ego is late), no limit.
+        Halfway, not the near edge: the planner tracks the speed only roughly, and half the region
+        either side is the slack for arriving early or late; an ego that starts inside the region
+        drives on instead of braking to wait at its edge. The goal is met by any state, so the pace is
+        the highest of these: None if any state asks for no limit, or if no state is left to meet."""
+        left = (s <= self.exit) & (step <= self.closes)
+        if not left.any():
+            return None
+        wait = (self.opens[left] - step) * self.dt  # (G',) s until each window opens
+        if (wait <= 0.0).any():
+            return None
+        middle = 0.5 * (self.entry[left] + self.exit[left])
+        return float(max(np.max(np.maximum((middle - s) / wait, self.lowest[left])), 0.0))

@@ -391,6 +391,44 @@ def test_the_ego_changes_to_the_goal_lane(tmp_path: Path) -> None:
 
 @needs_cr
 @pytest.mark.sumo
+@pytest.mark.parametrize("velocity", [None, (10.0, 30.0)], ids=["window", "window+speed"])
+def test_the_ego_waits_for_the_goal_window(velocity, tmp_path: Path) -> None:
+    """ZAM_Tutorial with its goal window moved from steps [35, 40] to [100, 110] (10-11 s) and without
+    its car (which cuts in behind the ego at 23 m/s: a test of timing, not of traffic): the goal,
+    lanelet 1, runs from x = 0 to 199 m; the ego starts at x = 15 m at 22 m/s and the road's limit is
+    36.1 m/s, so at the limit it leaves the region long before the window opens (before the pace: the
+    end of the route at step 64, 67 with the goal speed's 30 m/s as the lane's limit). Paced, it aims at the region's middle (99.5 m) as the window opens:
+    (99.5 - 15) / 10 = 8.45 m/s, or the goal's lowest speed where that is higher, and completes in
+    the window."""
+    from sumo_ethics.commonroad.importer import import_commonroad
+
+    text = gzip.open(ZAM, "rt").read()
+    text = text[:text.index("<dynamicObstacle")] + text[text.index("</dynamicObstacle>") + len("</dynamicObstacle>"):]
+    goal = text.index("<goalState>")
+    late = text[goal:].replace("<intervalStart>35</intervalStart>", "<intervalStart>100</intervalStart>", 1)
+    late = late.replace("<intervalEnd>40</intervalEnd>", "<intervalEnd>110</intervalEnd>", 1)
+    if velocity is not None:
+        late = late.replace("<time>", f"<velocity><intervalStart>{velocity[0]}</intervalStart><intervalEnd>"
+                                      f"{velocity[1]}</intervalEnd></velocity><time>", 1)
+    src = tmp_path / "ZAM_late.xml"
+    src.write_text(text[:goal] + late)
+    cfg = import_commonroad(src, tmp_path / "imp").sumocfg
+    s = _run(cfg, tmp_path / "run", controller="ethical")
+    cr = s.data["commonroad"]
+    assert s.data["completed"] and cr["goal_reached"], s.message
+    assert 100 <= cr["goal_time_step"] <= 110
+    steps = pd.read_parquet(tmp_path / "run" / "steps.parquet")
+    first = steps.desired_speed.iloc[0]  # asked at the first step: x = 15 m, 10 s before the window opens
+    assert first == pytest.approx(8.45 if velocity is None else 10.0, abs=0.01)
+    assert steps.speed.max() < 22.5  # never sped up towards the limit
+    if velocity is None:  # halfway through the region as the window opens
+        assert cr["goal_time_step"] == 100 and abs(steps.x.iloc[-1] - 99.5) < 2.0
+    else:  # at the goal's lowest speed, through the middle before the window opens
+        assert 99.5 < steps.x.iloc[-1] < 199.0 and velocity[0] <= steps.speed.iloc[-1] <= velocity[1]
+
+
+@needs_cr
+@pytest.mark.sumo
 def test_same_seed_same_bytes(imported, tmp_path: Path) -> None:
     """Two runs of an imported scenario with the same seed write the same steps and collisions."""
     cfg = imported["BEL", "reactive"]

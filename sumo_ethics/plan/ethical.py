@@ -314,6 +314,9 @@ class EthicalPlanner:
         route = scene.route
         i = route.vertex_at(scene.s)
         v_limit = min(float(route.speed_limit[i]), veh.max_speed)
+        # the progress term's v_desired: the limit, or less where a run hook asks for less (an imported
+        # CommonRoad goal's time window); the candidates still reach the limit
+        v_desired = v_limit if scene.desired_speed is None else min(v_limit, scene.desired_speed)
         v = float(scene.ego.speed[0])
         # the sampled candidates start at the ego's speed v (not at s_dot = v: see at_speed)
         state = FrenetState.at_speed(route.path, scene.s, scene.d, v, s_ddot=self._accel, d_dot=self._lateral[0],
@@ -354,7 +357,7 @@ class EthicalPlanner:
         classes = [legal & ~overlap & on_road & (worst < self.cfg.max_risk), legal & ~overlap & on_road,
                    ~overlap, np.ones(len(fc), dtype=bool)]
         # J_mean averages over the candidates the selection rule chooses among
-        cost = score(fc, risk, self.cfg.cost, desired_speed=v_limit, feasible=self.pool(classes, legal, on_road, overlap))
+        cost = score(fc, risk, self.cfg.cost, desired_speed=v_desired, feasible=self.pool(classes, legal, on_road, overlap))
         w3 = time.perf_counter()
         envelope = self.cfg.envelope * overlap
         entry = self.cfg.entry * np.maximum(horizon_steps - first_hit, 0) / horizon_steps
@@ -374,6 +377,8 @@ class EthicalPlanner:
                     n_candidates=float(len(cand)),
                     n_feasible=float(feas.feasible.sum()), lat_accel_limit=float(lat_limit), horizon=float(cand.horizon[k]),
                     utility_literal=float(self.cfg.cost.utility is UtilityMode.LITERAL))
+        if scene.desired_speed is not None:
+            info["desired_speed"] = v_desired
         d0 = scene.d
         dt = sc.dt
         d1, d2 = float(cand.d[k, 0]), float(cand.d[k, min(1, cand.d.shape[1] - 1)])

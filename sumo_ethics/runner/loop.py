@@ -48,8 +48,11 @@ from sumo_ethics.types import VULNERABLE, RunStatus
 #: ``at_takeover(world) -> RoutePath | None`` (called once, after the takeover and before the first
 #: step; a path returned replaces the ego's reference path),
 #: ``at_route_end(t) -> (status, message)`` (how a run ends when the ego passes its route's end,
-#: instead of completed) and ``summary() -> dict`` (merged into summary.json); it ends the run by
-#: raising :class:`StopRun`. sumo_ethics.sim.commonroad_run uses all of them.
+#: instead of completed), ``desired_speed(t, s) -> float | None`` (every step, after the hooks ran:
+#: the highest speed [m/s] the ego should aim at, at time t [s] and arc length s [m] on its reference
+#: path; the lowest any hook asks for is the scene's ``desired_speed``) and ``summary() -> dict``
+#: (merged into summary.json); it ends the run by raising :class:`StopRun`.
+#: sumo_ethics.sim.commonroad_run uses all of them.
 StepHook = Callable[[Snapshot, SumoWorld], None]
 
 
@@ -267,7 +270,8 @@ class Run:
                     obs = history.observation(t, snap.ego, snap.others)
                 scene = Scene(time=t, dt=dt, ego=snap.ego, others=snap.others, route=route, s=s, d=d,
                               stop_s=self.stop_line(s + half), vehicle=cfg.ego, history=obs,
-                              rule_breakers=rules.breakers(snap.others) if rules is not None else frozenset())
+                              rule_breakers=rules.breakers(snap.others) if rules is not None else frozenset(),
+                              desired_speed=self._desired_speed(t, s))
                 # act
                 decision = controller.act(scene)
                 self.n_fallback += int(decision.info.get("n_fallback", 0))
@@ -363,6 +367,12 @@ class Run:
         cost = {} if self.pairs is None else {"steps": self.pairs.steps, "pairs_per_step": self.pairs.cost(),
                                               "ms_per_step": 1e3 * self.pairs_wall / max(self.pairs.steps, 1)}
         return {"conflicts_others": pair_counts(self.rec.conflicts_others) | cost}
+
+    def _desired_speed(self, t: float, s: float) -> float | None:
+        """The lowest of the speeds [m/s] the hooks ask the ego to aim at now (``desired_speed(t, s)``);
+        None when none asks."""
+        asked = [v for h in self.hooks if hasattr(h, "desired_speed") and (v := h.desired_speed(t, s)) is not None]
+        return min(asked) if asked else None
 
     def _route_end(self, t: float) -> tuple[RunStatus, str]:
         """How the run ends when the ego passes its route's end at time t: completed, unless a hook

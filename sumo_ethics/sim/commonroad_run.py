@@ -14,6 +14,8 @@
   centre, heading and speed at its CommonRoad time step) and ends the run as completed when it is
   reached (:class:`~sumo_ethics.contract.StopRun`); a goal without a position only at the end of its
   time window;
+- asks the controller every step for no more than the speed that is halfway through the goal
+  region as its time window opens (:meth:`desired_speed`, :class:`sumo_ethics.goal.Pace`);
 - measures, every step, how far each replayed obstacle is from its recorded position as SUMO
   reports it (``replay.max_error_m`` in summary.json's ``commonroad`` entry).
 """
@@ -28,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from sumo_ethics.goal import Goal
+from sumo_ethics.goal import Goal, Pace
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.sim.backend import sumo
 from sumo_ethics.sim.frames import centre_to_front, front_to_centre
@@ -63,6 +65,7 @@ class CommonRoadHook:
         self.dt_cr = float(self.meta["dt"])
         self.first = int(self.meta["first_step"])
         self.goal = Goal.from_list(self.meta["goal"])
+        self.pace: Pace | None = None  # along the ego's reference path, from the takeover on
         import pandas as pd
 
         obs = self.meta["obstacles"]
@@ -97,7 +100,8 @@ class CommonRoadHook:
         placed for that step's end, which is CommonRoad step ``first_step``. Returns the ego's
         reference path, changing to the goal's lanes where the route reaches them, with the goal's
         top speed as their speed limit when the goal gives one (None: the runner's own, when the
-        goal names no lanes)."""
+        goal names no lanes). The goal's pace (:meth:`desired_speed`) is measured along the path the
+        ego follows."""
         from sumo_ethics.sim.route import build_route_path
         from sumo_ethics.contract import EgoCommand
 
@@ -108,6 +112,8 @@ class CommonRoadHook:
         self._place(self.t0)
         goal_lanes = frozenset(self.meta.get("goal_lanes", ()))
         if not goal_lanes:
+            if world.route is not None:
+                self.pace = Pace.of(self.goal, world.route.path.xy, self.dt_cr)
             return None
         v = sumo.vehicle
         ego = world.ego_id
@@ -121,7 +127,16 @@ class CommonRoadHook:
             route = replace(route, speed_limit=np.where(on_goal, np.minimum(route.speed_limit, max(tops)),
                                                         route.speed_limit))
         world.route = route
+        self.pace = Pace.of(self.goal, route.path.xy, self.dt_cr)
         return route
+
+    def desired_speed(self, t: float, s: float) -> float | None:
+        """The highest speed [m/s] the ego should aim at at simulation time t [s] with its centre at arc
+        length s [m] on its reference path, so as not to reach the goal region before its time window
+        opens (:meth:`sumo_ethics.goal.Pace.speed`: halfway through the region as the window opens, never
+        below the goal's lowest speed); None: the route's speed limit (the goal gives no position or time window,
+        the window is open, or the ego is late)."""
+        return None if self.pace is None else self.pace.speed(self.step_at(t), s)
 
     def __call__(self, snap: Any, world: Any) -> None:
         u = self.step_at(snap.time)
