@@ -61,3 +61,24 @@ class Scripted:
 @pytest.fixture
 def scenario_dir(tmp_path: Path) -> Path:
     return tmp_path / "scenario"
+
+
+def straight_road_scene(others, history, desired_speed: float | None = None, dt: float = 0.1) -> Scene:
+    """A planner's scene without SUMO: the ego (4.508 x 1.61 m, 1475 kg) at x = 10 m, 10 m/s, heading
+    +x on a straight 500 m road limited to 14 m/s (lanes from y = -1.75 to 5.25 m); ``others``
+    (AgentStates) with their ``history`` (N, H, 2) sampled every ``dt`` [s] (all valid)."""
+    from sumo_ethics.config import EgoVehicle
+    from sumo_ethics.contract import RoutePath
+    from sumo_ethics.geometry import Polyline
+    from sumo_ethics.types import AgentStates, Observation
+
+    path = Polyline.from_points(np.array([[0.0, 0.0], [500.0, 0.0]]))
+    route = RoutePath(edges=("e",), path=path, lane_of_vertex=("e_0", "e_0"), speed_limit=np.full(2, 14.0),
+                      left=np.full(2, 5.25), right=np.full(2, -1.75), links=())
+    ego = AgentStates(ids=("ego",), x=np.array([10.0]), y=np.zeros(1), yaw=np.zeros(1), speed=np.full(1, 10.0),
+                      accel=np.zeros(1), length=np.full(1, 4.508), width=np.full(1, 1.61),
+                      mass=np.full(1, 1475.0), cls=np.zeros(1, np.int8))
+    hist = np.asarray(history, dtype=float)
+    obs = Observation(time=0.0, dt=dt, history=hist, valid=np.ones(hist.shape[:2], bool), current=others, ego=ego)
+    return Scene(time=0.0, dt=dt, ego=ego, others=others, route=route, s=10.0, d=0.0, stop_s=None,
+                 vehicle=EgoVehicle(), history=obs, desired_speed=desired_speed)

@@ -12,13 +12,12 @@ import numpy as np
 import pytest
 from shapely.geometry import Polygon
 
-from sumo_ethics.config import EgoVehicle
-from sumo_ethics.contract import RoutePath, Scene
-from sumo_ethics.geometry import Polyline
+from conftest import straight_road_scene
+from sumo_ethics.contract import Scene
 from sumo_ethics.goal import Goal, GoalState, Pace, along
 from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
 from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor
-from sumo_ethics.types import AgentStates, Observation
+from sumo_ethics.types import AgentStates
 
 PATH = np.array([[0.0, 0.0], [300.0, 0.0]])
 BOX = Polygon([(95, -2), (105, -2), (105, 2), (95, 2)])
@@ -73,18 +72,9 @@ def test_pace_of_several_goal_states() -> None:
 
 def _scene(desired: float | None) -> Scene:
     """The ego at x = 10 m, 10 m/s, on an empty straight road limited to 14 m/s."""
-    path = Polyline.from_points(np.array([[0.0, 0.0], [500.0, 0.0]]))
-    route = RoutePath(edges=("e",), path=path, lane_of_vertex=("e_0", "e_0"), speed_limit=np.full(2, 14.0),
-                      left=np.full(2, 5.25), right=np.full(2, -1.75), links=())
-    ego = AgentStates(ids=("ego",), x=np.array([10.0]), y=np.zeros(1), yaw=np.zeros(1), speed=np.full(1, 10.0),
-                      accel=np.zeros(1), length=np.full(1, 4.508), width=np.full(1, 1.61),
-                      mass=np.full(1, 1475.0), cls=np.zeros(1, np.int8))
     none = AgentStates(ids=(), x=np.zeros(0), y=np.zeros(0), yaw=np.zeros(0), speed=np.zeros(0), accel=np.zeros(0),
                        length=np.zeros(0), width=np.zeros(0), mass=np.zeros(0), cls=np.zeros(0, np.int8))
-    obs = Observation(time=0.0, dt=DT, history=np.zeros((0, 5, 2)), valid=np.zeros((0, 5), bool), current=none,
-                      ego=ego)
-    return Scene(time=0.0, dt=DT, ego=ego, others=none, route=route, s=10.0, d=0.0, stop_s=None,
-                 vehicle=EgoVehicle(), history=obs, desired_speed=desired)
+    return straight_road_scene(none, np.zeros((0, 5, 2)), desired, dt=DT)
 
 
 def test_the_planner_aims_at_the_desired_speed() -> None:

@@ -12,14 +12,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from conftest import straight_road_scene
 from sumo_ethics.config import EgoVehicle
 from sumo_ethics.ethics.cost import CostConfig, score
 from sumo_ethics.ethics.risk import RiskTerms
-from sumo_ethics.geometry import Polyline
 from sumo_ethics.contract import Scene
 from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig, select
 from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor, replace_non_finite
-from sumo_ethics.contract import RoutePath
 from sumo_ethics.types import AgentStates, Candidates, Observation, Prediction
 
 DT = 0.1
@@ -32,17 +31,9 @@ def agents() -> AgentStates:
 
 
 def scene() -> Scene:
-    path = Polyline.from_points(np.array([[0.0, 0.0], [500.0, 0.0]]))
-    route = RoutePath(edges=("e",), path=path, lane_of_vertex=("e_0", "e_0"), speed_limit=np.full(2, 14.0),
-                      left=np.full(2, 5.25), right=np.full(2, -1.75), links=())
-    ego = AgentStates(ids=("ego",), x=np.array([10.0]), y=np.zeros(1), yaw=np.zeros(1), speed=np.full(1, 10.0),
-                      accel=np.zeros(1), length=np.full(1, 4.508), width=np.full(1, 1.61),
-                      mass=np.full(1, 1475.0), cls=np.zeros(1, np.int8))
     others = agents()
     hist = np.stack([others.xy - np.array([[0.8, 0.0], [0.5, 0.0]]) * i for i in range(5)][::-1], axis=1)
-    obs = Observation(time=0.0, dt=DT, history=hist, valid=np.ones((2, 5), bool), current=others, ego=ego)
-    return Scene(time=0.0, dt=DT, ego=ego, others=others, route=route, s=10.0, d=0.0, stop_s=None,
-                 vehicle=EgoVehicle(), history=obs)
+    return straight_road_scene(others, hist, dt=DT)
 
 
 class Broken:
