@@ -108,15 +108,11 @@ def decisions_of(run: Path, ego: str | None = None) -> str | None:
 
 def record_mode(run: Path) -> str | None:
     """The recording mode a run was made with (config.json, else summary.json), or None."""
-    for name, key in (("config.json", ("record_decisions",)), ("summary.json", ("decisions", "mode"))):
-        try:
-            d: Any = json.loads((Path(run) / name).read_text())
-            for k in key:
-                d = d[k]
-            return str(d)
-        except (OSError, ValueError, KeyError, TypeError):
-            continue
-    return None
+    mode = _json(run, "config.json").get("record_decisions")
+    if mode is None:
+        kept = _json(run, "summary.json").get("decisions")
+        mode = kept.get("mode") if isinstance(kept, dict) else None
+    return None if mode is None else str(mode)
 
 
 def resolve_step(run: Path, step: int | None = None, time: float | None = None, collision: int | None = None,
@@ -166,7 +162,7 @@ def _party(row: dict[str, Any], ego: str | None, what: str) -> None:
         raise ConfigError(f"ego '{ego}' is not a party of {what} (parties: '{row['id_a']}' and '{row['id_b']}')")
 
 
-def _other(row: dict[str, Any], ego: str | None) -> str:
+def other_party(row: dict[str, Any], ego: str | None) -> str:
     """The party of ``row`` that is not ``ego``: "a" or "b" (b for the single ego, party a)."""
     return "a" if ego is not None and row["id_b"] == ego else "b"
 
@@ -207,7 +203,7 @@ def conflict_mark(run: Path, event: int, ego: str | None = None) -> tuple[float,
     """Where the other party of conflict ``event`` (other than fleet ego ``ego``) was at its worst
     moment, and what the conflict was."""
     r = _conflict_row(run, event, ego)
-    p = _other(r, ego)
+    p = other_party(r, ego)
     what = [f"min TTC {r['min_ttc']:.2f} s" if np.isfinite(r["min_ttc"]) else "",
             f"min PET {r['min_pet']:.2f} s" if np.isfinite(r["min_pet"]) else ""]
     return (float(r[f"x_{p}"]), float(r[f"y_{p}"]),
@@ -228,7 +224,7 @@ def hit_of(run: Path, event: int, ego: str | None = None) -> tuple[float, float,
 def collision_mark(row: dict[str, Any], ego: str | None = None) -> tuple[float, float, str]:
     """Where the other party of collision ``row`` (other than fleet ego ``ego``) was just before
     impact, and who it was."""
-    p = _other(row, ego)
+    p = other_party(row, ego)
     return float(row[f"x_{p}"]), float(row[f"y_{p}"]), f"hit: {row[f'class_{p}']} '{row[f'id_{p}']}'"
 
 
