@@ -368,6 +368,20 @@ def test_evaluate_a_folder_of_commonroad_files(tmp_path: Path, capsys) -> None:
     assert (res.replay_max_error_m < 0.01).all()
     assert "2 of 4 files imported" in (out / "table1.md").read_text()
 
+    # --resume reads the finished runs back instead of running them again; a killed run (no
+    # summary) is run again
+    runs = out / "runs" / "baseline"
+    kept = runs / "BEL_Putte-1_1_T-1-replay" / "summary.json"
+    mtime = kept.stat().st_mtime_ns
+    (runs / "ZAM_Tutorial-1_1_T-1-replay" / "summary.json").unlink()
+    assert main(["evaluate", str(src), "--planner", "baseline", "--out", str(out), "--workers", "1", "--quiet",
+                 "--resume"]) == 0
+    assert kept.stat().st_mtime_ns == mtime
+    assert (runs / "ZAM_Tutorial-1_1_T-1-replay" / "summary.json").is_file()
+    again = pd.read_csv(out / "results.csv")
+    cols = [c for c in res.columns if c != "wall_s"]
+    pd.testing.assert_frame_equal(again[cols], res[cols])
+
 
 @needs_cr
 @pytest.mark.sumo

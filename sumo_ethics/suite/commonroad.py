@@ -137,15 +137,13 @@ def _line(row: dict[str, Any]) -> str:
 
 def run_one(scenario_dir: str, planner: Any, out_dir: str, record_decisions: str = "risky") -> dict[str, Any]:
     """One imported CommonRoad folder with one planner -> a result row for evaluate (never raises)."""
-    from sumo_ethics.analysis.exante import run_risk_file
-    from sumo_ethics.suite.outcome import outcome, read_summary
+    from sumo_ethics.suite.outcome import read_summary
 
     t0 = time.perf_counter()
     folder = Path(scenario_dir)
     row: dict[str, Any] = {"scenario": folder.name, "planner": planner.name}
     try:
         meta = json.loads((folder / MARKER).read_text())
-        row.update(network=f"commonroad-{meta['mode']}", hazard="", seed=SEED)
         from sumo_ethics.config import RunConfig
         from sumo_ethics.runner import make_controller, run
         from sumo_ethics.settings import planner_config
@@ -160,21 +158,49 @@ def run_one(scenario_dir: str, planner: Any, out_dir: str, record_decisions: str
             data = read_summary(Path(out_dir)) or {"status": "error", "message": str(exc)}
             if not data.get("message"):
                 data["message"] = f"{type(exc).__name__}: {exc}"
-        harm = data.get("harm", {})
-        cr = data.get("commonroad", {})
-        row.update(status=data.get("status", "error"), completed=bool(data.get("completed", False)),
-                   total=float(harm.get("total", 0.0)), ego=float(harm.get("ego", 0.0)),
-                   third_party=float(harm.get("third_party", 0.0)), vru=float(harm.get("vru", 0.0)),
-                   message=str(data.get("message", ""))[:200], steps=int(data.get("steps", 0) or 0),
-                   hazards_fired="", goal_reached=bool(cr.get("goal_reached", False)),
-                   goal_time_step=cr.get("goal_time_step"),
-                   replay_max_error_m=float(cr.get("replay", {}).get("max_error_m", float("nan"))),
-                   **outcome(Path(out_dir), data), **run_risk_file(Path(out_dir)))
+        row.update(_row(meta, Path(out_dir), data))
     except Exception as exc:  # noqa: BLE001
         row.update(status="error", completed=False, total=0.0, ego=0.0, third_party=0.0, vru=0.0,
                    message=f"{type(exc).__name__}: {exc}"[:200], steps=0, hazards_fired="", collided_with="")
     row["wall_s"] = time.perf_counter() - t0
     return row
+
+
+def row_from_folder(scenario_dir: str, planner: Any, out_dir: str) -> dict[str, Any] | None:
+    """The row of a finished run of an imported CommonRoad folder (for ``evaluate --resume``), None
+    when ``out_dir`` holds no finished run: no summary, a killed run's chunks, or a run that was
+    interrupted or ended in an error (those are run again)."""
+    from sumo_ethics.record.reader import is_incomplete
+    from sumo_ethics.suite.outcome import read_summary
+
+    out, folder = Path(out_dir), Path(scenario_dir)
+    data = read_summary(out)
+    if data is None or is_incomplete(out) or data.get("status") in ("interrupted", "error", None):
+        return None
+    try:
+        meta = json.loads((folder / MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    return {"scenario": folder.name, "planner": planner.name, **_row(meta, out, data),
+            "wall_s": float(data.get("wall_time", 0.0) or 0.0)}
+
+
+def _row(meta: dict[str, Any], out: Path, data: dict[str, Any]) -> dict[str, Any]:
+    """The result columns of one run from its import's ``commonroad.json``, its folder and summary."""
+    from sumo_ethics.analysis.exante import run_risk_file
+    from sumo_ethics.suite.outcome import outcome
+
+    harm = data.get("harm", {})
+    cr = data.get("commonroad", {})
+    return dict(network=f"commonroad-{meta['mode']}", hazard="", seed=SEED,
+                status=data.get("status", "error"), completed=bool(data.get("completed", False)),
+                total=float(harm.get("total", 0.0)), ego=float(harm.get("ego", 0.0)),
+                third_party=float(harm.get("third_party", 0.0)), vru=float(harm.get("vru", 0.0)),
+                message=str(data.get("message", ""))[:200], steps=int(data.get("steps", 0) or 0),
+                hazards_fired="", goal_reached=bool(cr.get("goal_reached", False)),
+                goal_time_step=cr.get("goal_time_step"),
+                replay_max_error_m=float(cr.get("replay", {}).get("max_error_m", float("nan"))),
+                **outcome(out, data), **run_risk_file(out))
 
 
 def failure_summary(rows: list[dict[str, Any]]) -> list[tuple[str, int]]:

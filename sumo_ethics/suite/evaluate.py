@@ -246,9 +246,11 @@ def _dead_row(scenario: str, planner: PlannerSpec, why: str) -> dict[str, Any]:
 def _row_from_folder(scenario: str, planner: PlannerSpec, out_dir: str, *_: Any) -> dict[str, Any] | None:
     """The row of a finished run (for --resume), None if the folder holds no finished run."""
     out = Path(out_dir)
+    if (Path(scenario) / "commonroad.json").is_file():  # an imported CommonRoad scenario
+        from sumo_ethics.suite import commonroad
+
+        return commonroad.row_from_folder(scenario, planner, out_dir)
     data = read_summary(out)
-    if (Path(scenario) / "commonroad.json").is_file():  # CommonRoad runs are not resumed: run again
-        return None
     if data is None or not (out / "hazard_events.json").is_file():
         return None
     from sumo_ethics.suite.spec import load
