@@ -15,6 +15,7 @@ CommonRoad files in ``--mode replay`` and ``--mode reactive``. Prints Markdown:
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import pandas as pd
@@ -28,11 +29,22 @@ HARM = ("total", "ego", "third_party", "vru")
 OUTCOMES = ("completed", "collision", "timeout", "error")
 
 
+def _fault(run: Path) -> str:
+    """Who caused the run's first booked ego collision (summary.json), '' without one."""
+    try:
+        f = json.loads((run / "summary.json").read_text())["collisions"]["fault"]
+    except (OSError, ValueError, KeyError):
+        return ""
+    return max(f, key=f.get) if sum(f.values()) else ""
+
+
 def _load(folder: Path, mode: str) -> pd.DataFrame:
     r = pd.read_csv(folder / "results.csv")
     r["file"] = r.scenario.str.removesuffix(f"-{mode}")
     r["outcome"] = r.status.where(r.status.isin(OUTCOMES), "error")
     r.loc[r.completed.astype(bool), "outcome"] = "completed"
+    r["fault"] = [_fault(folder / "runs" / p / s) if o == "collision" else ""
+                  for p, s, o in zip(r.planner, r.scenario, r.outcome)]
     return r
 
 
@@ -43,14 +55,16 @@ def tables(replay: Path, reactive: Path) -> str:
     planners = list(dict.fromkeys(a.planner))
     out = [f"{len(files)} files ran in both modes ({a.file.nunique()} in replay, "
            f"{_load(reactive, 'reactive').file.nunique()} in reactive).", "",
-           "| planner | mode | completed | ego collisions | timeouts | errors | total harm | ego | third party | VRU |",
+           "| planner | mode | completed | ego collisions (fault ego / other / unknown) | timeouts | errors | total harm | ego | "
+           "third party | VRU |",
            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for p in planners:
         for mode, r in (("replay", a), ("reactive", b)):
             s = r[r.planner == p]
             n = s.outcome.value_counts()
             out.append(f"| {p} | {mode} | {n.get('completed', 0)} / {len(s)} ({100 * n.get('completed', 0) / len(s):.1f} %) "
-                       f"| {n.get('collision', 0)} | {n.get('timeout', 0)} | {n.get('error', 0)} | "
+                       f"| {n.get('collision', 0)} ({' / '.join(str(int((s.fault == f).sum())) for f in ('ego', 'other', 'unknown'))}) "
+                       f"| {n.get('timeout', 0)} | {n.get('error', 0)} | "
                        + " | ".join(f"{s[h].sum():.2f}" for h in HARM) + " |")
     out += ["", "Outcome per file, replay (rows) -> reactive (columns):", "",
             "| planner | replay | " + " | ".join(f"-> {o}" for o in OUTCOMES[:3]) + " |",
