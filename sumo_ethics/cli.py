@@ -536,14 +536,18 @@ def replay(run_dir: Path, out: Path, every: int, fps: float | None, ego: str | N
               help="replay: every recorded road user follows its recorded states exactly; reactive: they start "
                    "as recorded and SUMO drives them along their recorded route (those it cannot, e.g. parked "
                    "cars, are replayed).")
-def import_commonroad_cmd(scenario: Path, out: Path | None, mode: str) -> None:
+@click.option("--completion", type=click.Choice(["commonroad", "origin"]), default="commonroad", show_default=True,
+              help="commonroad: completed in the goal region within its time window, the run ends at the window's "
+                   "last step; origin: as the paper's evaluation counted it, arriving after the window completes too "
+                   "(late), the run lasts twice the goal's last time step (default folder <name>-<mode>-late).")
+def import_commonroad_cmd(scenario: Path, out: Path | None, mode: str, completion: str) -> None:
     """Import a CommonRoad scenario (.xml or .xml.gz) into a SUMO scenario folder for run, sweep and evaluate.
 
     Needs the optional packages: pip install 'sumo-ethics[commonroad]'.
     """
     from sumo_ethics.commonroad.importer import import_commonroad
 
-    res = import_commonroad(scenario, out, mode)
+    res = import_commonroad(scenario, out, mode, completion)
     click.echo(f"imported {scenario.name} ({mode}) in {res.seconds:.1f} s: {res.n_obstacles} road users "
                f"({res.n_replayed} replayed, {res.n_reactive} driven by SUMO)"
                + (f", {len(res.skipped)} not imported" if res.skipped else ""))

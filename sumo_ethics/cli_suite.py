@@ -59,9 +59,14 @@ def generate_cmd(count: int, seed: int, out: Path, family: str) -> None:
                                       "carries risk, at most one per 0.5 s, and the 5 s before every ego collision).")
 @click.option("--mode", type=click.Choice(["replay", "reactive"]), default="replay", show_default=True,
               help="For a folder of CommonRoad files: how the recorded road users are driven (see import-commonroad).")
+@click.option("--completion", type=click.Choice(["commonroad", "origin"]), default="commonroad", show_default=True,
+              help="For a folder of CommonRoad files: commonroad = the goal region within its time window (the run "
+                   "ends at the window's last step); origin = as the paper's evaluation counted it: arriving after "
+                   "the window completes too (late), runs last twice the goal's last time step.")
 @click.option("--quiet", is_flag=True, help="No per-run progress lines.")
 def evaluate_cmd(suite_dir: Path, planners: tuple[str, ...], workers: int, out: Path, limit: int | None,
-                 reference: str | None, resume: bool, record_decisions: str, mode: str, quiet: bool) -> None:
+                 reference: str | None, resume: bool, record_decisions: str, mode: str, completion: str,
+                 quiet: bool) -> None:
     """Run every scenario of SUITE with each planner and write the paper's Table 1.
 
     SUITE is a generated suite, or a folder of CommonRoad files (.xml, .xml.gz; imported on the fly into
@@ -81,7 +86,7 @@ def evaluate_cmd(suite_dir: Path, planners: tuple[str, ...], workers: int, out: 
 
     csv, md = evaluate(suite_dir, list(planners), out, workers=workers, limit=limit, reference=reference,
                        progress=progress, resume=resume, record_decisions=record_decisions, mode=mode,
-                       on_import=imported)
+                       on_import=imported, completion=completion)
     click.echo(md.read_text())
     click.echo(f"tables: {csv}, {md}" + (f"; imports: {md.parent / 'imports.csv'}"
                                          if (md.parent / "imports.csv").is_file() else ""))

@@ -13,7 +13,8 @@ A goal state holds when every quantity it gives holds (those it leaves out are f
 - ``velocity``: the speed lies in the closed interval.
 
 :meth:`Goal.completes` is what ends a run: the same, but a goal state without a position holds
-only at the last step of its time window (see there).
+only at the last step of its time window (see there); or, under the ``origin`` rule, as the paper's
+evaluation counted: reaching the goal after its time window completes too (late).
 
 :class:`Pace` is how fast the ego should go so as not to reach the goal region before its time
 window opens (the speed an imported CommonRoad scenario's run asks the planner to aim at).
@@ -33,6 +34,11 @@ import shapely
 from shapely.geometry import LineString, Point, Polygon
 
 TWO_PI = 2.0 * math.pi
+#: completion rules of :meth:`Goal.completes`
+COMPLETIONS = ("commonroad", "origin")
+#: under the ``origin`` rule a run lasts this many times its goal's last time step (Origin's
+#: ScenarioHandler: ``max_simulation_time_steps = int(goal time_step.end * 2.0)``)
+ORIGIN_TIME_FACTOR = 2.0
 
 
 def _wrap(a: float) -> float:
@@ -53,8 +59,9 @@ class GoalState:
     def has_position(self) -> bool:
         return bool(self.polygons or self.circles)
 
-    def holds(self, step: int, x: float, y: float, yaw: float, speed: float) -> bool:
-        if self.time_step is not None and not self.time_step[0] <= step <= self.time_step[1]:
+    def holds(self, step: int, x: float, y: float, yaw: float, speed: float, late: bool = False) -> bool:
+        """Every quantity the state gives holds; ``late``: a time step after the window counts too."""
+        if self.time_step is not None and not self.time_step[0] <= step <= (math.inf if late else self.time_step[1]):
             return False
         if self.has_position and not self.contains(x, y):
             return False
@@ -106,13 +113,27 @@ class Goal:
         """commonroad-io's ``GoalRegion.is_reached`` for this state."""
         return any(s.holds(step, x, y, yaw, speed) for s in self.states)
 
-    def completes(self, step: int, x: float, y: float, yaw: float, speed: float) -> bool:
-        """Whether a run ends here as completed: :meth:`is_reached`, except that a goal state giving no
-        position (a time window, perhaps with speed or heading: "drive on safely until then") counts only
-        at its window's last step. commonroad-io's check alone would end such a run at its first step
-        (any state in the window reaches it), before anything happened."""
+    def completes(self, step: int, x: float, y: float, yaw: float, speed: float, rule: str = "commonroad") -> bool:
+        """Whether a run ends here as completed.
+
+        ``commonroad``: :meth:`is_reached`, except that a goal state giving no position (a time window,
+        perhaps with speed or heading: "drive on safely until then") counts only at its window's last
+        step. commonroad-io's check alone would end such a run at its first step (any state in the
+        window reaches it), before anything happened.
+
+        ``origin``: as the paper's and Origin's evaluation (EthicalTrajectoryPlanning's
+        ``GoalReachedChecker``: reached in time, or reached with the time exceeded): a goal state holds
+        from its window's first step on, also after the window has closed (:meth:`late` tells which),
+        and one without a position as soon as its window opens."""
+        if rule == "origin":
+            return any(s.holds(step, x, y, yaw, speed, late=True) for s in self.states)
         return any(s.holds(step, x, y, yaw, speed) and (s.has_position or s.time_step is None
                                                        or step >= s.time_step[1]) for s in self.states)
+
+    def late(self, step: int) -> bool:
+        """Whether ``step`` is after the time window of every goal state that has one (False if none has)."""
+        ends = [s.time_step[1] for s in self.states if s.time_step is not None]
+        return bool(ends) and step > max(ends)
 
     @property
     def last_step(self) -> int | None:

@@ -67,6 +67,15 @@ def test_goal_by_hand() -> None:
     assert g2.completes(5, 1.2, 1.6, 0.0, 0.0)
     assert not g2.completes(55, 1e4, 1e4, 1.0, 99.0) and g2.completes(60, 1e4, 1e4, 1.0, 99.0)
     assert g.completes(35, 105.0, 0.0, math.pi, 15.0)
+    # the paper's evaluation (rule "origin"): reached after the window completes too, late; before it does
+    # not; a time-only goal state counts as soon as its window opens
+    assert not g.completes(41, 105.0, 0.0, math.pi, 15.0)
+    assert g.completes(41, 105.0, 0.0, math.pi, 15.0, rule="origin") and g.late(41) and not g.late(40)
+    assert g.completes(900, 105.0, 0.0, math.pi, 15.0, rule="origin")
+    assert not g.completes(34, 105.0, 0.0, math.pi, 15.0, rule="origin")
+    assert not g.completes(41, 99.9, 0.0, math.pi, 15.0, rule="origin")  # late, but outside the box
+    assert g2.completes(50, 1e4, 1e4, 1.0, 99.0, rule="origin") and not g2.completes(49, 1e4, 1e4, 1.0, 99.0, rule="origin")
+    assert not g2.late(60) and g2.late(61)
     # the serialised form round-trips
     assert Goal.from_list(json.loads(json.dumps(g.to_list()))).is_reached(35, 105.0, 0.0, math.pi, 15.0)
 
@@ -382,6 +391,16 @@ def test_evaluate_a_folder_of_commonroad_files(tmp_path: Path, capsys) -> None:
     cols = [c for c in res.columns if c != "wall_s"]
     pd.testing.assert_frame_equal(again[cols], res[cols])
 
+    # Origin's completion rule: imported again into their own folders, and said in the table
+    late = tmp_path / "late"
+    assert main(["evaluate", str(src), "--planner", "baseline", "--out", str(late), "--workers", "1", "--quiet",
+                 "--completion", "origin"]) == 0
+    assert sorted(p.name for p in (late / "imported").iterdir()) == ["BEL_Putte-1_1_T-1-replay-late",
+                                                                    "ZAM_Tutorial-1_1_T-1-replay-late"]
+    table = (late / "table1.md").read_text()
+    assert "--completion origin" in table and "Completed late: baseline " in table
+    assert "goal_late" in pd.read_csv(late / "results.csv")
+
 
 @needs_cr
 @pytest.mark.sumo
@@ -439,6 +458,38 @@ def test_the_ego_waits_for_the_goal_window(velocity, tmp_path: Path) -> None:
         assert cr["goal_time_step"] == 100 and abs(steps.x.iloc[-1] - 99.5) < 2.0
     else:  # at the goal's lowest speed, through the middle before the window opens
         assert 99.5 < steps.x.iloc[-1] < 199.0 and velocity[0] <= steps.speed.iloc[-1] <= velocity[1]
+
+
+@needs_cr
+@pytest.mark.sumo
+def test_late_arrival_counts_only_under_the_origin_rule(tmp_path: Path) -> None:
+    """ZAM_Tutorial without its car and with the goal a 15 m x 3.5 m box centred at x = 187.5 m on the
+    ego's lane, window steps [35, 40] (3.5-4 s): the ego starts at x = 15 m at 22 m/s, so even at the
+    road's 36.1 m/s it is at most 15 + 36.1 * 4 = 159 m far by the window's end, and its centre reaches
+    the box (x >= 180 m) only after it. Under the CommonRoad rule the run ends at step 40 without
+    the goal; under Origin's it goes on to step 80 (twice 40) and completes, late, in the box."""
+    from sumo_ethics.commonroad.importer import default_out, import_commonroad
+
+    text = gzip.open(ZAM, "rt").read()
+    text = text[:text.index("<dynamicObstacle")] + text[text.index("</dynamicObstacle>") + len("</dynamicObstacle>"):]
+    box = ("<rectangle><length>15</length><width>3.5</width><orientation>0</orientation>"
+           "<center><x>187.5</x><y>0</y></center></rectangle>")
+    goal = text.index("<goalState>")
+    src = tmp_path / "ZAM_far.xml"
+    src.write_text(text[:goal] + text[goal:].replace('<lanelet ref="1"/>', box, 1))
+    strict = import_commonroad(src, tmp_path / "cr")
+    late = import_commonroad(src, tmp_path / "origin", completion="origin")
+    assert json.loads((late.folder / "commonroad.json").read_text())["completion"] == "origin"
+    assert default_out(src, "replay", "origin").name == "ZAM_far-replay-late"
+    a = _run(strict.sumocfg, tmp_path / "run_cr")
+    assert a.data["status"] == "timeout" and not a.data["commonroad"]["goal_reached"], a.message
+    assert pd.read_parquet(tmp_path / "run_cr" / "steps.parquet").x.max() < 160.0
+    b = _run(late.sumocfg, tmp_path / "run_origin")
+    cr = b.data["commonroad"]
+    assert b.data["completed"] and cr["goal_reached"] and cr["goal_late"] and cr["completion"] == "origin", b.message
+    assert 40 < cr["goal_time_step"] <= 80 and "late" in b.message
+    x = pd.read_parquet(tmp_path / "run_origin" / "steps.parquet").x.iloc[-1]
+    assert 180.0 <= x <= 195.0
 
 
 @needs_cr

@@ -8,9 +8,11 @@ The folder (``--out``)::
     <name>.rou.xml        one vType per obstacle (its class and size), the ego (departing at the
                           begin, on a route from its start lane to the goal's lanes) and, in
                           reactive mode, the obstacles SUMO drives (departing at their recorded start)
-    <name>.sumocfg        step = the scenario's dt; end = the goal's last time step
+    <name>.sumocfg        step = the scenario's dt; end = the goal's last time step (``--completion
+                          origin``: twice that step, as the paper's evaluation)
     obstacles.parquet     the recorded states the replay follows: one row per obstacle and time step
-    commonroad.json       the planning problem (the ego's initial state and goal region), the mode
+    commonroad.json       the planning problem (the ego's initial state and goal region), the mode,
+                          the completion rule (:meth:`sumo_ethics.goal.Goal.completes`)
                           and how each obstacle is driven; its presence marks the folder as imported
 
 Only commonroad-io and commonroad-sumo (the ``commonroad`` extra) are used here; the net is read
@@ -42,7 +44,7 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from sumo_ethics.goal import Goal, GoalState
+from sumo_ethics.goal import COMPLETIONS, ORIGIN_TIME_FACTOR, Goal, GoalState
 from sumo_ethics.errors import ConfigError
 
 MODES = ("replay", "reactive")
@@ -320,8 +322,13 @@ class ImportResult:
     skipped: tuple[str, ...]
 
 
-def default_out(path: Path, mode: str) -> Path:
-    return Path("commonroad") / f"{scenario_name(path)}-{mode}"
+def folder_name(path: Path, mode: str, completion: str = "commonroad") -> str:
+    """``<name>-<mode>``, and ``-late`` under the ``origin`` completion rule."""
+    return f"{scenario_name(path)}-{mode}" + ("-late" if completion == "origin" else "")
+
+
+def default_out(path: Path, mode: str, completion: str = "commonroad") -> Path:
+    return Path("commonroad") / folder_name(path, mode, completion)
 
 
 def check_out(out: Path) -> None:
@@ -329,12 +336,15 @@ def check_out(out: Path) -> None:
         raise ConfigError(f"--out {out} exists and is not an empty folder; choose a new one (nothing is overwritten)")
 
 
-def import_commonroad(path: Path, out: Path | None = None, mode: str = "replay") -> ImportResult:
+def import_commonroad(path: Path, out: Path | None = None, mode: str = "replay",
+                      completion: str = "commonroad") -> ImportResult:
     """Import the CommonRoad file ``path`` into the folder ``out`` (new or empty); see the module doc."""
     if mode not in MODES:
         raise ConfigError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
+    if completion not in COMPLETIONS:
+        raise ConfigError(f"--completion must be one of {', '.join(COMPLETIONS)}, got {completion!r}")
     path = Path(path)
-    out = Path(out) if out is not None else default_out(path, mode)
+    out = Path(out) if out is not None else default_out(path, mode, completion)
     check_out(out)
     t0 = time.perf_counter()
     scenario, problems = read(path)
@@ -342,7 +352,7 @@ def import_commonroad(path: Path, out: Path | None = None, mode: str = "replay")
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.import-", dir=_existing_parent(out)))
     try:
         try:
-            result = _build(path, scenario, problems, tmp, name, mode)
+            result = _build(path, scenario, problems, tmp, name, mode, completion)
         except ConfigError as exc:  # every cause names the file, once
             raise (exc if str(exc).startswith(f"{path.name}: ") else ConfigError(f"{path.name}: {exc}")) from None
         if out.exists():  # an empty folder (checked above): its place is taken by the new one
@@ -365,7 +375,7 @@ def _existing_parent(out: Path) -> Path:
 
 
 def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
-           mode: str) -> tuple[int, int, int, list[str]]:
+           mode: str, completion: str = "commonroad") -> tuple[int, int, int, list[str]]:
     from sumo_ethics.sim.crnet import ego_route, from_lane, match_lane, obstacle_route, read_net, replay_edge
 
     dt = float(scenario.dt)
@@ -389,6 +399,8 @@ def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
     if k_end < k_start:
         raise ConfigError(f"{path.name}: unsupported: the goal's time window ends (step {k_end}) before the ego starts "
                           f"(step {k_start})")
+    if completion == "origin" and goal.last_step is not None:  # Origin's evaluation runs twice the goal's time
+        k_end = max(k_end, int(goal.last_step * ORIGIN_TIME_FACTOR))
     rows, info, skipped = obstacle_rows(scenario, k_start, k_end)
     net_path, lanelet_lanes = convert_net(scenario, folder, name)
     net = read_net(net_path)
@@ -456,7 +468,7 @@ def _build(path: Path, scenario: Any, problems: Any, folder: Path, name: str,
 
     meta = {
         "format": FORMAT, "source": str(path.resolve()), "scenario_id": str(scenario.scenario_id), "mode": mode,
-        "dt": dt, "takeover_steps": TAKEOVER_STEPS, "first_step": k_start, "last_step": k_end,
+        "completion": completion, "dt": dt, "takeover_steps": TAKEOVER_STEPS, "first_step": k_start, "last_step": k_end,
         "planning_problem_id": int(pid), "n_planning_problems": len(problems.planning_problem_dict),
         "ego": {"x": ex, "y": ey, "yaw": eyaw, "speed": espeed, "time_step": k_start, "length": EGO_LENGTH,
                 "width": EGO_WIDTH, "lane": start_lane.getID(), "route": route},

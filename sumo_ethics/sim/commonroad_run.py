@@ -10,10 +10,10 @@
   size) when its record begins, moved with ``moveToXY`` (exact position, keepRoute 2|4) to its
   recorded state for the coming step, and removed when its record ends; nothing reacts to the ego;
   between recorded steps (a run step shorter than the scenario's) the state is interpolated;
-- checks the goal region every step (:meth:`sumo_ethics.goal.Goal.completes`, the ego's
-  centre, heading and speed at its CommonRoad time step) and ends the run as completed when it is
-  reached (:class:`~sumo_ethics.contract.StopRun`); a goal without a position only at the end of its
-  time window;
+- checks the goal region every step (:meth:`sumo_ethics.goal.Goal.completes` under the import's
+  completion rule, the ego's centre, heading and speed at its CommonRoad time step) and ends the run
+  as completed when it is reached (:class:`~sumo_ethics.contract.StopRun`); a goal without a
+  position only at the end of its time window (rule ``commonroad``);
 - asks the controller every step for no more than the speed that is halfway through the goal
   region as its time window opens (:meth:`desired_speed`, :class:`sumo_ethics.goal.Pace`);
 - measures, every step, how far each replayed obstacle is from its recorded position as SUMO
@@ -80,6 +80,7 @@ class CommonRoadHook:
         self._routes: set[str] = set()  # insertion routes added, one per edge
         self.t0: float | None = None
         self.goal_reached = False
+        self.completion = str(self.meta.get("completion", "commonroad"))  # imports before the option: commonroad
         self.goal_time: float | None = None
         self.goal_step: int | None = None
         self.max_error = 0.0
@@ -144,11 +145,13 @@ class CommonRoadHook:
         self._check(snap.time, u)
         ego = snap.ego
         if abs(u - k) < 1e-6 and self.goal.completes(k, float(ego.x[0]), float(ego.y[0]), float(ego.yaw[0]),
-                                                     float(ego.speed[0])):
+                                                     float(ego.speed[0]), self.completion):
             self.goal_reached, self.goal_time, self.goal_step = True, float(snap.time), k
             from sumo_ethics.contract import StopRun
 
-            raise StopRun(RunStatus.COMPLETED, f"CommonRoad goal reached at t={snap.time:g} s (time step {k})")
+            late = " (late: after the goal's time window, counted as the paper's evaluation does)" \
+                if self.goal.late(k) else ""
+            raise StopRun(RunStatus.COMPLETED, f"CommonRoad goal reached at t={snap.time:g} s (time step {k}){late}")
         self._place(snap.time + sumo.simulation.getDeltaT())
 
     def at_route_end(self, t: float) -> tuple[RunStatus, str]:
@@ -160,7 +163,9 @@ class CommonRoadHook:
     def summary(self) -> dict[str, Any]:
         return {"commonroad": {
             "scenario_id": self.meta["scenario_id"], "mode": self.meta["mode"], "source": self.meta["source"],
-            "goal_reached": self.goal_reached, "goal_time": self.goal_time, "goal_time_step": self.goal_step,
+            "completion": self.completion, "goal_reached": self.goal_reached,
+            "goal_late": self.goal_reached and self.goal_step is not None and self.goal.late(self.goal_step),
+            "goal_time": self.goal_time, "goal_time_step": self.goal_step,
             "first_step": self.first, "last_step": self.meta["last_step"], "time_offset": self.t0,
             "obstacles": self.meta["obstacles"]["count"], "replayed": len(self.info),
             "driven_by_sumo": len(self.meta["obstacles"]["driven_by_sumo"]),

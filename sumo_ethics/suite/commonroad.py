@@ -48,9 +48,9 @@ def cause_of(message: str) -> str:
     return re.sub(r"\s+", " ", text).strip(" :")
 
 
-def _import_one(args: tuple[str, str, str]) -> dict[str, Any]:
-    src, dest, mode = args
-    row: dict[str, Any] = {"file": src, "folder": dest, "mode": mode}
+def _import_one(args: tuple[str, str, str, str]) -> dict[str, Any]:
+    src, dest, mode, completion = args
+    row: dict[str, Any] = {"file": src, "folder": dest, "mode": mode, "completion": completion}
     try:  # the packages loaded before the clock starts: the time is the scenario's own
         import commonroad.common.file_reader  # noqa: F401
         import commonroad_sumo.cr2sumo.map_converter.map_converter  # noqa: F401
@@ -63,7 +63,7 @@ def _import_one(args: tuple[str, str, str]) -> dict[str, Any]:
     try:
         from sumo_ethics.commonroad.importer import import_commonroad
 
-        res = import_commonroad(Path(src), Path(dest), mode)
+        res = import_commonroad(Path(src), Path(dest), mode, completion)
         row.update(status="imported", cause="", message="", obstacles=res.n_obstacles, replayed=res.n_replayed,
                    driven_by_sumo=res.n_reactive)
     except SumoEthicsError as exc:
@@ -75,32 +75,44 @@ def _import_one(args: tuple[str, str, str]) -> dict[str, Any]:
     return row
 
 
+def _kind(marker: Path) -> tuple[Any, Any, Any]:
+    """(source, mode, completion rule) of an imported folder's ``commonroad.json``."""
+    m = json.loads(marker.read_text())
+    return m.get("source"), m.get("mode"), m.get("completion", "commonroad")
+
+
 def prepare(folder: Path, out: Path, mode: str, workers: int = 2,
-            progress: Callable[[str], None] | None = None) -> tuple[list[Path], list[dict[str, Any]]]:
+            progress: Callable[[str], None] | None = None,
+            completion: str = "commonroad") -> tuple[list[Path], list[dict[str, Any]]]:
     """(imported folders to run, one row per file: imported/reused/failed with cause and seconds);
-    writes OUT/imports.csv."""
+    writes OUT/imports.csv. Folders imported ahead are run when their mode and completion rule are
+    the ones asked for."""
     import pandas as pd
 
-    from sumo_ethics.commonroad.importer import MODES, require_packages, scenario_name
+    from sumo_ethics.commonroad.importer import MODES, folder_name, require_packages, scenario_name
+    from sumo_ethics.goal import COMPLETIONS
 
     if mode not in MODES:
         raise ConfigError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
+    if completion not in COMPLETIONS:
+        raise ConfigError(f"--completion must be one of {', '.join(COMPLETIONS)}, got {completion!r}")
     folder, out = Path(folder), Path(out)
-    ready = [p for p in imported_folders(folder) if json.loads((p / MARKER).read_text()).get("mode") == mode]
-    rows: list[dict[str, Any]] = [{"file": str(p), "folder": str(p), "mode": mode, "status": "imported ahead",
-                                   "cause": "", "message": "", "seconds": 0.0} for p in ready]
+    ready = [p for p in imported_folders(folder) if _kind(p / MARKER)[1:] == (mode, completion)]
+    rows: list[dict[str, Any]] = [{"file": str(p), "folder": str(p), "mode": mode, "completion": completion,
+                                   "status": "imported ahead", "cause": "", "message": "", "seconds": 0.0}
+                                  for p in ready]
     files = commonroad_files(folder)
     if files:
         require_packages()
     todo = []
     for f in files:
-        dest = out / "imported" / f"{scenario_name(f)}-{mode}"
+        dest = out / "imported" / folder_name(f, mode, completion)
         marker = dest / MARKER
-        if marker.is_file() and json.loads(marker.read_text()).get("source") == str(f.resolve()):
-            rows.append({"file": str(f), "folder": str(dest), "mode": mode, "status": "reused", "cause": "",
-                         "message": "", "seconds": 0.0})
+        if marker.is_file() and _kind(marker) == (str(f.resolve()), mode, completion):
+            rows.append({"file": str(f), "folder": str(dest), "mode": mode, "completion": completion,
+                         "status": "reused", "cause": "", "message": "", "seconds": 0.0})
         else:
-            todo.append((str(f), str(dest), mode))
+            todo.append((str(f), str(dest), mode, completion))
     names = [scenario_name(Path(t[0])) for t in todo]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -198,6 +210,7 @@ def _row(meta: dict[str, Any], out: Path, data: dict[str, Any]) -> dict[str, Any
                 third_party=float(harm.get("third_party", 0.0)), vru=float(harm.get("vru", 0.0)),
                 message=str(data.get("message", ""))[:200], steps=int(data.get("steps", 0) or 0),
                 hazards_fired="", goal_reached=bool(cr.get("goal_reached", False)),
+                goal_late=bool(cr.get("goal_late", False)),
                 goal_time_step=cr.get("goal_time_step"),
                 replay_max_error_m=float(cr.get("replay", {}).get("max_error_m", float("nan"))),
                 **outcome(out, data), **run_risk_file(out))

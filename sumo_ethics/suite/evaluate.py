@@ -438,6 +438,11 @@ def markdown(t1: list[dict[str, Any]], paired: list[dict[str, Any]], by_hazard: 
                   f"files imported ({meta.get('import_seconds', 0):.0f} s of import time; OUT/imports.csv has each "
                   "file's time and cause)" + (": failed " + "; ".join(f"{n} x {c}" for c, n in fails.items())
                                                if fails else "") + "."]
+        if meta.get("commonroad_completion") == "origin":
+            late = meta.get("late", {})
+            lines += ["", "Completion as the paper's evaluation counted it (`--completion origin`): reaching the goal "
+                      "after its time window completes too, and a run lasts twice the goal's last time step. Completed "
+                      "late: " + ", ".join(f"{k} {v}" for k, v in late.items()) + "."]
     if meta:
         lines += ["", "Planners: " + "; ".join(f"`{k}` = {v}" for k, v in meta.get("planners", {}).items()) + ".",
                   f"Wall time {meta.get('wall_s', 0):.0f} s with {meta.get('workers')} workers."]
@@ -554,10 +559,10 @@ def write_outputs(rows: list[dict[str, Any]], planners: list[PlannerSpec], out: 
 def evaluate(suite: Path, planner_texts: list[str], out: Path, workers: int = 2, limit: int | None = None,
              reference: str | None = None, progress: Callable | None = None,
              resume: bool = False, record_decisions: str = "risky", mode: str = "replay",
-             on_import: Callable[[str], None] | None = None) -> tuple[Path, Path]:
+             on_import: Callable[[str], None] | None = None, completion: str = "commonroad") -> tuple[Path, Path]:
     """Table 1 of ``suite``: a generated suite, or a folder of CommonRoad files (imported on the fly in
-    ``mode``, see sumo_ethics.suite.commonroad; failed imports are listed in OUT/imports.csv) or of
-    imported CommonRoad folders."""
+    ``mode`` with the ``completion`` rule, see sumo_ethics.suite.commonroad; failed imports are listed
+    in OUT/imports.csv) or of imported CommonRoad folders."""
     from sumo_ethics.suite import commonroad
     from sumo_ethics.suite.spec import HAZARD_FILE, load_suite
 
@@ -570,13 +575,13 @@ def evaluate(suite: Path, planner_texts: list[str], out: Path, workers: int = 2,
     extra: dict[str, Any] = {}
     if commonroad.is_input(suite) and not (Path(suite) / HAZARD_FILE).is_file() \
             and not any(Path(suite).glob(f"*/{HAZARD_FILE}")):
-        folders, imports = commonroad.prepare(Path(suite), Path(out), mode, workers, on_import)
+        folders, imports = commonroad.prepare(Path(suite), Path(out), mode, workers, on_import, completion)
         if not folders:
             raise ConfigError(f"none of the {len(imports)} CommonRoad files in {suite} imported; the causes are in "
                               f"{Path(out) / 'imports.csv'}")
         folders = folders[:limit] if limit is not None else folders
         failed = commonroad.failure_summary(imports)
-        extra = {"commonroad_mode": mode, "imports": len(imports), "import_failures": dict(failed),
+        extra = {"commonroad_mode": mode, "commonroad_completion": completion, "imports": len(imports), "import_failures": dict(failed),
                  "import_seconds": float(sum(r["seconds"] for r in imports)), "import_wall_s": time.perf_counter() - t0}
     else:
         specs = load_suite(suite)  # validates every hazard file before anything runs
@@ -586,6 +591,8 @@ def evaluate(suite: Path, planner_texts: list[str], out: Path, workers: int = 2,
         if len(folders) != len(specs):  # load_suite gives every scenario its folder
             raise ConfigError(f"a scenario of {suite} has no folder")
     rows = run_suite(folders, planners, Path(out), workers, progress, resume, record_decisions)
+    if extra.get("commonroad_completion") == "origin":
+        extra["late"] = {p.name: sum(bool(r.get("goal_late")) for r in rows if r["planner"] == p.name) for p in planners}
     meta = {"suite": str(suite), "scenarios": len(folders), "workers": workers, "wall_s": time.perf_counter() - t0,
             "planners": {p.name: p.describe() for p in planners}, "reference": ref, **extra}
     return write_outputs(rows, planners, Path(out), ref, meta)
