@@ -10,7 +10,8 @@ parts from timings.parquet. The resident memory of the process is sampled every 
 growth over the second half is reported (flat memory: a few MB).
 
     python tools/bench_fleet.py [--sizes 1,5,10,25] [--end 40] [--unshared 10] [--baseline 100]
-    python tools/bench_fleet.py --memory 600   # memory while egos come and go (penetration 1, baseline)
+    python tools/bench_fleet.py --memory 600   # memory while egos come and go (penetration 1, baseline),
+                                               # its growth with time separated from the traffic it holds
 """
 
 from __future__ import annotations
@@ -85,27 +86,74 @@ def one(n: int, end: float, shared: bool, planner: str, out: Path, seed: int) ->
             "rss_mb": samples[-1][1] if samples else float("nan"), "egos": s.data["fleet"]["egos"]}
 
 
-def memory(seconds: float, seed: int) -> None:
+def memory(seconds: float, seed: int, every: float = 5.0) -> None:
     """Memory over a long run whose egos come and go: penetration 1, baseline planners (cheap), so
-    every eligible vehicle of urban_grid is an ego from its departure to its arrival."""
+    every eligible vehicle of urban_grid is an ego from its departure to its arrival.
+
+    Every ``every`` simulated seconds the first ego to act samples the resident memory and counts
+    the controllers still alive (a WeakSet, after a garbage collection). Afterwards the egos
+    driving and the road users in SUMO at each sample come from steps.parquet and trips.parquet,
+    and an ordinary least-squares fit RSS ~ 1 + egos + road users + t over the samples after the
+    build-up (the first 20 %) separates what the traffic holds from growth with time: flat memory
+    is a time slope whose CI holds 0 MB per 100 s, or a few tenths."""
+    import gc
+    import weakref
+
+    import numpy as np
+    import pandas as pd
+
     from sumo_ethics.config import FleetSpec, RunConfig
     from sumo_ethics.runner.fleet import run_fleet
     from sumo_ethics.plan.baseline import RouteFollower
 
-    samples, stop, th = rss_sampler()
+    live: weakref.WeakSet = weakref.WeakSet()
+    samples: list[tuple[float, float, int]] = []  # (sim time [s], RSS [MB], controllers alive)
+
+    class Sampled(RouteFollower):
+        def act(self, scene):  # type: ignore[no-untyped-def]
+            if not samples or scene.time >= samples[-1][0] + every:
+                gc.collect()
+                samples.append((scene.time, rss_mb(), len(live)))
+            return super().act(scene)
+
+    def make(name: str, vid: str) -> RouteFollower:
+        c = Sampled()
+        live.add(c)
+        return c
+
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = RunConfig(scenario=ROOT / "scenarios" / "urban_grid" / "urban_grid.sumocfg", out=Path(tmp) / "m",
+        out = Path(tmp) / "m"
+        cfg = RunConfig(scenario=ROOT / "scenarios" / "urban_grid" / "urban_grid.sumocfg", out=out,
                         seed=seed, end=seconds, progress=False, fleet=FleetSpec(penetration=1.0,
                                                                                  shares=(("baseline", 1.0),)))
-        s = run_fleet(cfg, lambda name, vid: RouteFollower())
-        stop.set()
-        th.join()
-    t0, t1 = samples[0][0], samples[-1][0]
-    at = [min(samples, key=lambda x: abs(x[0] - (t0 + f * (t1 - t0))))[1] for f in (0.1, 0.25, 0.5, 0.75, 1.0)]
+        t0 = time.perf_counter()
+        s = run_fleet(cfg, make)
+        wall = time.perf_counter() - t0
+        steps = pd.read_parquet(out / "steps.parquet", columns=["ego_id", "time"])
+        trips = pd.read_parquet(out / "trips.parquet")
+    d = pd.DataFrame(samples, columns=["t", "rss", "alive"])
+    driving = steps.groupby("time").ego_id.nunique()
+    d["egos"] = [int(driving.get(round(t, 6), driving.iloc[np.abs(driving.index - t).argmin()])) for t in d.t]
+    arr = trips["arrival"].where(trips["arrival"] >= 0, np.inf).to_numpy(float)
+    d["road_users"] = [int(((trips["depart"].to_numpy(float) <= t) & (arr > t)).sum()) for t in d.t]
+    late = d[d.t >= 0.2 * seconds]
+    x = np.column_stack([np.ones(len(late)), late.egos, late.road_users, late.t / 100.0])
+    coef, *_ = np.linalg.lstsq(x, late.rss.to_numpy(), rcond=None)
+    resid = late.rss.to_numpy() - x @ coef
+    cov = np.linalg.inv(x.T @ x) * (resid @ resid) / max(len(late) - x.shape[1], 1)
+    se = np.sqrt(np.diag(cov))
     f = s.data["fleet"]
-    print(f"memory, penetration 1 (baseline), {seconds:g} s of urban_grid: {f['egos']} egos "
-          f"({f['by_status']}); RSS at 10/25/50/75/100 % of the run: " + " / ".join(f"{r:.0f}" for r in at)
-          + f" MB; growth from 25 % to the end {at[-1] - at[1]:+.1f} MB")
+    print(f"memory, penetration 1 (baseline), {seconds:g} s of urban_grid ({wall:.0f} s wall): {f['egos']} egos "
+          f"({f['by_status']}); {len(d)} samples every {every:g} s")
+    print("RSS at 10/25/50/75/100 % of the run: "
+          + " / ".join(f"{d.rss.iloc[min(int(q * (len(d) - 1)), len(d) - 1)]:.0f}" for q in (0.1, 0.25, 0.5, 0.75, 1.0))
+          + " MB; egos driving at those samples: "
+          + " / ".join(str(d.egos.iloc[min(int(q * (len(d) - 1)), len(d) - 1)]) for q in (0.1, 0.25, 0.5, 0.75, 1.0)))
+    print(f"controllers alive minus egos driving, over the samples: max {int((d.alive - d.egos).max())}, "
+          f"median {float((d.alive - d.egos).median()):.0f} (an ended ego's planner must be freed)")
+    print(f"fit over t >= {0.2 * seconds:g} s ({len(late)} samples): RSS = {coef[0]:.1f} MB + {coef[1]:.3f} MB per ego "
+          f"driving + {coef[2]:.3f} MB per road user in SUMO + {coef[3]:.2f} MB per 100 s "
+          f"[95 % CI {coef[3] - 1.96 * se[3]:.2f}, {coef[3] + 1.96 * se[3]:.2f}]; residual sd {resid.std():.2f} MB")
 
 
 def main() -> None:
