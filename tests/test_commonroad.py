@@ -460,6 +460,16 @@ def test_the_ego_waits_for_the_goal_window(velocity, tmp_path: Path) -> None:
         assert 99.5 < steps.x.iloc[-1] < 199.0 and velocity[0] <= steps.speed.iloc[-1] <= velocity[1]
 
 
+def test_evaluate_refuses_folders_imported_another_way(tmp_path: Path, capsys) -> None:
+    """A folder of imports made in replay mode, evaluated as reactive (or under another completion
+    rule): one line naming the options they were imported with, exit 2."""
+    (tmp_path / "in" / "a").mkdir(parents=True)
+    (tmp_path / "in" / "a" / "commonroad.json").write_text(json.dumps({"mode": "replay", "source": "x.xml"}))
+    assert main(["evaluate", str(tmp_path / "in"), "--mode", "reactive", "--out", str(tmp_path / "ev")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--mode replay --completion commonroad" in err, err
+
+
 @needs_cr
 @pytest.mark.sumo
 def test_late_arrival_counts_only_under_the_origin_rule(tmp_path: Path) -> None:

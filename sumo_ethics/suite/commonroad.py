@@ -102,6 +102,10 @@ def prepare(folder: Path, out: Path, mode: str, workers: int = 2,
                                    "status": "imported ahead", "cause": "", "message": "", "seconds": 0.0}
                                   for p in ready]
     files = commonroad_files(folder)
+    if not files and not ready and imported_folders(folder):
+        kinds = sorted({f"--mode {k[1]} --completion {k[2]}" for k in (_kind(p / MARKER) for p in imported_folders(folder))})
+        raise ConfigError(f"the imported folders in {folder} were imported with {' / '.join(kinds)}, not --mode {mode} "
+                          f"--completion {completion}; evaluate them with those options or import the files again")
     if files:
         require_packages()
     todo = []
