@@ -97,13 +97,14 @@ def prepare(folder: Path, out: Path, mode: str, workers: int = 2,
     if completion not in COMPLETIONS:
         raise ConfigError(f"--completion must be one of {', '.join(COMPLETIONS)}, got {completion!r}")
     folder, out = Path(folder), Path(out)
-    ready = [p for p in imported_folders(folder) if _kind(p / MARKER)[1:] == (mode, completion)]
+    ahead = {p: _kind(p / MARKER) for p in imported_folders(folder)}
+    ready = [p for p, k in ahead.items() if k[1:] == (mode, completion)]
     rows: list[dict[str, Any]] = [{"file": str(p), "folder": str(p), "mode": mode, "completion": completion,
                                    "status": "imported ahead", "cause": "", "message": "", "seconds": 0.0}
                                   for p in ready]
     files = commonroad_files(folder)
-    if not files and not ready and imported_folders(folder):
-        kinds = sorted({f"--mode {k[1]} --completion {k[2]}" for k in (_kind(p / MARKER) for p in imported_folders(folder))})
+    if not files and not ready and ahead:
+        kinds = sorted({f"--mode {k[1]} --completion {k[2]}" for k in ahead.values()})
         raise ConfigError(f"the imported folders in {folder} were imported with {' / '.join(kinds)}, not --mode {mode} "
                           f"--completion {completion}; evaluate them with those options or import the files again")
     if files:
