@@ -46,8 +46,9 @@ def generate_cmd(count: int, seed: int, out: Path, family: str) -> None:
 @click.command("evaluate")
 @click.argument("suite_dir", metavar="SUITE", type=click.Path(path_type=Path))
 @click.option("--planner", "planners", multiple=True, default=("origin", "paper"), show_default=True,
-              help="origin | paper | ours (= default: what run and sweep use) | baseline | NAME=key=value;key=value (planner options, e.g. "
-                   "fast=predictor=cv;omega_u=0.3). Repeat for several.")
+              help="origin | paper | ours (= default: what run and sweep use) | baseline | NAME=key=value;key=value (planner options over "
+                   "paper's settings, e.g. fast=predictor=cv;omega_u=0.3, or over ours' or origin's with base=: "
+                   "mm=base=ours;weights=maximin). Repeat for several.")
 @click.option("--workers", type=int, default=2, show_default=True, help="Parallel processes (one run each).")
 @click.option("--out", type=click.Path(path_type=Path), default=Path("runs/evaluate"), show_default=True,
               help="Output folder: table1.csv, table1.md, paired.csv, results.csv, runs/.")

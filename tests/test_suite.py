@@ -113,6 +113,25 @@ def test_unknown_planner_is_a_clear_error():
     assert parse_planner("baseline").options is None
 
 
+def test_a_planner_of_ones_own_can_build_on_ours():
+    """NAME=key=value builds on paper's settings (attention predictor, Origin's probability, no
+    calibration) unless it says base=ours (run's defaults: map predictor, shapes, calibrated)."""
+    from sumo_ethics.settings import planner_config
+    from sumo_ethics.suite.evaluate import parse_planner
+
+    on_paper = planner_config(None, **parse_planner("mm=weights=maximin;omega_u=0").options)
+    assert (on_paper.predictor, on_paper.probability.method, on_paper.calibrated) == ("attention", "origin", False)
+    spec = parse_planner("mm=base=ours;weights=maximin;omega_u=0")
+    on_ours = planner_config(None, **spec.options)
+    assert (on_ours.predictor, on_ours.probability.method, on_ours.calibrated) == ("map", "shapes", True)
+    assert on_ours.cost.weights.maximin == 100.0 and on_ours.cost.weights.bayes == 0.0
+    assert on_ours.cost.omega_u == 0.0 and planner_config(None).cost.omega_u == 0.5
+    assert spec.describe() == "base=ours;weights=maximin;omega_u=0"
+    assert parse_planner("o=base=origin;omega_u=0.5").options["predictor"] == "cslstm"
+    with pytest.raises(ConfigError, match="base must be origin, paper or ours"):
+        parse_planner("q=base=baseline")
+
+
 def test_cli_unknown_planner_exits_2(tmp_path, capsys):
     from sumo_ethics.cli_suite import evaluate_cmd
 

@@ -39,7 +39,8 @@ PAPER_OMEGA_U = DEFAULT_OMEGA_U
 #: user in range, as published (normalise "in_range"); ours: this project's planner, what ``run``
 #: and ``sweep`` use by default (PlannerConfig's defaults: the map-aware attention predictor,
 #: the collision probability over true shapes, principles on one scale); "default" names it too.
-#: the paper's planner, and the base of a planner defined as NAME=key=value;...
+#: the paper's planner, and the base of a planner defined as NAME=key=value;... unless it names
+#: another (``base=ours`` or ``base=origin``)
 PAPER: dict[str, Any] = {"weights": "ethical", "predictor": "attention", "omega_u": PAPER_OMEGA_U, "selection": "cost",
                          "normalise": "in_range", "probability": "origin", "calibrated": False}
 BUILTIN: dict[str, dict[str, Any] | None] = {
@@ -60,17 +61,21 @@ LABELS = {"completed": "Completed (%)", "total": "Total harm", "ego": "Ego", "th
 
 @dataclass(frozen=True)
 class PlannerSpec:
-    """A named planner: ``options`` for ``planner_config`` (None: the baseline controller)."""
+    """A named planner: ``options`` for ``planner_config`` (None: the baseline controller), over
+    the defaults of run and sweep; ``base``: the built-in planner a planner of one's own was
+    defined over ("paper" unless it said ``base=``)."""
 
     name: str
     options: dict[str, Any] | None
+    base: str = "paper"
 
     def describe(self) -> str:
         if self.options is None:
             return "baseline (route following, IDM)"
         if not self.options:
             return "the defaults of run and sweep"
-        return ";".join(f"{k}={v}" for k, v in self.options.items())
+        over = "base=ours;" if self.base == "ours" else ""  # origin's and paper's options are all listed
+        return over + ";".join(f"{k}={v}" for k, v in self.options.items())
 
 
 def _value(text: str) -> Any:
@@ -87,8 +92,9 @@ def _value(text: str) -> Any:
 
 def parse_planner(text: str) -> PlannerSpec:
     """``origin`` | ``paper`` | ``ours`` (or ``default``) | ``baseline`` | ``NAME=key=value;key=value`` (options of
-    ``planner_config``, applied over the paper's defaults, e.g. ``fast=predictor=cv;omega_u=0.3``).
-    Validated at once: an unknown name or key is a ConfigError."""
+    ``planner_config``, applied over the ``paper`` planner's settings, e.g. ``fast=predictor=cv;omega_u=0.3``,
+    or over another built-in planner's with ``base=ours`` / ``base=origin``, e.g.
+    ``mm=base=ours;weights=maximin``). Validated at once: an unknown name or key is a ConfigError."""
     from sumo_ethics.settings import planner_config
 
     text = text.strip()
@@ -104,13 +110,17 @@ def parse_planner(text: str) -> PlannerSpec:
         name = name.strip()
         if not name or not name.replace("_", "").replace("-", "").isalnum():
             raise ConfigError(f"planner name must be letters, digits, '-' or '_', got {name!r} in {text!r}")
-        opts = dict(PAPER)
+        given: dict[str, Any] = {}
         for item in filter(None, (p.strip() for p in rest.split(";"))):
             key, eq, val = item.partition("=")
             if not eq or not key.strip():
                 raise ConfigError(f"planner {name}: expected key=value, got {item!r}")
-            opts[key.strip()] = _value(val)
-        spec = PlannerSpec(name, opts)
+            given[key.strip()] = _value(val)
+        base = str(given.pop("base", "paper"))
+        base = ALIASES.get(base, base)
+        if base not in ("origin", "paper", "ours"):
+            raise ConfigError(f"planner {name}: base must be origin, paper or ours, got {base!r}")
+        spec = PlannerSpec(name, {**(BUILTIN[base] or {}), **given}, base)
     if spec.options is not None:
         planner_config(None, **spec.options)  # raises ConfigError on unknown keys / bad values
     return spec
