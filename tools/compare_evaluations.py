@@ -1,0 +1,67 @@
+"""The same planner names in two evaluations, paired: NEW's result minus OLD's, per planner.
+
+    python tools/compare_evaluations.py OLD NEW [--label-old paper --label-new ours]
+
+OLD and NEW are `sumo-ethics evaluate` output folders (their results.csv). For every planner name in
+both, over the scenarios both ran (same scenario, same seed): completion and total / ego / third-party
+/ VRU harm summed over the runs in each, and NEW minus OLD with a 95 % paired bootstrap CI over
+scenarios, how many scenarios are better / worse, and the Wilcoxon p (Table 1's own statistics,
+sumo_ethics.suite.evaluate.table). Also conflicts and over-cautious brakings per 100 ego-km of each.
+Used for the dilemma study on `ours` against the same presets on `paper`'s settings.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pandas as pd
+
+from sumo_ethics.suite.evaluate import table
+
+
+def rows(folder: Path) -> pd.DataFrame:
+    r = pd.read_csv(folder / "results.csv")
+    return r[r["status"] != "error"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("old", type=Path)
+    ap.add_argument("new", type=Path)
+    ap.add_argument("--label-old", default="old")
+    ap.add_argument("--label-new", default="new")
+    a = ap.parse_args()
+    old, new = rows(a.old), rows(a.new)
+    lo, ln = a.label_old, a.label_new
+    print(f"| planner | scenarios | completed {lo} / {ln} | total harm {lo} / {ln} | {ln} - {lo}: total harm "
+          f"[95 % CI] (better / worse) | ego | third party | VRU | conflicts / 100 km {lo} / {ln} "
+          f"| over-cautious / 100 km {lo} / {ln} |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for p in [p for p in new["planner"].unique() if p in set(old["planner"])]:
+        o, n = old[old.planner == p], new[new.planner == p]
+        both = sorted(set(zip(o.scenario, o.seed)) & set(zip(n.scenario, n.seed)))
+        keep = {s for s, _ in both}
+        o, n = o[o.scenario.isin(keep)], n[n.scenario.isin(keep)]
+        recs = [r | {"planner": lo} for r in o.to_dict("records")] + [r | {"planner": ln} for r in n.to_dict("records")]
+        t1, paired = table(recs, [lo, ln], reference=lo)
+        by = {r["planner"]: r for r in t1}
+        d = {r["metric"]: r for r in paired}
+
+        def diff(k: str) -> str:
+            r = d[k]
+            return f"{r['difference']:+.2f} [{r['lo']:+.2f}, {r['hi']:+.2f}]"
+
+        def per100km(f: pd.DataFrame, col: str) -> str:
+            km = f["distance"].sum() / 1000.0
+            return f"{100 * f[col].sum() / km:.0f}" if km > 0 and col in f else "n/a"
+
+        print(f"| {p} | {len(keep)} | {by[lo]['completed']:.0f} / {by[ln]['completed']:.0f} % "
+              f"| {by[lo]['total']:.2f} / {by[ln]['total']:.2f} | {diff('total')} ({d['total']['better']} / "
+              f"{d['total']['worse']}) | {diff('ego')} | {diff('third_party')} | {diff('vru')} "
+              f"| {per100km(o, 'conflicts_total')} / {per100km(n, 'conflicts_total')} "
+              f"| {per100km(o, 'overcautious')} / {per100km(n, 'overcautious')} |")
+
+
+if __name__ == "__main__":
+    main()
