@@ -48,7 +48,7 @@ def main() -> None:
         by = {r["planner"]: r for r in t1}
         d = {r["metric"]: r for r in paired}
 
-        def diff(k: str) -> str:
+        def diff(k: str, d: dict = d) -> str:
             r = d[k]
             return f"{r['difference']:+.2f} [{r['lo']:+.2f}, {r['hi']:+.2f}]"
 
