@@ -22,12 +22,24 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def rss_mb() -> float:
     with open("/proc/self/statm") as f:
         return int(f.read().split()[1]) * 4096 / 1e6
+
+
+def growth_fit(rss: np.ndarray, covariates: list[np.ndarray], t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ordinary least squares RSS [MB] ~ 1 + covariates + t / 100 [s]: (coefficients, their standard
+    errors, residuals); the last coefficient is the growth per 100 s the covariates do not explain."""
+    x = np.column_stack([np.ones(len(t)), *covariates, np.asarray(t) / 100.0])
+    coef, *_ = np.linalg.lstsq(x, rss, rcond=None)
+    resid = rss - x @ coef
+    cov = np.linalg.inv(x.T @ x) * (resid @ resid) / max(len(t) - x.shape[1], 1)
+    return coef, np.sqrt(np.diag(cov)), resid
 
 
 def rss_sampler() -> tuple[list[tuple[float, float]], threading.Event, threading.Thread]:
@@ -99,7 +111,6 @@ def memory(seconds: float, seed: int, every: float = 5.0) -> None:
     import gc
     import weakref
 
-    import numpy as np
     import pandas as pd
 
     from sumo_ethics.config import FleetSpec, RunConfig
@@ -137,11 +148,8 @@ def memory(seconds: float, seed: int, every: float = 5.0) -> None:
     arr = trips["arrival"].where(trips["arrival"] >= 0, np.inf).to_numpy(float)
     d["road_users"] = [int(((trips["depart"].to_numpy(float) <= t) & (arr > t)).sum()) for t in d.t]
     late = d[d.t >= 0.2 * seconds]
-    x = np.column_stack([np.ones(len(late)), late.egos, late.road_users, late.t / 100.0])
-    coef, *_ = np.linalg.lstsq(x, late.rss.to_numpy(), rcond=None)
-    resid = late.rss.to_numpy() - x @ coef
-    cov = np.linalg.inv(x.T @ x) * (resid @ resid) / max(len(late) - x.shape[1], 1)
-    se = np.sqrt(np.diag(cov))
+    coef, se, resid = growth_fit(late.rss.to_numpy(), [late.egos.to_numpy(), late.road_users.to_numpy()],
+                                 late.t.to_numpy())
     f = s.data["fleet"]
     print(f"memory, penetration 1 (baseline), {seconds:g} s of urban_grid ({wall:.0f} s wall): {f['egos']} egos "
           f"({f['by_status']}); {len(d)} samples every {every:g} s")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from sumo_ethics.suite.evaluate import table
+from sumo_ethics.suite.evaluate import safety_table, table
 
 
 def rows(folder: Path) -> pd.DataFrame:
@@ -47,20 +47,17 @@ def main() -> None:
         t1, paired = table(recs, [lo, ln], reference=lo)
         by = {r["planner"]: r for r in t1}
         d = {r["metric"]: r for r in paired}
+        rate = {r["planner"]: r for r in safety_table(recs, [lo, ln])}  # per 100 ego-km
 
         def diff(k: str, d: dict = d) -> str:
             r = d[k]
             return f"{r['difference']:+.2f} [{r['lo']:+.2f}, {r['hi']:+.2f}]"
 
-        def per100km(f: pd.DataFrame, col: str) -> str:
-            km = f["distance"].sum() / 1000.0
-            return f"{100 * f[col].sum() / km:.0f}" if km > 0 and col in f else "n/a"
-
         print(f"| {p} | {len(keep)} | {by[lo]['completed']:.0f} / {by[ln]['completed']:.0f} % "
               f"| {by[lo]['total']:.2f} / {by[ln]['total']:.2f} | {diff('total')} ({d['total']['better']} / "
               f"{d['total']['worse']}) | {diff('ego')} | {diff('third_party')} | {diff('vru')} "
-              f"| {per100km(o, 'conflicts_total')} / {per100km(n, 'conflicts_total')} "
-              f"| {per100km(o, 'overcautious')} / {per100km(n, 'overcautious')} |")
+              f"| {rate[lo]['conflicts_total_per_100km']:.0f} / {rate[ln]['conflicts_total_per_100km']:.0f} "
+              f"| {rate[lo]['overcautious_per_100km']:.0f} / {rate[ln]['overcautious_per_100km']:.0f} |")
 
 
 if __name__ == "__main__":

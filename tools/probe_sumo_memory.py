@@ -8,7 +8,7 @@
 
 Samples the resident memory every 5 simulated seconds and fits RSS ~ 1 + road users + t over the
 samples after the first 20 % (the fit of ``tools/bench_fleet.py --memory``): the time slope [MB per
-100 s] is growth that the traffic in the network does not explain. Used to look for the fleet's
+100 s] is growth that the traffic in the network does not explain (MB = 10^6 bytes, as there). Used to look for the fleet's
 growth (issue 39, docs/fleets.md). Not sumo_ethics code: the probe talks to libsumo directly.
 """
 
@@ -21,17 +21,13 @@ from pathlib import Path
 import libsumo as sumo
 import numpy as np
 import traci.constants as tc
+from bench_fleet import growth_fit, rss_mb
 
 from sumo_ethics.sim import session
 
 ROOT = Path(__file__).resolve().parents[1]
 VEH = [tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_ACCELERATION, tc.VAR_LENGTH, tc.VAR_WIDTH, tc.VAR_TYPE]
 PER = [tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_LENGTH, tc.VAR_WIDTH, tc.VAR_TYPE]
-
-
-def rss_mb() -> float:
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * 4096 / 2**20
 
 
 def main() -> None:
@@ -67,10 +63,7 @@ def main() -> None:
         sumo.close()
     s = np.array(samples)
     late = s[s[:, 0] >= 0.2 * a.seconds]
-    x = np.column_stack([np.ones(len(late)), late[:, 2], late[:, 0] / 100.0])
-    coef, *_ = np.linalg.lstsq(x, late[:, 1], rcond=None)
-    resid = late[:, 1] - x @ coef
-    se = np.sqrt(np.diag(np.linalg.inv(x.T @ x) * (resid @ resid) / max(len(late) - 3, 1)))
+    coef, se, _ = growth_fit(late[:, 1], [late[:, 2]], late[:, 0])
     at = [int(q * (len(s) - 1)) for q in (0.25, 0.5, 0.75, 1.0)]
     print(f"{a.seconds:g} s, tripinfo {a.tripinfo}, subscriptions {a.subscribe}: RSS at 25/50/75/100 % "
           + " / ".join(f"{s[i, 1]:.0f}" for i in at) + " MB; road users " + " / ".join(f"{int(s[i, 2])}" for i in at)
