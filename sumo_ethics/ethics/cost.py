@@ -6,8 +6,8 @@ boundary harm b (K,) from :class:`~sumo_ethics.ethics.risk.RiskTerms`:
 - the divisor N of Bayes, Equality and Responsibility (``n_norm``, recorded per candidate) is
   chosen by ``CostConfig.normalise``: "in_range" (Origin's, the default) every predicted road
   user, i.e. everyone within the sensing radius; "at_risk" the parties the candidate has a
-  non-zero collision probability with (``ego_risk + other_risk > 0`` or an entry in
-  ``RiskTerms.sparse``), at least 1. Under "in_range" the same risk against one party costs
+  non-zero collision probability with (``ego_risk + other_risk > 0`` or
+  ``RiskTerms.at_risk``: a step that counts), at least 1. Under "in_range" the same risk against one party costs
   20x less with 20 road users in range than with one (parked cars far away dilute the ethics
   against progress); under "at_risk" it costs the same, and with nobody at risk B = b / 2.
   Ego and Maximin are sums and maxima and divide by nothing under either;
@@ -209,9 +209,7 @@ def score(
     vru = vru_risk.sum(axis=1)
     j_total = se + so + bh
     if cfg.normalise == "at_risk":
-        at_risk = (er + orr) > 0.0
-        sp = risk.sparse
-        at_risk[sp.k, sp.n] = True
+        at_risk = ((er + orr) > 0.0) | risk.at_risk
         n_norm = np.maximum(at_risk.sum(axis=1), 1).astype(float)
     else:
         n_norm = np.full(K, float(N))

@@ -56,6 +56,13 @@ class HarmCoefficients:
     unprotected_intercept: float = 3.164  # [-] p = 1/(1+exp(intercept - slope*dv))
     unprotected_dv: float = 0.288  # [1/(m/s)]
 
+    def as_array(self) -> np.ndarray:
+        """(9,) protected intercept, dv, front, side, rear; angle-free intercept, dv; unprotected
+        intercept, dv (the order :func:`sumo_ethics.ethics.search.pair_harm` reads)."""
+        return np.array([self.protected_intercept, self.protected_dv, self.protected_front, self.protected_side,
+                         self.protected_rear, self.angle_free_intercept, self.angle_free_dv,
+                         self.unprotected_intercept, self.unprotected_dv])
+
     def area_offset(self, area: np.ndarray) -> np.ndarray:
         """Log-odds offset [-] for an array of :class:`ImpactArea` ints."""
         table = np.array([self.protected_front, self.protected_side, self.protected_rear])

@@ -69,6 +69,8 @@ __all__ = [
     "SparseProbability",
     "collision_probability",
     "sparse_collision_probability",
+    "bounded_shapes_entries",
+    "shapes_covariances",
     "gaussian_box_mass",
     "risk_steps",
 ]
@@ -479,6 +481,16 @@ def risk_steps(dt: float, steps: int, step: float) -> np.ndarray:
     return every[(every == 0) | ((every + 1) % stride == 0)]
 
 
+def shapes_covariances(pred: Prediction, dt: float, tp: int,
+                       cfg: ProbabilityConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The "shapes" method's inputs: (N, tp) sxx, sxy, syy [m^2] floored (all-zero -> ``zero_cov_var``
+    I; variances >= ``min_var``; |correlation| <= 0.999) and the (S,) steps P is evaluated at."""
+    sxx, sxy, syy = _agent_cov(pred, tp, cfg)
+    sxx, syy = np.maximum(sxx, cfg.min_var), np.maximum(syy, cfg.min_var)
+    lim = 0.999 * np.sqrt(sxx * syy)
+    return sxx, np.clip(sxy, -lim, lim), syy, risk_steps(dt, tp, cfg.step)
+
+
 def _shapes(cand: Candidates, pred: Prediction, ol: np.ndarray, ow: np.ndarray, ego_length: float,
             ego_width: float, cfg: ProbabilityConfig, tp: int) -> SparseProbability:
     """The "shapes" method: :func:`sumo_ethics.ethics.shapes.shapes_sparse` on floored covariances
@@ -487,17 +499,56 @@ def _shapes(cand: Candidates, pred: Prediction, ol: np.ndarray, ow: np.ndarray, 
 
     K, T = cand.x.shape
     N = len(pred.ids)
-    sxx, sxy, syy = _agent_cov(pred, tp, cfg)
-    sxx, syy = np.maximum(sxx, cfg.min_var), np.maximum(syy, cfg.min_var)
-    lim = 0.999 * np.sqrt(sxx * syy)
-    sxy = np.clip(sxy, -lim, lim)
-    at = risk_steps(cand.dt, tp, cfg.step)  # (S,) the steps P is evaluated at
+    sxx, sxy, syy, at = shapes_covariances(pred, cand.dt, tp, cfg)
     k, n, t, p = shapes_sparse(
         cand.x[:, at], cand.y[:, at], cand.yaw[:, at], cand.valid[:, at], pred.mean[:, at, 0],
         pred.mean[:, at, 1], pred.yaw[:, at], sxx[:, at], sxy[:, at], syy[:, at], ol + cfg.shape_margin,
         ow + cfg.shape_margin, ego_length, ego_width, cfg.gate_z, cfg.p_min,
     )
     return SparseProbability(k.astype(np.intp), n.astype(np.intp), at.take(t).astype(np.intp), p, (K, N, T))
+
+
+def bounded_shapes_entries(
+    cand: Candidates,
+    pred: Prediction,
+    other_length: np.ndarray,
+    other_width: np.ndarray,
+    ego_length: float,
+    ego_width: float,
+    cfg: ProbabilityConfig,
+    weight: np.ndarray,
+    harm_inputs: tuple,
+) -> tuple[SparseProbability, np.ndarray, np.ndarray]:
+    """The "shapes" entries that decide the risk terms, by :mod:`sumo_ethics.ethics.search`'s
+    bounded search instead of every gated step: (entries that count and hold every maximum,
+    (K, N) bool at_risk: some step counts, (3,) counts: gated steps, tight bounds, integrals).
+
+    weight: (N,) the mode's weight per agent (a step counts where p >= p_min and weight p >= p_min);
+    harm_inputs: (ego speed (K, T) [m/s] >= 0, ego mass [kg], ego vulnerable, agent speed (N, Tp)
+    [m/s], agent mass (N,) [kg], agent vulnerable (N,) bool, coefficients (9,)), for the ordering.
+    """
+    from sumo_ethics.ethics.search import bounded_entries
+
+    if cfg.method != "shapes":
+        raise ValueError(f"the bounded search is for the shapes probability, not {cfg.method!r}")
+    ol, ow = _check_inputs(cand, pred, other_length, other_width, ego_length, ego_width)
+    K, T = cand.x.shape
+    N = len(pred.ids)
+    tp = min(T, pred.mean.shape[1]) if N else 0
+    if K == 0 or N == 0 or tp == 0:
+        empty = np.zeros(0, dtype=np.intp)
+        return (SparseProbability(empty, empty, empty, np.zeros(0), (K, N, T)), np.zeros((K, N), bool),
+                np.zeros(3, np.int64))
+    ev, ego_mass, ego_vul, av, amass, avul, coeffs = harm_inputs
+    sxx, sxy, syy, at = shapes_covariances(pred, cand.dt, tp, cfg)
+    k, n, t, p, at_risk, counts = bounded_entries(
+        cand.x[:, at], cand.y[:, at], cand.yaw[:, at], ev[:, at], cand.valid[:, at], pred.mean[:, at, 0],
+        pred.mean[:, at, 1], pred.yaw[:, at], av[:, at], sxx[:, at], sxy[:, at], syy[:, at], ol + cfg.shape_margin,
+        ow + cfg.shape_margin, ego_length, ego_width, cfg.gate_z, cfg.p_min, weight, ego_mass, ego_vul, amass, avul,
+        coeffs,
+    )
+    sp = SparseProbability(k.astype(np.intp), n.astype(np.intp), at.take(t).astype(np.intp), p, (K, N, T))
+    return sp, at_risk, counts
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,8 @@ from functools import cached_property
 import numpy as np
 
 from sumo_ethics.ethics.harm import HarmCoefficients, Party, crash_outcome, leave_road_harm
-from sumo_ethics.ethics.probability import ProbabilityConfig, SparseProbability, sparse_collision_probability
+from sumo_ethics.ethics.probability import (
+    ProbabilityConfig, SparseProbability, bounded_shapes_entries, sparse_collision_probability)
 from sumo_ethics.types import VULNERABLE, AgentStates, Candidates, Prediction
 
 __all__ = ["RiskTerms", "assess_risk", "boundary_harm"]
@@ -44,6 +45,9 @@ class RiskTerms:
     one per (k, n, t), sorted (with modes: p = sum_m w[n, m] p_m) and ego_harm_at, other_harm_at:
     (M,) the harms there (with modes: the expected harm given a collision there). The dense
     (K, N, T) views ``p``, ``ego_harm``, ``other_harm`` (0 where p = 0) are built on first access.
+    at_risk: (K, N) bool, some step of (k, n) counts (an entry; the "at_risk" normalisation).
+    complete: False where the terms come from the bounded search (``assess_risk(..., steps=False)``):
+    the same (K, N) terms and at_risk (:mod:`sumo_ethics.ethics.search`), ``sparse`` empty, the (K, N, T) views raise.
     """
 
     ego_risk: np.ndarray
@@ -56,6 +60,8 @@ class RiskTerms:
     ego_harm_at: np.ndarray
     other_harm_at: np.ndarray
     rule_breaker: np.ndarray | None = None
+    at_risk: np.ndarray | None = None
+    complete: bool = True
 
     def __post_init__(self) -> None:
         n = self.ego_risk.shape[1]
@@ -63,6 +69,18 @@ class RiskTerms:
         if rb.shape != (n,):
             raise ValueError(f"rule_breaker must have shape ({n},), got {rb.shape}")
         object.__setattr__(self, "rule_breaker", rb)
+        if self.at_risk is None:  # from the entries: some step of (k, n) counts
+            at = np.zeros(self.ego_risk.shape, dtype=bool)
+            at[self.sparse.k, self.sparse.n] = True
+            object.__setattr__(self, "at_risk", at)
+        elif np.shape(self.at_risk) != self.ego_risk.shape:
+            raise ValueError(f"at_risk must have shape {self.ego_risk.shape}, got {np.shape(self.at_risk)}")
+
+    def _entries(self) -> SparseProbability:
+        if not self.complete:
+            raise ValueError("these risk terms keep no per-step entries (assess_risk(..., steps=False)): "
+                             "assess with steps=True for the (K, N, T) views")
+        return self.sparse
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -72,17 +90,17 @@ class RiskTerms:
     @cached_property
     def p(self) -> np.ndarray:
         """(K, N, T) collision probability."""
-        return self.sparse.dense()
+        return self._entries().dense()
 
     @cached_property
     def ego_harm(self) -> np.ndarray:
         """(K, N, T) P(MAIS3+) of the ego if it collides with agent n at t; 0 where p = 0."""
-        return self.sparse.dense(self.ego_harm_at)
+        return self._entries().dense(self.ego_harm_at)
 
     @cached_property
     def other_harm(self) -> np.ndarray:
         """(K, N, T) P(MAIS3+) of agent n if the ego collides with it at t; 0 where p = 0."""
-        return self.sparse.dense(self.other_harm_at)
+        return self._entries().dense(self.other_harm_at)
 
     @staticmethod
     def from_risks(
@@ -157,17 +175,29 @@ def _group_max(values: np.ndarray, sp: SparseProbability, shape: tuple[int, int]
 
 
 def _entries(cand: Candidates, pred: Prediction, agents: AgentStates, ego_mass: float, ego_cls: int,
-             ego_length: float, ego_width: float, coeffs: HarmCoefficients,
-             prob_cfg: ProbabilityConfig) -> tuple[SparseProbability, np.ndarray, np.ndarray]:
+             ego_length: float, ego_width: float, coeffs: HarmCoefficients, prob_cfg: ProbabilityConfig,
+             weight: np.ndarray | None = None) -> tuple[SparseProbability, np.ndarray, np.ndarray, np.ndarray | None]:
     """The paper's per-step terms of one mode: the sparse P entries and the ego's and the
-    agent's harm there, (M,) each. ``pred`` is read as single-mode (mean/cov/yaw); its rows
-    and those of ``agents`` correspond one to one (ids are not checked: rows may repeat agents)."""
+    agent's harm there, (M,) each, and None. ``pred`` is read as single-mode (mean/cov/yaw); its rows
+    and those of ``agents`` correspond one to one (ids are not checked: rows may repeat agents).
+
+    With ``weight`` ((N,), the mode's weight per agent): the entries of the bounded search
+    (:func:`~sumo_ethics.ethics.probability.bounded_shapes_entries`), which hold every maximum
+    the risk terms take, and its (K, N) at_risk."""
     T = cand.x.shape[1]
-    sp = sparse_collision_probability(cand, pred, agents.length, agents.width, ego_length, ego_width, prob_cfg)
+    speed_o = _agent_speed(pred, agents)
+    at_risk = None
+    if weight is None:
+        sp = sparse_collision_probability(cand, pred, agents.length, agents.width, ego_length, ego_width, prob_cfg)
+    else:
+        harm_inputs = (np.abs(cand.speed), float(ego_mass), bool(VULNERABLE[int(ego_cls)]), speed_o,
+                       np.asarray(agents.mass, dtype=float), VULNERABLE[np.asarray(agents.cls, dtype=np.intp)],
+                       coeffs.as_array())
+        sp, at_risk, _ = bounded_shapes_entries(cand, pred, agents.length, agents.width, ego_length, ego_width,
+                                                prob_cfg, weight, harm_inputs)
     ie = sp.k * T + sp.t  # flat (k, t); take() is much faster than 2-D fancy indexing
     tp = pred.mean.shape[1]
     ia = sp.n * tp + sp.t  # flat (n, t)
-    speed_o = _agent_speed(pred, agents)
     mean = np.asarray(pred.mean, dtype=float).reshape(-1, 2)
     ego = Party(
         x=cand.x.ravel().take(ie), y=cand.y.ravel().take(ie), yaw=cand.yaw.ravel().take(ie),
@@ -178,11 +208,27 @@ def _entries(cand: Candidates, pred: Prediction, agents: AgentStates, ego_mass: 
         mass=agents.mass.take(sp.n), cls=agents.cls.take(sp.n),
     )
     crash = crash_outcome(ego, other, coeffs)
-    return sp, np.asarray(crash.harm_a, dtype=float), np.asarray(crash.harm_b, dtype=float)
+    return sp, np.asarray(crash.harm_a, dtype=float), np.asarray(crash.harm_b, dtype=float), at_risk
 
 
-def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates, args: tuple,
-                     p_min: float) -> tuple[SparseProbability, np.ndarray, np.ndarray, tuple[np.ndarray, ...]]:
+def _bounded_maxima(sp: SparseProbability, h_e: np.ndarray, h_o: np.ndarray, w: np.ndarray | float,
+                    shape: tuple[int, int]) -> tuple[np.ndarray, ...]:
+    """(ego_risk, other_risk, ego_harm_max, other_harm_max) (K, N) of one mode from the bounded
+    search's entries: the risks max p x harm over the integrated ones (p not NaN) weighted by the
+    mode's weight w ((N,), or 1.0 for a single-mode prediction: as is), the harm maxima over all."""
+    exact = np.flatnonzero(~np.isnan(sp.p))
+    sub = SparseProbability(sp.k.take(exact), sp.n.take(exact), sp.t.take(exact), sp.p.take(exact), sp.shape)
+    er = _group_max(sub.p * h_e.take(exact), sub, shape)
+    orr = _group_max(sub.p * h_o.take(exact), sub, shape)
+    if not isinstance(w, float):
+        er, orr = w * er, w * orr
+    return er, orr, _group_max(h_e, sp, shape), _group_max(h_o, sp, shape)
+
+
+def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates,
+                     args: tuple[float, int, float, float, HarmCoefficients, ProbabilityConfig], p_min: float,
+                     bounded: bool = False
+                     ) -> tuple[SparseProbability, np.ndarray, np.ndarray, tuple[np.ndarray, ...], np.ndarray | None]:
     """Every mode of ``pred`` (weight not None) through :func:`_entries`, combined by the weights.
 
     Returns the combined sparse entries (unique per (k, n, t), p = sum_m w[n, m] p_m), the
@@ -192,21 +238,37 @@ def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates, ar
     entry can differ in the last bits with the entries computed alongside it, and separate calls
     make each mode's terms exactly those of a single-mode prediction of it (at equal cost: the
     work grows with the gated entries).
+
+    ``bounded``: each mode by the bounded search (the same four terms; the combined entries are
+    not built: an empty SparseProbability and the (K, N) at_risk instead of None).
     """
     K, T = cand.x.shape
     N = len(agents)
     zeros = np.zeros((K, N))
     ego_risk, other_risk, ego_hmax, other_hmax = zeros, zeros, zeros, zeros
     parts = []
+    at_risk = np.zeros((K, N), dtype=bool) if bounded else None
     for mode, w in pred.by_mode():
         rows = np.flatnonzero(w >= p_min)  # w p_m < p_min where w is: such an agent's mode counts nowhere
         if rows.size == 0:
             continue
         if rows.size == N:
-            sp, h_e, h_o = _entries(cand, mode, agents, *args)
+            sp, h_e, h_o, mode_at = _entries(cand, mode, agents, *args, weight=w if bounded else None)
         else:  # assessed for the agents it can count for only (e.g. a one-mode pedestrian's weight-0 modes)
-            sp, h_e, h_o = _entries(cand, mode.take(rows), agents.take(rows), *args)
+            sp, h_e, h_o, mode_at = _entries(cand, mode.take(rows), agents.take(rows), *args,
+                                             weight=w.take(rows) if bounded else None)
             sp = SparseProbability(sp.k, rows.take(sp.n), sp.t, sp.p, (K, N, T))  # rows rise: still sorted
+            if mode_at is not None:
+                full = np.zeros((K, N), dtype=bool)
+                full[:, rows] = mode_at
+                mode_at = full
+        if at_risk is not None and mode_at is not None:
+            at_risk |= mode_at
+        if bounded:  # the entries count and hold every maximum (see _bounded_maxima)
+            er, orr, he, hmo = _bounded_maxima(sp, h_e, h_o, w, (K, N))
+            ego_risk, other_risk = ego_risk + er, other_risk + orr
+            ego_hmax, other_hmax = np.maximum(ego_hmax, he), np.maximum(other_hmax, hmo)
+            continue
         wp = w.take(sp.n) * sp.p  # (E,) the mode's share of the marginal probability
         keep = np.flatnonzero(wp >= p_min)  # a negligible mode at (k, n, t) counts nowhere (see assess_risk)
         k, n, t, p, wp, h_e, h_o = (a.take(keep) for a in (sp.k, sp.n, sp.t, sp.p, wp, h_e, h_o))
@@ -217,6 +279,9 @@ def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates, ar
         other_hmax = np.maximum(other_hmax, _group_max(h_o, kept, (K, N)))
         parts.append(((k * N + n) * T + t, wp, h_e, h_o))
     terms = (ego_risk, other_risk, ego_hmax, other_hmax)
+    if bounded:
+        empty = np.zeros(0, dtype=np.intp)
+        return SparseProbability(empty, empty, empty, np.zeros(0), (K, N, T)), np.zeros(0), np.zeros(0), terms, at_risk
 
     # one entry per (k, n, t): the modes' shares summed (the stable sort keeps the mode order)
     if parts:
@@ -225,7 +290,7 @@ def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates, ar
         key, wp, h_e, h_o = key.take(order), wp.take(order), h_e.take(order), h_o.take(order)
     if not parts or key.size == 0:  # (no agent at all skips every mode)
         empty = np.zeros(0, dtype=np.intp)
-        return SparseProbability(empty, empty, empty, np.zeros(0), (K, N, T)), np.zeros(0), np.zeros(0), terms
+        return SparseProbability(empty, empty, empty, np.zeros(0), (K, N, T)), np.zeros(0), np.zeros(0), terms, None
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     single = np.diff(np.r_[starts, key.size]) == 1
     p_c = np.add.reduceat(wp, starts)
@@ -235,7 +300,7 @@ def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates, ar
 
     first = key.take(starts)
     out = SparseProbability(first // (N * T), (first // T) % N, first % T, p_c, (K, N, T))
-    return out, harm_at(h_e), harm_at(h_o), terms
+    return out, harm_at(h_e), harm_at(h_o), terms, None
 
 
 def assess_risk(
@@ -250,6 +315,7 @@ def assess_risk(
     prob_cfg: ProbabilityConfig = ProbabilityConfig(),
     off_road: np.ndarray | None = None,
     rule_breaker: np.ndarray | None = None,
+    steps: bool = True,
 ) -> RiskTerms:
     """Probability, harm and risk of K candidates against the N agents of ``pred``.
 
@@ -269,19 +335,30 @@ def assess_risk(
     / ``other_harm_at`` hold the expected harm given a collision there, sum_m w p_m h_m / p (one
     mode's harm as is), so dense p x harm is the expected per-step risk (its max over t can fall
     below ego_risk, which takes the max within each mode).
+
+    steps=False (the planner's choice; "shapes" probability only, else ignored): the (K, N) terms
+    and at_risk by the bounded search of :mod:`sumo_ethics.ethics.search`, the same numbers as
+    with steps=True at a fraction of the integrals, without the per-step entries (``complete``
+    False).
     """
     if tuple(agents.ids) != tuple(pred.ids):
         raise ValueError("agents and pred must list the same agents in the same order")
     K = cand.x.shape[0]
     N = len(agents)
     args = (ego_mass, ego_cls, ego_length, ego_width, coeffs, prob_cfg)
+    bounded = not steps and prob_cfg.method == "shapes"
     if pred.weight is None:
-        sp, h_e, h_o = _entries(cand, pred, agents, *args)
-        ego_risk, other_risk = _group_max(sp.p * h_e, sp, (K, N)), _group_max(sp.p * h_o, sp, (K, N))
-        ego_harm_max, other_harm_max = _group_max(h_e, sp, (K, N)), _group_max(h_o, sp, (K, N))
+        sp, h_e, h_o, at_risk = _entries(cand, pred, agents, *args, weight=np.ones(N) if bounded else None)
+        if bounded:
+            ego_risk, other_risk, ego_harm_max, other_harm_max = _bounded_maxima(sp, h_e, h_o, 1.0, (K, N))
+            empty = np.zeros(0, dtype=np.intp)
+            sp, h_e, h_o = SparseProbability(empty, empty, empty, np.zeros(0), sp.shape), np.zeros(0), np.zeros(0)
+        else:
+            ego_risk, other_risk = _group_max(sp.p * h_e, sp, (K, N)), _group_max(sp.p * h_o, sp, (K, N))
+            ego_harm_max, other_harm_max = _group_max(h_e, sp, (K, N)), _group_max(h_o, sp, (K, N))
     else:
-        sp, h_e, h_o, (ego_risk, other_risk, ego_harm_max, other_harm_max) = _integrate_modes(
-            cand, pred, agents, args, prob_cfg.p_min)
+        sp, h_e, h_o, (ego_risk, other_risk, ego_harm_max, other_harm_max), at_risk = _integrate_modes(
+            cand, pred, agents, args, prob_cfg.p_min, bounded)
     return RiskTerms(
         ego_risk=ego_risk,
         other_risk=other_risk,
@@ -293,4 +370,6 @@ def assess_risk(
         ego_harm_at=h_e,
         other_harm_at=h_o,
         rule_breaker=rule_breaker,
+        at_risk=at_risk,
+        complete=not bounded,
     )

@@ -1,0 +1,449 @@
+"""The "shapes" risk terms by a bounded search over the horizon steps (numba).
+
+The planner needs, per candidate k and road user n, four maxima over the steps t at which a
+collision counts (P >= p_min and w P >= p_min, w the mode's weight):
+
+    max_t P h_ego,  max_t P h_other,  max_t h_ego,  max_t h_other,
+
+and whether any step counts at all (the "at_risk" normalisation). The exhaustive evaluation
+(:func:`sumo_ethics.ethics.shapes.shapes_sparse`) integrates every gated (k, n, t). Here two
+cheap bounds on P (:func:`_box_bounds`) decide which steps must be integrated:
+
+- along the agent's principal axes its centre's two coordinates are independent normals, so the
+  mass of a box aligned with them is a product of two 1-D masses (four normal CDFs): the
+  octagon's bounding box gives an upper bound (median 1.1-1.2 x the exact P on the planner
+  benchmark's entries), a box inside the octagon a lower bound.
+- For the maxima of P x harm: the steps in decreasing order of upper bound x harm are integrated
+  until the next one's bound x harm is no larger than the best P x harm found.
+- For the harm maxima: the steps in decreasing order of harm, down to the first that counts; a
+  step whose lower bound already shows that it counts is not integrated.
+
+The gate, the slabs' quick exits (P = 0 or 1) and the integral of a step are those of the
+exhaustive path, the same function on the same numbers, so every P found is the same bit for
+bit. The harm used for ordering (:func:`_order_harm`) is within ``_DH`` of numpy's
+(:func:`~sumo_ethics.ethics.harm.crash_outcome`), and every comparison allows for that. A step is
+passed over only where its bound proves that its true P x harm cannot beat the best found, so
+the terms differ from the exhaustive path's by at most the integrals' own error (shapes.py: below
+4e-8 in P); on every scene tested they are the same numbers (tests/test_search.py). The maxima
+themselves are taken with numpy from the returned entries, as before (sumo_ethics.ethics.risk).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from sumo_ethics.ethics.shapes import _BLOCK, _block_boxes, _entry_p, _phi_pos
+
+__all__ = ["bounded_entries", "order_harm", "p_bounds"]
+
+_jit = numba.njit(cache=True, nogil=True)
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+_QUARTER = np.pi / 4  # the impact-area thresholds of sumo_ethics.ethics.harm.impact_area
+_THREE_QUARTERS = 3 * np.pi / 4
+_DH = 1e-14  # bound on |harm here - harm of sumo_ethics.ethics.harm.crash_outcome| (measured: 2.3e-16)
+_DP = 1e-15  # absolute slack on the bounds (the normal CDF table's rounding)
+_REL = 1.0 + 1e-12  # covers the rounding of a product of two bounds
+
+
+@_jit
+def _wrap(a: float) -> float:
+    """Into (-pi, pi], as sumo_ethics.geometry.wrap_angle (Python's float % is numpy's mod)."""
+    w = ((a + _PI) % _TWO_PI) - _PI
+    return _PI if w == -_PI else w
+
+
+@_jit
+def _area(rel: float) -> int:
+    a = abs(_wrap(rel))
+    return 0 if a < _QUARTER else (1 if a <= _THREE_QUARTERS else 2)
+
+
+@_jit
+def _harm(dv: float, area: int, vul_self: bool, vul_other: bool, co) -> float:
+    """P(MAIS3+) of a party with delta-v dv [m/s] hit in ``area`` (sumo_ethics.ethics.harm's
+    models; co: ``HarmCoefficients.as_array()``), the logistic as 1 / (1 + exp(-z)): the same
+    function as harm.py's 0.5 (1 + tanh(z / 2)), within a few ulp of it (for ordering only)."""
+    if vul_self:
+        z = co[8] * dv - co[7]
+    elif vul_other:
+        z = co[6] * dv - co[5]
+    else:
+        z = co[0] + co[1] * dv + co[2 + area]
+    return 1.0 / (1.0 + math.exp(-z))
+
+
+@_jit
+def _area_of(fwd: float, lat: float, dx: float, dy: float, yaw: float) -> int:
+    """The impact area of a party from the other's offset in its frame (fwd, lat): front where
+    fwd > |lat|, rear where -fwd > |lat|, else side; within 1e-9 of a boundary (or at a zero
+    offset) by :func:`_area` on the bearing atan2(dy, dx), as crash_outcome decides it."""
+    af, al = abs(fwd), abs(lat)
+    if abs(af - al) <= 1e-9 * (af + al):
+        return _area(math.atan2(dy, dx) - yaw)
+    if al >= af:
+        return 1
+    return 0 if fwd > 0.0 else 2
+
+
+@_jit
+def _order_harm(dx, dy, ce, se, ca, sa, yawe, yawo, ve, vo, fe, fo, vul_e, vul_o, co):
+    """(ego harm, other harm) of a collision, :func:`sumo_ethics.ethics.harm.crash_outcome`'s model
+    for the other at offset (dx, dy) [m] from the ego, headings as cos/sin (and the angles, for
+    the boundary cases of the impact area), speeds ve, vo [m/s] >= 0, delta-v shares
+    fe = m_o / (m_e + m_o), fo = m_e / (m_e + m_o), vul: vulnerable. cos(pdof) = -cos(yaw_o - yaw_e)
+    from the cosines and sines (no trigonometry per step): within ``_DH`` of crash_outcome."""
+    cpd = -(ca * ce + sa * se)
+    dv = math.sqrt(max(0.0, ve * ve + vo * vo + 2.0 * ve * vo * cpd))
+    area_e = _area_of(dx * ce + dy * se, dy * ce - dx * se, dx, dy, yawe)
+    area_o = _area_of(-(dx * ca + dy * sa), -(dy * ca - dx * sa), -dx, -dy, yawo)
+    return _harm(fe * dv, area_e, vul_e, vul_o, co), _harm(fo * dv, area_o, vul_o, vul_e, co)
+
+
+@_jit
+def _phi(x: float) -> float:
+    return _phi_pos(x) if x >= 0.0 else 1.0 - _phi_pos(-x)
+
+
+@_jit
+def _quick_exit(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z) -> int:
+    """0: P = 0 by the slabs' quick exit, 1: P = 1 by it, 2: neither; the test of shapes._entry_p
+    with the same expressions, so the same answer."""
+    m1 = ce * dx + se * dy
+    m2 = ce * dy - se * dx
+    cc, ss, cs = ce * ce, se * se, ce * se
+    v11 = cc * sxx + 2.0 * cs * sxy + ss * syy
+    v22 = ss * sxx - 2.0 * cs * sxy + cc * syy
+    v12 = cs * (syy - sxx) + (cc - ss) * sxy
+    cr = ce * ca + se * sa
+    sr = ce * sa - se * ca
+    acr, asr = abs(cr), abs(sr)
+    inside_all = True
+    for i in range(4):
+        if i == 0:
+            nx, ny, w = 1.0, 0.0, ea + oa * acr + ob * asr
+        elif i == 1:
+            nx, ny, w = 0.0, 1.0, eb + oa * asr + ob * acr
+        elif i == 2:
+            nx, ny, w = cr, sr, oa + ea * acr + eb * asr
+        else:
+            nx, ny, w = -sr, cr, ob + ea * asr + eb * acr
+        sig = math.sqrt(nx * nx * v11 + 2.0 * nx * ny * v12 + ny * ny * v22)
+        d = abs(nx * m1 + ny * m2) - w
+        if d > z * sig:
+            return 0
+        if d > -z * sig:
+            inside_all = False
+    return 1 if inside_all else 2
+
+
+@_jit
+def _axis_mass(c: float, h: float, sig: float) -> float:
+    """Mass of N(0, sig^2) in [c - h, c + h]."""
+    return _phi((c + h) / sig) - _phi((c - h) / sig)
+
+
+@_jit
+def _principal(sxx, sxy, syy, oa, ob, ca, sa):
+    """The agent's principal axes, u1 = (c, s) and u2 = (-s, c), the standard deviations along
+    them [m] and the half-extents of its box (half-sizes oa, ob, heading cos ca, sin sa) along
+    them [m]: (c, s, sig1, sig2, ext1, ext2)."""
+    th = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+    c, s = math.cos(th), math.sin(th)
+    sig1 = math.sqrt(max(c * c * sxx + 2.0 * c * s * sxy + s * s * syy, 1e-300))
+    sig2 = math.sqrt(max(s * s * sxx - 2.0 * c * s * sxy + c * c * syy, 1e-300))
+    ext1 = oa * abs(c * ca + s * sa) + ob * abs(s * ca - c * sa)
+    ext2 = oa * abs(c * sa - s * ca) + ob * abs(c * ca + s * sa)
+    return c, s, sig1, sig2, ext1, ext2
+
+
+@_jit
+def _box_bounds(dx, dy, c1, s1, ca, sa, ea, eb, oa, ob, c, s, sig1, sig2, ext1, ext2):
+    """(upper, lower) bound on P for the agent's mean at (dx, dy) [m] from the ego centre, ego
+    heading (c1, s1), agent heading (ca, sa), half-sizes, and the agent's :func:`_principal`.
+
+    Along the principal axes the two coordinates of the agent's centre are independent normals,
+    so its mass in a box aligned with them is a product of two 1-D masses. The octagon lies in
+    the box of half-extents (h1, h2), the two boxes' supports along the axes added: the upper
+    bound. The box lam (h1, h2) with lam the largest scale that keeps it inside all four slabs of
+    the octagon (the boxes' sides: a box is inside a slab when its support along the slab's
+    normal is at most the slab's half-width) lies in the octagon: the lower bound."""
+    h1 = ea * abs(c * c1 + s * s1) + eb * abs(s * c1 - c * s1) + ext1
+    h2 = ea * abs(c * s1 - s * c1) + eb * abs(c * c1 + s * s1) + ext2
+    m1 = dx * c + dy * s
+    m2 = dy * c - dx * s
+    up = _axis_mass(m1, h1, sig1) * _axis_mass(m2, h2, sig2)
+    cr = c1 * ca + s1 * sa
+    sr = c1 * sa - s1 * ca
+    acr, asr = abs(cr), abs(sr)
+    lam = 1.0
+    for i in range(4):  # slab normals: the ego's axes, then the agent's
+        if i == 0:
+            nx, ny, wd = c1, s1, ea + oa * acr + ob * asr
+        elif i == 1:
+            nx, ny, wd = -s1, c1, eb + oa * asr + ob * acr
+        elif i == 2:
+            nx, ny, wd = ca, sa, oa + ea * acr + eb * asr
+        else:
+            nx, ny, wd = -sa, ca, ob + ea * asr + eb * acr
+        d = h1 * abs(nx * c + ny * s) + h2 * abs(ny * c - nx * s)
+        if d > 0.0:
+            lam = min(lam, wd / d)
+    return up, _axis_mass(m1, lam * h1, sig1) * _axis_mass(m2, lam * h2, sig2)
+
+
+@_jit
+def _order_harm_many(xa, ya, yawa, va, ma, vula, xb, yb, yawb, vb, mb, vulb, co):
+    n = len(xa)
+    out = np.empty((2, n))
+    for i in range(n):
+        ce, se, ca, sa = math.cos(yawa[i]), math.sin(yawa[i]), math.cos(yawb[i]), math.sin(yawb[i])
+        out[0, i], out[1, i] = _order_harm(xb[i] - xa[i], yb[i] - ya[i], ce, se, ca, sa, yawa[i], yawb[i], va[i], vb[i],
+                                           mb[i] / (ma[i] + mb[i]), ma[i] / (ma[i] + mb[i]), vula[i], vulb[i], co)
+    return out
+
+
+def order_harm(a, b, coeffs) -> np.ndarray:
+    """(2, M) the search's harm to parties a and b (:class:`~sumo_ethics.ethics.harm.Party` of
+    (M,) arrays each; speeds >= 0) under ``coeffs`` (HarmCoefficients): within ``_DH`` of
+    :func:`~sumo_ethics.ethics.harm.crash_outcome`'s harm_a, harm_b (tests/test_search.py)."""
+    from sumo_ethics.types import VULNERABLE
+
+    m = np.broadcast_shapes(np.shape(a.x), np.shape(b.x))
+
+    def arr(v, dtype=float):
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=dtype), m))
+
+    vula = arr(VULNERABLE[np.asarray(a.cls, dtype=np.intp)], bool)
+    vulb = arr(VULNERABLE[np.asarray(b.cls, dtype=np.intp)], bool)
+    return _order_harm_many(arr(a.x), arr(a.y), arr(a.yaw), arr(a.speed), arr(a.mass), vula, arr(b.x), arr(b.y),
+                            arr(b.yaw), arr(b.speed), arr(b.mass), vulb, coeffs.as_array())
+
+
+def p_bounds(dx: float, dy: float, ego_yaw: float, other_yaw: float, ego_length: float, ego_width: float,
+             other_length: float, other_width: float, cov: np.ndarray) -> tuple[float, float]:
+    """(lower, upper) bound on the shapes P of an agent whose mean is (dx, dy) [m] from the ego
+    centre, headings [rad], full sizes [m], covariance (2, 2) [m^2], as the search uses them."""
+    ca, sa = math.cos(other_yaw), math.sin(other_yaw)
+    oa, ob = other_length / 2.0, other_width / 2.0
+    pr = _principal(float(cov[0, 0]), 0.5 * float(cov[0, 1] + cov[1, 0]), float(cov[1, 1]), oa, ob, ca, sa)
+    up, low = _box_bounds(dx, dy, math.cos(ego_yaw), math.sin(ego_yaw), ca, sa, ego_length / 2.0, ego_width / 2.0,
+                          oa, ob, *pr)
+    return float(low), float(up)
+
+
+@_jit
+def _member(p: float, w: float, p_min: float) -> bool:
+    return p >= p_min and w * p >= p_min
+
+
+@_jit
+def _pop_max(key, g: int) -> int:
+    """The index of the largest of key[:g] (ties: the first), -1 if all are below 0 (taken)."""
+    j = -1
+    top = -0.5
+    for i in range(g):
+        if key[i] > top:
+            top = key[i]
+            j = i
+    return j
+
+
+@_jit
+def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa, ob, ea, eb, z, p_min, w,
+                   ego_mass, ego_vul, amass, avul, co):
+    K, T = ex.shape
+    N, tp = mx.shape
+    nb = (tp + _BLOCK - 1) // _BLOCK
+    ce = np.full((K, tp), np.nan)
+    se = np.empty((K, tp))
+    r_e = math.sqrt(ea * ea + eb * eb)
+    arad = np.empty((N, tp))
+    afin = np.empty((N, tp), dtype=np.bool_)
+    # the agents' principal axes (cos, sin of the first), standard deviations along them, and the
+    # agent box's half-extent along each: the box bound's per-(n, t) parts
+    pc = np.empty((N, tp))
+    ps = np.empty((N, tp))
+    sg1 = np.empty((N, tp))
+    sg2 = np.empty((N, tp))
+    ho1 = np.empty((N, tp))
+    ho2 = np.empty((N, tp))
+    ca = np.cos(psi)
+    sa = np.sin(psi)
+    for n in range(N):
+        r_o = math.sqrt(oa[n] * oa[n] + ob[n] * ob[n])
+        for t in range(tp):
+            s2 = sxx[n, t] + syy[n, t]
+            ok = (math.isfinite(mx[n, t]) and math.isfinite(my[n, t]) and math.isfinite(psi[n, t])
+                  and math.isfinite(s2) and math.isfinite(sxy[n, t]))
+            afin[n, t] = ok
+            arad[n, t] = r_e + r_o + z * math.sqrt(s2) if ok else 0.0
+            if ok:
+                pc[n, t], ps[n, t], sg1[n, t], sg2[n, t], ho1[n, t], ho2[n, t] = _principal(
+                    sxx[n, t], sxy[n, t], syy[n, t], oa[n], ob[n], ca[n, t], sa[n, t])
+    fe = np.empty(N)  # delta-v shares of the ego and agent n (momentum split)
+    fo = np.empty(N)
+    for n in range(N):
+        fe[n] = amass[n] / (ego_mass + amass[n])
+        fo[n] = ego_mass / (ego_mass + amass[n])
+    zero = np.zeros((K, tp))
+    ebox = _block_boxes(ex, ey, evalid, zero, nb, tp)
+    abox = _block_boxes(mx, my, afin, arad, nb, tp)
+    buf = np.empty((4, 8))
+    # per (k, n): the gated steps, their bound, exact P (-1: not integrated), harms, search order
+    gt = np.empty(tp, dtype=np.int64)
+    ub = np.empty(tp)
+    lb = np.empty(tp)  # lower bound on P
+    cert = np.empty(tp, dtype=np.bool_)  # counts by its lower bound (not integrated)
+    px = np.empty(tp)
+    he = np.empty(tp)
+    ho = np.empty(tp)
+    key = np.empty(tp)
+    cap = 1024
+    ok_ = np.empty(cap, dtype=np.int32)
+    on_ = np.empty(cap, dtype=np.int32)
+    ot_ = np.empty(cap, dtype=np.int32)
+    op_ = np.empty(cap)
+    m = 0
+    at_risk = np.zeros((K, N), dtype=np.bool_)
+    counts = np.zeros(3, dtype=np.int64)  # gated steps (not settled to 0 by the slabs), integrals, entries
+    for k in range(K):
+        for n in range(N):
+            g = 0
+            wn = w[n]
+            for b in range(nb):
+                if (ebox[k, b, 0] > abox[n, b, 1] or ebox[k, b, 1] < abox[n, b, 0]
+                        or ebox[k, b, 2] > abox[n, b, 3] or ebox[k, b, 3] < abox[n, b, 2]):
+                    continue
+                for t in range(b * _BLOCK, min((b + 1) * _BLOCK, tp)):
+                    if not (evalid[k, t] and afin[n, t]):
+                        continue
+                    dx = mx[n, t] - ex[k, t]
+                    dy = my[n, t] - ey[k, t]
+                    if dx * dx + dy * dy > arad[n, t] * arad[n, t]:
+                        continue
+                    if math.isnan(ce[k, t]):
+                        ce[k, t] = math.cos(eyaw[k, t])
+                        se[k, t] = math.sin(eyaw[k, t])
+                    c1, s1 = ce[k, t], se[k, t]
+                    q = _quick_exit(dx, dy, c1, s1, ea, eb, ca[n, t], sa[n, t], oa[n], ob[n], sxx[n, t], sxy[n, t],
+                                    syy[n, t], z)
+                    if q == 0:  # P = 0: never counts
+                        continue
+                    gt[g] = t
+                    if q == 1:  # P = 1 exactly, as _entry_p gives it
+                        px[g], ub[g], lb[g] = 1.0, 1.0, 1.0
+                    else:
+                        up, low = _box_bounds(dx, dy, c1, s1, ca[n, t], sa[n, t], ea, eb, oa[n], ob[n], pc[n, t],
+                                              ps[n, t], sg1[n, t], sg2[n, t], ho1[n, t], ho2[n, t])
+                        px[g], ub[g], lb[g] = -1.0, min(up * _REL + _DP, 1.0), low / _REL - _DP
+                    he[g], ho[g] = _order_harm(dx, dy, c1, s1, ca[n, t], sa[n, t], eyaw[k, t], psi[n, t], ev[k, t],
+                                               av[n, t], fe[n], fo[n], ego_vul, avul[n], co)
+                    g += 1
+            if g == 0:
+                continue
+            counts[0] += g
+            cert[:g] = False
+            found = False
+            # the maxima of P x harm, the ego's then the other's: steps by decreasing bound x harm,
+            # until one cannot beat the best P x harm found
+            for side in range(2):
+                h = he if side == 0 else ho
+                for i in range(g):
+                    key[i] = ub[i] * (h[i] + _DH) * _REL
+                best = 0.0  # the best P (h - _DH) of a counting step: at most the maximum
+                while True:
+                    j = _pop_max(key, g)
+                    if j < 0 or key[j] <= best:
+                        break
+                    key[j] = -1.0
+                    if px[j] < 0.0:
+                        t = gt[j]
+                        counts[1] += 1
+                        px[j] = _entry_p(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t], ea, eb,
+                                         ca[n, t], sa[n, t], oa[n], ob[n], sxx[n, t], sxy[n, t], syy[n, t], z, buf)
+                    if _member(px[j], wn, p_min):
+                        found = True
+                        best = max(best, px[j] * (h[j] - _DH))
+            # the harm maxima: steps by decreasing harm, down to the first that counts (and its ties)
+            for side in range(2):
+                h = he if side == 0 else ho
+                for i in range(g):
+                    key[i] = h[i]
+                floor = -1.0
+                while True:
+                    j = _pop_max(key, g)
+                    if j < 0 or key[j] < floor:
+                        break
+                    key[j] = -1.0
+                    if px[j] < 0.0:
+                        if not _member(ub[j], wn, p_min):  # cannot count
+                            continue
+                        if _member(lb[j], wn, p_min):  # counts, whatever its P: no integral needed
+                            cert[j] = True
+                            found = True
+                            if floor < 0.0:
+                                floor = h[j] - 2.0 * _DH
+                            continue
+                        t = gt[j]
+                        counts[1] += 1
+                        px[j] = _entry_p(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t], ea, eb,
+                                         ca[n, t], sa[n, t], oa[n], ob[n], sxx[n, t], sxy[n, t], syy[n, t], z, buf)
+                    if _member(px[j], wn, p_min):
+                        found = True
+                        if floor < 0.0:
+                            floor = h[j] - 2.0 * _DH
+            if not found:
+                continue
+            at_risk[k, n] = True
+            for i in range(g):  # the steps known to count, in t order (P NaN: not integrated)
+                if (px[i] >= 0.0 and _member(px[i], wn, p_min)) or (px[i] < 0.0 and cert[i]):
+                    if m == cap:
+                        cap *= 2
+                        ok_ = _grow(ok_, cap)
+                        on_ = _grow(on_, cap)
+                        ot_ = _grow(ot_, cap)
+                        op_ = _grow(op_, cap)
+                    ok_[m] = k
+                    on_[m] = n
+                    ot_[m] = gt[i]
+                    op_[m] = px[i] if px[i] >= 0.0 else np.nan
+                    m += 1
+    counts[2] = m
+    return ok_[:m].copy(), on_[:m].copy(), ot_[:m].copy(), op_[:m].copy(), at_risk, counts
+
+
+@_jit
+def _grow(a, cap):
+    out = np.empty(cap, dtype=a.dtype)
+    out[: len(a)] = a
+    return out
+
+
+def bounded_entries(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, other_length, other_width,
+                    ego_length: float, ego_width: float, z: float, p_min: float, weight, ego_mass: float,
+                    ego_vulnerable: bool, other_mass, other_vulnerable, coeffs: np.ndarray):
+    """Entries (k, n, t, p), sorted by (k, n, t), that hold every maximum of the risk terms, the
+    (K, N) bool ``at_risk`` (some step counts) and (3,) counts (gated steps, tight bounds,
+    integrals).
+
+    ex, ey, eyaw, ev: (K, T) ego centre [m], heading [rad], speed [m/s] (>= 0); evalid: (K, T);
+    mx, my, psi, av: (N, Tp) the agents' mean centre [m], heading [rad], speed [m/s]; sxx, sxy,
+    syy: (N, Tp) covariance [m^2] (floored by the caller); other_length, other_width: (N,) [m];
+    z, p_min: as :func:`sumo_ethics.ethics.shapes.shapes_sparse`; weight: (N,) the mode's weight
+    per agent (ones for one mode): a step counts where P >= p_min and weight P >= p_min;
+    ego_mass [kg]; other_mass: (N,); ego_vulnerable, other_vulnerable: (N,) bool; coeffs:
+    ``HarmCoefficients.as_array()``. Every p returned is the one :func:`shapes_sparse` gives there.
+    """
+    f = np.ascontiguousarray
+    return _search_kernel(
+        f(ex, dtype=float), f(ey, dtype=float), f(eyaw, dtype=float), f(ev, dtype=float), f(evalid, dtype=np.bool_),
+        f(mx, dtype=float), f(my, dtype=float), f(psi, dtype=float), f(av, dtype=float), f(sxx, dtype=float),
+        f(sxy, dtype=float), f(syy, dtype=float), f(np.asarray(other_length, dtype=float) / 2.0),
+        f(np.asarray(other_width, dtype=float) / 2.0), float(ego_length) / 2.0, float(ego_width) / 2.0, float(z),
+        float(p_min), f(weight, dtype=float), float(ego_mass), bool(ego_vulnerable), f(other_mass, dtype=float),
+        f(other_vulnerable, dtype=np.bool_), f(coeffs, dtype=float),
+    )
