@@ -171,11 +171,25 @@ def _box_bounds(dx, dy, c1, s1, ca, sa, ea, eb, oa, ob, c, s, sig1, sig2, ext1, 
     bound. The box lam (h1, h2) with lam the largest scale that keeps it inside all four slabs of
     the octagon (the boxes' sides: a box is inside a slab when its support along the slab's
     normal is at most the slab's half-width) lies in the octagon: the lower bound."""
+    return _upper(dx, dy, c1, s1, ea, eb, c, s, sig1, sig2, ext1, ext2), \
+        _lower(dx, dy, c1, s1, ca, sa, ea, eb, oa, ob, c, s, sig1, sig2, ext1, ext2)
+
+
+@_jit
+def _upper(dx, dy, c1, s1, ea, eb, c, s, sig1, sig2, ext1, ext2) -> float:
+    """The upper bound of :func:`_box_bounds`."""
+    h1 = ea * abs(c * c1 + s * s1) + eb * abs(s * c1 - c * s1) + ext1
+    h2 = ea * abs(c * s1 - s * c1) + eb * abs(c * c1 + s * s1) + ext2
+    return _axis_mass(dx * c + dy * s, h1, sig1) * _axis_mass(dy * c - dx * s, h2, sig2)
+
+
+@_jit
+def _lower(dx, dy, c1, s1, ca, sa, ea, eb, oa, ob, c, s, sig1, sig2, ext1, ext2) -> float:
+    """The lower bound of :func:`_box_bounds`."""
     h1 = ea * abs(c * c1 + s * s1) + eb * abs(s * c1 - c * s1) + ext1
     h2 = ea * abs(c * s1 - s * c1) + eb * abs(c * c1 + s * s1) + ext2
     m1 = dx * c + dy * s
     m2 = dy * c - dx * s
-    up = _axis_mass(m1, h1, sig1) * _axis_mass(m2, h2, sig2)
     cr = c1 * ca + s1 * sa
     sr = c1 * sa - s1 * ca
     acr, asr = abs(cr), abs(sr)
@@ -192,7 +206,7 @@ def _box_bounds(dx, dy, c1, s1, ca, sa, ea, eb, oa, ob, c, s, sig1, sig2, ext1, 
         d = h1 * abs(nx * c + ny * s) + h2 * abs(ny * c - nx * s)
         if d > 0.0:
             lam = min(lam, wd / d)
-    return up, _axis_mass(m1, lam * h1, sig1) * _axis_mass(m2, lam * h2, sig2)
+    return _axis_mass(m1, lam * h1, sig1) * _axis_mass(m2, lam * h2, sig2)
 
 
 @_jit
@@ -296,7 +310,6 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
     # per (k, n): the gated steps, their bound, exact P (-1: not integrated), harms, search order
     gt = np.empty(tp, dtype=np.int64)
     ub = np.empty(tp)
-    lb = np.empty(tp)  # lower bound on P
     cert = np.empty(tp, dtype=np.bool_)  # counts by its lower bound (not integrated)
     px = np.empty(tp)
     he = np.empty(tp)
@@ -335,11 +348,11 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
                         continue
                     gt[g] = t
                     if q == 1:  # P = 1 exactly, as _entry_p gives it
-                        px[g], ub[g], lb[g] = 1.0, 1.0, 1.0
-                    else:
-                        up, low = _box_bounds(dx, dy, c1, s1, ca[n, t], sa[n, t], ea, eb, oa[n], ob[n], pc[n, t],
-                                              ps[n, t], sg1[n, t], sg2[n, t], ho1[n, t], ho2[n, t])
-                        px[g], ub[g], lb[g] = -1.0, min(up * _REL + _DP, 1.0), low / _REL - _DP
+                        px[g], ub[g] = 1.0, 1.0
+                    else:  # the lower bound is computed where needed (the harm maxima)
+                        up = _upper(dx, dy, c1, s1, ea, eb, pc[n, t], ps[n, t], sg1[n, t], sg2[n, t], ho1[n, t],
+                                    ho2[n, t])
+                        px[g], ub[g] = -1.0, min(up * _REL + _DP, 1.0)
                     he[g], ho[g] = _order_harm(dx, dy, c1, s1, ca[n, t], sa[n, t], eyaw[k, t], psi[n, t], ev[k, t],
                                                av[n, t], fe[n], fo[n], ego_vul, avul[n], co)
                     g += 1
@@ -380,15 +393,19 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
                         break
                     key[j] = -1.0
                     if px[j] < 0.0:
-                        if not _member(ub[j], wn, p_min):  # cannot count
-                            continue
-                        if _member(lb[j], wn, p_min):  # counts, whatever its P: no integral needed
-                            cert[j] = True
+                        t = gt[j]
+                        if not cert[j]:
+                            if not _member(ub[j], wn, p_min):  # cannot count
+                                continue
+                            low = _lower(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t], ca[n, t],
+                                         sa[n, t], ea, eb, oa[n], ob[n], pc[n, t], ps[n, t], sg1[n, t], sg2[n, t],
+                                         ho1[n, t], ho2[n, t])
+                            cert[j] = _member(low / _REL - _DP, wn, p_min)
+                        if cert[j]:  # counts, whatever its P: no integral needed
                             found = True
                             if floor < 0.0:
                                 floor = h[j] - 2.0 * _DH
                             continue
-                        t = gt[j]
                         counts[1] += 1
                         px[j] = _entry_p(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t], ea, eb,
                                          ca[n, t], sa[n, t], oa[n], ob[n], sxx[n, t], sxy[n, t], syy[n, t], z, buf)
