@@ -361,57 +361,44 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
             counts[0] += g
             cert[:g] = False
             found = False
-            # the maxima of P x harm, the ego's then the other's: steps by decreasing bound x harm,
-            # until one cannot beat the best P x harm found
-            for side in range(2):
-                h = he if side == 0 else ho
+            # four searches sharing one integration: phases 0, 1 the maxima of P x harm of the ego
+            # and the other, steps by decreasing bound x harm until one cannot beat the best found;
+            # phases 2, 3 their harm maxima, steps by decreasing harm down to the first that counts
+            for phase in range(4):
+                h = he if phase % 2 == 0 else ho
+                risk = phase < 2
                 for i in range(g):
-                    key[i] = ub[i] * (h[i] + _DH) * _REL
-                best = 0.0  # the best P (h - _DH) of a counting step: at most the maximum
+                    key[i] = ub[i] * (h[i] + _DH) * _REL if risk else h[i]
+                best = 0.0  # phases 0, 1: the best P (h - _DH) of a counting step, at most the maximum
+                floor = -1.0  # phases 2, 3: below this harm no step can hold the maximum
                 while True:
                     j = _pop_max(key, g)
-                    if j < 0 or key[j] <= best:
+                    if j < 0 or (key[j] <= best if risk else key[j] < floor):
                         break
                     key[j] = -1.0
                     if px[j] < 0.0:
                         t = gt[j]
-                        counts[1] += 1
-                        px[j] = _entry_p(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t], ea, eb,
-                                         ca[n, t], sa[n, t], oa[n], ob[n], sxx[n, t], sxy[n, t], syy[n, t], z, buf)
-                    if _member(px[j], wn, p_min):
-                        found = True
-                        best = max(best, px[j] * (h[j] - _DH))
-            # the harm maxima: steps by decreasing harm, down to the first that counts (and its ties)
-            for side in range(2):
-                h = he if side == 0 else ho
-                for i in range(g):
-                    key[i] = h[i]
-                floor = -1.0
-                while True:
-                    j = _pop_max(key, g)
-                    if j < 0 or key[j] < floor:
-                        break
-                    key[j] = -1.0
-                    if px[j] < 0.0:
-                        t = gt[j]
-                        if not cert[j]:
-                            if not _member(ub[j], wn, p_min):  # cannot count
+                        if not risk:
+                            if not cert[j]:
+                                if not _member(ub[j], wn, p_min):  # cannot count
+                                    continue
+                                low = _lower(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t], ca[n, t],
+                                             sa[n, t], ea, eb, oa[n], ob[n], pc[n, t], ps[n, t], sg1[n, t],
+                                             sg2[n, t], ho1[n, t], ho2[n, t])
+                                cert[j] = _member(low / _REL - _DP, wn, p_min)
+                            if cert[j]:  # counts, whatever its P: no integral needed
+                                found = True
+                                if floor < 0.0:
+                                    floor = h[j] - 2.0 * _DH
                                 continue
-                            low = _lower(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t], ca[n, t],
-                                         sa[n, t], ea, eb, oa[n], ob[n], pc[n, t], ps[n, t], sg1[n, t], sg2[n, t],
-                                         ho1[n, t], ho2[n, t])
-                            cert[j] = _member(low / _REL - _DP, wn, p_min)
-                        if cert[j]:  # counts, whatever its P: no integral needed
-                            found = True
-                            if floor < 0.0:
-                                floor = h[j] - 2.0 * _DH
-                            continue
                         counts[1] += 1
                         px[j] = _entry_p(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t], ea, eb,
                                          ca[n, t], sa[n, t], oa[n], ob[n], sxx[n, t], sxy[n, t], syy[n, t], z, buf)
                     if _member(px[j], wn, p_min):
                         found = True
-                        if floor < 0.0:
+                        if risk:
+                            best = max(best, px[j] * (h[j] - _DH))
+                        elif floor < 0.0:
                             floor = h[j] - 2.0 * _DH
             if not found:
                 continue
