@@ -401,26 +401,42 @@ def _envelope_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, oa, ob, ea, eb, brak
     K, T = ex.shape
     N, tp = mx.shape
     first = np.full(K, T, dtype=np.int64)
+    tp = min(tp, T)
+    # per (k, t): the heading and the stretched box (half-length, centre, half-diagonal), once
+    c1s = np.empty((K, tp))
+    s1s = np.empty((K, tp))
+    a1s = np.empty((K, tp))
+    cxs = np.empty((K, tp))
+    cys = np.empty((K, tp))
+    r1s = np.empty((K, tp))
+    for k in range(K):
+        for t in range(tp):
+            c1 = math.cos(eyaw[k, t])
+            s1 = math.sin(eyaw[k, t])
+            ext = ev[k, t] * ev[k, t] / (2.0 * brake) if brake > 0.0 else 0.0
+            a1 = ea + 0.5 * ext
+            c1s[k, t], s1s[k, t], a1s[k, t] = c1, s1, a1
+            cxs[k, t] = ex[k, t] + 0.5 * ext * c1
+            cys[k, t] = ey[k, t] + 0.5 * ext * s1
+            r1s[k, t] = math.sqrt(a1 * a1 + eb * eb)
+    c2s = np.cos(psi)
+    s2s = np.sin(psi)
+    fin = np.empty((N, tp), dtype=np.bool_)
+    for n in range(N):
+        for t in range(tp):
+            fin[n, t] = math.isfinite(mx[n, t]) and math.isfinite(my[n, t]) and math.isfinite(psi[n, t])
     for k in range(K):
         for n in range(N):
             r_o = math.sqrt(oa[n] * oa[n] + ob[n] * ob[n])
             for t in range(min(tp, first[k])):
-                if not evalid[k, t]:
+                if not evalid[k, t] or not fin[n, t]:
                     continue
-                if not (math.isfinite(mx[n, t]) and math.isfinite(my[n, t]) and math.isfinite(psi[n, t])):
-                    continue
-                c1 = math.cos(eyaw[k, t])
-                s1 = math.sin(eyaw[k, t])
-                ext = ev[k, t] * ev[k, t] / (2.0 * brake) if brake > 0.0 else 0.0
-                a1 = ea + 0.5 * ext
-                cx = ex[k, t] + 0.5 * ext * c1
-                cy = ey[k, t] + 0.5 * ext * s1
-                dx = mx[n, t] - cx
-                dy = my[n, t] - cy
-                rr = math.sqrt(a1 * a1 + eb * eb) + r_o
+                dx = mx[n, t] - cxs[k, t]
+                dy = my[n, t] - cys[k, t]
+                rr = r1s[k, t] + r_o
                 if dx * dx + dy * dy > rr * rr:
                     continue
-                if _sat(dx, dy, c1, s1, a1, eb, math.cos(psi[n, t]), math.sin(psi[n, t]), oa[n], ob[n]):
+                if _sat(dx, dy, c1s[k, t], s1s[k, t], a1s[k, t], eb, c2s[n, t], s2s[n, t], oa[n], ob[n]):
                     first[k] = t
                     break
     return first
