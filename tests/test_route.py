@@ -30,3 +30,15 @@ def test_lane_labels_change_at_the_lane_boundaries(testbed):
     # the whole of main_1 is main_1 (a one-segment shift once labelled all of it a junction)
     labels = {r.lane_of_vertex[i] for i in range(r.vertex_at(203.5), r.vertex_at(395.0) + 1)}
     assert labels == {"main_1_2"}
+
+
+def test_lane_labels_are_the_lanes_own_strings(testbed):
+    """One str object per lane, shared by its vertices (not one numpy.str_ per vertex: a fleet
+    holds a route per ego driving, thousands of vertices each)."""
+    from sumo_ethics.sim.route import build_route_path
+
+    r = build_route_path(("main_0", "main_1"), "main_0_2", "passenger")
+    labels = r.lane_of_vertex
+    assert len(labels) == len(r.path.s) > 3
+    assert all(type(k) is str for k in labels)
+    assert len({id(k) for k in labels}) == len(set(labels)) == 3

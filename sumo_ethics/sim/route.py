@@ -178,10 +178,13 @@ def build_route_path(edges: tuple[str, ...], start_lane: str, vclass: str,
     links = [JunctionLink(s=float(np.interp(raw.s[new_index[v]], raw_s, path.s)), lane=ln, index=j)
              for v, ln, j in link_at]
     lb = np.asarray(bounds)[keep][vertex]
+    # the lanes' own str objects, shared by their vertices: a numpy array's items would be one new
+    # numpy.str_ per vertex (some 2,500 objects, 150 kB, per urban_grid route, as long as its ego drives)
+    lane_of_vertex = tuple(lane_ids[i] for i in np.flatnonzero(keep)[vertex])
     return RoutePath(
         edges=edges,
         path=path,
-        lane_of_vertex=tuple(np.asarray(lane_ids)[keep][vertex]),
+        lane_of_vertex=lane_of_vertex,
         speed_limit=np.asarray(vmax)[keep][vertex],
         left=lb[:, 0],
         right=lb[:, 1],
