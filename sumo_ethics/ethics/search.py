@@ -35,7 +35,7 @@ import math
 import numba
 import numpy as np
 
-from sumo_ethics.ethics.shapes import _BLOCK, _block_boxes, _entry_p, _phi_pos
+from sumo_ethics.ethics.shapes import _BLOCK, _block_boxes, _entry_p, _phi_pos, _slab_test
 
 __all__ = ["bounded_entries", "order_harm", "p_bounds"]
 
@@ -106,38 +106,6 @@ def _order_harm(dx, dy, ce, se, ca, sa, yawe, yawo, ve, vo, fe, fo, vul_e, vul_o
 @_jit
 def _phi(x: float) -> float:
     return _phi_pos(x) if x >= 0.0 else 1.0 - _phi_pos(-x)
-
-
-@_jit
-def _quick_exit(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z) -> int:
-    """0: P = 0 by the slabs' quick exit, 1: P = 1 by it, 2: neither; the test of shapes._entry_p
-    with the same expressions, so the same answer."""
-    m1 = ce * dx + se * dy
-    m2 = ce * dy - se * dx
-    cc, ss, cs = ce * ce, se * se, ce * se
-    v11 = cc * sxx + 2.0 * cs * sxy + ss * syy
-    v22 = ss * sxx - 2.0 * cs * sxy + cc * syy
-    v12 = cs * (syy - sxx) + (cc - ss) * sxy
-    cr = ce * ca + se * sa
-    sr = ce * sa - se * ca
-    acr, asr = abs(cr), abs(sr)
-    inside_all = True
-    for i in range(4):
-        if i == 0:
-            nx, ny, w = 1.0, 0.0, ea + oa * acr + ob * asr
-        elif i == 1:
-            nx, ny, w = 0.0, 1.0, eb + oa * asr + ob * acr
-        elif i == 2:
-            nx, ny, w = cr, sr, oa + ea * acr + eb * asr
-        else:
-            nx, ny, w = -sr, cr, ob + ea * asr + eb * acr
-        sig = math.sqrt(nx * nx * v11 + 2.0 * nx * ny * v12 + ny * ny * v22)
-        d = abs(nx * m1 + ny * m2) - w
-        if d > z * sig:
-            return 0
-        if d > -z * sig:
-            inside_all = False
-    return 1 if inside_all else 2
 
 
 @_jit
@@ -342,8 +310,8 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
                         ce[k, t] = math.cos(eyaw[k, t])
                         se[k, t] = math.sin(eyaw[k, t])
                     c1, s1 = ce[k, t], se[k, t]
-                    q = _quick_exit(dx, dy, c1, s1, ea, eb, ca[n, t], sa[n, t], oa[n], ob[n], sxx[n, t], sxy[n, t],
-                                    syy[n, t], z)
+                    q = _slab_test(dx, dy, c1, s1, ea, eb, ca[n, t], sa[n, t], oa[n], ob[n], sxx[n, t], sxy[n, t],
+                                   syy[n, t], z)[0]
                     if q == 0:  # P = 0: never counts
                         continue
                     gt[g] = t

@@ -223,10 +223,11 @@ def _octagon(ea: float, eb: float, oa: float, ob: float, cr: float, sr: float, v
 
 
 @_jit
-def _entry_p(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z, buf) -> float:
-    """P for one (k, n, t): world offset (dx, dy) of the agent's mean from the ego centre, ego
-    heading (cos ce, sin se), agent heading (ca, sa), half-sizes, the agent's covariance (world);
-    buf: (4, 8) scratch."""
+def _slab_test(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z):
+    """The quick exits of one (k, n, t): world offset (dx, dy) of the agent's mean from the ego
+    centre, ego heading (cos ce, sin se), agent heading (ca, sa), half-sizes, the agent's
+    covariance (world). Returns (0: P = 0, 1: P = 1, 2: neither; the mean m1, m2 and covariance
+    v11, v12, v22 in the ego frame; cos, sin of the agent's heading relative to the ego's)."""
     m1 = ce * dx + se * dy  # ego frame
     m2 = ce * dy - se * dx
     cc, ss, cs = ce * ce, se * se, ce * se
@@ -250,10 +251,19 @@ def _entry_p(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z, buf) -> f
         sig = math.sqrt(nx * nx * v11 + 2.0 * nx * ny * v12 + ny * ny * v22)
         d = abs(nx * m1 + ny * m2) - w
         if d > z * sig:
-            return 0.0
+            return 0, m1, m2, v11, v12, v22, cr, sr
         if d > -z * sig:
             inside_all = False
-    if inside_all:
+    return (1 if inside_all else 2), m1, m2, v11, v12, v22, cr, sr
+
+
+@_jit
+def _entry_p(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z, buf) -> float:
+    """P for one (k, n, t), the arguments as :func:`_slab_test`'s; buf: (4, 8) scratch."""
+    code, m1, m2, v11, v12, v22, cr, sr = _slab_test(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z)
+    if code == 0:
+        return 0.0
+    if code == 1:
         return 1.0
     _octagon(ea, eb, oa, ob, cr, sr, buf[0], buf[1])
     return _poly_mass(buf[0], buf[1], buf[2], buf[3], m1, m2, v11, v12, v22)
