@@ -35,7 +35,7 @@ import math
 import numba
 import numpy as np
 
-from sumo_ethics.ethics.shapes import _BLOCK, _block_boxes, _entry_p, _phi_pos, _slab_test
+from sumo_ethics.ethics.shapes import _BLOCK, _apart, _entry_buffers, _entry_p, _gate, _near, _phi_pos, _push, _slab_test
 
 __all__ = ["bounded_entries", "order_harm", "p_bounds"]
 
@@ -239,12 +239,9 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
                    ego_mass, ego_vul, amass, avul, co):
     K, T = ex.shape
     N, tp = mx.shape
-    nb = (tp + _BLOCK - 1) // _BLOCK
     ce = np.full((K, tp), np.nan)
     se = np.empty((K, tp))
-    r_e = math.sqrt(ea * ea + eb * eb)
-    arad = np.empty((N, tp))
-    afin = np.empty((N, tp), dtype=np.bool_)
+    nb, afin, arad, ebox, abox = _gate(ex, ey, evalid, mx, my, psi, sxx, sxy, syy, oa, ob, ea, eb, z)
     # the agents' principal axes (cos, sin of the first), standard deviations along them, and the
     # agent box's half-extent along each: the box bound's per-(n, t) parts
     pc = np.empty((N, tp))
@@ -256,14 +253,8 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
     ca = np.cos(psi)
     sa = np.sin(psi)
     for n in range(N):
-        r_o = math.sqrt(oa[n] * oa[n] + ob[n] * ob[n])
         for t in range(tp):
-            s2 = sxx[n, t] + syy[n, t]
-            ok = (math.isfinite(mx[n, t]) and math.isfinite(my[n, t]) and math.isfinite(psi[n, t])
-                  and math.isfinite(s2) and math.isfinite(sxy[n, t]))
-            afin[n, t] = ok
-            arad[n, t] = r_e + r_o + z * math.sqrt(s2) if ok else 0.0
-            if ok:
+            if afin[n, t]:
                 pc[n, t], ps[n, t], sg1[n, t], sg2[n, t], ho1[n, t], ho2[n, t] = _principal(
                     sxx[n, t], sxy[n, t], syy[n, t], oa[n], ob[n], ca[n, t], sa[n, t])
     fe = np.empty(N)  # delta-v shares of the ego and agent n (momentum split)
@@ -271,9 +262,6 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
     for n in range(N):
         fe[n] = amass[n] / (ego_mass + amass[n])
         fo[n] = ego_mass / (ego_mass + amass[n])
-    zero = np.zeros((K, tp))
-    ebox = _block_boxes(ex, ey, evalid, zero, nb, tp)
-    abox = _block_boxes(mx, my, afin, arad, nb, tp)
     buf = np.empty((4, 8))
     # per (k, n): the gated steps, their bound, exact P (-1: not integrated), harms, search order
     gt = np.empty(tp, dtype=np.int64)
@@ -283,11 +271,7 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
     he = np.empty(tp)
     ho = np.empty(tp)
     key = np.empty(tp)
-    cap = 1024
-    ok_ = np.empty(cap, dtype=np.int32)
-    on_ = np.empty(cap, dtype=np.int32)
-    ot_ = np.empty(cap, dtype=np.int32)
-    op_ = np.empty(cap)
+    ok_, on_, ot_, op_ = _entry_buffers(1024)
     m = 0
     at_risk = np.zeros((K, N), dtype=np.bool_)
     counts = np.zeros(3, dtype=np.int64)  # gated steps (not settled to 0 by the slabs), integrals, entries
@@ -296,19 +280,12 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
             g = 0
             wn = w[n]
             for b in range(nb):
-                if (ebox[k, b, 0] > abox[n, b, 1] or ebox[k, b, 1] < abox[n, b, 0]
-                        or ebox[k, b, 2] > abox[n, b, 3] or ebox[k, b, 3] < abox[n, b, 2]):
+                if _apart(ebox, abox, k, n, b):
                     continue
                 for t in range(b * _BLOCK, min((b + 1) * _BLOCK, tp)):
-                    if not (evalid[k, t] and afin[n, t]):
+                    near, dx, dy = _near(k, n, t, ex, ey, eyaw, evalid, mx, my, afin, arad, ce, se)
+                    if not near:
                         continue
-                    dx = mx[n, t] - ex[k, t]
-                    dy = my[n, t] - ey[k, t]
-                    if dx * dx + dy * dy > arad[n, t] * arad[n, t]:
-                        continue
-                    if math.isnan(ce[k, t]):
-                        ce[k, t] = math.cos(eyaw[k, t])
-                        se[k, t] = math.sin(eyaw[k, t])
                     c1, s1 = ce[k, t], se[k, t]
                     q = _slab_test(dx, dy, c1, s1, ea, eb, ca[n, t], sa[n, t], oa[n], ob[n], sxx[n, t], sxy[n, t],
                                    syy[n, t], z)[0]
@@ -373,26 +350,10 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
             at_risk[k, n] = True
             for i in range(g):  # the steps known to count, in t order (P NaN: not integrated)
                 if (px[i] >= 0.0 and _member(px[i], wn, p_min)) or (px[i] < 0.0 and cert[i]):
-                    if m == cap:
-                        cap *= 2
-                        ok_ = _grow(ok_, cap)
-                        on_ = _grow(on_, cap)
-                        ot_ = _grow(ot_, cap)
-                        op_ = _grow(op_, cap)
-                    ok_[m] = k
-                    on_[m] = n
-                    ot_[m] = gt[i]
-                    op_[m] = px[i] if px[i] >= 0.0 else np.nan
+                    ok_, on_, ot_, op_ = _push(ok_, on_, ot_, op_, m, k, n, gt[i], px[i] if px[i] >= 0.0 else np.nan)
                     m += 1
     counts[2] = m
     return ok_[:m].copy(), on_[:m].copy(), ot_[:m].copy(), op_[:m].copy(), at_risk, counts
-
-
-@_jit
-def _grow(a, cap):
-    out = np.empty(cap, dtype=a.dtype)
-    out[: len(a)] = a
-    return out
 
 
 def bounded_entries(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, other_length, other_width,

@@ -293,12 +293,12 @@ def _block_boxes(x, y, valid, rad, nb: int, tp: int):
 
 
 @_jit
-def _shapes_kernel(ex, ey, eyaw, evalid, mx, my, psi, sxx, sxy, syy, oa, ob, ea, eb, z, p_min):
-    K, T = ex.shape
+def _gate(ex, ey, evalid, mx, my, psi, sxx, sxy, syy, oa, ob, ea, eb, z):
+    """The geometric gate's parts: (blocks of steps, (N, tp) agent step finite, (N, tp) gate radius
+    (both half-diagonals + z sqrt(sxx + syy)) [m], (K, nb, 4) and (N, nb, 4) block boxes)."""
+    K = ex.shape[0]
     N, tp = mx.shape
     nb = (tp + _BLOCK - 1) // _BLOCK
-    ce = np.full((K, tp), np.nan)  # cos, sin of the ego's heading, filled on first use (trig is slow)
-    se = np.empty((K, tp))
     r_e = math.sqrt(ea * ea + eb * eb)
     arad = np.empty((N, tp))
     afin = np.empty((N, tp), dtype=np.bool_)
@@ -311,13 +311,40 @@ def _shapes_kernel(ex, ey, eyaw, evalid, mx, my, psi, sxx, sxy, syy, oa, ob, ea,
             afin[n, t] = ok
             arad[n, t] = r_e + r_o + z * math.sqrt(s2) if ok else 0.0
     zero = np.zeros((K, tp))
-    ebox = _block_boxes(ex, ey, evalid, zero, nb, tp)
-    abox = _block_boxes(mx, my, afin, arad, nb, tp)
-    cap = 1024
-    ok_ = np.empty(cap, dtype=np.int32)
-    on_ = np.empty(cap, dtype=np.int32)
-    ot_ = np.empty(cap, dtype=np.int32)
-    op_ = np.empty(cap)
+    return nb, afin, arad, _block_boxes(ex, ey, evalid, zero, nb, tp), _block_boxes(mx, my, afin, arad, nb, tp)
+
+
+@_jit
+def _apart(ebox, abox, k: int, n: int, b: int) -> bool:
+    """Candidate k's and agent n's boxes of block b do not meet."""
+    return (ebox[k, b, 0] > abox[n, b, 1] or ebox[k, b, 1] < abox[n, b, 0]
+            or ebox[k, b, 2] > abox[n, b, 3] or ebox[k, b, 3] < abox[n, b, 2])
+
+
+@_jit
+def _near(k: int, n: int, t: int, ex, ey, eyaw, evalid, mx, my, afin, arad, ce, se):
+    """(step t of candidate k and agent n passes the gate, the agent's mean offset dx, dy [m] from
+    the ego centre); fills the cache ce, se (cos, sin of the ego's heading, NaN: not yet) there."""
+    if not (evalid[k, t] and afin[n, t]):
+        return False, 0.0, 0.0
+    dx = mx[n, t] - ex[k, t]
+    dy = my[n, t] - ey[k, t]
+    if dx * dx + dy * dy > arad[n, t] * arad[n, t]:
+        return False, dx, dy
+    if math.isnan(ce[k, t]):
+        ce[k, t] = math.cos(eyaw[k, t])
+        se[k, t] = math.sin(eyaw[k, t])
+    return True, dx, dy
+
+
+@_jit
+def _shapes_kernel(ex, ey, eyaw, evalid, mx, my, psi, sxx, sxy, syy, oa, ob, ea, eb, z, p_min):
+    K, T = ex.shape
+    N, tp = mx.shape
+    ce = np.full((K, tp), np.nan)  # cos, sin of the ego's heading, filled on first use (trig is slow)
+    se = np.empty((K, tp))
+    nb, afin, arad, ebox, abox = _gate(ex, ey, evalid, mx, my, psi, sxx, sxy, syy, oa, ob, ea, eb, z)
+    ok_, on_, ot_, op_ = _entry_buffers(1024)
     m = 0
     ca = np.cos(psi)
     sa = np.sin(psi)
@@ -325,35 +352,39 @@ def _shapes_kernel(ex, ey, eyaw, evalid, mx, my, psi, sxx, sxy, syy, oa, ob, ea,
     for k in range(K):
         for n in range(N):
             for b in range(nb):
-                if (ebox[k, b, 0] > abox[n, b, 1] or ebox[k, b, 1] < abox[n, b, 0]
-                        or ebox[k, b, 2] > abox[n, b, 3] or ebox[k, b, 3] < abox[n, b, 2]):
+                if _apart(ebox, abox, k, n, b):
                     continue
                 for t in range(b * _BLOCK, min((b + 1) * _BLOCK, tp)):
-                    if not (evalid[k, t] and afin[n, t]):
+                    near, dx, dy = _near(k, n, t, ex, ey, eyaw, evalid, mx, my, afin, arad, ce, se)
+                    if not near:
                         continue
-                    dx = mx[n, t] - ex[k, t]
-                    dy = my[n, t] - ey[k, t]
-                    if dx * dx + dy * dy > arad[n, t] * arad[n, t]:
-                        continue
-                    if math.isnan(ce[k, t]):
-                        ce[k, t] = math.cos(eyaw[k, t])
-                        se[k, t] = math.sin(eyaw[k, t])
                     p = _entry_p(dx, dy, ce[k, t], se[k, t], ea, eb, ca[n, t], sa[n, t], oa[n], ob[n],
                                  sxx[n, t], sxy[n, t], syy[n, t], z, buf)
                     if p < p_min:
                         continue
-                    if m == cap:
-                        cap *= 2
-                        ok_ = _grow_i(ok_, cap)
-                        on_ = _grow_i(on_, cap)
-                        ot_ = _grow_i(ot_, cap)
-                        op_ = _grow_f(op_, cap)
-                    ok_[m] = k
-                    on_[m] = n
-                    ot_[m] = t
-                    op_[m] = p
+                    ok_, on_, ot_, op_ = _push(ok_, on_, ot_, op_, m, k, n, t, p)
                     m += 1
     return ok_[:m].copy(), on_[:m].copy(), ot_[:m].copy(), op_[:m].copy()
+
+
+@_jit
+def _entry_buffers(cap: int):
+    """Empty (k, n, t, p) buffers for ``cap`` entries (see :func:`_push`)."""
+    return (np.empty(cap, dtype=np.int32), np.empty(cap, dtype=np.int32), np.empty(cap, dtype=np.int32),
+            np.empty(cap))
+
+
+@_jit
+def _push(ok_, on_, ot_, op_, m: int, k: int, n: int, t: int, p: float):
+    """Entry m = (k, n, t, p) into the buffers, doubled first when full; the buffers."""
+    if m == len(ok_):
+        cap = 2 * len(ok_)
+        ok_, on_, ot_, op_ = _grow_i(ok_, cap), _grow_i(on_, cap), _grow_i(ot_, cap), _grow_f(op_, cap)
+    ok_[m] = k
+    on_[m] = n
+    ot_[m] = t
+    op_[m] = p
+    return ok_, on_, ot_, op_
 
 
 @_jit
