@@ -90,7 +90,7 @@ def main() -> None:
         pass
     sc = scene(a.agents)
     planner = EthicalPlanner(PlannerConfig(predictor=a.predictor))
-    if getattr(planner.predictor, "map_source", None) is not None:
+    if hasattr(planner.predictor, "map_source"):  # the map-aware LSTMs (their source is None until set)
         planner.predictor.map_source = lane_source(sc)  # no SUMO here (see the module docstring)
     for _ in range(10):
         d = planner.act(sc)

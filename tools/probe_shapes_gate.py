@@ -1,6 +1,7 @@
 """Where the "shapes" collision probability spends its time: per predicted mode, the (k, n, t)
 entries the geometric gate lets through, how many the slab quick exits settle (P = 0 or 1), how
-many need the polygon integral, the agents' spread and the kernel's wall time.
+many need the polygon integral, the agents' spread and the kernel's wall time; and how many the
+planner's bounded search (sumo_ethics.ethics.search) integrates on the same entries, and its time.
 
     OPENBLAS_NUM_THREADS=1 python tools/probe_shapes_gate.py [--agents 20,60] [--predictor map] [--uncalibrated]
 
@@ -24,6 +25,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).parent))
 import bench_planner  # noqa: E402
 
+from sumo_ethics.ethics import search  # noqa: E402
 from sumo_ethics.ethics import shapes as S  # noqa: E402
 from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig  # noqa: E402
 
@@ -62,37 +64,42 @@ def main() -> None:
     ap.add_argument("--uncalibrated", action="store_true")
     a = ap.parse_args()
     calls: list[tuple] = []
-    real = S.shapes_sparse
+    real = search.bounded_entries
 
     def spy(*args):
         calls.append(args)
         return real(*args)
 
-    S.shapes_sparse = spy
+    search.bounded_entries = spy  # what the planner calls (probability.bounded_shapes_entries)
     print("| agents | mode | median sigma_max at 4 s [m] | valid (k, n, t) | gated | P = 0 (slabs) | P = 1 (slabs) "
-          "| integrated | kernel [ms] |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+          "| integrated | exhaustive kernel [ms] | integrated by the search | search kernel [ms] |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for n_agents in (int(v) for v in a.agents.split(",")):
         calls.clear()
         sc = bench_planner.scene(n_agents)
         planner = EthicalPlanner(PlannerConfig(predictor=a.predictor, calibrated=not a.uncalibrated))
-        if getattr(planner.predictor, "map_source", None) is not None:
+        if hasattr(planner.predictor, "map_source"):  # the map-aware LSTMs (their source is None until set)
             planner.predictor.map_source = bench_planner.lane_source(sc)
         planner.act(sc)
         for m, args in enumerate(calls):
             f = np.ascontiguousarray
-            arr = [f(v, dtype=float) for v in args[:10]]
-            arr[3] = f(args[3], dtype=np.bool_)
-            c = _count(*arr, f(np.asarray(args[10]) / 2), f(np.asarray(args[11]) / 2), args[12] / 2, args[13] / 2,
-                       args[14])
-            walls = []
+            # the exhaustive kernel's arguments: ego x, y, yaw, valid; agent x, y, yaw, sxx, sxy, syy
+            arr = [f(args[i], dtype=float) for i in (0, 1, 2, 4, 5, 6, 7, 9, 10, 11)]
+            arr[3] = f(args[4], dtype=np.bool_)
+            c = _count(*arr, f(np.asarray(args[12]) / 2), f(np.asarray(args[13]) / 2), args[14] / 2, args[15] / 2,
+                       args[16])
+            full_args = (*[args[i] for i in (0, 1, 2, 4, 5, 6, 7, 9, 10, 11, 12, 13, 14, 15, 16, 17)],)
+            walls, walls_s = [], []
             for _ in range(3):
                 w = time.perf_counter()
-                real(*args)
+                S.shapes_sparse(*full_args)
                 walls.append(time.perf_counter() - w)
-            sig = np.sqrt(np.maximum(args[7], args[9]))[:, -1]
+                w = time.perf_counter()
+                counts = real(*args)[5]
+                walls_s.append(time.perf_counter() - w)
+            sig = np.sqrt(np.maximum(args[9], args[11]))[:, -1]
             print(f"| {n_agents} | {m} | {np.median(sig):.2f} | {c[0]:,} | {c[1]:,} | {c[2]:,} | {c[3]:,} | {c[4]:,} "
-                  f"| {1e3 * min(walls):.0f} |")
+                  f"| {1e3 * min(walls):.0f} | {counts[1]:,} | {1e3 * min(walls_s):.0f} |")
 
 
 if __name__ == "__main__":
