@@ -148,6 +148,12 @@ class SparseProbability:
     p: np.ndarray
     shape: tuple[int, int, int]
 
+    @staticmethod
+    def none(shape: tuple[int, int, int]) -> "SparseProbability":
+        """No entries: P = 0 everywhere in a (K, N, T) array."""
+        empty = np.zeros(0, dtype=np.intp)
+        return SparseProbability(empty, empty, empty, np.zeros(0), shape)
+
     def dense(self, values: np.ndarray | None = None) -> np.ndarray:
         """(K, N, T) float array holding ``values`` (default: p) at the entries, 0 elsewhere."""
         out = np.zeros(self.shape)
@@ -383,8 +389,7 @@ def sparse_collision_probability(
     K, T = cand.x.shape
     N = len(pred.ids)
     tp = min(T, pred.mean.shape[1]) if N else 0
-    empty = np.zeros(0, dtype=np.intp)
-    nothing = SparseProbability(empty, empty, empty, np.zeros(0), (K, N, T))
+    nothing = SparseProbability.none((K, N, T))
     if K == 0 or N == 0 or tp == 0:
         return nothing
     if cfg.method == "shapes":
@@ -536,9 +541,7 @@ def bounded_shapes_entries(
     N = len(pred.ids)
     tp = min(T, pred.mean.shape[1]) if N else 0
     if K == 0 or N == 0 or tp == 0:
-        empty = np.zeros(0, dtype=np.intp)
-        return (SparseProbability(empty, empty, empty, np.zeros(0), (K, N, T)), np.zeros((K, N), bool),
-                np.zeros(3, np.int64))
+        return SparseProbability.none((K, N, T)), np.zeros((K, N), bool), np.zeros(3, np.int64)
     ev, ego_mass, ego_vul, av, amass, avul, coeffs = harm_inputs
     sxx, sxy, syy, at = shapes_covariances(pred, cand.dt, tp, cfg)
     k, n, t, p, at_risk, counts = bounded_entries(

@@ -116,13 +116,12 @@ class RiskTerms:
         """Terms given directly as (K, N) / (K,) arrays, without per-step entries (tests, replays)."""
         er = np.asarray(ego_risk, dtype=float)
         K, N = er.shape
-        empty = np.zeros(0, dtype=np.intp)
         return RiskTerms(
             ego_risk=er, other_risk=np.asarray(other_risk, dtype=float),
             ego_harm_max=np.asarray(ego_harm_max, dtype=float), other_harm_max=np.asarray(other_harm_max, dtype=float),
             vulnerable=np.zeros(N, bool) if vulnerable is None else np.asarray(vulnerable, dtype=bool),
             boundary_harm=np.asarray(boundary_harm, dtype=float),
-            sparse=SparseProbability(empty, empty, empty, np.zeros(0), (K, N, T)),
+            sparse=SparseProbability.none((K, N, T)),
             ego_harm_at=np.zeros(0), other_harm_at=np.zeros(0), rule_breaker=rule_breaker,
         )
 
@@ -280,8 +279,7 @@ def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates,
         parts.append(((k * N + n) * T + t, wp, h_e, h_o))
     terms = (ego_risk, other_risk, ego_hmax, other_hmax)
     if bounded:
-        empty = np.zeros(0, dtype=np.intp)
-        return SparseProbability(empty, empty, empty, np.zeros(0), (K, N, T)), np.zeros(0), np.zeros(0), terms, at_risk
+        return SparseProbability.none((K, N, T)), np.zeros(0), np.zeros(0), terms, at_risk
 
     # one entry per (k, n, t): the modes' shares summed (the stable sort keeps the mode order)
     if parts:
@@ -289,8 +287,7 @@ def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates,
         order = np.argsort(key, kind="stable")
         key, wp, h_e, h_o = key.take(order), wp.take(order), h_e.take(order), h_o.take(order)
     if not parts or key.size == 0:  # (no agent at all skips every mode)
-        empty = np.zeros(0, dtype=np.intp)
-        return SparseProbability(empty, empty, empty, np.zeros(0), (K, N, T)), np.zeros(0), np.zeros(0), terms, None
+        return SparseProbability.none((K, N, T)), np.zeros(0), np.zeros(0), terms, None
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     single = np.diff(np.r_[starts, key.size]) == 1
     p_c = np.add.reduceat(wp, starts)
@@ -351,8 +348,7 @@ def assess_risk(
         sp, h_e, h_o, at_risk = _entries(cand, pred, agents, *args, weight=np.ones(N) if bounded else None)
         if bounded:
             ego_risk, other_risk, ego_harm_max, other_harm_max = _bounded_maxima(sp, h_e, h_o, 1.0, (K, N))
-            empty = np.zeros(0, dtype=np.intp)
-            sp, h_e, h_o = SparseProbability(empty, empty, empty, np.zeros(0), sp.shape), np.zeros(0), np.zeros(0)
+            sp, h_e, h_o = SparseProbability.none(sp.shape), np.zeros(0), np.zeros(0)
         else:
             ego_risk, other_risk = _group_max(sp.p * h_e, sp, (K, N)), _group_max(sp.p * h_o, sp, (K, N))
             ego_harm_max, other_harm_max = _group_max(h_e, sp, (K, N)), _group_max(h_o, sp, (K, N))
