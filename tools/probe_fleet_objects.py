@@ -15,13 +15,13 @@ import collections
 import ctypes
 import gc
 import sys
-import tempfile
 import time
 import types
 from pathlib import Path
 
 import numpy as np
 from bench_fleet import rss_mb
+from probe_fleet_rss import hold_run, run_memory_fleet
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -123,20 +123,11 @@ def main() -> None:
 
     import tracemalloc
 
-    from sumo_ethics.config import FleetSpec, RunConfig
     from sumo_ethics.plan.baseline import RouteFollower
-    from sumo_ethics.runner import fleet as F
 
     import sumo_ethics
     print("sumo_ethics from", sumo_ethics.__file__)
-    holder: dict = {}
-    orig = F.FleetRun._loop
-
-    def _loop(self, *args, **kw):  # type: ignore[no-untyped-def]
-        holder["run"] = self
-        return orig(self, *args, **kw)
-
-    F.FleetRun._loop = _loop  # type: ignore[method-assign]
+    holder = hold_run()
     state: dict = {"prev": None, "snap": None, "next": 0, "traced": False}
     rss_track: list[tuple[float, float]] = []
     t_wall = time.perf_counter()
@@ -163,11 +154,7 @@ def main() -> None:
                 state["next"] += 1
             return super().act(scene)
 
-    with tempfile.TemporaryDirectory() as tmp:
-        cfg = RunConfig(scenario=ROOT / "scenarios" / "urban_grid" / "urban_grid.sumocfg", out=Path(tmp) / "m",
-                        seed=a.seed, end=a.seconds, progress=False,
-                        fleet=FleetSpec(penetration=1.0, shares=(("baseline", 1.0),)))
-        s = F.run_fleet(cfg, lambda name, vid: Sampled())
+    s = run_memory_fleet(a.seconds, a.seed, Sampled)
     print(f"\nwall {time.perf_counter() - t_wall:.0f} s; egos {s.data['fleet']['egos']} {s.data['fleet']['by_status']}")
     print("RSS every 5 s: " + " ".join(f"{t:.0f}:{r:.0f}" for t, r in rss_track))
 

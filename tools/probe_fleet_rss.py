@@ -68,6 +68,34 @@ def mappings() -> dict[str, float]:
     return out
 
 
+def hold_run() -> dict:
+    """Make the running FleetRun available as ``holder["run"]`` (FleetRun._loop wrapped); the holder."""
+    from sumo_ethics.runner import fleet as F
+
+    holder: dict = {}
+    orig = F.FleetRun._loop
+
+    def _loop(self, *args, **kw):  # type: ignore[no-untyped-def]
+        holder["run"] = self
+        return orig(self, *args, **kw)
+
+    F.FleetRun._loop = _loop  # type: ignore[method-assign]
+    return holder
+
+
+def run_memory_fleet(seconds: float, seed: int, controller):  # type: ignore[no-untyped-def]
+    """tools/bench_fleet.py's memory run: urban_grid at penetration 1, every ego driven by
+    ``controller()`` (a RouteFollower), into a temporary folder; its RunSummary."""
+    from sumo_ethics.config import FleetSpec, RunConfig
+    from sumo_ethics.runner import fleet as F
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = RunConfig(scenario=ROOT / "scenarios" / "urban_grid" / "urban_grid.sumocfg", out=Path(tmp) / "m",
+                        seed=seed, end=seconds, progress=False,
+                        fleet=FleetSpec(penetration=1.0, shares=(("baseline", 1.0),)))
+        return F.run_fleet(cfg, lambda name, vid: controller())
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("seconds", type=float)
@@ -78,20 +106,12 @@ def main() -> None:
     import pyarrow as pa
 
     import sumo_ethics
-    from sumo_ethics.config import FleetSpec, RunConfig
     from sumo_ethics.plan.baseline import RouteFollower
     from sumo_ethics.runner import fleet as F
     from sumo_ethics.sim.backend import sumo
 
     print("sumo_ethics from", sumo_ethics.__file__, "; arrow pool", pa.default_memory_pool().backend_name)
-    holder: dict = {}
-    orig = F.FleetRun._loop
-
-    def _loop(self, *args, **kw):  # type: ignore[no-untyped-def]
-        holder["run"] = self
-        return orig(self, *args, **kw)
-
-    F.FleetRun._loop = _loop  # type: ignore[method-assign]
+    holder = hold_run()
     import sys
     import weakref
 
@@ -129,11 +149,7 @@ def main() -> None:
             return super().act(scene)
 
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory() as tmp:
-        cfg = RunConfig(scenario=ROOT / "scenarios" / "urban_grid" / "urban_grid.sumocfg", out=Path(tmp) / "m",
-                        seed=a.seed, end=a.seconds, progress=False,
-                        fleet=FleetSpec(penetration=1.0, shares=(("baseline", 1.0),)))
-        s = F.run_fleet(cfg, lambda name, vid: Sampled())
+    s = run_memory_fleet(a.seconds, a.seed, Sampled)
     print(f"wall {time.perf_counter() - t0:.0f} s; egos {s.data['fleet']['egos']} {s.data['fleet']['by_status']}")
     keys = [k for k in rows[0] if k not in ("t", "egos", "road_users", "ended", "routes_alive", "worlds_alive")]
     print("routes alive minus egos driving: max", max(r["routes_alive"] for r in rows), "; worlds:",

@@ -13,13 +13,12 @@ from __future__ import annotations
 import argparse
 import gc
 import sys
-import tempfile
 import time
 import tracemalloc
 from pathlib import Path
 
 from bench_fleet import rss_mb
-from probe_fleet_rss import pymalloc_arenas
+from probe_fleet_rss import hold_run, pymalloc_arenas, run_memory_fleet
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,18 +33,9 @@ def main() -> None:
     a = ap.parse_args()
     at = [float(x) for x in a.at.split(",") if x]
 
-    from sumo_ethics.config import FleetSpec, RunConfig
     from sumo_ethics.plan.baseline import RouteFollower
-    from sumo_ethics.runner import fleet as F
 
-    holder: dict = {}
-    orig = F.FleetRun._loop
-
-    def _loop(self, *args, **kw):  # type: ignore[no-untyped-def]
-        holder["run"] = self
-        return orig(self, *args, **kw)
-
-    F.FleetRun._loop = _loop  # type: ignore[method-assign]
+    holder = hold_run()
     rows: list[tuple] = []
     st: dict = {"traced": False, "snap": None, "next": 0}
     filt = [tracemalloc.Filter(False, tracemalloc.__file__), tracemalloc.Filter(False, __file__)]
@@ -81,11 +71,7 @@ def main() -> None:
             return super().act(scene)
 
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory() as tmp:
-        cfg = RunConfig(scenario=ROOT / "scenarios" / "urban_grid" / "urban_grid.sumocfg", out=Path(tmp) / "m",
-                        seed=a.seed, end=a.seconds, progress=False,
-                        fleet=FleetSpec(penetration=1.0, shares=(("baseline", 1.0),)))
-        s = F.run_fleet(cfg, lambda name, vid: Sampled())
+    s = run_memory_fleet(a.seconds, a.seed, Sampled)
     print(f"\nwall {time.perf_counter() - t0:.0f} s; egos {s.data['fleet']['egos']} {s.data['fleet']['by_status']}")
     print("t rss blocks pymalloc_arenas gc_objects active agents")
     for r in rows[::2]:
