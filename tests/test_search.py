@@ -16,7 +16,7 @@ from sumo_ethics.ethics.risk import assess_risk
 from sumo_ethics.ethics.shapes import octagon, polygon_mass
 from sumo_ethics.plan import ethical
 from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
-from sumo_ethics.types import AgentStates, Candidates, Prediction, RoadUserClass
+from sumo_ethics.types import VULNERABLE, AgentStates, Candidates, Prediction, RoadUserClass
 
 C = RoadUserClass
 # (class, length, width, mass): car, truck, bus, a 16.5 m trailer, bicycle, pedestrian
@@ -44,14 +44,23 @@ def test_order_harm_is_numpys_harm_to_1e_14():
     b = Party(xa + dx, yya + dy, yb, rng.uniform(0, 30, m), mass_b, cls_b)
     ref = crash_outcome(a, b, HarmCoefficients())
     got = search.order_harm(a, b, HarmCoefficients())
-    assert np.abs(got[0] - ref.harm_a).max() <= search._DH
-    assert np.abs(got[1] - ref.harm_b).max() <= search._DH
+    # numpy's harm within _DH of the interval (a low, a high, b low, b high) ...
+    assert (got[0] - search._DH <= ref.harm_a).all() and (ref.harm_a <= got[1] + search._DH).all()
+    assert (got[2] - search._DH <= ref.harm_b).all() and (ref.harm_b <= got[3] + search._DH).all()
+    # ... which is a point (low = high) off the impact-area boundaries, and there within _DH of it
+    wide = (got[1] > got[0]) | (got[3] > got[2])
+    assert not wide[6000:].any() and not wide[:2000].any()
+    assert np.abs(got[0] - ref.harm_a)[~wide].max() <= search._DH
+    # on the boundary bearings of party a (45 and 135 degrees), a protected pair's interval holds
+    # both areas' harms: front and side at 45 degrees, side and rear at 135
+    protected = ~VULNERABLE[cls_a] & ~VULNERABLE[cls_b]
+    assert wide[2000:6000][protected[2000:6000]].mean() > 0.9
     # a number worked by hand: two 1475 kg cars head-on at 10 m/s each: dv = 10 m/s for each,
     # frontal: 1 / (1 + exp(4.457 - 0.177 * 10)) = 0.0637
     car = Party(np.zeros(1), np.zeros(1), np.zeros(1), np.full(1, 10.0), np.full(1, 1475.0), np.zeros(1, np.int8))
     other = Party(np.full(1, 4.5), np.zeros(1), np.full(1, math.pi), np.full(1, 10.0), np.full(1, 1475.0),
                   np.zeros(1, np.int8))
-    assert search.order_harm(car, other, HarmCoefficients())[:, 0] == pytest.approx([0.06376, 0.06376], abs=5e-5)
+    assert search.order_harm(car, other, HarmCoefficients())[:, 0] == pytest.approx([0.06376] * 4, abs=5e-5)
 
 
 def _random_case(rng):

@@ -20,8 +20,9 @@ cheap bounds on P (:func:`_box_bounds`) decide which steps must be integrated:
 
 The gate, the slabs' quick exits (P = 0 or 1) and the integral of a step are those of the
 exhaustive path, the same function on the same numbers, so every P found is the same bit for
-bit. The harm used for ordering (:func:`_order_harm`) is within ``_DH`` of numpy's
-(:func:`~sumo_ethics.ethics.harm.crash_outcome`), and every comparison allows for that. A step is
+bit. The harm used for ordering (:func:`_order_harm`) is an interval that holds numpy's
+(:func:`~sumo_ethics.ethics.harm.crash_outcome`) within ``_DH`` (a point but on an impact-area
+boundary), and every comparison allows for that. A step is
 passed over only where its bound proves that its true P x harm cannot beat the best found, so
 the terms differ from the exhaustive path's by at most the integrals' own error (shapes.py: below
 4e-8 in P); on every scene tested they are the same numbers (tests/test_search.py). The maxima
@@ -77,30 +78,38 @@ def _harm(dv: float, area: int, vul_self: bool, vul_other: bool, co) -> float:
 
 
 @_jit
-def _area_of(fwd: float, lat: float, dx: float, dy: float, yaw: float) -> int:
+def _areas_of(fwd: float, lat: float, dx: float, dy: float, yaw: float):
     """The impact area of a party from the other's offset in its frame (fwd, lat): front where
-    fwd > |lat|, rear where -fwd > |lat|, else side; within 1e-9 of a boundary (or at a zero
-    offset) by :func:`_area` on the bearing atan2(dy, dx), as crash_outcome decides it."""
+    fwd > |lat|, rear where -fwd > |lat|, else side, as (area, area): within 1e-9 of the front/side
+    or side/rear boundary both areas the boundary separates, since numpy's arctan2 (SIMD on some
+    processors) and libm's can put an offset exactly on it on either side (crash_outcome decides
+    by the bearing); at a zero offset the area of the bearing atan2(0, 0) - yaw, as there."""
     af, al = abs(fwd), abs(lat)
+    if af == 0.0 and al == 0.0:
+        a = _area(math.atan2(dy, dx) - yaw)
+        return a, a
     if abs(af - al) <= 1e-9 * (af + al):
-        return _area(math.atan2(dy, dx) - yaw)
+        return (0, 1) if fwd > 0.0 else (1, 2)
     if al >= af:
-        return 1
-    return 0 if fwd > 0.0 else 2
+        return 1, 1
+    return (0, 0) if fwd > 0.0 else (2, 2)
 
 
 @_jit
 def _order_harm(dx, dy, ce, se, ca, sa, yawe, yawo, ve, vo, fe, fo, vul_e, vul_o, co):
-    """(ego harm, other harm) of a collision, :func:`sumo_ethics.ethics.harm.crash_outcome`'s model
-    for the other at offset (dx, dy) [m] from the ego, headings as cos/sin (and the angles, for
-    the boundary cases of the impact area), speeds ve, vo [m/s] >= 0, delta-v shares
-    fe = m_o / (m_e + m_o), fo = m_e / (m_e + m_o), vul: vulnerable. cos(pdof) = -cos(yaw_o - yaw_e)
-    from the cosines and sines (no trigonometry per step): within ``_DH`` of crash_outcome."""
+    """(ego harm low, high, other harm low, high) of a collision: :func:`sumo_ethics.ethics.harm.crash_outcome`'s
+    model for the other at offset (dx, dy) [m] from the ego, headings as cos/sin (and the angles,
+    for a zero offset), speeds ve, vo [m/s] >= 0, delta-v shares fe = m_o / (m_e + m_o),
+    fo = m_e / (m_e + m_o), vul: vulnerable. Low and high differ only on an impact-area boundary
+    (:func:`_areas_of`); crash_outcome's harm lies within ``_DH`` of [low, high]. cos(pdof) =
+    -cos(yaw_o - yaw_e) from the cosines and sines (no trigonometry per step)."""
     cpd = -(ca * ce + sa * se)
     dv = math.sqrt(max(0.0, ve * ve + vo * vo + 2.0 * ve * vo * cpd))
-    area_e = _area_of(dx * ce + dy * se, dy * ce - dx * se, dx, dy, yawe)
-    area_o = _area_of(-(dx * ca + dy * sa), -(dy * ca - dx * sa), -dx, -dy, yawo)
-    return _harm(fe * dv, area_e, vul_e, vul_o, co), _harm(fo * dv, area_o, vul_o, vul_e, co)
+    e1, e2 = _areas_of(dx * ce + dy * se, dy * ce - dx * se, dx, dy, yawe)
+    o1, o2 = _areas_of(-(dx * ca + dy * sa), -(dy * ca - dx * sa), -dx, -dy, yawo)
+    he1, he2 = _harm(fe * dv, e1, vul_e, vul_o, co), _harm(fe * dv, e2, vul_e, vul_o, co)
+    ho1, ho2 = _harm(fo * dv, o1, vul_o, vul_e, co), _harm(fo * dv, o2, vul_o, vul_e, co)
+    return min(he1, he2), max(he1, he2), min(ho1, ho2), max(ho1, ho2)
 
 
 @_jit
@@ -180,18 +189,20 @@ def _lower(dx, dy, c1, s1, ca, sa, ea, eb, oa, ob, c, s, sig1, sig2, ext1, ext2)
 @_jit
 def _order_harm_many(xa, ya, yawa, va, ma, vula, xb, yb, yawb, vb, mb, vulb, co):
     n = len(xa)
-    out = np.empty((2, n))
+    out = np.empty((4, n))
     for i in range(n):
         ce, se, ca, sa = math.cos(yawa[i]), math.sin(yawa[i]), math.cos(yawb[i]), math.sin(yawb[i])
-        out[0, i], out[1, i] = _order_harm(xb[i] - xa[i], yb[i] - ya[i], ce, se, ca, sa, yawa[i], yawb[i], va[i], vb[i],
-                                           mb[i] / (ma[i] + mb[i]), ma[i] / (ma[i] + mb[i]), vula[i], vulb[i], co)
+        out[0, i], out[1, i], out[2, i], out[3, i] = _order_harm(
+            xb[i] - xa[i], yb[i] - ya[i], ce, se, ca, sa, yawa[i], yawb[i], va[i], vb[i], mb[i] / (ma[i] + mb[i]),
+            ma[i] / (ma[i] + mb[i]), vula[i], vulb[i], co)
     return out
 
 
 def order_harm(a, b, coeffs) -> np.ndarray:
-    """(2, M) the search's harm to parties a and b (:class:`~sumo_ethics.ethics.harm.Party` of
-    (M,) arrays each; speeds >= 0) under ``coeffs`` (HarmCoefficients): within ``_DH`` of
-    :func:`~sumo_ethics.ethics.harm.crash_outcome`'s harm_a, harm_b (tests/test_search.py)."""
+    """(4, M) the search's harm intervals (a low, a high, b low, b high) for parties a and b
+    (:class:`~sumo_ethics.ethics.harm.Party` of (M,) arrays each; speeds >= 0) under ``coeffs``
+    (HarmCoefficients): :func:`~sumo_ethics.ethics.harm.crash_outcome`'s harm_a, harm_b lie
+    within ``_DH`` of them (tests/test_search.py)."""
     from sumo_ethics.types import VULNERABLE
 
     m = np.broadcast_shapes(np.shape(a.x), np.shape(b.x))
@@ -268,8 +279,8 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
     ub = np.empty(tp)
     cert = np.empty(tp, dtype=np.bool_)  # counts by its lower bound (not integrated)
     px = np.empty(tp)
-    he = np.empty(tp)
-    ho = np.empty(tp)
+    hl = np.empty((2, tp))  # the harm intervals (_order_harm): ego, other; low and high
+    hh = np.empty((2, tp))
     key = np.empty(tp)
     ok_, on_, ot_, op_ = _entry_buffers(1024)
     m = 0
@@ -298,8 +309,9 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
                         up = _upper(dx, dy, c1, s1, ea, eb, pc[n, t], ps[n, t], sg1[n, t], sg2[n, t], ho1[n, t],
                                     ho2[n, t])
                         px[g], ub[g] = -1.0, min(up * _REL + _DP, 1.0)
-                    he[g], ho[g] = _order_harm(dx, dy, c1, s1, ca[n, t], sa[n, t], eyaw[k, t], psi[n, t], ev[k, t],
-                                               av[n, t], fe[n], fo[n], ego_vul, avul[n], co)
+                    hl[0, g], hh[0, g], hl[1, g], hh[1, g] = _order_harm(
+                        dx, dy, c1, s1, ca[n, t], sa[n, t], eyaw[k, t], psi[n, t], ev[k, t], av[n, t], fe[n], fo[n],
+                        ego_vul, avul[n], co)
                     g += 1
             if g == 0:
                 continue
@@ -309,11 +321,12 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
             # four searches sharing one integration: phases 0, 1 the maxima of P x harm of the ego
             # and the other, steps by decreasing bound x harm until one cannot beat the best found;
             # phases 2, 3 their harm maxima, steps by decreasing harm down to the first that counts
+            # (ordered by the harm's high end, the best found and the floor from its low end)
             for phase in range(4):
-                h = he if phase % 2 == 0 else ho
+                lo, hi = hl[phase % 2], hh[phase % 2]
                 risk = phase < 2
                 for i in range(g):
-                    key[i] = ub[i] * (h[i] + _DH) * _REL if risk else h[i]
+                    key[i] = ub[i] * (hi[i] + _DH) * _REL if risk else hi[i]
                 best = 0.0  # phases 0, 1: the best P (h - _DH) of a counting step, at most the maximum
                 floor = -1.0  # phases 2, 3: below this harm no step can hold the maximum
                 while True:
@@ -334,7 +347,7 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
                             if cert[j]:  # counts, whatever its P: no integral needed
                                 found = True
                                 if floor < 0.0:
-                                    floor = h[j] - 2.0 * _DH
+                                    floor = lo[j] - 2.0 * _DH
                                 continue
                         counts[1] += 1
                         px[j] = _entry_p(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t], ea, eb,
@@ -342,9 +355,9 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
                     if _member(px[j], wn, p_min):
                         found = True
                         if risk:
-                            best = max(best, px[j] * (h[j] - _DH))
+                            best = max(best, px[j] * (lo[j] - _DH))
                         elif floor < 0.0:
-                            floor = h[j] - 2.0 * _DH
+                            floor = lo[j] - 2.0 * _DH
             if not found:
                 continue
             at_risk[k, n] = True
