@@ -107,8 +107,10 @@ def _order_harm(dx, dy, ce, se, ca, sa, yawe, yawo, ve, vo, fe, fo, vul_e, vul_o
     dv = math.sqrt(max(0.0, ve * ve + vo * vo + 2.0 * ve * vo * cpd))
     e1, e2 = _areas_of(dx * ce + dy * se, dy * ce - dx * se, dx, dy, yawe)
     o1, o2 = _areas_of(-(dx * ca + dy * sa), -(dy * ca - dx * sa), -dx, -dy, yawo)
-    he1, he2 = _harm(fe * dv, e1, vul_e, vul_o, co), _harm(fe * dv, e2, vul_e, vul_o, co)
-    ho1, ho2 = _harm(fo * dv, o1, vul_o, vul_e, co), _harm(fo * dv, o2, vul_o, vul_e, co)
+    he1 = _harm(fe * dv, e1, vul_e, vul_o, co)
+    he2 = he1 if e2 == e1 else _harm(fe * dv, e2, vul_e, vul_o, co)
+    ho1 = _harm(fo * dv, o1, vul_o, vul_e, co)
+    ho2 = ho1 if o2 == o1 else _harm(fo * dv, o2, vul_o, vul_e, co)
     return min(he1, he2), max(he1, he2), min(ho1, ho2), max(ho1, ho2)
 
 
