@@ -1,7 +1,10 @@
 """Where the "shapes" collision probability spends its time: per predicted mode, the (k, n, t)
 entries the geometric gate lets through, how many the slab quick exits settle (P = 0 or 1), how
 many need the polygon integral, the agents' spread and the kernel's wall time; and how many the
-planner's bounded search (sumo_ethics.ethics.search) integrates on the same entries, and its time.
+planner's bounded search (sumo_ethics.ethics.search) integrates on the same entries, and its time;
+and the (candidate, road user) pairs at risk, each of which needs at least one integral in any exact
+search (the step holding its maximum of P x harm must be integrated to know that maximum to the
+bit): times the time of one integral, a floor under the risk's time that no tighter bound can lower.
 
     OPENBLAS_NUM_THREADS=1 python tools/probe_shapes_gate.py [--agents 20,60] [--predictor map] [--uncalibrated]
 
@@ -72,8 +75,9 @@ def main() -> None:
 
     search.bounded_entries = spy  # what the planner calls (probability.bounded_shapes_entries)
     print("| agents | mode | median sigma_max at 4 s [m] | valid (k, n, t) | gated | P = 0 (slabs) | P = 1 (slabs) "
-          "| integrated | exhaustive kernel [ms] | integrated by the search | search kernel [ms] |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+          "| integrated | exhaustive kernel [ms] | integrated by the search | search kernel [ms] "
+          "| (k, n) at risk: integrals any exact search needs |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for n_agents in (int(v) for v in a.agents.split(",")):
         calls.clear()
         sc = bench_planner.scene(n_agents)
@@ -95,11 +99,11 @@ def main() -> None:
                 S.shapes_sparse(*full_args)
                 walls.append(time.perf_counter() - w)
                 w = time.perf_counter()
-                counts = real(*args)[5]
+                _, _, _, _, at_risk, counts = real(*args)
                 walls_s.append(time.perf_counter() - w)
             sig = np.sqrt(np.maximum(args[9], args[11]))[:, -1]
             print(f"| {n_agents} | {m} | {np.median(sig):.2f} | {c[0]:,} | {c[1]:,} | {c[2]:,} | {c[3]:,} | {c[4]:,} "
-                  f"| {1e3 * min(walls):.0f} | {counts[1]:,} | {1e3 * min(walls_s):.0f} |")
+                  f"| {1e3 * min(walls):.0f} | {counts[1]:,} | {1e3 * min(walls_s):.0f} | {int(at_risk.sum()):,} |")
 
 
 if __name__ == "__main__":
