@@ -2,7 +2,8 @@
 
 A TOML file for ``run`` may also have a ``[conflicts]`` table (:class:`~sumo_ethics.config.ConflictConfig`:
 enabled, ttc, pet, gap, crossing_angle, everyone; sweeps read ``[planner]`` alone). A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, normalise, predictor,
-predictor_weights, calibrated, max_risk, braking_prior, lateral_prior, selection, envelope, entry) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
+predictor_weights, calibrated, max_risk, braking_prior, lateral_prior, selection, envelope, entry,
+evasive) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
 ``[planner.principles]`` (custom J_origin weights); unknown keys are errors. ``probability =
 "origin"`` (or ``"shapes"``) is short for ``[planner.probability] method = ...``.
 """
@@ -124,7 +125,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
     t.update({k: v for k, v in overrides.items() if v is not None})
     simple = {"omega_u", "omega_o", "weights", "utility", "normalise", "predictor", "predictor_weights", "calibrated",
               "max_risk",
-              "braking_prior", "lateral_prior", "selection", "envelope", "entry"}
+              "braking_prior", "lateral_prior", "selection", "envelope", "entry", "evasive"}
     _known(t, simple | {"sampling", "probability", "principles"}, "[planner]")
     if isinstance(t.get("probability"), str):  # probability = "origin" is short for [planner.probability] method
         t["probability"] = {"method": t["probability"]}
@@ -152,7 +153,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
         grid = replace(PlannerConfig().sampling, **sampling)
         check_grid_bounds(grid)
         given = {k: t[k] for k in ("predictor", "calibrated", "max_risk", "braking_prior", "lateral_prior", "selection", "envelope",
-                                   "entry") if k in t}
+                                   "entry", "evasive") if k in t}
         if t.get("predictor_weights") is not None:
             given["predictor_weights"] = str(t["predictor_weights"])
         return PlannerConfig(cost=cost, sampling=grid, probability=ProbabilityConfig(**probability), **given)

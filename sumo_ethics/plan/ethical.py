@@ -67,7 +67,12 @@ class PlannerConfig:
     out of envelopes whenever it can and only unavoidable entries are weighed by the risk terms;
     entry: in "cost" selection, the cost of entering an envelope at once, falling linearly to 0
     for an entry at the end of the horizon [-] (a time-to-collision term: later is better; on the
-    first 30 suite scenarios it raised completion from 63 % without it to 73 %, the TTC rule's 77 %).
+    first 30 suite scenarios it raised completion from 63 % without it to 73 %, the TTC rule's 77 %);
+    evasive: also sample candidates that brake at ``vehicle.max_decel`` from the first step while
+    moving to the lateral end offsets (:func:`evasive_candidates`): the grid's own profiles start
+    from the current acceleration and take about a second to build up braking, and the straight
+    braking candidates keep their lateral offset, so without them the ego can brake or swerve but
+    not both at once (a car cutting in ahead; ``origin`` and ``paper`` run without them, as published).
     """
 
     cost: CostConfig = field(default_factory=CostConfig)
@@ -84,6 +89,7 @@ class PlannerConfig:
     selection: str = "cost"
     envelope: float = 1000.0
     entry: float = 1000.0
+    evasive: bool = True
 
     def __post_init__(self) -> None:
         if self.selection not in SELECTIONS:
@@ -97,8 +103,9 @@ class PlannerConfig:
         if self.predictor == "cv" and self.predictor_weights:
             raise ConfigError("predictor_weights is a weights file for an LSTM predictor; predictor 'cv' "
                               "(constant velocity) has none")
-        if not isinstance(self.calibrated, bool):
-            raise ConfigError(f"calibrated must be true or false, got {self.calibrated!r}")
+        for flag in ("calibrated", "evasive"):
+            if not isinstance(getattr(self, flag), bool):
+                raise ConfigError(f"{flag} must be true or false, got {getattr(self, flag)!r}")
         if not (isinstance(self.max_risk, (int, float)) and 0.0 < self.max_risk <= 1.0):
             raise ConfigError(f"max_risk must be in (0, 1], got {self.max_risk!r}")
         if not (isinstance(self.lateral_prior, (int, float)) and 0.0 <= self.lateral_prior < 1e3):
@@ -185,6 +192,26 @@ def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: 
     k = path.curvature_at(s)
     return Candidates(dt=dt, x=x, y=y, yaw=yaw, speed=v, accel=a, curvature=k, s=s, d=d,
                       horizon=np.full(shape[0], n_steps * dt), valid=np.ones(shape, dtype=bool), road_curvature=k)
+
+
+#: the evasive candidates' grid (:func:`evasive_candidates`): end speeds and lateral end offsets
+EVASIVE_SPEEDS, EVASIVE_OFFSETS = 5, 9
+
+
+def evasive_candidates(path, state: FrenetState, grid: SamplingConfig, decel: float, v_max: float,
+                       left: np.ndarray | float | None, right: np.ndarray | float | None,
+                       margin: float) -> Candidates:
+    """Candidates that brake at once while moving sideways: :func:`sample` from ``state`` as if the
+    ego already decelerated at ``decel`` [m/s^2] (its quartics start at s'' = -decel), on horizons
+    of 1 s, 2 s and the grid's longest (those below it), :data:`EVASIVE_SPEEDS` end speeds and
+    :data:`EVASIVE_OFFSETS` lateral end offsets over the drivable area; (3 x 5 x 9 = 135, K, T) with
+    the grid's T. Like the straight braking candidates (:func:`brake_candidates`) they jump to the
+    deceleration at the first step; the feasibility check judges their acceleration, curvature and
+    lateral acceleration as any other's."""
+    top = max(grid.horizons)
+    horizons = tuple(h for h in (1.0, 2.0) if h < top) + (top,)
+    ev = replace(grid, horizons=horizons, n_speeds=EVASIVE_SPEEDS, n_offsets=EVASIVE_OFFSETS)
+    return sample(path, replace(state, s_ddot=-float(decel)), ev, v_max=v_max, left=left, right=right, margin=margin)
 
 
 def concat(a: Candidates, b: Candidates) -> Candidates:
@@ -326,6 +353,9 @@ class EthicalPlanner:
         brakes = brake_candidates(route.path, replace(state, s_dot=v), cand.x.shape[1], sc.dt,  # their speed is v - b t
                                   np.array([veh.comfort_decel, 0.5 * (veh.comfort_decel + veh.max_decel), veh.max_decel]))
         cand = concat(cand, brakes)
+        if self.cfg.evasive:  # braking and swerving at once (appended: the grid's indices stay as they were)
+            cand = concat(cand, evasive_candidates(route.path, state, sc, veh.max_decel, v_limit, route.left,
+                                                   route.right, ego_width / 2.0))
         # an ego above the limit (e.g. at takeover) must be allowed to slow down to it
         feas = check(cand, route, veh, speed_limit_factor=max(1.0, (v + 0.01) / max(v_limit, 0.1)))
         w2 = time.perf_counter()
