@@ -143,9 +143,11 @@ def test_toml_settings_reach_the_run(tmp_path):
     assert planner["cost"]["utility"] == "literal" and planner["cost"]["weights"]["bayes"] == 0.0
     steps = pd.read_parquet(out / "steps.parquet")
     assert (steps.utility_literal == 1.0).all()
-    # grid keys not set keep the planner's default grid: 4 horizons x 15 x 17 + 3 brake profiles
+    # grid keys not set keep the planner's default grid: 4 horizons x 15 x 17 + 3 brake profiles + the
+    # evasive ones (horizons 1, 2, 4 s x 5 end speeds x 9 offsets)
     assert planner["sampling"]["horizons"] == [1.0, 2.0, 3.0, 4.0] and planner["sampling"]["n_offsets"] == 17
-    assert steps.n_candidates.max() == 4 * 15 * 17 + 3
+    assert planner["evasive"] is True
+    assert steps.n_candidates.max() == 4 * 15 * 17 + 3 + 3 * 5 * 9
 
 
 def test_settings_keep_the_planners_default_grid():
