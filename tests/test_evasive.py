@@ -67,6 +67,9 @@ def test_the_setting_and_the_published_planners():
     assert planner_config({"evasive": False}).evasive is False
     with pytest.raises(ConfigError, match="evasive must be true or false"):
         planner_config({"evasive": "yes"})
+    from sumo_ethics.sweep.grid import parse_set
+
+    assert parse_set(["evasive=true,false"]) == {"evasive": [True, False]}  # a sweep can compare both
     # origin and paper as published: without them; ours (the defaults of run) with them
     assert BUILTIN["origin"]["evasive"] is False and BUILTIN["paper"]["evasive"] is False
     assert "evasive" not in BUILTIN["ours"]

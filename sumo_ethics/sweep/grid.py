@@ -55,7 +55,8 @@ RUN_KEYS: dict[str, tuple[str, type]] = {
 #: a penetration sweep's disk use and encoding time grow with its egos
 SWEEP_RECORD_DECISIONS = "risky"
 SWEEP_FLEET_RECORD_DECISIONS = "off"
-PLANNER_SIMPLE = ("omega_o", "weights", "utility", "normalise", "predictor", "max_risk", "selection", "envelope", "entry")
+PLANNER_SIMPLE = ("omega_o", "weights", "utility", "normalise", "predictor", "max_risk", "selection", "envelope", "entry",
+                  "evasive")
 
 
 def planner_keys() -> list[str]:
