@@ -12,6 +12,7 @@ growth over the second half is reported (flat memory: a few MB).
     python tools/bench_fleet.py [--sizes 1,5,10,25] [--end 40] [--unshared 10] [--baseline 100]
     python tools/bench_fleet.py --memory 600   # memory while egos come and go (penetration 1, baseline),
                                                # its growth with time separated from the traffic it holds
+                                               # (now, and the most so far); --save CSV keeps the samples
 """
 
 from __future__ import annotations
@@ -98,7 +99,7 @@ def one(n: int, end: float, shared: bool, planner: str, out: Path, seed: int) ->
             "rss_mb": samples[-1][1] if samples else float("nan"), "egos": s.data["fleet"]["egos"]}
 
 
-def memory(seconds: float, seed: int, every: float = 5.0) -> None:
+def memory(seconds: float, seed: int, every: float = 5.0, save: str = "") -> None:
     """Memory over a long run whose egos come and go: penetration 1, baseline planners (cheap), so
     every eligible vehicle of urban_grid is an ego from its departure to its arrival.
 
@@ -107,7 +108,9 @@ def memory(seconds: float, seed: int, every: float = 5.0) -> None:
     driving and the road users in SUMO at each sample come from steps.parquet and trips.parquet,
     and an ordinary least-squares fit RSS ~ 1 + egos + road users + t over the samples after the
     build-up (the first 20 %) separates what the traffic holds from growth with time: flat memory
-    is a time slope whose CI holds 0 MB per 100 s, or a few tenths."""
+    is a time slope whose CI holds 0 MB per 100 s, or a few tenths. While the traffic still builds
+    up, that slope also holds the allocators' high water (memory freed is kept for reuse): a second
+    fit against the most egos and road users so far tells the two apart."""
     import gc
     import weakref
 
@@ -140,11 +143,15 @@ def memory(seconds: float, seed: int, every: float = 5.0) -> None:
         t0 = time.perf_counter()
         s = run_fleet(cfg, make)
         wall = time.perf_counter() - t0
-        steps = pd.read_parquet(out / "steps.parquet", columns=["ego_id", "time"])
+        steps = pd.read_parquet(out / "steps.parquet", columns=["ego_id", "time", "n_neighbours"])
         trips = pd.read_parquet(out / "trips.parquet")
     d = pd.DataFrame(samples, columns=["t", "rss", "alive"])
     driving = steps.groupby("time").ego_id.nunique()
     d["egos"] = [int(driving.get(round(t, 6), driving.iloc[np.abs(driving.index - t).argmin()])) for t in d.t]
+    # what the egos see: the sum over the egos of their road users in range (each ego's scene, history
+    # and conflict trails hold its neighbours: egos x density, more than linear in the traffic)
+    seen = steps.groupby("time").n_neighbours.sum()
+    d["neighbours"] = [int(seen.iloc[np.abs(seen.index - t).argmin()]) for t in d.t]
     arr = trips["arrival"].where(trips["arrival"] >= 0, np.inf).to_numpy(float)
     d["road_users"] = [int(((trips["depart"].to_numpy(float) <= t) & (arr > t)).sum()) for t in d.t]
     late = d[d.t >= 0.2 * seconds]
@@ -162,6 +169,23 @@ def memory(seconds: float, seed: int, every: float = 5.0) -> None:
     print(f"fit over t >= {0.2 * seconds:g} s ({len(late)} samples): RSS = {coef[0]:.1f} MB + {coef[1]:.3f} MB per ego "
           f"driving + {coef[2]:.3f} MB per road user in SUMO + {coef[3]:.2f} MB per 100 s "
           f"[95 % CI {coef[3] - 1.96 * se[3]:.2f}, {coef[3] + 1.96 * se[3]:.2f}]; residual sd {resid.std():.2f} MB")
+    coef, se, resid = growth_fit(late.rss.to_numpy(), [late.egos.to_numpy(), late.road_users.to_numpy(),
+                                                       late.neighbours.to_numpy()], late.t.to_numpy())
+    print(f"with what the egos see (the sum of their neighbours, {late.neighbours.min()}-{late.neighbours.max()}): "
+          f"RSS = {coef[0]:.1f} MB + {coef[1]:.3f} MB per ego driving + {coef[2]:.3f} MB per road user + "
+          f"{1e3 * coef[3]:.1f} kB per ego-neighbour + {coef[4]:.2f} MB per 100 s "
+          f"[95 % CI {coef[4] - 1.96 * se[4]:.2f}, {coef[4] + 1.96 * se[4]:.2f}]; residual sd {resid.std():.2f} MB")
+    # the allocators keep what they once held (freed memory is reused, seldom returned): the resident
+    # memory follows the most traffic held so far, so growth with time is what that high water leaves
+    d["max_egos"], d["max_road_users"] = d.egos.cummax(), d.road_users.cummax()
+    late = d[d.t >= 0.2 * seconds]
+    coef, se, resid = growth_fit(late.rss.to_numpy(), [late.max_egos.to_numpy(), late.max_road_users.to_numpy()],
+                                 late.t.to_numpy())
+    print(f"against the high water (the most egos driving and road users so far): RSS = {coef[0]:.1f} MB + "
+          f"{coef[1]:.3f} MB per ego + {coef[2]:.3f} MB per road user + {coef[3]:.2f} MB per 100 s "
+          f"[95 % CI {coef[3] - 1.96 * se[3]:.2f}, {coef[3] + 1.96 * se[3]:.2f}]; residual sd {resid.std():.2f} MB")
+    if save:
+        d.to_csv(save, index=False)
 
 
 def main() -> None:
@@ -172,9 +196,10 @@ def main() -> None:
     ap.add_argument("--baseline", type=int, default=100, help="also run this many baseline egos (0: no)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--memory", type=float, default=0.0, help="only the memory run, this many simulated seconds")
+    ap.add_argument("--save", default="", help="with --memory: the samples (t, rss, egos, ...) to this CSV")
     a = ap.parse_args()
     if a.memory:
-        memory(a.memory, a.seed)
+        memory(a.memory, a.seed, save=a.save)
         return
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

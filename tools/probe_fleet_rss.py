@@ -1,9 +1,11 @@
 """Which part of the process's memory grows in a fleet run? The run of ``tools/bench_fleet.py
 --memory`` (urban_grid, penetration 1, baseline planners), sampled every 5 simulated seconds with
-cheap probes only: RSS; glibc malloc's bytes in use and free (mallinfo2: C/C++ heaps, libsumo's
-and numpy's data); Python's small-object arenas (sys._debugmallocstats); Arrow's pool (bytes
-allocated); every memory mapping's resident size (/proc/self/smaps), so the mapping that grows is
-named. Each series is fitted ~ 1 + egos driving + road users in SUMO + t (bench_fleet.growth_fit)
+cheap probes only, after a garbage collection as there (``--no-collect``: without): RSS; glibc
+malloc's bytes in use and free (mallinfo2: C/C++ heaps, libsumo's and numpy's data); Python's
+small-object arenas and the bytes of their blocks in use, free in used pools and in unused pools
+(sys._debugmallocstats); Arrow's pool (bytes allocated); every memory mapping's resident size
+(/proc/self/smaps), so the mapping that grows is named (only the first late sample's and the
+last are kept: every sample's were the probe's own growth, 66,000 Python blocks per 100 s). Each series is fitted ~ 1 + egos driving + road users in SUMO + t (bench_fleet.growth_fit)
 over the samples after the first 20 %.
 
     python tools/probe_fleet_rss.py 300
@@ -38,6 +40,13 @@ _libc.mallinfo2.restype = _Mallinfo2
 
 def pymalloc_arenas() -> int:
     """Python's small-object arenas allocated now (1 MiB each), from sys._debugmallocstats (C stderr)."""
+    return pymalloc_stats()["arenas"]
+
+
+def pymalloc_stats() -> dict[str, int]:
+    """From sys._debugmallocstats (C stderr): Python's small-object arenas allocated now (1 MiB each,
+    ``arenas``), and the bytes of their blocks in use (``used``), of the free blocks in pools in use
+    (``available``: fragmentation within pools) and of their unused pools (``unused``)."""
     import sys
 
     with tempfile.TemporaryFile() as f:
@@ -50,8 +59,15 @@ def pymalloc_arenas() -> int:
             os.dup2(saved, 2)
             os.close(saved)
         f.seek(0)
-        m = re.search(rb"# arenas allocated current\s*=\s*([\d,]+)", f.read())
-    return int(m.group(1).replace(b",", b"")) if m else -1
+        text = f.read()
+    out = {}
+    for key, pattern in (("arenas", rb"# arenas allocated current\s*=\s*([\d,]+)"),
+                         ("used", rb"# bytes in allocated blocks\s*=\s*([\d,]+)"),
+                         ("available", rb"# bytes in available blocks\s*=\s*([\d,]+)"),
+                         ("unused", rb"unused pools \* \d+ bytes\s*=\s*([\d,]+)")):
+        m = re.search(pattern, text)
+        out[key] = int(m.group(1).replace(b",", b"")) if m else -1
+    return out
 
 
 def mappings() -> dict[str, float]:
@@ -101,6 +117,8 @@ def main() -> None:
     ap.add_argument("seconds", type=float)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--every", type=float, default=5.0)
+    ap.add_argument("--no-collect", dest="collect", action="store_false",
+                    help="no gc.collect() before each sample (tools/bench_fleet.py --memory collects)")
     a = ap.parse_args()
 
     import pyarrow as pa
@@ -112,6 +130,7 @@ def main() -> None:
 
     print("sumo_ethics from", sumo_ethics.__file__, "; arrow pool", pa.default_memory_pool().backend_name)
     holder = hold_run()
+    import gc
     import sys
     import weakref
 
@@ -128,16 +147,23 @@ def main() -> None:
 
     F.FleetRun._maybe_take_over = take  # type: ignore[method-assign]
     rows: list[dict] = []
-    maps: list[tuple[float, dict[str, float]]] = []
+    # the mappings at the first sample after the build-up and at the last (not every sample's: 1,600-odd
+    # mappings each, kept for the run, were 66,000 Python blocks per 100 s of the probe's own growth)
+    maps: dict[str, tuple[float, dict[str, float]]] = {}
 
     class Sampled(RouteFollower):
         def act(self, scene):  # type: ignore[no-untyped-def]
             if not rows or scene.time >= rows[-1]["t"] + a.every - 1e-9:
+                if a.collect:
+                    gc.collect()  # as tools/bench_fleet.py --memory samples
                 m = _libc.mallinfo2()
                 run = holder["run"]
+                py = pymalloc_stats()
                 rows.append({"t": scene.time, "rss": rss_mb(), "malloc_used": (m.uordblks + m.hblkhd) / 1e6,
                              "malloc_mmapped": m.hblkhd / 1e6, "malloc_free": m.fordblks / 1e6,
-                             "malloc_arena": m.arena / 1e6, "pymalloc": pymalloc_arenas() * 1.048576,
+                             "malloc_arena": m.arena / 1e6, "pymalloc": py["arenas"] * 1.048576,
+                             "py_used": py["used"] / 1e6, "py_avail": py["available"] / 1e6,
+                             "py_unused": py["unused"] / 1e6,
                              "arrow": pa.total_allocated_bytes() / 1e6,
                              "kblocks": sys.getallocatedblocks() / 1e3,
                              "routes_alive": sum(r() is not None for r in routes) - len(run.active),
@@ -145,7 +171,10 @@ def main() -> None:
                              "egos": len(run.active),
                              "road_users": sumo.vehicle.getIDCount() + sumo.person.getIDCount(),
                              "ended": len(run.agents) - len(run.active)})
-                maps.append((scene.time, mappings()))
+                now = (scene.time, mappings())
+                maps["last"] = now
+                if "first" not in maps and scene.time >= 0.2 * a.seconds:
+                    maps["first"] = now
             return super().act(scene)
 
     t0 = time.perf_counter()
@@ -166,8 +195,7 @@ def main() -> None:
         print(f"  {k:15s} {coef[1]:7.3f} {coef[2]:7.3f} {coef[3]:7.2f} [{coef[3] - 1.96 * se[3]:.2f}, "
               f"{coef[3] + 1.96 * se[3]:.2f}]  resid sd {resid.std():.2f}")
     # which mappings grew from the first late sample to the last
-    m0 = next(m for tt, m in maps if tt >= 0.2 * a.seconds)
-    m1 = maps[-1][1]
+    m0, m1 = maps["first"][1], maps["last"][1]
     grown = sorted(((k, m1.get(k, 0.0) - m0.get(k, 0.0)) for k in set(m0) | set(m1)), key=lambda kv: -abs(kv[1]))
     print(f"mappings, resident growth from t={0.2 * a.seconds:g} s to the end (top 15; new ones count whole):")
     for k, d in grown[:15]:

@@ -30,6 +30,7 @@ def main() -> None:
     ap.add_argument("--at", default="")
     ap.add_argument("--frames", type=int, default=1)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--dump", default="", help="also dump each snapshot to DUMP.<t>.snap (tracemalloc.Snapshot.load)")
     a = ap.parse_args()
     at = [float(x) for x in a.at.split(",") if x]
 
@@ -65,6 +66,8 @@ def main() -> None:
                         print(f"  {s.size_diff / 1e6:+.3f} MB, {s.count_diff:+d} blocks:")
                         for line in s.traceback.format():
                             print("     ", line)
+                if a.dump:
+                    snap.dump(f"{a.dump}.{scene.time:.0f}.snap")
                 st["snap"] = snap
                 st["next"] += 1
                 sys.stdout.flush()
