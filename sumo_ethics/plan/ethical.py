@@ -257,6 +257,16 @@ def hard_pool(legal: np.ndarray, on_road: np.ndarray) -> np.ndarray:
     return next((m for m in (legal & on_road, on_road) if m.any()), np.ones_like(on_road))
 
 
+def emergency_only(pool: np.ndarray, evasive: np.ndarray | None, overlap: np.ndarray) -> np.ndarray:
+    """(K,) bool: ``pool`` without the evasive candidates (:func:`evasive_candidates`) while one of its
+    other candidates stays outside every predicted envelope: braking at the maximum deceleration
+    at once is for emergencies, not for the everyday slowing down the grid's gentler profiles do
+    (chosen freely they made the ego brake hard with nothing in sight, 4x as often on the suite)."""
+    if evasive is None or not evasive.any():
+        return pool
+    return pool & ~evasive if (pool & ~evasive & ~overlap).any() else pool
+
+
 def exclusion_codes(legal: np.ndarray, on_road: np.ndarray, overlap: np.ndarray, selection: str) -> np.ndarray:
     """(K,) int8 index into :data:`sumo_ethics.types.EXCLUSIONS`: the hard constraint that keeps each candidate out of
     :func:`hard_pool` (a red/yellow stop line, then the road edge; only where some candidate keeps
@@ -353,6 +363,7 @@ class EthicalPlanner:
         brakes = brake_candidates(route.path, replace(state, s_dot=v), cand.x.shape[1], sc.dt,  # their speed is v - b t
                                   np.array([veh.comfort_decel, 0.5 * (veh.comfort_decel + veh.max_decel), veh.max_decel]))
         cand = concat(cand, brakes)
+        n_plain = len(cand)
         if self.cfg.evasive:  # braking and swerving at once (appended: the grid's indices stay as they were)
             cand = concat(cand, evasive_candidates(route.path, state, sc, veh.max_decel, v_limit, route.left,
                                                    route.right, ego_width / 2.0))
@@ -370,6 +381,7 @@ class EthicalPlanner:
             return dec
         fc = cand.take(keep)
         on_road = feas.on_road[keep]
+        evasive = keep >= n_plain if self.cfg.evasive else None  # (K,) the evasive ones among them
         breakers = np.array([i in scene.rule_breakers for i in agents.ids], dtype=bool)
         risk = assess_risk(fc, pred, agents, ego_mass=float(scene.ego.mass[0]), ego_cls=int(scene.ego.cls[0]),
                            ego_length=ego_length, ego_width=ego_width, prob_cfg=self.cfg.probability,
@@ -387,12 +399,13 @@ class EthicalPlanner:
         classes = [legal & ~overlap & on_road & (worst < self.cfg.max_risk), legal & ~overlap & on_road,
                    ~overlap, np.ones(len(fc), dtype=bool)]
         # J_mean averages over the candidates the selection rule chooses among
-        cost = score(fc, risk, self.cfg.cost, desired_speed=v_desired, feasible=self.pool(classes, legal, on_road, overlap))
+        cost = score(fc, risk, self.cfg.cost, desired_speed=v_desired,
+                     feasible=self.pool(classes, legal, on_road, overlap, evasive))
         w3 = time.perf_counter()
         envelope = self.cfg.envelope * overlap
         entry = self.cfg.entry * np.maximum(horizon_steps - first_hit, 0) / horizon_steps
         total, j, cls = self.choose(cost, classes, envelope + entry, legal, on_road, first_hit, horizon_steps,
-                                    fc.s[:, -1] - scene.s)
+                                    fc.s[:, -1] - scene.s, evasive)
         if j < 0:  # every candidate's total is non-finite: none can be weighed
             dec = self._emergency(scene, {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1)})
             dec.info["n_fallback"] = float(n_fallback)
@@ -415,7 +428,7 @@ class EthicalPlanner:
         self._lateral = ((d2 - d0) / (2 * dt), (d2 - 2 * d1 + d0) / dt**2)
         self._accel = float(cand.accel[k, 0])
         cmd = EgoCommand(float(cand.x[k, 0]), float(cand.y[k, 0]), float(cand.yaw[k, 0]), float(cand.speed[k, 0]))
-        eligible = hard_pool(legal, on_road) if self.cfg.selection == "cost" else \
+        eligible = emergency_only(hard_pool(legal, on_road), evasive, overlap) if self.cfg.selection == "cost" else \
             (classes[cls] if cls < len(classes) else np.ones(len(fc), dtype=bool))
         trace = DecisionTrace(
             ego=scene.ego, agents=agents, prediction=pred, candidates=fc, cost=cost, selection=total,
@@ -426,24 +439,26 @@ class EthicalPlanner:
         return Decision(cmd, info=info, timings_ms=timings, trace=trace)
 
     def pool(self, classes: list[np.ndarray], legal: np.ndarray, on_road: np.ndarray,
-             overlap: np.ndarray) -> np.ndarray:
+             overlap: np.ndarray, evasive: np.ndarray | None = None) -> np.ndarray:
         """(K,) bool: the candidates the selection rule weighs against each other, over which
         J_mean (candidate-mean reading) is taken. "cost": the first non-empty of legal and on the
-        road / on the road / all, narrowed to those outside every envelope if any are;
-        "validity"/"validity_ttc": the best non-empty validity class."""
+        road / on the road / all (the evasive candidates only in an emergency, :func:`emergency_only`),
+        narrowed to those outside every envelope if any are; "validity"/"validity_ttc": the best
+        non-empty validity class."""
         if self.cfg.selection == "cost":
-            base = hard_pool(legal, on_road)
+            base = emergency_only(hard_pool(legal, on_road), evasive, overlap)
             free = base & ~overlap
             return free if free.any() else base
         return next((m for m in classes if m.any()), np.ones_like(on_road))
 
     def choose(self, cost: Any, classes: list[np.ndarray], penalty: np.ndarray, legal: np.ndarray,
                on_road: np.ndarray, first_hit: np.ndarray, steps: int,
-               travel: np.ndarray) -> tuple[np.ndarray, int, int]:
+               travel: np.ndarray, evasive: np.ndarray | None = None) -> tuple[np.ndarray, int, int]:
         """(selection total (K,), chosen candidate, its validity class) under ``cfg.selection``.
 
         "cost": the lowest J_risk + penalty (the envelope and entry terms) within
-        :func:`hard_pool`; "validity"/"validity_ttc": the class rule (see :data:`SELECTIONS`).
+        :func:`hard_pool` (the evasive candidates only in an emergency, :func:`emergency_only`);
+        "validity"/"validity_ttc": the class rule (see :data:`SELECTIONS`).
         A non-finite total is never chosen (NaN counts as +inf; the pools are taken over the finite
         candidates); chosen candidate -1 when no total is finite.
         """
@@ -451,7 +466,7 @@ class EthicalPlanner:
         if mode == "cost":
             total = cost.total + penalty
             finite = np.isfinite(total)
-            pool = hard_pool(legal & finite, on_road & finite) & finite
+            pool = emergency_only(hard_pool(legal & finite, on_road & finite) & finite, evasive, first_hit < steps)
             if not pool.any():
                 return total, -1, len(classes)
             j = int(np.argmin(np.where(pool, total, np.inf)))
