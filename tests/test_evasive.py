@@ -73,3 +73,19 @@ def test_the_setting_and_the_published_planners():
     # origin and paper as published: without them; ours (the defaults of run) with them
     assert BUILTIN["origin"]["evasive"] is False and BUILTIN["paper"]["evasive"] is False
     assert "evasive" not in BUILTIN["ours"]
+
+
+def test_evasive_candidates_only_in_an_emergency():
+    """emergency_only by hand: 5 candidates, the last two evasive. While a plain candidate of the
+    pool stays out of every envelope the evasive ones are not in the pool; once every plain one
+    enters an envelope they are (and the cost with its envelope terms decides)."""
+    from sumo_ethics.plan.ethical import emergency_only
+
+    evasive = np.array([False, False, False, True, True])
+    pool = np.array([True, True, False, True, True])
+    calm = np.array([False, True, False, False, False])  # plain candidate 0 stays out
+    assert emergency_only(pool, evasive, calm).tolist() == [True, True, False, False, False]
+    # the only plain candidate outside every envelope is not in the pool: that is no way out
+    blocked = np.array([True, True, False, False, True])
+    assert emergency_only(pool, evasive, blocked).tolist() == pool.tolist()
+    assert emergency_only(pool, None, calm).tolist() == pool.tolist()  # evasive off: as it was
