@@ -112,6 +112,13 @@ def _read_toml(path: Path, tables: set[str]) -> tuple[dict[str, Any], dict[str, 
     return planner, data
 
 
+#: the [planner] table's keys that are not sub-tables: the cost's (CostConfig), then PlannerConfig's own
+#: fields (tests/test_settings.py checks they are all of them); ``sweep --set`` takes them all but omega_u
+COST_KEYS = ("omega_u", "omega_o", "weights", "utility", "normalise")
+PLANNER_KEYS = COST_KEYS + ("predictor", "predictor_weights", "calibrated", "max_risk", "braking_prior", "lateral_prior",
+                            "selection", "envelope", "entry", "evasive")
+
+
 def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
     """A validated PlannerConfig from a ``[planner]`` table and command-line overrides (None = unset)."""
     from sumo_ethics.ethics.cost import DEFAULT_OMEGA_U, CostConfig, PrincipleWeights, UtilityMode
@@ -123,10 +130,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
         raise ConfigError(f"[planner] must be a table, got {table!r}")
     t = dict(table or {})
     t.update({k: v for k, v in overrides.items() if v is not None})
-    simple = {"omega_u", "omega_o", "weights", "utility", "normalise", "predictor", "predictor_weights", "calibrated",
-              "max_risk",
-              "braking_prior", "lateral_prior", "selection", "envelope", "entry", "evasive"}
-    _known(t, simple | {"sampling", "probability", "principles"}, "[planner]")
+    _known(t, set(PLANNER_KEYS) | {"sampling", "probability", "principles"}, "[planner]")
     if isinstance(t.get("probability"), str):  # probability = "origin" is short for [planner.probability] method
         t["probability"] = {"method": t["probability"]}
     for sub in ("sampling", "probability", "principles"):
@@ -152,8 +156,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
         # keys not set keep PlannerConfig's own defaults (its grid, not SamplingConfig's bare one)
         grid = replace(PlannerConfig().sampling, **sampling)
         check_grid_bounds(grid)
-        given = {k: t[k] for k in ("predictor", "calibrated", "max_risk", "braking_prior", "lateral_prior", "selection", "envelope",
-                                   "entry", "evasive") if k in t}
+        given = {k: t[k] for k in PLANNER_KEYS[len(COST_KEYS):] if k in t and k != "predictor_weights"}
         if t.get("predictor_weights") is not None:
             given["predictor_weights"] = str(t["predictor_weights"])
         return PlannerConfig(cost=cost, sampling=grid, probability=ProbabilityConfig(**probability), **given)

@@ -314,7 +314,8 @@ class CostBreakdown:
 
 
 #: why a candidate could not be chosen although it may score lower (DecisionTrace.excluded; explain)
-EXCLUSIONS = ("", "crosses a red/yellow stop line", "leaves the road", "enters a predicted envelope (others stay out)")
+EXCLUSIONS = ("", "crosses a red/yellow stop line", "leaves the road", "enters a predicted envelope (others stay out)",
+              "brakes at the maximum deceleration with no emergency (another candidate stays out of every envelope)")
 
 
 @dataclass(frozen=True)

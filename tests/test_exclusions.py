@@ -27,6 +27,13 @@ def test_codes_by_hand():
     assert exclusion_codes(np.zeros(3, bool), np.array([True, False, True]), np.zeros(3, bool), "cost").tolist() == [0, 2, 0]
     # everyone enters an envelope: the envelope excludes no one
     assert exclusion_codes(np.ones(2, bool), np.ones(2, bool), np.ones(2, bool), "cost").tolist() == [0, 0]
+    # evasive candidates (the last two) are held back while a plain one stays out of every envelope,
+    # and weighed once none does; the envelope's code comes first
+    ev = np.array([False, False, True, True])
+    assert exclusion_codes(np.ones(4, bool), np.ones(4, bool), np.array([True, False, True, False]), "cost",
+                           ev).tolist() == [3, 0, 3, 4]
+    assert exclusion_codes(np.ones(4, bool), np.ones(4, bool), np.array([True, True, True, False]), "cost",
+                           ev).tolist() == [3, 3, 3, 0]
 
 
 def test_a_red_light_exclusion_is_recorded_and_named(tmp_path):

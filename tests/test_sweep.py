@@ -61,6 +61,23 @@ def test_set_keys_and_values():
             parse_set(bad)
 
 
+def test_every_planner_setting_can_be_swept():
+    """The keys --set takes are the [planner] table's (one list, settings.PLANNER_KEYS), and that list
+    is every field of PlannerConfig and of the cost's own keys: a new field cannot be left out."""
+    from dataclasses import fields
+
+    from sumo_ethics.plan.ethical import PlannerConfig
+    from sumo_ethics.settings import COST_KEYS, PLANNER_KEYS
+
+    own = {f.name for f in fields(PlannerConfig)} - {"cost", "sampling", "probability"}
+    assert set(PLANNER_KEYS) - set(COST_KEYS) == own
+    s = parse_set(["calibrated=true,false", "lateral_prior=0,1.5", "evasive=false"])
+    assert s == {"calibrated": [True, False], "lateral_prior": [0.0, 1.5], "evasive": [False]}
+    sweep = make_sweep(TESTBED, "0.5", "0", ["calibrated=true,false", "lateral_prior=0,1.5"])
+    cfgs = [spec.run_config(Path("/nonexistent")).planner for spec in sweep.specs()]
+    assert sorted((c.calibrated, c.lateral_prior) for c in cfgs) == [(False, 0.0), (False, 1.5), (True, 0.0), (True, 1.5)]
+
+
 def test_bad_values_fail_before_anything_runs(tmp_path):
     out = tmp_path / "sw"
     with pytest.raises(ConfigError, match="predictor"):

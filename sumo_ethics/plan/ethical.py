@@ -267,10 +267,12 @@ def emergency_only(pool: np.ndarray, evasive: np.ndarray | None, overlap: np.nda
     return pool & ~evasive if (pool & ~evasive & ~overlap).any() else pool
 
 
-def exclusion_codes(legal: np.ndarray, on_road: np.ndarray, overlap: np.ndarray, selection: str) -> np.ndarray:
+def exclusion_codes(legal: np.ndarray, on_road: np.ndarray, overlap: np.ndarray, selection: str,
+                    evasive: np.ndarray | None = None) -> np.ndarray:
     """(K,) int8 index into :data:`sumo_ethics.types.EXCLUSIONS`: the hard constraint that keeps each candidate out of
     :func:`hard_pool` (a red/yellow stop line, then the road edge; only where some candidate keeps
-    it) and, under "cost" selection, out of the envelope-free pool when that is not empty; 0 none."""
+    it) and, under "cost" selection, out of the envelope-free pool when that is not empty, or an
+    evasive candidate held back while there is no emergency (:func:`emergency_only`); 0 none."""
     code = np.zeros(len(legal), dtype=np.int8)
     if (legal & on_road).any():
         code[~legal] = 1
@@ -281,6 +283,8 @@ def exclusion_codes(legal: np.ndarray, on_road: np.ndarray, overlap: np.ndarray,
         pool = hard_pool(legal, on_road)
         if (pool & ~overlap).any():
             code[pool & overlap] = 3
+        held = pool & ~emergency_only(pool, evasive, overlap)
+        code[held & (code == 0)] = 4
     return code
 
 
@@ -434,7 +438,7 @@ class EthicalPlanner:
             ego=scene.ego, agents=agents, prediction=pred, candidates=fc, cost=cost, selection=total,
             validity=validity_classes(classes), eligible=eligible, first_hit=first_hit,
             risk=(risk.ego_risk.sum(axis=1) + risk.other_risk.sum(axis=1)) if len(agents) else np.zeros(len(fc)),
-            chosen=j, excluded=exclusion_codes(legal, on_road, overlap, self.cfg.selection),
+            chosen=j, excluded=exclusion_codes(legal, on_road, overlap, self.cfg.selection, evasive),
             agent_risk=risk.ego_risk[j] + risk.other_risk[j] if len(agents) else np.zeros(0))
         return Decision(cmd, info=info, timings_ms=timings, trace=trace)
 
