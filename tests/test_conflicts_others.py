@@ -157,6 +157,39 @@ def test_traffic_table_others_per_100_vehicle_km_by_hand():
     assert without["conflicts_others_per_100vkm"].isna().all()
 
 
+def test_traffic_figure_shows_everyones_conflicts_when_measured(tmp_path, monkeypatch):
+    """The traffic figure gains a panel of everyone's conflicts per 100 vehicle-km where the runs
+    measured the others' (the legend then goes below the panels), and has none without."""
+    import matplotlib.pyplot as plt
+
+    from sumo_ethics.analysis import plots
+    from sumo_ethics.analysis.stats import traffic_table
+
+    runs = pd.DataFrame({
+        "penetration": [0.0, 0.0, 0.5, 0.5], "fleet": ["ego", "ethical"] * 2, "fleet_egos": [0.0, 0.0, 3.0, 3.0],
+        **{c: [0.0] * 4 for c in ("harm_all_egos", "harm_all_other_vehicles", "harm_all_vru", "harm_all_total",
+                                  "time_loss_egos", "time_loss_other_vehicles")},
+        "time_loss_persons": [np.nan] * 4,
+        "vehicle_km": [100.0, 300.0, 200.0, 200.0], "person_km": [1.0] * 4, "distance": [0.0, 0.0, 5000.0, 5000.0],
+        "conflicts_total": [0.0, 0.0, 2.0, 4.0], "conflicts_others": [6.0, 10.0, 3.0, 1.0],
+        "conflicts_others_vru": [2.0, 2.0, 1.0, 0.0],
+    })
+    titles = []
+    orig = plots._save
+
+    def keep(fig, folder, name):
+        titles.append([ax.get_title() for ax in fig.axes if ax.axison])
+        return orig(fig, folder, name)
+
+    monkeypatch.setattr(plots, "_save", keep)
+    for table in (runs, runs.drop(columns=["conflicts_others", "conflicts_others_vru"])):
+        plots.traffic_vs_parameter(traffic_table(table, ["penetration", "fleet"], n_boot=50),
+                                   ["penetration", "fleet"], tmp_path)
+    plt.close("all")
+    assert "everyone's conflicts (egos' and others')" in titles[0] and len(titles[0]) == 8
+    assert not any("everyone" in t for t in titles[1]) and len(titles[1]) == 7
+
+
 # ---- real SUMO ------------------------------------------------------------------------------------
 class HoldSpeeds:
     """A run hook: the SUMO car ``vid`` drives blind (speed mode 0: no car following) at its 10 m/s

@@ -165,12 +165,16 @@ def traffic_vs_parameter(table: pd.DataFrame, by: Sequence[str], folder: Path) -
     ``--by`` key (e.g. penetration), one series per combination of the others (e.g. the fleet)."""
     x = by[0]
     hues = _hues(table, by)
+    everyone = "conflicts_everyone_per_100vkm"
     panels = [("harm_egos_per_Mvkm", "harm to egos"), ("harm_other_vehicles_per_Mvkm", "harm to other vehicles"),
               ("harm_vru_per_Mvkm", "harm to VRUs"), ("conflicts_per_100km", "egos' conflicts"),
+              *([(everyone, "everyone's conflicts (egos' and others')")]
+                if everyone in table and table[everyone].notna().any() else []),
               ("time_loss_egos", "time loss of egos"), ("time_loss_other_vehicles", "time loss of other vehicles"),
               ("time_loss_persons", "time loss of pedestrians")]
-    units = {"harm": "per $10^6$ vehicle-km [-]", "conf": "per 100 ego-km", "time": "mean per trip [s]"}
-    fig, axes = plt.subplots(2, 4, figsize=(17, 7.5), sharex=True)
+    units = {"harm": "per $10^6$ vehicle-km [-]", "conflicts_per_100km": "per 100 ego-km",
+             everyone: "per 100 vehicle-km of all trips", "time": "mean per trip [s]"}
+    fig, axes = plt.subplots(2, 4, figsize=(17, 8.2 if len(panels) == 8 else 7.5), sharex=True)
     cmap = plt.get_cmap("tab10")
     for ax, (col, title) in zip(axes.flat, panels):
         for i, (label, g) in enumerate(hues):
@@ -183,16 +187,23 @@ def traffic_vs_parameter(table: pd.DataFrame, by: Sequence[str], folder: Path) -
         ax.tick_params(labelbottom=True)
         ax.set_title(title)
         ax.set_xlabel(_label(x))
-        ax.set_ylabel(units[col[:4]])
+        ax.set_ylabel(units.get(col, units.get(col[:4], "")))
         ax.grid(alpha=0.3)
-    axes.flat[-1].axis("off")
     handles, labels = axes.flat[0].get_legend_handles_labels()
-    if handles:
-        axes.flat[-1].legend(handles, [f"{lab} (95% CI)" for lab in labels], loc="center", fontsize=10, frameon=False)
+    labels = [f"{lab} (95% CI)" for lab in labels]
+    if len(panels) < len(axes.flat):  # the spare panel holds the legend
+        axes.flat[-1].axis("off")
+        if handles:
+            axes.flat[-1].legend(handles, labels, loc="center", fontsize=10, frameon=False)
     n = int(table["n_runs"].min()), int(table["n_runs"].max())
-    runs = f"{n[0]}" if n[0] == n[1] else f"{n[0]}-{n[1]}"
-    fig.suptitle(f"Traffic outcomes vs {_label(x)} (bootstrap 95% CI over runs, {runs} runs per point)")
-    fig.tight_layout()
+    runs = f"{n[0]} run" + ("" if n[0] == 1 else "s") if n[0] == n[1] else f"{n[0]}-{n[1]} runs"
+    fig.suptitle(f"Traffic outcomes vs {_label(x)} (bootstrap 95% CI over runs, {runs} per point)")
+    if len(panels) == len(axes.flat):  # every panel used: the legend goes below them
+        fig.tight_layout(rect=(0, 0.06, 1, 1))
+        if handles:
+            fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), fontsize=10, frameon=False)
+    else:
+        fig.tight_layout()
     return _save(fig, folder, "traffic_vs_" + x.replace(".", "_"))
 
 
