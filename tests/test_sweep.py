@@ -361,3 +361,19 @@ def test_a_ctrl_c_while_a_run_process_starts_waits_for_the_start():
         assert reached == ["end of block", "quiet"]
     finally:
         signal.signal(signal.SIGINT, before)
+
+
+def test_report_command_line_round_trips_its_set_values():
+    """The report's first line is a command a user can paste: its --set values parse back to the
+    sweep's own (a bool as 'true', as typed; Python's 'True' would parse too, but reads oddly)."""
+    import shlex
+
+    from sumo_ethics.analysis.report import command_line
+
+    sets = {"penetration": [0.0, 0.1, 1.0], "fleet": ["ethical", "ego"], "conflicts_everyone": [True]}
+    line = command_line({"scenarios": ["a.sumocfg"], "omega_u": [0.5], "seeds": [0, 1], "set": sets,
+                         "options": {"end": 60.0}}, out="runs/x")
+    assert "--set conflicts_everyone=true " in line and "--end 60 " in line
+    words = shlex.split(line)
+    given = [words[i + 1] for i, w in enumerate(words) if w == "--set"]
+    assert parse_set(given) == sets

@@ -32,8 +32,11 @@ def command_line(definition: dict[str, Any], out: str = "OUT") -> str:
     parts = ["sumo-ethics sweep", scen[0] if len(scen) == 1 else os.path.commonpath(scen),
              "--omega-u", ",".join(f"{v:g}" for v in definition["omega_u"]),
              "--seeds", ",".join(map(str, definition["seeds"]))]
+    def value(x: Any) -> str:  # as typed: 0.5, true (not Python's True)
+        return f"{x:g}" if isinstance(x, float) else str(x).lower() if isinstance(x, bool) else str(x)
+
     for k, v in definition["set"].items():
-        parts += ["--set", f"{k}=" + ",".join(f"{x:g}" if isinstance(x, float) else str(x) for x in v)]
+        parts += ["--set", f"{k}=" + ",".join(value(x) for x in v)]
     for k, v in definition["options"].items():
         if k == "stop_at_collision":
             parts += ["--continue-after-collision"] if v is False else []
