@@ -16,7 +16,7 @@ import click
 
 from sumo_ethics.cli_types import SUMO_TIME
 from sumo_ethics.predict import PREDICTORS
-from sumo_ethics.settings import PLANNER_KEYS
+from sumo_ethics.settings import SET_PLANNER_KEYS
 
 
 @click.command()
@@ -25,7 +25,7 @@ from sumo_ethics.settings import PLANNER_KEYS
               help="Utility weights w_u: start:stop:step (stop included when on the grid), a,b,c or one value.")
 @click.option("--seeds", default="0", show_default=True, help="Seeds: 0-9 (inclusive), 0,3,5 or mixed 0-3,8.")
 @click.option("--set", "sets", multiple=True, metavar="KEY=V1,V2",
-              help=f"Sweep one more key over values (repeatable): planner keys ({', '.join(k for k in PLANNER_KEYS if k != 'omega_u')}, "
+              help=f"Sweep one more key over values (repeatable): planner keys ({', '.join(SET_PLANNER_KEYS)}, "
                    "sampling.*, probability.*, principles.*) or run keys (end, ego_depart, penetration, fleet, "
                    "controller, radius, stop_at_collision, ...).")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Sweep folder (resumed if it exists).")

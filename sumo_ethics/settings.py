@@ -113,10 +113,12 @@ def _read_toml(path: Path, tables: set[str]) -> tuple[dict[str, Any], dict[str, 
 
 
 #: the [planner] table's keys that are not sub-tables: the cost's (CostConfig), then PlannerConfig's own
-#: fields (tests/test_settings.py checks they are all of them); ``sweep --set`` takes them all but omega_u
+#: fields (tests/test_sweep.py checks they are all of them)
 COST_KEYS = ("omega_u", "omega_o", "weights", "utility", "normalise")
 PLANNER_KEYS = COST_KEYS + ("predictor", "predictor_weights", "calibrated", "max_risk", "braking_prior", "lateral_prior",
                             "selection", "envelope", "entry", "evasive")
+#: the ones ``sweep --set`` takes: all but omega_u, which has ``--omega-u``
+SET_PLANNER_KEYS = tuple(k for k in PLANNER_KEYS if k != "omega_u")
 
 
 def planner_config(table: dict[str, Any] | None = None, **overrides: Any):

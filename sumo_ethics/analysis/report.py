@@ -32,6 +32,7 @@ def command_line(definition: dict[str, Any], out: str = "OUT") -> str:
     parts = ["sumo-ethics sweep", scen[0] if len(scen) == 1 else os.path.commonpath(scen),
              "--omega-u", ",".join(f"{v:g}" for v in definition["omega_u"]),
              "--seeds", ",".join(map(str, definition["seeds"]))]
+
     def value(x: Any) -> str:  # as typed: 0.5, true (not Python's True)
         return f"{x:g}" if isinstance(x, float) else str(x).lower() if isinstance(x, bool) else str(x)
 
@@ -41,7 +42,7 @@ def command_line(definition: dict[str, Any], out: str = "OUT") -> str:
         if k == "stop_at_collision":
             parts += ["--continue-after-collision"] if v is False else []
         elif k in flags:
-            parts += [flags[k], f"{v:g}" if isinstance(v, float) else str(v)]
+            parts += [flags[k], value(v)]
     if definition.get("planner"):
         parts += ["--config", "PLANNER.toml"]
     return " ".join(parts + ["--out", out])

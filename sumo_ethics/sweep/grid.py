@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from sumo_ethics.errors import ConfigError
-from sumo_ethics.settings import PLANNER_KEYS
+from sumo_ethics.settings import SET_PLANNER_KEYS
 
 #: bounds checked before a grid is built: values per swept axis (--omega-u, --seeds, each --set)
 #: and runs in the whole grid
@@ -56,7 +56,7 @@ RUN_KEYS: dict[str, tuple[str, type]] = {
 #: a penetration sweep's disk use and encoding time grow with its egos
 SWEEP_RECORD_DECISIONS = "risky"
 SWEEP_FLEET_RECORD_DECISIONS = "off"
-PLANNER_SIMPLE = tuple(k for k in PLANNER_KEYS if k != "omega_u")  # omega_u has --omega-u
+PLANNER_SIMPLE = SET_PLANNER_KEYS
 
 
 def planner_keys() -> list[str]:
