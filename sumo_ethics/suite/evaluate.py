@@ -290,8 +290,9 @@ def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, wor
     no other run with it. ``resume``: runs whose folder already holds a finished run are read
     back instead of run again.
     """
-    import multiprocessing as mp
     from multiprocessing.connection import Connection, wait
+
+    from sumo_ethics.forkserver import forkserver_context
 
     if workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
@@ -311,8 +312,7 @@ def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, wor
             done(row)
         else:
             todo.append(t)
-    ctx = mp.get_context("forkserver")
-    ctx.set_forkserver_preload(["sumo_ethics._worker_signals", "sumo_ethics.suite.preload"])
+    ctx = forkserver_context(["sumo_ethics._worker_signals", "sumo_ethics.suite.preload"])
     running: dict[Connection, tuple[Any, tuple]] = {}
     try:
         while todo or running:

@@ -165,12 +165,11 @@ class LocalPool:
     run starts in milliseconds; a SUMO crash takes down only its own run)."""
 
     def __init__(self, workers: int) -> None:
-        import multiprocessing as mp
+        from sumo_ethics.forkserver import forkserver_context
 
         self.workers = workers
-        self.ctx = mp.get_context("forkserver")
-        self.ctx.set_forkserver_preload(["sumo_ethics._worker_signals", "sumo_ethics.sweep", "sumo_ethics.runner",
-                                         "sumo_ethics.plan.ethical"])
+        self.ctx = forkserver_context(["sumo_ethics._worker_signals", "sumo_ethics.sweep", "sumo_ethics.runner",
+                                       "sumo_ethics.plan.ethical"])
         self.jobs: list[RunProcess] = []
 
     def submit(self, spec: dict[str, Any], runs_dir: str) -> RunProcess:
