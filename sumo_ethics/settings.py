@@ -2,7 +2,7 @@
 
 A TOML file for ``run`` may also have a ``[conflicts]`` table (:class:`~sumo_ethics.config.ConflictConfig`:
 enabled, ttc, pet, gap, crossing_angle, everyone; sweeps read ``[planner]`` alone). A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, normalise, predictor,
-predictor_weights, calibrated, max_risk, braking_prior, lateral_prior, selection, envelope, entry,
+predictor_weights, calibrated, max_risk, braking_prior, lateral_prior, lateral_onset, selection, envelope, entry,
 evasive) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
 ``[planner.principles]`` (custom J_origin weights); unknown keys are errors. ``probability =
 "origin"`` (or ``"shapes"``) is short for ``[planner.probability] method = ...``.
@@ -116,7 +116,7 @@ def _read_toml(path: Path, tables: set[str]) -> tuple[dict[str, Any], dict[str, 
 #: fields (tests/test_sweep.py checks they are all of them)
 COST_KEYS = ("omega_u", "omega_o", "weights", "utility", "normalise")
 PLANNER_KEYS = COST_KEYS + ("predictor", "predictor_weights", "calibrated", "max_risk", "braking_prior", "lateral_prior",
-                            "selection", "envelope", "entry", "evasive")
+                            "lateral_onset", "selection", "envelope", "entry", "evasive")
 #: the ones ``sweep --set`` takes: all but omega_u, which has ``--omega-u``
 SET_PLANNER_KEYS = tuple(k for k in PLANNER_KEYS if k != "omega_u")
 

@@ -111,3 +111,68 @@ def test_braking_after_lateral_stops_the_sideways_motion_too():
     assert out.mean[0, -1, 1] > 0.1  # it did move left while braking
     # it stands v^2 / 2a = 1.389 m along its (slightly bent) path from where it was
     assert np.hypot(*out.mean[0, -1]) == pytest.approx(25.0 / 18.0, abs=0.01)
+
+
+def _cut_in(since: float, width: float = 3.75, duration: float = 2.33, v: float = 17.6, dt: float = 0.1):
+    """A car on the suite's cut-in ramp (sumo_ethics.sim.hazards: lateral offset width * (1 - cos(pi u)) / 2,
+    u = time since the start / duration), ``since`` s after it started, with 3 s of straight driving
+    before: (Observation, its true lateral offsets 0.1 ... 3.0 s ahead)."""
+    import math
+
+    from sumo_ethics.types import Observation
+
+    def offset(s):
+        u = np.clip(np.asarray(s, dtype=float) / duration, 0.0, 1.0)
+        return width * (0.5 - 0.5 * np.cos(np.pi * u))
+
+    ts = since + dt * np.arange(-30, 1)  # 31 samples, oldest first, the last is now
+    hist = np.stack([v * ts, offset(ts)], -1)[None]
+    v_lat = math.pi / 2 * width / duration * math.sin(math.pi * min(since / duration, 1.0))
+    cur = AgentStates(ids=("a",), x=hist[:, -1, 0], y=hist[:, -1, 1], yaw=np.array([math.atan2(v_lat, v)]),
+                      speed=np.array([math.hypot(v, v_lat)]), accel=np.zeros(1), length=np.array([4.5]),
+                      width=np.array([1.8]), mass=np.array([1500.0]), cls=np.zeros(1, dtype=np.int8))
+    ego = AgentStates(ids=("ego",), x=np.zeros(1), y=np.array([-10.0]), yaw=np.zeros(1), speed=np.zeros(1),
+                      accel=np.zeros(1), length=np.array([4.5]), width=np.array([1.8]), mass=np.array([1500.0]),
+                      cls=np.zeros(1, dtype=np.int8))
+    obs = Observation(time=since, dt=dt, history=hist, valid=np.ones((1, 31), dtype=bool), current=cur, ego=ego)
+    return obs, offset(since + dt * np.arange(1, 31)) - offset(since)
+
+
+def test_recent_motion_by_hand():
+    from sumo_ethics.predict.braking import recent_motion
+
+    # 0.3 s into a 3.75 m cut-in over 2.33 s: the chord of the last second runs 17.6 m ahead and
+    # 0.151 - 0 m aside (the ramp 0.7 s before its start is still at 0): atan(0.151 / 17.6) = 0.0086 rad
+    obs, _ = _cut_in(0.3)
+    heading, lateral = recent_motion(obs)
+    assert heading[0] == pytest.approx(np.arctan2(3.75 * (0.5 - 0.5 * np.cos(np.pi * 0.3 / 2.33)), 17.6), abs=1e-9)
+    # the ramp's lateral acceleration pi^2/2 * 3.75/2.33^2 cos(pi u) = 3.13 m/s^2 near u = 0.13 (second
+    # difference over 0.1 s and the heading's cosine: within 2 %)
+    assert lateral[0] == pytest.approx(np.pi**2 / 2 * 3.75 / 2.33**2 * np.cos(np.pi * 0.2 / 2.33), rel=0.02)
+    # fewer than 2 m travelled in the last second: no direction; three positions needed for an acceleration
+    obs_slow, _ = _cut_in(0.3, v=1.5)
+    assert np.isnan(recent_motion(obs_slow)[0][0])
+
+
+def test_lateral_onset_sees_a_cut_in_early():
+    """0.3 s into the cut-in, a lane-keeping prediction (straight ahead): the onset model puts the car
+    within 0.25 m of where the ramp has it 1 s later (2.07 m aside); the constant lateral speed, 1.0 m."""
+    from sumo_ethics.predict.braking import apply_lateral_prior, recent_motion
+
+    obs, truth = _cut_in(0.3)
+    cur = obs.current
+    t = (np.arange(30) + 1) * 0.1
+    pred = Prediction(ids=("a",), dt=0.1, mean=np.stack([cur.x[0] + 17.6 * t, np.full(30, cur.y[0])], -1)[None],
+                      cov=np.tile(np.eye(2), (1, 30, 1, 1)), yaw=np.zeros((1, 30)))
+    travel, lateral = recent_motion(obs)
+    onset = apply_lateral_prior(pred, cur, horizon=1.5, travel=travel, lateral_accel=lateral)
+    plain = apply_lateral_prior(pred, cur, horizon=1.5)
+    aside = onset.mean[0, 9, 1] - cur.y[0]
+    assert truth[9] == pytest.approx(2.07, abs=0.01)  # the ramp at 1.3 s minus at 0.3 s
+    assert aside == pytest.approx(truth[9], abs=0.25)
+    assert plain.mean[0, 9, 1] - cur.y[0] == pytest.approx(1.0, abs=0.05)
+    # never more than one lane aside of the direction of travel, whatever the acceleration
+    far = apply_lateral_prior(pred, cur, horizon=30.0, travel=travel, lateral_accel=lateral * 10)
+    normal = np.array([-np.sin(travel[0]), np.cos(travel[0])])
+    across = (far.mean[0] - np.array([cur.x[0], cur.y[0]])) @ normal
+    assert np.max(np.abs(across)) == pytest.approx(3.5)

@@ -26,7 +26,7 @@ from sumo_ethics.contract import Decision, EgoCommand, Scene
 from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
 from sumo_ethics.predict import PREDICTORS
-from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior
+from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior, recent_motion
 from sumo_ethics.predict.constant_velocity import replace_non_finite
 from sumo_ethics.predict.features import MapSource
 from sumo_ethics.types import Candidates, DecisionTrace, Observation, Prediction
@@ -59,6 +59,9 @@ class PlannerConfig:
     braking_prior: agents decelerating at least this hard [m/s^2] are predicted to keep braking
     until they stand; lateral_prior: agents moving across their straight predicted path keep
     their lateral speed for this long [s] (both ``sumo_ethics.predict.braking``; 0 = off);
+    lateral_onset: the lateral prior sees a lane change's onset: sideways motion measured across
+    the direction of travel over the last second, and a growing sideways speed kept growing
+    (:func:`~sumo_ethics.predict.braking.recent_motion`; ``origin`` and ``paper`` run without it);
     calibrated: apply the covariance calibration shipped beside the LSTM's weights file
     (``predict/calibration.py``; False: the model's own spreads, as published; no effect on "cv");
     selection: one of :data:`SELECTIONS`; envelope: the cost of entering a road user's predicted
@@ -86,6 +89,7 @@ class PlannerConfig:
     max_risk: float = 0.01
     braking_prior: float = 3.0
     lateral_prior: float = 1.5
+    lateral_onset: bool = True
     selection: str = "cost"
     envelope: float = 1000.0
     entry: float = 1000.0
@@ -103,7 +107,7 @@ class PlannerConfig:
         if self.predictor == "cv" and self.predictor_weights:
             raise ConfigError("predictor_weights is a weights file for an LSTM predictor; predictor 'cv' "
                               "(constant velocity) has none")
-        for flag in ("calibrated", "evasive"):
+        for flag in ("calibrated", "evasive", "lateral_onset"):
             if not isinstance(getattr(self, flag), bool):
                 raise ConfigError(f"{flag} must be true or false, got {getattr(self, flag)!r}")
         if not (isinstance(self.max_risk, (int, float)) and 0.0 < self.max_risk <= 1.0):
@@ -346,7 +350,9 @@ class EthicalPlanner:
         pred = self.predictor.predict(obs, horizon_steps, sc.dt)
         # the priors treat every mode of a multi-modal prediction alike (they map over the modes)
         if self.cfg.lateral_prior > 0.0:  # first: a car braking to a stand also stops moving sideways
-            pred = apply_lateral_prior(pred, obs.current, horizon=self.cfg.lateral_prior)
+            travel, lateral = recent_motion(obs) if self.cfg.lateral_onset else (None, None)
+            pred = apply_lateral_prior(pred, obs.current, horizon=self.cfg.lateral_prior, travel=travel,
+                                       lateral_accel=lateral)
         if self.cfg.braking_prior > 0.0:
             pred = apply_braking_prior(pred, obs.current, self.cfg.braking_prior)
         # an agent with a non-finite mean, covariance or yaw in any mode is predicted at constant velocity

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sumo_ethics.types import AgentStates, Prediction
+from sumo_ethics.types import AgentStates, Observation, Prediction
 
 #: deceleration [m/s^2] from which an agent counts as braking hard (comfortable braking is ~3)
 HARD_BRAKING = 3.0
@@ -60,10 +60,42 @@ def apply_braking_prior(pred: Prediction, current: AgentStates, threshold: float
 
 #: lateral speed [m/s] across a straight predicted path from which the lateral prior acts
 LATERAL_SPEED = 0.5
+#: the lateral prior's onset model (``lateral_accel`` given): the fastest sideways speed it lets an
+#: agent reach [m/s] (a 3.5 m lane change in about 2.2 s at its middle) and the farthest it moves it
+#: aside [m] (one lane)
+LATERAL_SPEED_MAX = 2.5
+LATERAL_SHIFT_MAX = 3.5
+#: the past [s] whose chord gives an agent's direction of travel (:func:`recent_motion`), and the
+#: distance [m] it must have covered in it for that direction to count
+TRAVEL_WINDOW = 1.0
+TRAVEL_MIN = 2.0
+
+
+def recent_motion(obs: Observation, window: float = TRAVEL_WINDOW, min_travel: float = TRAVEL_MIN
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """((N,) direction of travel [rad], (N,) lateral acceleration [m/s^2]) of the agents of ``obs``.
+
+    The direction: of the chord from the agent's position ``window`` s ago (or its oldest observed
+    one) to now, NaN where it covered less than ``min_travel`` m. The lateral acceleration: the
+    second difference of the last three positions across the agent's heading (+ leftwards), 0
+    without three observed positions."""
+    h = np.asarray(obs.history, dtype=float)
+    n, H = h.shape[:2]
+    if n == 0 or H < 3:
+        return np.full(n, np.nan), np.zeros(n)
+    k = min(max(int(round(window / obs.dt)), 1), H - 1)
+    chord = h[:, -1] - h[:, -1 - k]
+    seen = obs.valid[:, -1] & obs.valid[:, -1 - k] & (np.hypot(chord[:, 0], chord[:, 1]) >= min_travel)
+    heading = np.where(seen, np.arctan2(chord[:, 1], chord[:, 0]), np.nan)
+    acc = (h[:, -1] - 2.0 * h[:, -2] + h[:, -3]) / obs.dt**2
+    yaw = np.asarray(obs.current.yaw, dtype=float)
+    lateral = np.where(obs.valid[:, -3:].all(axis=1), np.cos(yaw) * acc[:, 1] - np.sin(yaw) * acc[:, 0], 0.0)
+    return heading, lateral
 
 
 def apply_lateral_prior(pred: Prediction, current: AgentStates, horizon: float = 1.5,
-                        min_speed: float = LATERAL_SPEED, max_bend: float = 0.1) -> Prediction:
+                        min_speed: float = LATERAL_SPEED, max_bend: float = 0.1,
+                        travel: np.ndarray | None = None, lateral_accel: np.ndarray | None = None) -> Prediction:
     """``pred`` with agents that move across their own straight predicted path kept moving so.
 
     Learned models trained on lane-keeping traffic pull a car that drifts, cuts in or swerves
@@ -77,9 +109,18 @@ def apply_lateral_prior(pred: Prediction, current: AgentStates, horizon: float =
     also stops the sideways motion of a car braking to a stand. Agents turning, standing or
     aligned with their path are left as predicted; covariances and headings are kept. Every
     mode of a multi-modal ``pred`` is treated alike (its own path); alternatives and weights are kept.
+
+    The onset of a lane change (``travel`` and ``lateral_accel``, (N,) each, from
+    :func:`recent_motion`): the sideways motion is measured across the agent's direction of
+    travel over the last second instead of the predicted path (a model that bends its path
+    towards the new lane hides the motion across it), where that direction is known (not NaN);
+    and a lateral speed that grows (lateral_accel of its sign) keeps growing at that rate up to
+    :data:`LATERAL_SPEED_MAX` for ``horizon`` s, the offset at most :data:`LATERAL_SHIFT_MAX`.
+    A cut-in on a cosine ramp is seen 0.2-0.3 s after it starts, at 0.5 m/s sideways.
     """
     if pred.weight is not None:
-        return pred.map_modes(lambda mode: apply_lateral_prior(mode, current, horizon, min_speed, max_bend))
+        return pred.map_modes(lambda mode: apply_lateral_prior(mode, current, horizon, min_speed, max_bend, travel,
+                                                                lateral_accel))
     n, T = pred.mean.shape[:2]
     if n == 0 or T < 2:
         return pred
@@ -91,12 +132,21 @@ def apply_lateral_prior(pred: Prediction, current: AgentStates, horizon: float =
     # signed angle chord -> mid-chord: -1/4 of an arc's total turn; start tangent = chord + 2x it
     bend = np.arctan2(chord[:, 0] * mid[:, 1] - chord[:, 1] * mid[:, 0], np.einsum("ni,ni->n", chord, mid))
     start = np.arctan2(chord[:, 1], chord[:, 0]) + 2.0 * bend
+    if travel is not None:  # the direction of travel over the last second, where known
+        start = np.where(np.isfinite(travel), travel, start)
     normal = np.stack([-np.sin(start), np.cos(start)], -1)  # left of the start direction
     v_lat = current.speed * np.sin(current.yaw - start)  # (N,) m/s, + = leftwards
     act = (length > 1.0) & (4.0 * np.abs(bend) < max_bend) & (np.abs(v_lat) >= min_speed) & (current.speed > 1.0)
     if not act.any():
         return pred
-    want = v_lat[act, None] * np.minimum(t, horizon)[None, :]  # (A, T) wanted lateral offset
+    th = np.minimum(t, horizon)[None, :]
+    vl = v_lat[act, None]
+    want = vl * th  # (A, T) wanted lateral offset
+    if lateral_accel is not None:  # a growing sideways speed keeps growing up to LATERAL_SPEED_MAX
+        a = np.where(np.sign(lateral_accel[act]) == np.sign(v_lat[act]), lateral_accel[act], 0.0)[:, None]
+        ta = np.clip((LATERAL_SPEED_MAX - np.abs(vl)) / np.maximum(np.abs(a), 1e-9), 0.0, None)
+        tt = np.minimum(th, ta)
+        want = np.clip(vl * th + a * (0.5 * tt**2 + tt * (th - tt)), -LATERAL_SHIFT_MAX, LATERAL_SHIFT_MAX)
     have = np.einsum("ati,ai->at", pred.mean[act] - xy[act, None, :], normal[act])  # already predicted
     extra = np.where(np.abs(want) > np.abs(have) * (np.sign(have) == np.sign(want)), want - have, 0.0)
     mean = pred.mean.copy()

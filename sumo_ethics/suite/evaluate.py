@@ -37,19 +37,21 @@ PAPER_OMEGA_U = DEFAULT_OMEGA_U
 #: and selection rule (validity levels); paper: the paper's method (attention, J_utility, selection
 #: by cost) on Origin's probability; both divide Bayes, equality and responsibility by every road
 #: user in range, as published (normalise "in_range"), without the evasive candidates (braking and
-#: swerving at once); ours: this project's planner, what ``run``
+#: swerving at once) and the lateral prior's onset model (lateral_onset); ours: this project's planner, what ``run``
 #: and ``sweep`` use by default (PlannerConfig's defaults: the map-aware attention predictor,
 #: the collision probability over true shapes, principles on one scale); "default" names it too.
 #: the paper's planner, and the base of a planner defined as NAME=key=value;... unless it names
 #: another (``base=ours`` or ``base=origin``)
 PAPER: dict[str, Any] = {"weights": "ethical", "predictor": "attention", "omega_u": PAPER_OMEGA_U, "selection": "cost",
-                         "normalise": "in_range", "probability": "origin", "calibrated": False, "evasive": False}
+                         "normalise": "in_range", "probability": "origin", "calibrated": False, "evasive": False,
+                         "lateral_onset": False}
 BUILTIN: dict[str, dict[str, Any] | None] = {
     "baseline": None,  # the route-following controller
     # as published: Origin's probability and normalisation, their predictors' own spreads without the
     # calibration (predict/calibration.py)
     "origin": {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0, "selection": "validity",
-               "normalise": "in_range", "probability": "origin", "calibrated": False, "evasive": False},
+               "normalise": "in_range", "probability": "origin", "calibrated": False, "evasive": False,
+               "lateral_onset": False},
     "paper": PAPER,
     "ours": {},
 }
