@@ -103,7 +103,8 @@ def test_unknown_planner_is_a_clear_error():
     assert p.name == "fast" and p.options["predictor"] == "cv" and p.options["omega_u"] == 0.3
     assert parse_planner("origin").options == {"weights": "ethical", "predictor": "cslstm", "omega_u": 0.0,
                                                "selection": "validity", "normalise": "in_range",
-                                               "probability": "origin", "calibrated": False, "evasive": False}
+                                               "probability": "origin", "calibrated": False, "evasive": False,
+                                               "lateral_onset": False}
     assert parse_planner("paper").options["selection"] == "cost"
     assert parse_planner("paper").options["calibrated"] is False  # as published: no covariance calibration
     # both published planners divide by everyone in range; a planner built on paper's options can change it
