@@ -176,3 +176,25 @@ def test_lateral_onset_sees_a_cut_in_early():
     normal = np.array([-np.sin(travel[0]), np.cos(travel[0])])
     across = (far.mean[0] - np.array([cur.x[0], cur.y[0]])) @ normal
     assert np.max(np.abs(across)) == pytest.approx(3.5)
+
+
+def test_lateral_onset_reads_motion_across_the_travel_not_a_bent_path():
+    """A model that already bends its path towards the new lane (here: straight along the car's
+    heading, 0.3 s into the cut-in) hides the sideways motion across that path: the old prior sees
+    none (the model's 1.0 m a second later stays), the onset model measures it across the last
+    second's chord and puts the car within 0.25 m of the ramp's 2.07 m."""
+    from sumo_ethics.predict.braking import apply_lateral_prior, recent_motion
+
+    obs, truth = _cut_in(0.3)
+    cur = obs.current
+    t = (np.arange(30) + 1) * 0.1
+    heading = np.array([np.cos(cur.yaw[0]), np.sin(cur.yaw[0])])
+    path = np.array([cur.x[0], cur.y[0]]) + cur.speed[0] * t[:, None] * heading
+    pred = Prediction(ids=("a",), dt=0.1, mean=path[None], cov=np.tile(np.eye(2), (1, 30, 1, 1)),
+                      yaw=np.full((1, 30), cur.yaw[0]))
+    assert path[9, 1] - cur.y[0] == pytest.approx(1.0, abs=0.02)  # the model's own: 1 s at ~1.0 m/s sideways
+    assert np.array_equal(apply_lateral_prior(pred, cur, horizon=1.5).mean, pred.mean)
+    travel, lateral = recent_motion(obs)
+    assert np.array_equal(apply_lateral_prior(pred, cur, horizon=1.5, lateral_accel=lateral).mean, pred.mean)
+    onset = apply_lateral_prior(pred, cur, horizon=1.5, travel=travel, lateral_accel=lateral)
+    assert onset.mean[0, 9, 1] - cur.y[0] == pytest.approx(truth[9], abs=0.25)

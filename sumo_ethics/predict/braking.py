@@ -75,9 +75,11 @@ def recent_motion(obs: Observation, window: float = TRAVEL_WINDOW, min_travel: f
                   ) -> tuple[np.ndarray, np.ndarray]:
     """((N,) direction of travel [rad], (N,) lateral acceleration [m/s^2]) of the agents of ``obs``.
 
-    The direction: of the chord from the agent's position ``window`` s ago (or its oldest observed
-    one) to now, NaN where it covered less than ``min_travel`` m. The lateral acceleration: the
-    second difference of the last three positions across the agent's heading (+ leftwards), 0
+    The direction: of the chord from the agent's position ``window`` s ago to now (the window
+    shortened to the history's length), NaN where the agent was not observed then or covered less
+    than ``min_travel`` m. The lateral acceleration: the second difference of the last three
+    positions (centred one step back) across the agent's heading now (+ leftwards; not across the
+    direction of travel, so hard braking with a heading off that direction leaks into it), 0
     without three observed positions."""
     h = np.asarray(obs.history, dtype=float)
     n, H = h.shape[:2]
@@ -115,8 +117,13 @@ def apply_lateral_prior(pred: Prediction, current: AgentStates, horizon: float =
     travel over the last second instead of the predicted path (a model that bends its path
     towards the new lane hides the motion across it), where that direction is known (not NaN);
     and a lateral speed that grows (lateral_accel of its sign) keeps growing at that rate up to
-    :data:`LATERAL_SPEED_MAX` for ``horizon`` s, the offset at most :data:`LATERAL_SHIFT_MAX`.
-    A cut-in on a cosine ramp is seen 0.2-0.3 s after it starts, at 0.5 m/s sideways.
+    :data:`LATERAL_SPEED_MAX` for ``horizon`` s, the offset at most :data:`LATERAL_SHIFT_MAX`
+    across the direction of travel (not across the lane: with the chord already tilted, a car can
+    be put further aside of its lane). A cut-in on a cosine ramp is seen 0.2-0.3 s after it starts,
+    at 0.5 m/s sideways. Known flaw: in the last tenths of a second of a smooth lane change the
+    heading has straightened while the chord still tilts, so the sideways speed across the chord
+    and the sideways deceleration both point back, and the car is predicted up to about 1 m back
+    towards its old lane (docs/limitations.md).
     """
     if pred.weight is not None:
         return pred.map_modes(lambda mode: apply_lateral_prior(mode, current, horizon, min_speed, max_bend, travel,
