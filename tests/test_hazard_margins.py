@@ -30,7 +30,9 @@ def _run(tmp: Path, name: str, hazard: dict, trigger: dict, collision: dict) -> 
     scen.mkdir(parents=True)
     (scen / f"{name}.sumocfg").write_text("<configuration/>")
     (scen / f"{name}.rou.xml").write_text('<routes><vType id="car" length="4.0" width="2.0"/></routes>')
-    (scen / "hazards.json").write_text(json.dumps({"network": "narrow", "hazards": [hazard]}))
+    hazard = {"anchor": {"edge": "e0", "pos": 50.0}, "trigger": {"distance": 20.0}, **hazard}
+    (scen / "hazards.json").write_text(json.dumps({"name": name, "seed": 1, "network": "narrow", "hazards": [hazard],
+                                                   "ego": {"from": "e0", "to": "e1", "depart": 0.0, "end": 60.0}}))
     run = tmp / "runs" / name
     run.mkdir(parents=True)
     (run / "config.json").write_text(json.dumps({"scenario": str(scen / f"{name}.sumocfg"), "ego": {"width": 1.6}}))

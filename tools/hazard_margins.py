@@ -36,6 +36,7 @@ import pandas as pd
 
 from sumo_ethics.analysis.stats import to_markdown
 from sumo_ethics.collision import is_booked
+from sumo_ethics.suite.spec import load
 
 HAZARDS = ("cut_in", "oncoming_drift")
 TAUS = (0.0, 0.3, 0.5)
@@ -60,8 +61,8 @@ def margins(run: Path) -> dict | None:
     """The row of one run folder, or None (no ego collision with a cut-in or drift actor)."""
     cfg = json.loads((run / "config.json").read_text())
     scenario = Path(cfg["scenario"])
-    spec = json.loads((scenario.parent / "hazards.json").read_text())
-    hazards = {h["id"]: h for h in spec["hazards"] if h["type"] in HAZARDS}
+    spec = load(scenario.parent)
+    hazards = {h.id: h for h in spec.hazards if h.type in HAZARDS}
     col = pd.read_parquet(run / "collisions.parquet")
     col = col[col.apply(is_booked, axis=1) & col.id_b.isin([f"hazard_{h}" for h in hazards])] if len(col) else col
     if col.empty or not (run / "hazard_events.json").exists():
@@ -69,16 +70,16 @@ def margins(run: Path) -> dict | None:
     hit = col.iloc[0]
     h = hazards[hit.id_b.removeprefix("hazard_")]
     events = json.loads((run / "hazard_events.json").read_text())
-    trig = next((e for e in events if e["hazard"] == h["id"] and e["event"] == "trigger"), None)
+    trig = next((e for e in events if e["hazard"] == h.id and e["event"] == "trigger"), None)
     if trig is None:
         return None
-    length, width = vehicle_types(scenario.with_name(f"{scenario.stem}.rou.xml"))[h["params"].get("vtype", "car")]
+    p = h.params
+    length, width = vehicle_types(scenario.with_name(f"{scenario.stem}.rou.xml"))[p.get("vtype", "car")]
     ego_w = float(cfg["ego"]["width"])
-    p = h["params"]
-    row = {"scenario": run.name, "network": spec["network"], "hazard": h["type"], "trigger [s]": trig["time"],
+    row = {"scenario": run.name, "network": spec.network, "hazard": h.type, "trigger [s]": trig["time"],
            "impact [s]": float(hit.time), "ego speed at impact [m/s]": round(float(hit.speed_a), 2),
            "fault": hit.fault}
-    if h["type"] == "cut_in":
+    if h.type == "cut_in":
         gap = trig["actor_s"] - trig["ego_front_s"] - length / 2.0
         dv = trig["ego_speed"] - abs(trig["actor_speed"])
         row.update({"gap at trigger [m]": round(gap, 1), "closing [m/s]": round(dv, 1)})
