@@ -62,7 +62,7 @@ def apply_braking_prior(pred: Prediction, current: AgentStates, threshold: float
 LATERAL_SPEED = 0.5
 #: the lateral prior's onset model (``lateral_accel`` given): the fastest sideways speed it lets an
 #: agent reach [m/s] (a 3.5 m lane change in about 2.2 s at its middle) and the farthest it moves it
-#: aside [m] (one lane)
+#: aside [m] (a lane's width, across its direction of travel)
 LATERAL_SPEED_MAX = 2.5
 LATERAL_SHIFT_MAX = 3.5
 #: the past [s] whose chord gives an agent's direction of travel (:func:`recent_motion`), and the
