@@ -334,3 +334,41 @@ def ellipses(mean: np.ndarray, cov: np.ndarray, k: float = 1.0, n: int = 32) -> 
     a = np.linspace(0.0, 2.0 * np.pi, n)
     circle = np.stack([np.cos(a), np.sin(a)], -1) * (k * np.sqrt(np.maximum(vals, 0.0)))[..., None, :]
     return np.einsum("...nj,...ij->...ni", circle, vecs) + mean[..., None, :]
+
+
+def principal_variances(sxx: np.ndarray, sxy: np.ndarray, syy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(larger, smaller) eigenvalues [m^2] of the 2 x 2 covariances with entries sxx, sxy, syy; broadcasts."""
+    mid = 0.5 * (sxx + syy)
+    rad = np.hypot(0.5 * (sxx - syy), sxy)
+    return mid + rad, mid - rad
+
+
+def not_psd(cov: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
+    """(...) bool: the (..., 2, 2) covariance has a negative principal variance beyond rounding
+    (below -rtol x the larger one, or -rtol m^2 where that is below 1), i.e. no Gaussian has it."""
+    c = np.asarray(cov, dtype=float)
+    big, small = principal_variances(c[..., 0, 0], 0.5 * (c[..., 0, 1] + c[..., 1, 0]), c[..., 1, 1])
+    return small < -rtol * np.maximum(np.abs(big), 1.0)
+
+
+def floor_covariance(sxx: np.ndarray, sxy: np.ndarray, syy: np.ndarray,
+                     min_var: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The covariances with entries sxx, sxy, syy [m^2], each principal variance raised to at least
+    ``min_var`` [m^2], in their own principal frame (so turning the scene turns the result with
+    it); entries that need no floor are returned as they were."""
+    sxx, sxy, syy = (np.array(v, dtype=float) for v in np.broadcast_arrays(sxx, sxy, syy))
+    big, small = principal_variances(sxx, sxy, syy)
+    big_f = np.maximum(big, min_var)
+    small_f = np.maximum(small, min_var)
+    fix = (big_f != big) | (small_f != small)
+    if fix.any():
+        half = 0.5 * (sxx - syy)
+        rad = np.hypot(half, sxy)
+        safe = np.where(rad > 0.0, rad, 1.0)
+        c2 = np.where(rad > 0.0, half / safe, 1.0)  # cos, sin of twice the first axis's angle
+        s2 = np.where(rad > 0.0, sxy / safe, 0.0)
+        mid, dev = 0.5 * (big_f + small_f), 0.5 * (big_f - small_f)
+        sxx = np.where(fix, mid + dev * c2, sxx)
+        syy = np.where(fix, mid - dev * c2, syy)
+        sxy = np.where(fix, dev * s2, sxy)
+    return sxx, sxy, syy

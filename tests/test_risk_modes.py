@@ -28,7 +28,9 @@ from sumo_ethics.types import AgentStates, Candidates, Observation, Prediction, 
 DT = 0.1
 T = 40
 EGO_L, EGO_W, EGO_M = 4.508, 1.610, 1475.0
-P_MIN = ProbabilityConfig().p_min
+#: Origin's probability, with its threshold (p_min 1e-9) and Maximin (a step at p_min)
+ORIGIN = ProbabilityConfig(method="origin")
+P_MIN = ORIGIN.p_min
 ARRAYS = ("ego_risk", "other_risk", "ego_harm_max", "other_harm_max", "vulnerable", "boundary_harm",
           "ego_harm_at", "other_harm_at", "rule_breaker", "p", "ego_harm", "other_harm")
 
@@ -69,7 +71,7 @@ def risk(pred: Prediction) -> RiskTerms:
     """The scene was laid out for Origin's three-point score (its margins reach the pedestrian's
     path); the integration over modes under test does not depend on the method."""
     return assess_risk(candidates(), pred, AGENTS, EGO_M, RoadUserClass.CAR, EGO_L, EGO_W,
-                       prob_cfg=ProbabilityConfig(method="origin"))
+                       prob_cfg=ORIGIN)
 
 
 def with_modes(main: Prediction, alts: tuple[Prediction, ...], weight: np.ndarray) -> Prediction:

@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from typing import cast
 
 import numpy as np
 from scipy.special import ndtr
@@ -69,8 +70,11 @@ __all__ = [
     "SparseProbability",
     "collision_probability",
     "sparse_collision_probability",
-    "bounded_shapes_entries",
+    "bounded_shapes_terms",
     "shapes_covariances",
+    "gate_widths",
+    "maximin_ramp",
+    "Z_INSIDE",
     "gaussian_box_mass",
     "risk_steps",
 ]
@@ -92,34 +96,62 @@ def _check_number(owner: str, name: str, value: object, *, positive: bool = Fals
         raise EthicsConfigError(f"{owner}.{name} must be {kind} finite number, got {value!r}")
 
 
+#: the one threshold of the risk (ProbabilityConfig.p_min; see docs/method.md "One threshold"): a
+#: tenth of the planner's max_risk (0.01), inside the peers' 1e-2 to 1e-4
+P_MIN = 1e-3
+#: Maximin's ramp: 0 at p_min, full at this multiple of it (1e-2 = max_risk)
+MAXIMIN_FULL = 10.0
+#: Origin's three-point score keeps the threshold it was published with (and a Maximin step there)
+ORIGIN_P_MIN = 1e-9
+#: the "shapes" P = 1 exit: a mean more than this many standard deviations inside all four slabs
+#: of the overlap octagon counts as a certain overlap (P error < 4 Phi(-6) = 4e-9, the integral's own level)
+Z_INSIDE = 6.0
+
+
 @dataclass(frozen=True)
 class ProbabilityConfig:
     """Parameters of the collision probability; lengths in m, variances in m^2.
 
     method: "shapes" (true footprints, the default) or "origin" (Origin's three-point score);
     shape_margin: with "shapes", added to the agent's length and width [m] (0: true sizes);
-    gate_z: with "shapes", the gate and quick-exit width in standard deviations (P error < 4 Phi(-z));
+    p_min: the one threshold of the risk [-]: a step of a road user's mode counts where its share
+    of the collision probability (mode weight x P) reaches it, so it decides the "shapes" gate
+    (:func:`gate_widths`), the risk terms, the parties Maximin sees and the "at_risk" count; Maximin
+    weighs a party's harm by a ramp from 0 at p_min to 1 at ``maximin_full`` x p_min (1: a step at
+    p_min). Unset, they are :data:`P_MIN` and :data:`MAXIMIN_FULL` for "shapes"; Origin's score keeps
+    its published reading, p_min = 1e-9 with a Maximin step (``origin`` and ``paper`` use it);
+    tolerance: with "shapes", the absolute tolerance of each (candidate, road user) risk term and
+    harm maximum [-] (0: the exact reference; see :mod:`sumo_ethics.ethics.search`);
     step: with "shapes", P is evaluated at the horizon's first step and then at every multiple of
-    ``step`` seconds (0.2: the LSTM predictors' own 5 Hz; see :func:`risk_steps`); 0: every step.
-    The other fields but ``zero_cov_var``, ``min_var`` and ``p_min`` are Origin's method's.
+    ``step`` seconds (0.2: the LSTM predictors' own 5 Hz; see :func:`risk_steps`); 0: every step;
+    min_var: the smallest variance along either principal axis of a covariance (floored in its own
+    frame, so the floor does not depend on how the scene is turned). The other fields but
+    ``zero_cov_var`` are Origin's method's; ``zero_cov_var`` replaces an all-zero covariance in
+    Origin's method only ("shapes" floors it like any other: a certain position).
     """
 
     method: str = "shapes"
     shape_margin: float = 0.0  # [m] "shapes": added to the agent's length and width
-    gate_z: float = 6.0  # [std] "shapes": gate and quick exits (error < 4 Phi(-6) = 4e-9)
+    p_min: float | None = None  # [-] the one threshold (None: 1e-3 "shapes", 1e-9 "origin")
+    maximin_full: float | None = None  # [-] Maximin's ramp reaches 1 at maximin_full x p_min (None: 10, "origin" 1)
+    tolerance: float = 1e-4  # [-] "shapes": absolute tolerance of each risk term (0: exact)
     step: float = 0.2  # [s] "shapes": P at the first step and every step seconds (0: every step)
     length_margin: float = 1.0  # [m] added to the agent's length: Gaussians at +/- (length + margin) / 2
     width_margin: float = 0.5  # [m] added to the agent's width; used only with inflate_by_other_width
     gate_radius: float = 5.0  # [m] P = 0 when all three Gaussian centres are further from the ego centre
-    zero_cov_var: float = 0.1  # [m^2] an all-zero covariance becomes zero_cov_var * I
-    min_var: float = 1e-6  # [m^2] floor on the box-frame variances (singular covariances)
-    p_min: float = 1e-9  # [-] probabilities below this are set to 0 (the agent is not at risk)
+    zero_cov_var: float = 0.1  # [m^2] "origin": an all-zero covariance becomes zero_cov_var * I
+    min_var: float = 1e-6  # [m^2] floor on the principal variances (singular covariances)
     tail_z: float = 5.0  # [std] Gaussians this far outside / inside the box count as mass 0 / 1 (err < 1.2e-6)
     inflate_by_other_width: bool = False  # grow the ego box by the agent's (width + margin) / 2, projected
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise EthicsConfigError(f"ProbabilityConfig.method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        origin = self.method == "origin"
+        if self.p_min is None:  # Origin's score keeps what it had, as published
+            object.__setattr__(self, "p_min", ORIGIN_P_MIN if origin else P_MIN)
+        if self.maximin_full is None:
+            object.__setattr__(self, "maximin_full", 1.0 if origin else MAXIMIN_FULL)
         for f in fields(self):
             if f.name == "method":
                 continue
@@ -129,10 +161,48 @@ class ProbabilityConfig:
                         f"ProbabilityConfig.inflate_by_other_width must be a bool, got {self.inflate_by_other_width!r}"
                     )
                 continue
-            positive = f.name in ("gate_radius", "zero_cov_var", "min_var", "tail_z", "gate_z")
+            positive = f.name in ("gate_radius", "zero_cov_var", "min_var", "tail_z", "p_min")
             _check_number("ProbabilityConfig", f.name, getattr(self, f.name), positive=positive)
-        if self.p_min >= 1.0:
-            raise EthicsConfigError(f"ProbabilityConfig.p_min must be below 1, got {self.p_min!r}")
+        p_min, full = cast(float, self.p_min), cast(float, self.maximin_full)
+        if p_min >= 0.5:
+            raise EthicsConfigError(f"ProbabilityConfig.p_min must be below 0.5, got {self.p_min!r}")
+        if not (1.0 <= full and full * p_min <= 1.0):
+            raise EthicsConfigError("ProbabilityConfig.maximin_full must be at least 1 with maximin_full x p_min <= 1, "
+                                    f"got {self.maximin_full!r} (p_min {self.p_min!r})")
+        if self.tolerance >= 1.0:
+            raise EthicsConfigError(f"ProbabilityConfig.tolerance must be below 1, got {self.tolerance!r}")
+
+    @property
+    def threshold(self) -> float:
+        """p_min as resolved for the method (a number, never None)."""
+        return cast(float, self.p_min)
+
+    @property
+    def p_full(self) -> float:
+        """The share of P at which Maximin's ramp reaches 1: maximin_full x p_min."""
+        return cast(float, self.maximin_full) * cast(float, self.p_min)
+
+
+def maximin_ramp(share: np.ndarray, p_min: float, p_full: float) -> np.ndarray:
+    """Maximin's weight of a party's harm where its mode's share of the collision probability is
+    ``share``: 0 up to p_min, linear to 1 at p_full, 1 above; continuous in P, so a party does not
+    buy the full Maximin price the moment it crosses the threshold. p_full <= p_min: a step, 1 from
+    p_min on."""
+    s = np.asarray(share, dtype=float)
+    if p_full <= p_min:
+        return (s >= p_min).astype(float)
+    return np.clip((s - p_min) / (p_full - p_min), 0.0, 1.0)
+
+
+def gate_widths(p_min: float, weight: np.ndarray) -> np.ndarray:
+    """(N,) the "shapes" gate's width per road user [std]: z with Phi(-z) = p_min / weight, so that
+    a step cut by the gate (its mean z standard deviations outside the octagon or one of its
+    slabs, P < Phi(-z)) has weight x P < p_min and would not count anyway; >= 0."""
+    from scipy.special import ndtri
+
+    w = np.asarray(weight, dtype=float)
+    ratio = np.clip(p_min / np.maximum(w, 1e-300), 0.0, 0.5)
+    return np.maximum(-ndtri(ratio), 0.0)
 
 
 @dataclass(frozen=True)
@@ -488,18 +558,27 @@ def risk_steps(dt: float, steps: int, step: float) -> np.ndarray:
 
 def shapes_covariances(pred: Prediction, dt: float, tp: int,
                        cfg: ProbabilityConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The "shapes" method's inputs: (N, tp) sxx, sxy, syy [m^2] floored (all-zero -> ``zero_cov_var``
-    I; variances >= ``min_var``; |correlation| <= 0.999) and the (S,) steps P is evaluated at."""
-    sxx, sxy, syy = _agent_cov(pred, tp, cfg)
-    sxx, syy = np.maximum(sxx, cfg.min_var), np.maximum(syy, cfg.min_var)
-    lim = 0.999 * np.sqrt(sxx * syy)
-    return sxx, np.clip(sxy, -lim, lim), syy, risk_steps(dt, tp, cfg.step)
+    """The "shapes" method's inputs: (N, tp) sxx, sxy, syy [m^2] floored in each covariance's own
+    principal frame (principal variances >= ``min_var``; an all-zero covariance is a certain
+    position, floored like any other) and the (S,) steps P is evaluated at.
+    A covariance with a negative principal variance is refused (ValueError): the planner replaces
+    such a road user's prediction first (:func:`sumo_ethics.predict.constant_velocity.replace_non_finite`)."""
+    from sumo_ethics.geometry import floor_covariance, not_psd
+
+    cov = np.asarray(pred.cov[:, :tp], dtype=float)
+    bad = not_psd(cov)
+    if bad.any():
+        raise ValueError(f"{int(bad.sum())} predicted covariances have a negative principal variance "
+                         f"(road users {sorted({pred.ids[i] for i in np.flatnonzero(bad.any(axis=1))})})")
+    sxx, sxy, syy = floor_covariance(cov[..., 0, 0], 0.5 * (cov[..., 0, 1] + cov[..., 1, 0]), cov[..., 1, 1],
+                                     cfg.min_var)
+    return sxx, sxy, syy, risk_steps(dt, tp, cfg.step)
 
 
 def _shapes(cand: Candidates, pred: Prediction, ol: np.ndarray, ow: np.ndarray, ego_length: float,
             ego_width: float, cfg: ProbabilityConfig, tp: int) -> SparseProbability:
-    """The "shapes" method: :func:`sumo_ethics.ethics.shapes.shapes_sparse` on floored covariances
-    (all-zero -> ``zero_cov_var`` I; variances >= ``min_var``; |correlation| <= 0.999)."""
+    """The "shapes" method: :func:`sumo_ethics.ethics.shapes.shapes_sparse` on the covariances of
+    :func:`shapes_covariances`, every gated step integrated (the exact reference)."""
     from sumo_ethics.ethics.shapes import shapes_sparse
 
     K, T = cand.x.shape
@@ -508,12 +587,12 @@ def _shapes(cand: Candidates, pred: Prediction, ol: np.ndarray, ow: np.ndarray, 
     k, n, t, p = shapes_sparse(
         cand.x[:, at], cand.y[:, at], cand.yaw[:, at], cand.valid[:, at], pred.mean[:, at, 0],
         pred.mean[:, at, 1], pred.yaw[:, at], sxx[:, at], sxy[:, at], syy[:, at], ol + cfg.shape_margin,
-        ow + cfg.shape_margin, ego_length, ego_width, cfg.gate_z, cfg.p_min,
+        ow + cfg.shape_margin, ego_length, ego_width, gate_widths(cfg.threshold, np.ones(N)), Z_INSIDE, cfg.threshold,
     )
     return SparseProbability(k.astype(np.intp), n.astype(np.intp), at.take(t).astype(np.intp), p, (K, N, T))
 
 
-def bounded_shapes_entries(
+def bounded_shapes_terms(
     cand: Candidates,
     pred: Prediction,
     other_length: np.ndarray,
@@ -523,16 +602,18 @@ def bounded_shapes_entries(
     cfg: ProbabilityConfig,
     weight: np.ndarray,
     harm_inputs: tuple,
-) -> tuple[SparseProbability, np.ndarray, np.ndarray]:
-    """The "shapes" entries that decide the risk terms, by :mod:`sumo_ethics.ethics.search`'s
-    bounded search instead of every gated step: (entries that count and hold every maximum,
-    (K, N) bool at_risk: some step counts, (3,) counts: gated steps, tight bounds, integrals).
+    need_at_risk: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The "shapes" risk terms of one mode by :mod:`sumo_ethics.ethics.search`'s bounded search,
+    to ``cfg.tolerance``: ((4, K, N) weight x max P h_ego, weight x max P h_other, max ramp h_ego,
+    max ramp h_other; (K, N) bool at_risk: some step counts (with a tolerance, settled exactly only
+    with ``need_at_risk``); (3,) counts: gated steps, integrals, pairs at risk).
 
-    weight: (N,) the mode's weight per agent (a step counts where p >= p_min and weight p >= p_min);
+    weight: (N,) the mode's weight per agent (a step counts where weight p >= p_min);
     harm_inputs: (ego speed (K, T) [m/s] >= 0, ego mass [kg], ego vulnerable, agent speed (N, Tp)
-    [m/s], agent mass (N,) [kg], agent vulnerable (N,) bool, coefficients (9,)), for the ordering.
+    [m/s], agent mass (N,) [kg], agent vulnerable (N,) bool, coefficients (9,)).
     """
-    from sumo_ethics.ethics.search import bounded_entries
+    from sumo_ethics.ethics.search import bounded_terms
 
     if cfg.method != "shapes":
         raise ValueError(f"the bounded search is for the shapes probability, not {cfg.method!r}")
@@ -541,17 +622,15 @@ def bounded_shapes_entries(
     N = len(pred.ids)
     tp = min(T, pred.mean.shape[1]) if N else 0
     if K == 0 or N == 0 or tp == 0:
-        return SparseProbability.none((K, N, T)), np.zeros((K, N), bool), np.zeros(3, np.int64)
+        return np.zeros((4, K, N)), np.zeros((K, N), bool), np.zeros(3, np.int64)
     ev, ego_mass, ego_vul, av, amass, avul, coeffs = harm_inputs
     sxx, sxy, syy, at = shapes_covariances(pred, cand.dt, tp, cfg)
-    k, n, t, p, at_risk, counts = bounded_entries(
+    return bounded_terms(
         cand.x[:, at], cand.y[:, at], cand.yaw[:, at], ev[:, at], cand.valid[:, at], pred.mean[:, at, 0],
         pred.mean[:, at, 1], pred.yaw[:, at], av[:, at], sxx[:, at], sxy[:, at], syy[:, at], ol + cfg.shape_margin,
-        ow + cfg.shape_margin, ego_length, ego_width, cfg.gate_z, cfg.p_min, weight, ego_mass, ego_vul, amass, avul,
-        coeffs,
+        ow + cfg.shape_margin, ego_length, ego_width, gate_widths(cfg.threshold, weight), Z_INSIDE, cfg.threshold, cfg.p_full,
+        cfg.tolerance, need_at_risk, weight, ego_mass, ego_vul, amass, avul, coeffs,
     )
-    sp = SparseProbability(k.astype(np.intp), n.astype(np.intp), at.take(t).astype(np.intp), p, (K, N, T))
-    return sp, at_risk, counts
 
 
 @dataclass(frozen=True)
@@ -616,7 +695,7 @@ def _gate_and_integrate(kb, nbk, bb, f: _Flat, ego_length: float, ego_width: flo
         m1 * inv1 + g * (o1 * inv1), m2 * inv2 + g * (o2 * inv2), a * inv1, b * inv2, r, cfg.tail_z
     )  # (3, E)
     p = np.minimum((mass[0] + mass[1] + mass[2]) * (1.0 / 3.0), 1.0)
-    keep = np.flatnonzero(p >= cfg.p_min)
+    keep = np.flatnonzero(p >= cfg.threshold)
     return ie.take(keep), ia.take(keep), p.take(keep)
 
 

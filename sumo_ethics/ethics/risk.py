@@ -26,7 +26,7 @@ import numpy as np
 
 from sumo_ethics.ethics.harm import HarmCoefficients, Party, crash_outcome, leave_road_harm
 from sumo_ethics.ethics.probability import (
-    ProbabilityConfig, SparseProbability, bounded_shapes_entries, sparse_collision_probability)
+    ProbabilityConfig, SparseProbability, bounded_shapes_terms, maximin_ramp, sparse_collision_probability)
 from sumo_ethics.types import VULNERABLE, AgentStates, Candidates, Prediction
 
 __all__ = ["RiskTerms", "assess_risk", "boundary_harm"]
@@ -174,26 +174,14 @@ def _group_max(values: np.ndarray, sp: SparseProbability, shape: tuple[int, int]
 
 
 def _entries(cand: Candidates, pred: Prediction, agents: AgentStates, ego_mass: float, ego_cls: int,
-             ego_length: float, ego_width: float, coeffs: HarmCoefficients, prob_cfg: ProbabilityConfig,
-             weight: np.ndarray | None = None) -> tuple[SparseProbability, np.ndarray, np.ndarray, np.ndarray | None]:
-    """The paper's per-step terms of one mode: the sparse P entries and the ego's and the
-    agent's harm there, (M,) each, and None. ``pred`` is read as single-mode (mean/cov/yaw); its rows
-    and those of ``agents`` correspond one to one (ids are not checked: rows may repeat agents).
-
-    With ``weight`` ((N,), the mode's weight per agent): the entries of the bounded search
-    (:func:`~sumo_ethics.ethics.probability.bounded_shapes_entries`), which hold every maximum
-    the risk terms take, and its (K, N) at_risk."""
+             ego_length: float, ego_width: float, coeffs: HarmCoefficients, prob_cfg: ProbabilityConfig
+             ) -> tuple[SparseProbability, np.ndarray, np.ndarray]:
+    """The paper's per-step terms of one mode, every gated step integrated: the sparse P entries and
+    the ego's and the agent's harm there, (M,) each. ``pred`` is read as single-mode (mean/cov/yaw);
+    its rows and those of ``agents`` correspond one to one (ids are not checked: rows may repeat agents)."""
     T = cand.x.shape[1]
     speed_o = _agent_speed(pred, agents)
-    at_risk = None
-    if weight is None:
-        sp = sparse_collision_probability(cand, pred, agents.length, agents.width, ego_length, ego_width, prob_cfg)
-    else:
-        harm_inputs = (np.abs(cand.speed), float(ego_mass), bool(VULNERABLE[int(ego_cls)]), speed_o,
-                       np.asarray(agents.mass, dtype=float), VULNERABLE[np.asarray(agents.cls, dtype=np.intp)],
-                       coeffs.as_array())
-        sp, at_risk, _ = bounded_shapes_entries(cand, pred, agents.length, agents.width, ego_length, ego_width,
-                                                prob_cfg, weight, harm_inputs)
+    sp = sparse_collision_probability(cand, pred, agents.length, agents.width, ego_length, ego_width, prob_cfg)
     ie = sp.k * T + sp.t  # flat (k, t); take() is much faster than 2-D fancy indexing
     tp = pred.mean.shape[1]
     ia = sp.n * tp + sp.t  # flat (n, t)
@@ -207,79 +195,77 @@ def _entries(cand: Candidates, pred: Prediction, agents: AgentStates, ego_mass: 
         mass=agents.mass.take(sp.n), cls=agents.cls.take(sp.n),
     )
     crash = crash_outcome(ego, other, coeffs)
-    return sp, np.asarray(crash.harm_a, dtype=float), np.asarray(crash.harm_b, dtype=float), at_risk
+    return sp, np.asarray(crash.harm_a, dtype=float), np.asarray(crash.harm_b, dtype=float)
 
 
-def _bounded_maxima(sp: SparseProbability, h_e: np.ndarray, h_o: np.ndarray, w: np.ndarray | float,
-                    shape: tuple[int, int]) -> tuple[np.ndarray, ...]:
-    """(ego_risk, other_risk, ego_harm_max, other_harm_max) (K, N) of one mode from the bounded
-    search's entries: the risks max p x harm over the integrated ones (p not NaN) weighted by the
-    mode's weight w ((N,), or 1.0 for a single-mode prediction: as is), the harm maxima over all."""
-    exact = np.flatnonzero(~np.isnan(sp.p))
-    sub = SparseProbability(sp.k.take(exact), sp.n.take(exact), sp.t.take(exact), sp.p.take(exact), sp.shape)
-    er = _group_max(sub.p * h_e.take(exact), sub, shape)
-    orr = _group_max(sub.p * h_o.take(exact), sub, shape)
-    if not isinstance(w, float):
-        er, orr = w * er, w * orr
-    return er, orr, _group_max(h_e, sp, shape), _group_max(h_o, sp, shape)
+def _bounded(cand: Candidates, pred: Prediction, agents: AgentStates, ego_mass: float, ego_cls: int,
+             ego_length: float, ego_width: float, coeffs: HarmCoefficients, prob_cfg: ProbabilityConfig,
+             need_at_risk: bool) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
+    """((ego_risk, other_risk, ego_harm_max, other_harm_max) (K, N), at_risk (K, N)) by the bounded
+    search (:func:`~sumo_ethics.ethics.probability.bounded_shapes_terms`), mode by mode: the risks
+    summed over the modes (each weighted by its weight), the harm maxima and at_risk over them. A
+    mode is searched only for the agents whose weight reaches p_min (elsewhere it counts nowhere)."""
+    K = cand.x.shape[0]
+    N = len(agents)
+    out = np.zeros((4, K, N))
+    at_risk = np.zeros((K, N), dtype=bool)
+    ego_speed = np.abs(cand.speed)
+    vul = VULNERABLE[np.asarray(agents.cls, dtype=np.intp)]
+    mass = np.asarray(agents.mass, dtype=float)
+    for mode, w in pred.by_mode():
+        rows = np.flatnonzero(w >= prob_cfg.threshold)
+        if rows.size == 0:
+            continue
+        if rows.size < N:  # searched for the agents it can count for only
+            mode, sub, w = mode.take(rows), agents.take(rows), w.take(rows)
+        else:
+            sub = agents
+        harm_inputs = (ego_speed, float(ego_mass), bool(VULNERABLE[int(ego_cls)]), _agent_speed(mode, sub),
+                       mass.take(rows), vul.take(rows), coeffs.as_array())
+        terms, mode_at, _ = bounded_shapes_terms(cand, mode, sub.length, sub.width, ego_length, ego_width, prob_cfg,
+                                                 w, harm_inputs, need_at_risk)
+        out[:2, :, rows] += terms[:2]
+        out[2:, :, rows] = np.maximum(out[2:, :, rows], terms[2:])
+        at_risk[:, rows] |= mode_at
+    return (out[0], out[1], out[2], out[3]), at_risk
 
 
 def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates,
-                     args: tuple[float, int, float, float, HarmCoefficients, ProbabilityConfig], p_min: float,
-                     bounded: bool = False
-                     ) -> tuple[SparseProbability, np.ndarray, np.ndarray, tuple[np.ndarray, ...], np.ndarray | None]:
+                     args: tuple[float, int, float, float, HarmCoefficients, ProbabilityConfig], p_min: float
+                     ) -> tuple[SparseProbability, np.ndarray, np.ndarray, tuple[np.ndarray, ...]]:
     """Every mode of ``pred`` (weight not None) through :func:`_entries`, combined by the weights.
 
     Returns the combined sparse entries (unique per (k, n, t), p = sum_m w[n, m] p_m), the
     p-weighted harms there, and (ego_risk, other_risk, ego_harm_max, other_harm_max) (K, N);
     see :func:`assess_risk`. An entry of mode m counts only where w[n, m] p_m >= ``p_min``.
-    One call per mode, not the modes stacked as extra agent rows: the float32 integration of an
-    entry can differ in the last bits with the entries computed alongside it, and separate calls
-    make each mode's terms exactly those of a single-mode prediction of it (at equal cost: the
-    work grows with the gated entries).
-
-    ``bounded``: each mode by the bounded search (the same four terms; the combined entries are
-    not built: an empty SparseProbability and the (K, N) at_risk instead of None).
+    One call per mode, not the modes stacked as extra agent rows: each mode's terms are then
+    exactly those of a single-mode prediction of it (at equal cost: the work grows with the gated entries).
     """
     K, T = cand.x.shape
     N = len(agents)
     zeros = np.zeros((K, N))
     ego_risk, other_risk, ego_hmax, other_hmax = zeros, zeros, zeros, zeros
     parts = []
-    at_risk = np.zeros((K, N), dtype=bool) if bounded else None
     for mode, w in pred.by_mode():
         rows = np.flatnonzero(w >= p_min)  # w p_m < p_min where w is: such an agent's mode counts nowhere
         if rows.size == 0:
             continue
         if rows.size == N:
-            sp, h_e, h_o, mode_at = _entries(cand, mode, agents, *args, weight=w if bounded else None)
+            sp, h_e, h_o = _entries(cand, mode, agents, *args)
         else:  # assessed for the agents it can count for only (e.g. a one-mode pedestrian's weight-0 modes)
-            sp, h_e, h_o, mode_at = _entries(cand, mode.take(rows), agents.take(rows), *args,
-                                             weight=w.take(rows) if bounded else None)
+            sp, h_e, h_o = _entries(cand, mode.take(rows), agents.take(rows), *args)
             sp = SparseProbability(sp.k, rows.take(sp.n), sp.t, sp.p, (K, N, T))  # rows rise: still sorted
-            if mode_at is not None:
-                full = np.zeros((K, N), dtype=bool)
-                full[:, rows] = mode_at
-                mode_at = full
-        if at_risk is not None and mode_at is not None:
-            at_risk |= mode_at
-        if bounded:  # the entries count and hold every maximum (see _bounded_maxima)
-            er, orr, he, hmo = _bounded_maxima(sp, h_e, h_o, w, (K, N))
-            ego_risk, other_risk = ego_risk + er, other_risk + orr
-            ego_hmax, other_hmax = np.maximum(ego_hmax, he), np.maximum(other_hmax, hmo)
-            continue
         wp = w.take(sp.n) * sp.p  # (E,) the mode's share of the marginal probability
         keep = np.flatnonzero(wp >= p_min)  # a negligible mode at (k, n, t) counts nowhere (see assess_risk)
         k, n, t, p, wp, h_e, h_o = (a.take(keep) for a in (sp.k, sp.n, sp.t, sp.p, wp, h_e, h_o))
         kept = SparseProbability(k, n, t, p, (K, N, T))  # still sorted by (k, n, t)
         ego_risk = ego_risk + w * _group_max(p * h_e, kept, (K, N))
         other_risk = other_risk + w * _group_max(p * h_o, kept, (K, N))
-        ego_hmax = np.maximum(ego_hmax, _group_max(h_e, kept, (K, N)))
-        other_hmax = np.maximum(other_hmax, _group_max(h_o, kept, (K, N)))
+        ramp = maximin_ramp(wp, p_min, args[5].p_full)
+        ego_hmax = np.maximum(ego_hmax, _group_max(ramp * h_e, kept, (K, N)))
+        other_hmax = np.maximum(other_hmax, _group_max(ramp * h_o, kept, (K, N)))
         parts.append(((k * N + n) * T + t, wp, h_e, h_o))
     terms = (ego_risk, other_risk, ego_hmax, other_hmax)
-    if bounded:
-        return SparseProbability.none((K, N, T)), np.zeros(0), np.zeros(0), terms, at_risk
 
     # one entry per (k, n, t): the modes' shares summed (the stable sort keeps the mode order)
     if parts:
@@ -287,7 +273,7 @@ def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates,
         order = np.argsort(key, kind="stable")
         key, wp, h_e, h_o = key.take(order), wp.take(order), h_e.take(order), h_o.take(order)
     if not parts or key.size == 0:  # (no agent at all skips every mode)
-        return SparseProbability.none((K, N, T)), np.zeros(0), np.zeros(0), terms, None
+        return SparseProbability.none((K, N, T)), np.zeros(0), np.zeros(0), terms
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     single = np.diff(np.r_[starts, key.size]) == 1
     p_c = np.add.reduceat(wp, starts)
@@ -297,7 +283,7 @@ def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates,
 
     first = key.take(starts)
     out = SparseProbability(first // (N * T), (first // T) % N, first % T, p_c, (K, N, T))
-    return out, harm_at(h_e), harm_at(h_o), terms, None
+    return out, harm_at(h_e), harm_at(h_o), terms
 
 
 def assess_risk(
@@ -313,6 +299,7 @@ def assess_risk(
     off_road: np.ndarray | None = None,
     rule_breaker: np.ndarray | None = None,
     steps: bool = True,
+    need_at_risk: bool = False,
 ) -> RiskTerms:
     """Probability, harm and risk of K candidates against the N agents of ``pred``.
 
@@ -326,7 +313,7 @@ def assess_risk(
     speed), then integrated by its weight: ego_risk[k, n] = sum_m w[n, m] max_t p_m harm_ego_m
     (other_risk likewise), p = sum_m w[n, m] p_m (marginal collision probability) and
     ego_harm_max / other_harm_max = the largest harm over every mode's entries. A mode's entry
-    counts only where its share w[n, m] p_m reaches ``prob_cfg.p_min`` (as a single mode's does
+    counts only where its share w[n, m] p_m reaches ``prob_cfg.threshold`` (as a single mode's does
     where p_m does), so a negligible-weight mode can neither add risk nor a Maximin harm, and every
     combined entry has p >= p_min. The per-step entries stay unique per (k, n, t): ``ego_harm_at``
     / ``other_harm_at`` hold the expected harm given a collision there, sum_m w p_m h_m / p (one
@@ -344,17 +331,19 @@ def assess_risk(
     N = len(agents)
     args = (ego_mass, ego_cls, ego_length, ego_width, coeffs, prob_cfg)
     bounded = not steps and prob_cfg.method == "shapes"
-    if pred.weight is None:
-        sp, h_e, h_o, at_risk = _entries(cand, pred, agents, *args, weight=np.ones(N) if bounded else None)
-        if bounded:
-            ego_risk, other_risk, ego_harm_max, other_harm_max = _bounded_maxima(sp, h_e, h_o, 1.0, (K, N))
-            sp, h_e, h_o = SparseProbability.none(sp.shape), np.zeros(0), np.zeros(0)
-        else:
-            ego_risk, other_risk = _group_max(sp.p * h_e, sp, (K, N)), _group_max(sp.p * h_o, sp, (K, N))
-            ego_harm_max, other_harm_max = _group_max(h_e, sp, (K, N)), _group_max(h_o, sp, (K, N))
+    at_risk = None
+    if bounded:
+        (ego_risk, other_risk, ego_harm_max, other_harm_max), at_risk = _bounded(cand, pred, agents, *args,
+                                                                                  need_at_risk)
+        sp, h_e, h_o = SparseProbability.none((K, N, cand.x.shape[1])), np.zeros(0), np.zeros(0)
+    elif pred.weight is None:
+        sp, h_e, h_o = _entries(cand, pred, agents, *args)
+        ego_risk, other_risk = _group_max(sp.p * h_e, sp, (K, N)), _group_max(sp.p * h_o, sp, (K, N))
+        ramp = maximin_ramp(sp.p, prob_cfg.threshold, prob_cfg.p_full)
+        ego_harm_max, other_harm_max = _group_max(ramp * h_e, sp, (K, N)), _group_max(ramp * h_o, sp, (K, N))
     else:
-        sp, h_e, h_o, (ego_risk, other_risk, ego_harm_max, other_harm_max), at_risk = _integrate_modes(
-            cand, pred, agents, args, prob_cfg.p_min, bounded)
+        sp, h_e, h_o, (ego_risk, other_risk, ego_harm_max, other_harm_max) = _integrate_modes(
+            cand, pred, agents, args, prob_cfg.threshold)
     return RiskTerms(
         ego_risk=ego_risk,
         other_risk=other_risk,

@@ -32,13 +32,14 @@ themselves are taken with numpy from the returned entries, as before (sumo_ethic
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba
 import numpy as np
 
-from sumo_ethics.ethics.shapes import _BLOCK, _apart, _entry_buffers, _entry_p, _gate, _near, _phi_pos, _push, _slab_test
+from sumo_ethics.ethics.shapes import _BLOCK, _entry_p, _gate, _phi_pos, _slab_test
 
-__all__ = ["bounded_entries", "order_harm", "p_bounds"]
+__all__ = ["bounded_terms", "order_harm", "p_bounds"]
 
 _jit = numba.njit(cache=True, nogil=True)
 _PI = math.pi
@@ -236,6 +237,20 @@ def _member(p: float, w: float, p_min: float) -> bool:
 
 
 @_jit
+def _ramp(share: float, p_min: float, p_full: float) -> float:
+    """Maximin's weight of a party whose mode's share of the collision probability is ``share``:
+    0 below p_min, rising linearly to 1 at p_full, 1 above (continuous in P); p_full <= p_min: a
+    step, 1 from p_min on (:func:`sumo_ethics.ethics.probability.maximin_ramp`)."""
+    if p_full <= p_min:
+        return 1.0 if share >= p_min else 0.0
+    if share <= p_min:
+        return 0.0
+    if share >= p_full:
+        return 1.0
+    return (share - p_min) / (p_full - p_min)
+
+
+@_jit
 def _pop_max(key, g: int) -> int:
     """The index of the largest of key[:g] (ties: the first), -1 if all are below 0 (taken)."""
     j = -1
@@ -248,8 +263,8 @@ def _pop_max(key, g: int) -> int:
 
 
 @_jit
-def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa, ob, ea, eb, z, p_min, w,
-                   ego_mass, ego_vul, amass, avul, co):
+def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa, ob, ea, eb, z, z_in, p_min, p_full,
+                   tol, need_at_risk, w, ego_mass, ego_vul, amass, avul, co):
     K, T = ex.shape
     N, tp = mx.shape
     ce = np.full((K, tp), np.nan)
@@ -276,122 +291,167 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
         fe[n] = amass[n] / (ego_mass + amass[n])
         fo[n] = ego_mass / (ego_mass + amass[n])
     buf = np.empty((4, 8))
-    # per (k, n): the gated steps, their bound, exact P (-1: not integrated), harms, search order
+    cot = (co[0], co[1], co[2], co[3], co[4], co[5], co[6], co[7], co[8])  # by value: no reference counting per call
+    # per (k, n): the gated steps, their bounds on P (lower: -1 not yet computed), exact P (-1: not
+    # integrated), the harms of the ego and the other, search keys
     gt = np.empty(tp, dtype=np.int64)
     ub = np.empty(tp)
-    cert = np.empty(tp, dtype=np.bool_)  # counts by its lower bound (not integrated)
+    lb = np.empty(tp)
+    full = np.empty(tp, dtype=np.bool_)  # its share of P is at least p_full by its lower bound (not integrated)
     px = np.empty(tp)
-    hl = np.empty((2, tp))  # the harm intervals (_order_harm): ego, other; low and high
-    hh = np.empty((2, tp))
+    hv = np.empty((2, tp))
     key = np.empty(tp)
-    ok_, on_, ot_, op_ = _entry_buffers(1024)
-    m = 0
+    terms = np.zeros((4, K, N))  # max P h_ego, max P h_other (times w), max ramp h_ego, max ramp h_other
     at_risk = np.zeros((K, N), dtype=np.bool_)
-    counts = np.zeros(3, dtype=np.int64)  # gated steps (not settled to 0 by the slabs), integrals, entries
+    counts = np.zeros(3, dtype=np.int64)  # gated steps that can count, integrals, (k, n) pairs at risk
     for k in range(K):
         for n in range(N):
             g = 0
             wn = w[n]
             for b in range(nb):
-                if _apart(ebox, abox, k, n, b):
+                if (ebox[k, b, 0] > abox[n, b, 1] or ebox[k, b, 1] < abox[n, b, 0]  # shapes._apart, written out
+                        or ebox[k, b, 2] > abox[n, b, 3] or ebox[k, b, 3] < abox[n, b, 2]):
                     continue
                 for t in range(b * _BLOCK, min((b + 1) * _BLOCK, tp)):
-                    near, dx, dy = _near(k, n, t, ex, ey, eyaw, evalid, mx, my, afin, arad, ce, se)
-                    if not near:
+                    # the gate (shapes._near, written out: a call with array arguments costs more than the test)
+                    if not (evalid[k, t] and afin[n, t]):
                         continue
+                    dx = mx[n, t] - ex[k, t]
+                    dy = my[n, t] - ey[k, t]
+                    if dx * dx + dy * dy > arad[n, t] * arad[n, t]:
+                        continue
+                    if math.isnan(ce[k, t]):
+                        ce[k, t] = math.cos(eyaw[k, t])
+                        se[k, t] = math.sin(eyaw[k, t])
                     c1, s1 = ce[k, t], se[k, t]
                     q = _slab_test(dx, dy, c1, s1, ea, eb, ca[n, t], sa[n, t], oa[n], ob[n], sxx[n, t], sxy[n, t],
-                                   syy[n, t], z)[0]
-                    if q == 0:  # P = 0: never counts
+                                   syy[n, t], z[n], z_in)[0]
+                    if q == 0:  # w P < p_min: never counts
                         continue
                     gt[g] = t
+                    lb[g] = -1.0
                     if q == 1:  # P = 1 exactly, as _entry_p gives it
-                        px[g], ub[g] = 1.0, 1.0
-                    else:  # the lower bound is computed where needed (the harm maxima)
+                        px[g], ub[g], lb[g] = 1.0, 1.0, 1.0
+                    else:
                         up = _upper(dx, dy, c1, s1, ea, eb, pc[n, t], ps[n, t], sg1[n, t], sg2[n, t], ho1[n, t],
                                     ho2[n, t])
                         px[g], ub[g] = -1.0, min(up * _REL + _DP, 1.0)
-                    hl[0, g], hh[0, g], hl[1, g], hh[1, g] = _order_harm(
-                        dx, dy, c1, s1, ca[n, t], sa[n, t], eyaw[k, t], psi[n, t], ev[k, t], av[n, t], fe[n], fo[n],
-                        ego_vul, avul[n], co)
+                    if not _member(ub[g], wn, p_min):  # cannot count
+                        continue
+                    # the harms (at an impact-area boundary, the larger of the two areas')
+                    _, hv[0, g], _, hv[1, g] = _order_harm(dx, dy, c1, s1, ca[n, t], sa[n, t], eyaw[k, t],
+                                                           psi[n, t], ev[k, t], av[n, t], fe[n], fo[n], ego_vul,
+                                                           avul[n], cot)
+                    full[g] = False
                     g += 1
             if g == 0:
                 continue
             counts[0] += g
-            cert[:g] = False
             found = False
-            # four searches sharing one integration: phases 0, 1 the maxima of P x harm of the ego
-            # and the other, steps by decreasing bound x harm until one cannot beat the best found;
-            # phases 2, 3 their harm maxima, steps by decreasing harm down to the first that counts
-            # (ordered by the harm's high end, the best found and the floor from its low end)
+            # four searches sharing one integration, each over the steps by decreasing upper bound
+            # of its value until the next cannot beat the best found by more than tol: phases 0, 1
+            # the maxima of P x harm of the ego and the other (steps where the share w P reaches
+            # p_min), phases 2, 3 those of ramp(w P) x harm (Maximin's harms)
             for phase in range(4):
-                lo, hi = hl[phase % 2], hh[phase % 2]
+                h = hv[phase % 2]
                 risk = phase < 2
                 for i in range(g):
-                    key[i] = ub[i] * (hi[i] + _DH) * _REL if risk else hi[i]
-                best = 0.0  # phases 0, 1: the best P (h - _DH) of a counting step, at most the maximum
-                floor = -1.0  # phases 2, 3: below this harm no step can hold the maximum
+                    if risk:
+                        key[i] = ub[i] * h[i]
+                    else:
+                        key[i] = (1.0 if full[i] else _ramp(wn * ub[i], p_min, p_full)) * h[i]
+                best = 0.0  # the largest value found
                 while True:
                     j = _pop_max(key, g)
-                    if j < 0 or (key[j] <= best if risk else key[j] < floor):
+                    if j < 0 or key[j] <= best + tol:
                         break
                     key[j] = -1.0
                     if px[j] < 0.0:
                         t = gt[j]
-                        if not risk:
-                            if not cert[j]:
-                                if not _member(ub[j], wn, p_min):  # cannot count
-                                    continue
-                                low = _lower(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t], ca[n, t],
-                                             sa[n, t], ea, eb, oa[n], ob[n], pc[n, t], ps[n, t], sg1[n, t],
-                                             sg2[n, t], ho1[n, t], ho2[n, t])
-                                cert[j] = _member(low / _REL - _DP, wn, p_min)
-                            if cert[j]:  # counts, whatever its P: no integral needed
-                                found = True
-                                if floor < 0.0:
-                                    floor = lo[j] - 2.0 * _DH
-                                continue
+                        if not risk and not full[j]:
+                            if lb[j] < 0.0:
+                                lb[j] = _lower(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t],
+                                               ca[n, t], sa[n, t], ea, eb, oa[n], ob[n], pc[n, t], ps[n, t],
+                                               sg1[n, t], sg2[n, t], ho1[n, t], ho2[n, t]) / _REL - _DP
+                            full[j] = wn * lb[j] >= p_full
+                        if not risk and full[j]:  # ramp 1 whatever its P: no integral needed
+                            found = True
+                            best = max(best, h[j])
+                            continue
                         counts[1] += 1
                         px[j] = _entry_p(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t], ea, eb,
-                                         ca[n, t], sa[n, t], oa[n], ob[n], sxx[n, t], sxy[n, t], syy[n, t], z, buf)
+                                         ca[n, t], sa[n, t], oa[n], ob[n], sxx[n, t], sxy[n, t], syy[n, t], z[n],
+                                         z_in, buf)
                     if _member(px[j], wn, p_min):
                         found = True
-                        if risk:
-                            best = max(best, px[j] * (lo[j] - _DH))
-                        elif floor < 0.0:
-                            floor = lo[j] - 2.0 * _DH
-            if not found:
-                continue
-            at_risk[k, n] = True
-            for i in range(g):  # the steps known to count, in t order (P NaN: not integrated)
-                if (px[i] >= 0.0 and _member(px[i], wn, p_min)) or (px[i] < 0.0 and cert[i]):
-                    ok_, on_, ot_, op_ = _push(ok_, on_, ot_, op_, m, k, n, gt[i], px[i] if px[i] >= 0.0 else np.nan)
-                    m += 1
-    counts[2] = m
-    return ok_[:m].copy(), on_[:m].copy(), ot_[:m].copy(), op_[:m].copy(), at_risk, counts
+                        value = px[j] if risk else _ramp(wn * px[j], p_min, p_full)
+                        best = max(best, value * h[j])
+                terms[phase, k, n] = wn * best if risk else best
+            if need_at_risk and not found:  # does any step count? by decreasing upper bound
+                for i in range(g):
+                    key[i] = ub[i]
+                while not found:
+                    j = _pop_max(key, g)
+                    if j < 0:
+                        break
+                    key[j] = -1.0
+                    if px[j] < 0.0:
+                        t = gt[j]
+                        if lb[j] < 0.0:
+                            lb[j] = _lower(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t], ca[n, t],
+                                           sa[n, t], ea, eb, oa[n], ob[n], pc[n, t], ps[n, t], sg1[n, t], sg2[n, t],
+                                           ho1[n, t], ho2[n, t]) / _REL - _DP
+                        if _member(lb[j], wn, p_min):
+                            found = True
+                            break
+                        counts[1] += 1
+                        px[j] = _entry_p(mx[n, t] - ex[k, t], my[n, t] - ey[k, t], ce[k, t], se[k, t], ea, eb,
+                                         ca[n, t], sa[n, t], oa[n], ob[n], sxx[n, t], sxy[n, t], syy[n, t], z[n],
+                                         z_in, buf)
+                    found = _member(px[j], wn, p_min)
+            if found:
+                at_risk[k, n] = True
+                counts[2] += 1
+    return terms, at_risk, counts
 
 
-def bounded_entries(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, other_length, other_width,
-                    ego_length: float, ego_width: float, z: float, p_min: float, weight, ego_mass: float,
-                    ego_vulnerable: bool, other_mass, other_vulnerable, coeffs: np.ndarray):
-    """Entries (k, n, t, p), sorted by (k, n, t), that hold every maximum of the risk terms, the
-    (K, N) bool ``at_risk`` (some step counts) and (3,) counts (gated steps, tight bounds,
-    integrals).
+def bounded_terms(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, other_length, other_width,
+                  ego_length: float, ego_width: float, z, z_in: float, p_min: float, p_full: float, tol: float,
+                  need_at_risk: bool, weight, ego_mass: float, ego_vulnerable: bool, other_mass, other_vulnerable,
+                  coeffs: np.ndarray):
+    """The risk terms of one mode: ((4, K, N) weight x max_t P h_ego, weight x max_t P h_other,
+    max_t ramp(weight P) h_ego, max_t ramp(weight P) h_other, each to ``tol``; (K, N) bool
+    ``at_risk``: some step counts (with tol > 0 settled exactly only with ``need_at_risk``); (3,)
+    counts: gated steps that can count, integrals, pairs at risk).
 
     ex, ey, eyaw, ev: (K, T) ego centre [m], heading [rad], speed [m/s] (>= 0); evalid: (K, T);
     mx, my, psi, av: (N, Tp) the agents' mean centre [m], heading [rad], speed [m/s]; sxx, sxy,
     syy: (N, Tp) covariance [m^2] (floored by the caller); other_length, other_width: (N,) [m];
-    z, p_min: as :func:`sumo_ethics.ethics.shapes.shapes_sparse`; weight: (N,) the mode's weight
-    per agent (ones for one mode): a step counts where P >= p_min and weight P >= p_min;
-    ego_mass [kg]; other_mass: (N,); ego_vulnerable, other_vulnerable: (N,) bool; coeffs:
-    ``HarmCoefficients.as_array()``. Every p returned is the one :func:`shapes_sparse` gives there.
+    z, z_in, p_min: as :func:`sumo_ethics.ethics.shapes.shapes_sparse` (z (N,)); p_full: the share
+    of P at which Maximin's ramp reaches 1; tol: absolute tolerance of each maximum (0: exact);
+    weight: (N,) the mode's weight per agent (ones for one mode): a step counts where
+    weight P >= p_min; ego_mass [kg]; other_mass: (N,); ego_vulnerable, other_vulnerable: (N,) bool;
+    coeffs: ``HarmCoefficients.as_array()``.
+
+    The candidates are split into spans over :func:`sumo_ethics.cores.threads` threads and put
+    back in order: the same bytes with any number of threads.
     """
+    from sumo_ethics import cores
+
     f = np.ascontiguousarray
-    return _search_kernel(
-        f(ex, dtype=float), f(ey, dtype=float), f(eyaw, dtype=float), f(ev, dtype=float), f(evalid, dtype=np.bool_),
-        f(mx, dtype=float), f(my, dtype=float), f(psi, dtype=float), f(av, dtype=float), f(sxx, dtype=float),
-        f(sxy, dtype=float), f(syy, dtype=float), f(np.asarray(other_length, dtype=float) / 2.0),
-        f(np.asarray(other_width, dtype=float) / 2.0), float(ego_length) / 2.0, float(ego_width) / 2.0, float(z),
-        float(p_min), f(weight, dtype=float), float(ego_mass), bool(ego_vulnerable), f(other_mass, dtype=float),
-        f(other_vulnerable, dtype=np.bool_), f(coeffs, dtype=float),
-    )
+    e = [f(ex, dtype=float), f(ey, dtype=float), f(eyaw, dtype=float), f(ev, dtype=float), f(evalid, dtype=np.bool_)]
+    rest = (f(mx, dtype=float), f(my, dtype=float), f(psi, dtype=float), f(av, dtype=float), f(sxx, dtype=float),
+            f(sxy, dtype=float), f(syy, dtype=float), f(np.asarray(other_length, dtype=float) / 2.0),
+            f(np.asarray(other_width, dtype=float) / 2.0), float(ego_length) / 2.0, float(ego_width) / 2.0,
+            f(np.broadcast_to(np.asarray(z, dtype=float), (np.shape(mx)[0],))), float(z_in), float(p_min),
+            float(p_full), float(tol), bool(need_at_risk), f(weight, dtype=float), float(ego_mass),
+            bool(ego_vulnerable), f(other_mass, dtype=float), f(other_vulnerable, dtype=np.bool_),
+            f(coeffs, dtype=float))
+    kernel: Any = _search_kernel  # a numba dispatcher
+    n_threads = cores.threads()
+    parts = cores.spans(len(e[0]), 1 if n_threads == 1 else 4 * n_threads)
+    if len(parts) <= 1:
+        return kernel(*e, *rest)
+    outs = cores.map_ordered(kernel, [tuple(a[lo:hi] for a in e) + rest for lo, hi in parts])
+    return (np.concatenate([o[0] for o in outs], axis=1), np.concatenate([o[1] for o in outs]),
+            np.sum([o[2] for o in outs], axis=0))

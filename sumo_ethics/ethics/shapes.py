@@ -223,11 +223,13 @@ def _octagon(ea: float, eb: float, oa: float, ob: float, cr: float, sr: float, v
 
 
 @_jit
-def _slab_test(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z):
+def _slab_test(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z, z_in):
     """The quick exits of one (k, n, t): world offset (dx, dy) of the agent's mean from the ego
     centre, ego heading (cos ce, sin se), agent heading (ca, sa), half-sizes, the agent's
-    covariance (world). Returns (0: P = 0, 1: P = 1, 2: neither; the mean m1, m2 and covariance
-    v11, v12, v22 in the ego frame; cos, sin of the agent's heading relative to the ego's)."""
+    covariance (world); a mean more than ``z`` standard deviations outside a slab has P < Phi(-z),
+    one more than ``z_in`` inside all four P > 1 - 4 Phi(-z_in). Returns (0: P below Phi(-z),
+    taken as 0; 1: P taken as 1; 2: neither; the mean m1, m2 and covariance v11, v12, v22 in the
+    ego frame; cos, sin of the agent's heading relative to the ego's)."""
     m1 = ce * dx + se * dy  # ego frame
     m2 = ce * dy - se * dx
     cc, ss, cs = ce * ce, se * se, ce * se
@@ -252,15 +254,15 @@ def _slab_test(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z):
         d = abs(nx * m1 + ny * m2) - w
         if d > z * sig:
             return 0, m1, m2, v11, v12, v22, cr, sr
-        if d > -z * sig:
+        if d > -z_in * sig:
             inside_all = False
     return (1 if inside_all else 2), m1, m2, v11, v12, v22, cr, sr
 
 
 @_jit
-def _entry_p(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z, buf) -> float:
+def _entry_p(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z, z_in, buf) -> float:
     """P for one (k, n, t), the arguments as :func:`_slab_test`'s; buf: (4, 8) scratch."""
-    code, m1, m2, v11, v12, v22, cr, sr = _slab_test(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z)
+    code, m1, m2, v11, v12, v22, cr, sr = _slab_test(dx, dy, ce, se, ea, eb, ca, sa, oa, ob, sxx, sxy, syy, z, z_in)
     if code == 0:
         return 0.0
     if code == 1:
@@ -295,7 +297,8 @@ def _block_boxes(x, y, valid, rad, nb: int, tp: int):
 @_jit
 def _gate(ex, ey, evalid, mx, my, psi, sxx, sxy, syy, oa, ob, ea, eb, z):
     """The geometric gate's parts: (blocks of steps, (N, tp) agent step finite, (N, tp) gate radius
-    (both half-diagonals + z sqrt(sxx + syy)) [m], (K, nb, 4) and (N, nb, 4) block boxes)."""
+    (both half-diagonals + z[n] sqrt(sxx + syy)) [m], (K, nb, 4) and (N, nb, 4) block boxes);
+    z: (N,) gate widths [std] >= 0."""
     K = ex.shape[0]
     N, tp = mx.shape
     nb = (tp + _BLOCK - 1) // _BLOCK
@@ -309,7 +312,7 @@ def _gate(ex, ey, evalid, mx, my, psi, sxx, sxy, syy, oa, ob, ea, eb, z):
             ok = (math.isfinite(mx[n, t]) and math.isfinite(my[n, t]) and math.isfinite(psi[n, t])
                   and math.isfinite(s2) and math.isfinite(sxy[n, t]))
             afin[n, t] = ok
-            arad[n, t] = r_e + r_o + z * math.sqrt(s2) if ok else 0.0
+            arad[n, t] = r_e + r_o + z[n] * math.sqrt(s2) if ok else 0.0
     zero = np.zeros((K, tp))
     return nb, afin, arad, _block_boxes(ex, ey, evalid, zero, nb, tp), _block_boxes(mx, my, afin, arad, nb, tp)
 
@@ -338,7 +341,7 @@ def _near(k: int, n: int, t: int, ex, ey, eyaw, evalid, mx, my, afin, arad, ce, 
 
 
 @_jit
-def _shapes_kernel(ex, ey, eyaw, evalid, mx, my, psi, sxx, sxy, syy, oa, ob, ea, eb, z, p_min):
+def _shapes_kernel(ex, ey, eyaw, evalid, mx, my, psi, sxx, sxy, syy, oa, ob, ea, eb, z, z_in, p_min):
     K, T = ex.shape
     N, tp = mx.shape
     ce = np.full((K, tp), np.nan)  # cos, sin of the ego's heading, filled on first use (trig is slow)
@@ -359,7 +362,7 @@ def _shapes_kernel(ex, ey, eyaw, evalid, mx, my, psi, sxx, sxy, syy, oa, ob, ea,
                     if not near:
                         continue
                     p = _entry_p(dx, dy, ce[k, t], se[k, t], ea, eb, ca[n, t], sa[n, t], oa[n], ob[n],
-                                 sxx[n, t], sxy[n, t], syy[n, t], z, buf)
+                                 sxx[n, t], sxy[n, t], syy[n, t], z[n], z_in, buf)
                     if p < p_min:
                         continue
                     ok_, on_, ot_, op_ = _push(ok_, on_, ot_, op_, m, k, n, t, p)
@@ -402,21 +405,23 @@ def _grow_f(a, cap):
 
 
 def shapes_sparse(ex, ey, eyaw, evalid, mx, my, psi, sxx, sxy, syy, other_length, other_width,
-                  ego_length: float, ego_width: float, z: float, p_min: float):
+                  ego_length: float, ego_width: float, z, z_in: float, p_min: float):
     """Non-zero P entries (k, n, t, p), sorted by (k, n, t).
 
     ex, ey, eyaw: (K, T) ego centre [m] and heading [rad] per candidate step; evalid: (K, T)
     bool; mx, my, psi: (N, Tp) the agents' mean centre and heading (Tp <= T); sxx, sxy, syy:
     (N, Tp) covariance [m^2] (positive definite: the caller floors it); other_length,
-    other_width: (N,) full sizes [m]; ego_length, ego_width [m]; z: quick-exit and gate width
-    [std]; p_min: smaller P are dropped. Non-finite agent steps give no entries.
+    other_width: (N,) full sizes [m]; ego_length, ego_width [m]; z: the gate's and the P = 0 exit's
+    width [std], a number or (N,) per agent (:func:`sumo_ethics.ethics.probability.gate_widths`);
+    z_in: the P = 1 exit's [std]; p_min: smaller P are dropped. Non-finite agent steps give no entries.
     """
     f = np.ascontiguousarray
     return _shapes_kernel(
         f(ex, dtype=float), f(ey, dtype=float), f(eyaw, dtype=float), f(evalid, dtype=np.bool_),
         f(mx, dtype=float), f(my, dtype=float), f(psi, dtype=float), f(sxx, dtype=float), f(sxy, dtype=float),
         f(syy, dtype=float), f(np.asarray(other_length, dtype=float) / 2.0), f(np.asarray(other_width, dtype=float) / 2.0),
-        float(ego_length) / 2.0, float(ego_width) / 2.0, float(z), float(p_min),
+        float(ego_length) / 2.0, float(ego_width) / 2.0,
+        f(np.broadcast_to(np.asarray(z, dtype=float), (np.shape(mx)[0],))), float(z_in), float(p_min),
     )
 
 

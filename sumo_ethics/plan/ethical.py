@@ -395,7 +395,8 @@ class EthicalPlanner:
         breakers = np.array([i in scene.rule_breakers for i in agents.ids], dtype=bool)
         risk = assess_risk(fc, pred, agents, ego_mass=float(scene.ego.mass[0]), ego_cls=int(scene.ego.cls[0]),
                            ego_length=ego_length, ego_width=ego_width, prob_cfg=self.cfg.probability,
-                           off_road=~on_road, rule_breaker=breakers, steps=False)
+                           off_road=~on_road, rule_breaker=breakers, steps=False,
+                           need_at_risk=self.cfg.cost.normalise == "at_risk")
         pc = self.cfg.probability  # Origin's safety margins (+1.0 m length, +0.5 m width)
         first_hit = first_overlap(fc, pred, agents.length + pc.length_margin,
                                   agents.width + pc.width_margin, ego_length, ego_width, brake=veh.max_decel)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sumo_ethics.geometry import not_psd
 from sumo_ethics.predict import features as F
 from sumo_ethics.types import Observation, Prediction
 
@@ -72,13 +73,16 @@ class ConstantVelocityPredictor:
 def replace_non_finite(pred: Prediction, obs: Observation, horizon_steps: int, dt: float,
                        fallback: ConstantVelocityPredictor | None = None) -> tuple[Prediction, int]:
     """(prediction, number of agents replaced): every agent whose mean, covariance or yaw is
-    non-finite in any mode (or whose mode weights are) gets the constant-velocity prediction from
-    its current state in every mode, with weights (1, 0, ...). Agents already finite are returned
-    as they were (the same arrays when none is replaced)."""
+    non-finite in any mode (or whose mode weights are), or whose covariance has a negative
+    principal variance (no Gaussian has it: :func:`sumo_ethics.geometry.not_psd`), gets the
+    constant-velocity prediction from its current state in every mode, with weights (1, 0, ...).
+    Agents already valid are returned as they were (the same arrays when none is replaced); the
+    planner records the count as ``n_fallback``."""
     bad = np.zeros(len(pred.ids), dtype=bool)
     for m, _ in pred.by_mode():
-        bad |= ~(np.isfinite(m.mean).all(axis=(1, 2)) & np.isfinite(m.cov).all(axis=(1, 2, 3))
-                 & np.isfinite(m.yaw).all(axis=1))
+        finite = np.isfinite(m.cov).all(axis=(1, 2, 3))
+        bad |= ~(np.isfinite(m.mean).all(axis=(1, 2)) & finite & np.isfinite(m.yaw).all(axis=1))
+        bad |= finite & not_psd(np.where(np.isfinite(m.cov), m.cov, 0.0)).any(axis=1)
     if pred.weight is not None:
         bad |= ~np.isfinite(pred.weight).all(axis=1)
     if not bad.any():
