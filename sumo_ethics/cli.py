@@ -99,6 +99,9 @@ def cli() -> None:
               "display; the same outputs as without).")
 @click.option("--gui-delay", type=float, metavar="MS", help="With --gui: sumo-gui's pause between steps [ms] "
               "(default 0).")
+@click.option("--threads", default="auto", show_default=True, metavar="N|auto",
+              help="Threads the planner's risk kernels use (auto: the cores this process may run on); the results "
+                   "are the same bytes with any number. evaluate and sweep keep one per run.")
 @click.option("--quiet", is_flag=True, help="No progress display.")
 def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration: float | None,
         fleet_shares: str | None, ego_from: str | None, ego_to: str | None, ego_depart: float | None,
@@ -106,15 +109,20 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
         controller: str, omega_u: float | None, omega_o: float | None, weights: str | None, selection: str | None,
         utility: str | None, normalise: str | None, predictor: str | None, predictor_weights: Path | None, config_file: Path | None,
         continue_after_collision: bool, radius: float, overwrite: bool, record_decisions: str, gui: bool,
-        gui_delay: float | None, quiet: bool) -> None:
+        gui_delay: float | None, threads: str, quiet: bool) -> None:
     """Run SCENARIO (a .sumocfg) with one vehicle taken over by the ego controller, or a fleet of them
     (--egos, --penetration, several --ego, --fleet)."""
     from dataclasses import replace
+
+    from sumo_ethics import cores
 
     from sumo_ethics.config import FleetSpec, RunConfig
     from sumo_ethics.sim import scenario as scenario_files
     from sumo_ethics.sumo_options import parse_sumo_args
 
+    if threads != "auto" and not (threads.isdigit() and int(threads) >= 1):
+        raise ConfigError(f"--threads must be a whole number of at least 1 or auto, got {threads!r}")
+    cores.set_threads(threads if threads == "auto" else int(threads))
     if gui_delay is not None and not gui:
         raise ConfigError("--gui-delay is sumo-gui's pause between steps: give --gui too")
     if gui_delay is not None and not gui_delay >= 0:
@@ -153,6 +161,10 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
         click.echo(f"note: --step-length {step_length:g} s: above {scenario_files.MAX_TRUSTED_STEP:g} s the planner's "
                    f"speed changes per step exceed its acceleration limits", err=True)
 
+    if controller == "ethical" or fleet is not None:  # the planner's kernels compile while SUMO loads
+        from sumo_ethics.ethics import warmup
+
+        warmup.start()
     from sumo_ethics import notes
     from sumo_ethics.runner import make_controller, run as run_scenario
     from sumo_ethics.settings import conflicts_config, load_run_toml, planner_config

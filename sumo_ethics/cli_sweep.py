@@ -74,7 +74,11 @@ def sweep(scenario_or_suite: Path, omega_u: str, seeds: str, sets: tuple[str, ..
                "stop_at_collision": False if continue_after_collision else None,
                "record_decisions": None if record_decisions == "risky" else record_decisions}
     planner = load_toml(config_file) if config_file is not None else None
+    from sumo_ethics.ethics import warmup
+
+    warmup.start()  # the planner's kernels compiled once, while the grid is checked
     sw = make_sweep(scenario_or_suite, omega_u, seeds, sets, options=options, planner=planner)
+    warmup.wait()
     res = run_sweep(sw, out, workers=workers or os.cpu_count() or 1, scheduler=scheduler, progress=not quiet)
     con = Console(highlight=False, soft_wrap=True)
     con.print(f"[bold]sweep[/bold] {res.total} runs: {res.done} finished ({res.skipped} from before, "

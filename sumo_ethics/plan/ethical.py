@@ -19,6 +19,7 @@ from typing import Any, Callable, Protocol
 import numpy as np
 
 from sumo_ethics.errors import ConfigError, is_number
+from sumo_ethics.ethics import warmup
 from sumo_ethics.ethics.cost import CostConfig, UtilityMode, score
 from sumo_ethics.ethics.probability import ProbabilityConfig
 from sumo_ethics.ethics.risk import assess_risk
@@ -336,6 +337,7 @@ class EthicalPlanner:
         return self.cfg.cost.weights.responsibility > 0.0
 
     def act(self, scene: Scene) -> Decision:
+        warmup.wait()  # the kernels compiled in the background (sumo-ethics run, evaluate, sweep), if any
         veh = scene.vehicle
         ego_length, ego_width = float(scene.ego.length[0]), float(scene.ego.width[0])
         if self._sampling is None:  # plan at the simulation's step so commands fall on samples

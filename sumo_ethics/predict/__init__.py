@@ -32,9 +32,13 @@ __all__ = ["PREDICTORS", "PredictorError", "one_thread", *_LAZY]
 
 
 def one_thread(load: bool = False) -> None:
-    """torch on one thread in this process (runs share the cores, and every executor gives the
-    same numbers); ``load=False`` leaves a process that has not imported torch alone, ``load=True``
-    imports it (a no-op without torch)."""
+    """torch and the risk kernels (:mod:`sumo_ethics.cores`) on one thread in this process: a
+    sweep's or an evaluation's runs share the cores (every executor gives the same numbers);
+    ``load=False`` leaves a process that has not imported torch alone, ``load=True`` imports it (a
+    no-op without torch)."""
+    from sumo_ethics import cores
+
+    cores.set_threads(1)
     if not load and "torch" not in sys.modules:
         return
     try:

@@ -1,0 +1,80 @@
+"""The planner's numba kernels compiled before its first step, in a background process.
+
+numba compiles a kernel the first time it is called and keeps the machine code in its cache
+(``__pycache__`` beside the source, or numba's user cache where that is not writable), from which
+later processes load it in a fraction of a second. On a fresh install the first planning step
+would spend about 8 s compiling :mod:`sumo_ethics.ethics.search` and the envelope kernel of
+:mod:`sumo_ethics.ethics.shapes`.
+
+So ``sumo-ethics run``, ``evaluate`` and ``sweep`` call :func:`start` first thing: a separate
+process (a second core where there is one) compiles the kernels for the argument types the planner
+calls them with (:func:`compile_kernels`), while the main process loads the scenario, the predictor
+and SUMO and simulates up to the takeover. The planner's first step calls :func:`wait` and then
+loads the compiled kernels from the cache. Where the cache is already warm the process only loads
+them. Nothing depends on it: if it fails, the first step compiles as before; the code is the same
+either way, so the results are too.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["compile_kernels", "start", "wait"]
+
+_pending: subprocess.Popen | None = None
+
+
+def compile_kernels() -> None:
+    """Call every kernel the planner uses once on a tiny input (types as in a planning step):
+    numba compiles them, or loads them from its cache."""
+    from sumo_ethics.ethics.harm import HarmCoefficients
+    from sumo_ethics.ethics.search import bounded_terms
+    from sumo_ethics.ethics.shapes import envelope_first_hit
+
+    K, T, N = 2, 3, 1
+    t = np.arange(1, T + 1) * 0.1
+    ex = np.stack([10.0 * t, 10.0 * t + 0.5])
+    ey, eyaw, ev = np.zeros((K, T)), np.zeros((K, T)), np.full((K, T), 10.0)
+    valid = np.ones((K, T), bool)
+    mx, my, psi, av = np.full((N, T), 4.0), np.full((N, T), 1.0), np.zeros((N, T)), np.zeros((N, T))
+    var = np.full((N, T), 0.25)
+    one = np.ones(N)
+    bounded_terms(ex, ey, eyaw, ev, valid, mx, my, psi, av, var, np.zeros((N, T)), var, np.full(N, 4.5),
+                  np.full(N, 1.8), 4.5, 1.8, np.full(N, 3.0), 6.0, 1e-3, 1e-2, 1e-4, False, one, 1475.0, False,
+                  np.full(N, 1400.0), np.zeros(N, bool), HarmCoefficients().as_array())
+    envelope_first_hit(ex, ey, eyaw, ev, valid, mx, my, psi, np.full(N, 5.5), np.full(N, 2.3), 4.5, 1.8, 8.0)
+
+
+def start() -> None:
+    """Compile the kernels in a background process (once per process; a no-op if one runs)."""
+    global _pending
+    if _pending is not None:
+        return
+    root = str(Path(__file__).resolve().parents[2])  # the folder holding this sumo_ethics
+    env = dict(os.environ, PYTHONSAFEPATH="1",
+               PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH", "")) if p))
+    try:
+        _pending = subprocess.Popen(
+            [sys.executable, "-c", "from sumo_ethics.ethics.warmup import compile_kernels; compile_kernels()"],
+            env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    except OSError:  # no process to be had: the first step compiles
+        _pending = None
+
+
+def wait(timeout: float = 300.0) -> None:
+    """Wait for :func:`start`'s process, if any (at most ``timeout`` s; then the first step
+    compiles whatever it has not cached)."""
+    global _pending
+    proc, _pending = _pending, None
+    if proc is None:
+        return
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
