@@ -300,6 +300,14 @@ class Candidates:
                           self.curvature[idx], self.s[idx], self.d[idx], self.horizon[idx], self.valid[idx],
                           None if self.road_curvature is None else self.road_curvature[idx])
 
+    def take_steps(self, start: int) -> "Candidates":
+        """The candidates from step ``start`` on, (K, T - start); their horizons shortened by as much."""
+        sl = slice(start, None)
+        return Candidates(self.dt, self.x[:, sl], self.y[:, sl], self.yaw[:, sl], self.speed[:, sl],
+                          self.accel[:, sl], self.curvature[:, sl], self.s[:, sl], self.d[:, sl],
+                          np.maximum(self.horizon - start * self.dt, 0.0), self.valid[:, sl],
+                          None if self.road_curvature is None else self.road_curvature[:, sl])
+
 
 @dataclass(frozen=True)
 class CostBreakdown:

@@ -10,6 +10,7 @@ parts from timings.parquet. The resident memory of the process is sampled every 
 growth over the second half is reported (flat memory: a few MB).
 
     python tools/bench_fleet.py [--sizes 1,5,10,25] [--end 40] [--unshared 10] [--baseline 100]
+                                [--replan-every 1,3] [--threads 1|2|auto]
     python tools/bench_fleet.py --memory 600   # memory while egos come and go (penetration 1, baseline),
                                                # its growth with time separated from the traffic it holds
                                                # (now, and the most so far); --save CSV keeps the samples
@@ -58,7 +59,7 @@ def rss_sampler() -> tuple[list[tuple[float, float]], threading.Event, threading
     return samples, stop, th
 
 
-def one(n: int, end: float, shared: bool, planner: str, out: Path, seed: int) -> dict:
+def one(n: int, end: float, shared: bool, planner: str, out: Path, seed: int, replan_every: int = 1) -> dict:
     import pandas as pd
 
     from sumo_ethics.config import FleetSpec, RunConfig
@@ -67,7 +68,8 @@ def one(n: int, end: float, shared: bool, planner: str, out: Path, seed: int) ->
     from sumo_ethics.plan.baseline import RouteFollower
 
     cfg = RunConfig(scenario=ROOT / "scenarios" / "urban_grid" / "urban_grid.sumocfg", out=out, seed=seed, end=end,
-                    progress=False, fleet=FleetSpec(egos=n, shares=((planner, 1.0),)))
+                    progress=False, fleet=FleetSpec(egos=n, shares=((planner, 1.0),)),
+                    planner=PlannerConfig(replan_every=replan_every))
     if planner == "baseline":
         def make(name, vid):
             return RouteFollower()
@@ -75,7 +77,7 @@ def one(n: int, end: float, shared: bool, planner: str, out: Path, seed: int) ->
         make = make_fleet_controllers(cfg)
     else:
         def make(name, vid):  # one predictor per ego: each predicts its own neighbours
-            return EthicalPlanner(PlannerConfig())
+            return EthicalPlanner(PlannerConfig(replan_every=replan_every))
     samples, stop, th = rss_sampler()
     t0 = time.perf_counter()
     s = run_fleet(cfg, make)
@@ -197,21 +199,30 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--memory", type=float, default=0.0, help="only the memory run, this many simulated seconds")
     ap.add_argument("--save", default="", help="with --memory: the samples (t, rss, egos, ...) to this CSV")
+    ap.add_argument("--replan-every", default="1", help="the planners' replan_every; several (1,3) run each size "
+                    "with each, compared with one ego at the first")
+    ap.add_argument("--threads", default="1", help="threads of the risk kernels (a number or auto)")
     a = ap.parse_args()
+    from sumo_ethics import cores
+
+    cores.set_threads(a.threads if a.threads == "auto" else int(a.threads))
     if a.memory:
         memory(a.memory, a.seed, save=a.save)
         return
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        jobs = [(int(n), True, "ethical") for n in a.sizes.split(",")]
+        every = [int(v) for v in a.replan_every.split(",")]
+        jobs = [(int(n), True, "ethical", e) for e in every for n in a.sizes.split(",")]
         if a.unshared:
-            jobs.append((a.unshared, False, "ethical"))
+            jobs.append((a.unshared, False, "ethical", every[0]))
         if a.baseline:
-            jobs.append((a.baseline, True, "baseline"))
-        for k, (n, shared, planner) in enumerate(jobs):
-            r = one(n, a.end, shared, planner, Path(tmp) / f"r{k}", a.seed)
+            jobs.append((a.baseline, True, "baseline", 1))
+        for k, (n, shared, planner, e) in enumerate(jobs):
+            r = one(n, a.end, shared, planner, Path(tmp) / f"r{k}", a.seed, e)
+            r["replan_every"] = e
             rows.append(r)
-            print(f"{r['n']:>4} egos {r['planner']:>8} {'shared' if r['shared'] else 'own':>6}: driving {r['egos_driving']:5.1f}, "
+            print(f"{r['n']:>4} egos {r['planner']:>8} {'shared' if r['shared'] else 'own':>6} replan_every {e}: "
+                  f"driving {r['egos_driving']:5.1f}, "
                   f"planner {r['controller_ms']:6.1f} ms/ego-step (predict {r['predict_ms']:5.1f}), "
                   f"{r['ego_step_ms']:7.1f} ms of planning per step, {r['wall_per_sim_s']:6.1f} s wall per simulated s, "
                   f"RSS {r['rss_mb']:.0f} MB (+{r['rss_growth_mb']:.1f} MB over the second half)", flush=True)
@@ -219,8 +230,9 @@ def main() -> None:
     if one_ego:
         for r in rows:
             if r["planner"] == "ethical":
-                print(f"{r['n']} egos ({'shared' if r['shared'] else 'own'} prediction): planning per step "
-                      f"{r['ego_step_ms'] / one_ego['ego_step_ms']:.1f}x one ego's")
+                print(f"{r['n']} egos ({'shared' if r['shared'] else 'own'} prediction, replan_every "
+                      f"{r['replan_every']}): planning per step {r['ego_step_ms'] / one_ego['ego_step_ms']:.1f}x "
+                      f"one ego's (replan_every {one_ego['replan_every']})")
 
 
 if __name__ == "__main__":

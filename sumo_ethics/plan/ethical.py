@@ -11,7 +11,9 @@ the recorded prediction's mean and covariance use the most likely mode.
 
 from __future__ import annotations
 
+import math
 import time
+import zlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Protocol
@@ -76,7 +78,12 @@ class PlannerConfig:
     moving to the lateral end offsets (:func:`evasive_candidates`): the grid's own profiles start
     from the current acceleration and take about a second to build up braking, and the straight
     braking candidates keep their lateral offset, so without them the ego can brake or swerve but
-    not both at once (a car cutting in ahead; ``origin`` and ``paper`` run without them, as published).
+    not both at once (a car cutting in ahead; ``origin`` and ``paper`` run without them, as published);
+    replan_every: plan every n-th step and follow the committed plan between (Frenetix plans every
+    3rd step); the steps are staggered by the ego's id (a fleet's egos do not all plan in the same
+    step), and the ego plans at once when a road user enters its range, the predicted road users
+    enter the remaining plan's envelope, the ego is off its plan, or the plan runs out (1: every
+    step, the default; see :meth:`EthicalPlanner.follow`).
     """
 
     cost: CostConfig = field(default_factory=CostConfig)
@@ -95,6 +102,7 @@ class PlannerConfig:
     envelope: float = 1000.0
     entry: float = 1000.0
     evasive: bool = True
+    replan_every: int = 1
 
     def __post_init__(self) -> None:
         if self.selection not in SELECTIONS:
@@ -111,6 +119,9 @@ class PlannerConfig:
         for flag in ("calibrated", "evasive", "lateral_onset"):
             if not isinstance(getattr(self, flag), bool):
                 raise ConfigError(f"{flag} must be true or false, got {getattr(self, flag)!r}")
+        if not (isinstance(self.replan_every, int) and not isinstance(self.replan_every, bool)
+                and 1 <= self.replan_every <= 100):
+            raise ConfigError(f"replan_every must be a whole number of steps from 1 to 100, got {self.replan_every!r}")
         if not (isinstance(self.max_risk, (int, float)) and 0.0 < self.max_risk <= 1.0):
             raise ConfigError(f"max_risk must be in (0, 1], got {self.max_risk!r}")
         if not (isinstance(self.lateral_prior, (int, float)) and 0.0 <= self.lateral_prior < 1e3):
@@ -304,6 +315,24 @@ def class_of(classes: list[np.ndarray], k: int) -> int:
     return next((c for c, members in enumerate(classes) if members[k]), len(classes))
 
 
+#: [m and m/s] an ego further than this from where its committed plan put it (or at a speed this far
+#: from the plan's) plans anew (replan_every > 1)
+OFF_PLAN = 0.25
+#: why a step was planned with replan_every > 1 (steps.parquet ``replanned``; 0: it followed its plan)
+REPLAN = {"followed": 0, "no_plan": 1, "turn": 2, "off_plan": 3, "envelope": 4, "new_at_risk": 5}
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A committed plan (replan_every > 1): the chosen candidate (1, T), the time it was chosen at
+    [s], the road users it saw, and its step's named numbers."""
+
+    cand: Candidates
+    time: float
+    ids: frozenset[str]
+    info: dict[str, float]
+
+
 class EthicalPlanner:
     """The default controller: the paper's utility-risk planner on top of Origin's J_origin."""
 
@@ -320,6 +349,8 @@ class EthicalPlanner:
         self._lateral = (0.0, 0.0)  # d', d'' of the last chosen candidate at the next step
         self._accel = 0.0
         self._sampling: SamplingConfig | None = None
+        self._plan: Plan | None = None  # the committed plan (replan_every > 1)
+        self.replan_reason = REPLAN["no_plan"]
 
     @property
     def predictor_info(self) -> dict:
@@ -338,6 +369,18 @@ class EthicalPlanner:
 
     def act(self, scene: Scene) -> Decision:
         warmup.wait()  # the kernels compiled in the background (sumo-ethics run, evaluate, sweep), if any
+        if self.cfg.replan_every > 1:
+            followed = self.follow(scene)
+            if followed is not None:
+                return followed
+        decision = self.plan(scene)
+        if self.cfg.replan_every > 1:
+            decision.info["replanned"] = float(self.replan_reason)
+        return decision
+
+    def plan(self, scene: Scene) -> Decision:
+        """One planning step: predict, sample, assess, score, select (see the module docstring)."""
+        self._plan = None
         veh = scene.vehicle
         ego_length, ego_width = float(scene.ego.length[0]), float(scene.ego.width[0])
         if self._sampling is None:  # plan at the simulation's step so commands fall on samples
@@ -345,20 +388,8 @@ class EthicalPlanner:
         sc = self._sampling
         w0 = time.perf_counter()
         horizon_steps = int(round(max(sc.horizons) / sc.dt))
-        obs = scene.history
-        if obs is None:
-            raise ValueError("the ethical planner needs the neighbours' history in its scene (needs_history)")
         agents = scene.others
-        pred = self.predictor.predict(obs, horizon_steps, sc.dt)
-        # the priors treat every mode of a multi-modal prediction alike (they map over the modes)
-        if self.cfg.lateral_prior > 0.0:  # first: a car braking to a stand also stops moving sideways
-            travel, lateral = recent_motion(obs) if self.cfg.lateral_onset else (None, None)
-            pred = apply_lateral_prior(pred, obs.current, horizon=self.cfg.lateral_prior, travel=travel,
-                                       lateral_accel=lateral)
-        if self.cfg.braking_prior > 0.0:
-            pred = apply_braking_prior(pred, obs.current, self.cfg.braking_prior)
-        # an agent with a non-finite mean, covariance or yaw in any mode is predicted at constant velocity
-        pred, n_fallback = replace_non_finite(pred, obs, horizon_steps, sc.dt)
+        pred, n_fallback = self._predict(scene, horizon_steps, sc.dt)
         w1 = time.perf_counter()
         route = scene.route
         i = route.vertex_at(scene.s)
@@ -441,6 +472,8 @@ class EthicalPlanner:
         self._lateral = ((d2 - d0) / (2 * dt), (d2 - 2 * d1 + d0) / dt**2)
         self._accel = float(cand.accel[k, 0])
         cmd = EgoCommand(float(cand.x[k, 0]), float(cand.y[k, 0]), float(cand.yaw[k, 0]), float(cand.speed[k, 0]))
+        if self.cfg.replan_every > 1:
+            self._plan = Plan(cand.take(np.array([k])), scene.time, frozenset(agents.ids), dict(info))
         eligible = emergency_only(hard_pool(legal, on_road), evasive, overlap) if self.cfg.selection == "cost" else \
             (classes[cls] if cls < len(classes) else np.ones(len(fc), dtype=bool))
         trace = DecisionTrace(
@@ -450,6 +483,79 @@ class EthicalPlanner:
             chosen=j, excluded=exclusion_codes(legal, on_road, overlap, self.cfg.selection, evasive),
             agent_risk=risk.ego_risk[j] + risk.other_risk[j] if len(agents) else np.zeros(0))
         return Decision(cmd, info=info, timings_ms=timings, trace=trace)
+
+    def _predict(self, scene: Scene, horizon_steps: int, dt: float) -> tuple[Prediction, int]:
+        """The neighbours' prediction with the priors, and how many road users fell back to constant velocity."""
+        obs = scene.history
+        if obs is None:
+            raise ValueError("the ethical planner needs the neighbours' history in its scene (needs_history)")
+        pred = self.predictor.predict(obs, horizon_steps, dt)
+        # the priors treat every mode of a multi-modal prediction alike (they map over the modes)
+        if self.cfg.lateral_prior > 0.0:  # first: a car braking to a stand also stops moving sideways
+            travel, lateral = recent_motion(obs) if self.cfg.lateral_onset else (None, None)
+            pred = apply_lateral_prior(pred, obs.current, horizon=self.cfg.lateral_prior, travel=travel,
+                                       lateral_accel=lateral)
+        if self.cfg.braking_prior > 0.0:
+            pred = apply_braking_prior(pred, obs.current, self.cfg.braking_prior)
+        # an agent with a non-finite mean, covariance or yaw in any mode is predicted at constant velocity
+        return replace_non_finite(pred, obs, horizon_steps, dt)
+
+    def follow(self, scene: Scene) -> Decision | None:
+        """The committed plan's next state (``replan_every`` > 1), or None where the planner must
+        plan now (the reason in ``self.replan_reason``, a code of :data:`REPLAN`): no plan or no next
+        state in it, the step is this ego's turn (every ``replan_every``-th step, offset by a hash
+        of its id so a fleet's egos take turns), the ego is more than :data:`OFF_PLAN` m or m/s off
+        where the plan put it, a predicted road user's box (with Origin's margins) enters the
+        remaining plan stretched by its stopping distance (:func:`first_overlap`), or a road user
+        the plan did not weigh is at risk from its remaining steps (some step's collision
+        probability reaches p_min). The step's numbers are those of the plan it follows
+        (``replanned`` 0)."""
+        plan, n, dt = self._plan, self.cfg.replan_every, scene.dt
+        if plan is None:
+            self.replan_reason = REPLAN["no_plan"]
+            return None
+        T = plan.cand.x.shape[1]
+        j = int(round((scene.time - plan.time) / dt))  # the plan's state after this step
+        tick = int(round(scene.time / dt))
+        phase = zlib.crc32(scene.ego.ids[0].encode()) % n
+        if j < 1 or j >= T:
+            self.replan_reason = REPLAN["no_plan"]
+            return None
+        if (tick + phase) % n == 0:
+            self.replan_reason = REPLAN["turn"]
+            return None
+        c = plan.cand
+        ego = scene.ego
+        if (math.hypot(float(ego.x[0]) - c.x[0, j - 1], float(ego.y[0]) - c.y[0, j - 1]) > OFF_PLAN
+                or abs(float(ego.speed[0]) - c.speed[0, j - 1]) > OFF_PLAN):
+            self.replan_reason = REPLAN["off_plan"]
+            return None
+        w0 = time.perf_counter()
+        pred, n_fallback = self._predict(scene, T - j, dt)
+        rest = c.take_steps(j)
+        others = scene.others
+        pc = self.cfg.probability
+        ego_length, ego_width = float(ego.length[0]), float(ego.width[0])
+        hit = first_overlap(rest, pred, others.length + pc.length_margin, others.width + pc.width_margin,
+                            ego_length, ego_width, brake=scene.vehicle.max_decel)
+        if hit[0] < T - j:
+            self.replan_reason = REPLAN["envelope"]
+            return None
+        new = np.flatnonzero([k not in plan.ids for k in others.ids])
+        if len(new):
+            risk = assess_risk(rest, pred.take(new), others.take(new), ego_mass=float(ego.mass[0]),
+                               ego_cls=int(ego.cls[0]), ego_length=ego_length, ego_width=ego_width, prob_cfg=pc,
+                               steps=False, need_at_risk=True)
+            if risk.at_risk is not None and risk.at_risk.any():
+                self.replan_reason = REPLAN["new_at_risk"]
+                return None
+        d1, d2 = float(c.d[0, j]), float(c.d[0, min(j + 1, T - 1)])
+        d0 = scene.d
+        self._lateral = ((d2 - d0) / (2 * dt), (d2 - 2 * d1 + d0) / dt**2)
+        self._accel = float(c.accel[0, j])
+        info = dict(plan.info, replanned=0.0, n_fallback=float(n_fallback))
+        return Decision(EgoCommand(float(c.x[0, j]), float(c.y[0, j]), float(c.yaw[0, j]), float(c.speed[0, j])),
+                        info=info, timings_ms={"predict_ms": 1e3 * (time.perf_counter() - w0)})
 
     def pool(self, classes: list[np.ndarray], legal: np.ndarray, on_road: np.ndarray,
              overlap: np.ndarray, evasive: np.ndarray | None = None) -> np.ndarray:
@@ -489,7 +595,7 @@ class EthicalPlanner:
         return cost.total, j, cls
 
     def _emergency(self, scene: Scene, timings: dict[str, float]) -> Decision:
-        """Nothing is feasible: brake as hard as allowed along the reference path, keeping d."""
+        """Nothing is feasible: brake as hard as allowed along the reference path, keeping d (no plan kept)."""
         veh = scene.vehicle
         v = float(scene.ego.speed[0])
         v_next = max(0.0, v - veh.max_decel * scene.dt)
