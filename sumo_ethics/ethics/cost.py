@@ -58,7 +58,7 @@ from sumo_ethics.ethics.probability import EthicsConfigError, _check_number
 from sumo_ethics.ethics.risk import RiskTerms
 from sumo_ethics.types import Candidates, CostBreakdown
 
-__all__ = ["PrincipleWeights", "PRESETS", "UtilityMode", "NORMALISE", "CostConfig", "score", "TERMS"]
+__all__ = ["PrincipleWeights", "PRESETS", "UtilityMode", "NORMALISE", "CostConfig", "score", "TERMS", "tolerance_bound"]
 
 _TIE_RTOL = 1e-9
 
@@ -262,3 +262,50 @@ def score(
         se, so, vru, *maxes, bh, h_max, n_norm,
     )
     return CostBreakdown(terms=dict(zip(TERMS, values)), total=j_risk)
+
+
+def tolerance_bound(cost: CostBreakdown, risk: RiskTerms, cfg: CostConfig = CostConfig(),
+                    feasible: np.ndarray | None = None) -> np.ndarray:
+    """(K,) how far each candidate's J_risk (``cost.total``, scored from ``risk``) can lie from
+    the J_risk of the exact risk terms, given ``risk.slack`` (the bounded search's tolerance mode;
+    0 everywhere without slack). With s_e, s_o the (K, N) slack of ego_risk and other_risk, N the
+    divisor (``n_norm``), b the breakers, H the Maximin harm and s_H its slack:
+
+    - Bayes <= sum_n (s_e + s_o) / 2N, Equality <= sum_n max(s_e, s_o) / N (both terms move the
+      same way), Responsibility <= sum_n (1 - b) s_o / N, Ego <= sum_n s_e, Maximin <= (H + s_H)^e - H^e;
+    - J_utility: J can be sum_n (s_e + s_o) = dJ higher, J_mean at most max dJ over ``feasible``;
+      a candidate above the mean by more than that stays above it (bound w_u scale dJ), one below
+      by more than its own dJ stays below (0), else the indicator may flip: w_u scale (J + dJ).
+
+    The bound is w_o w_risk (w_B dB + w_E dE + w_M dM + w_ego dEgo + w_R dR) + that J_utility part;
+    in the exact mode it is 0. The tolerance mode's chosen candidate costs, in exact terms, at
+    most its bound plus the exact choice's bound more than the exact choice (tests/test_risk_tolerance.py,
+    ``tools/tolerance_check.py`` on recorded planning steps)."""
+    K = cost.total.shape[0]
+    if risk.slack is None or risk.slack.shape[2] == 0:
+        return np.zeros(K)
+    s_e, s_o, s_he, s_ho = risk.slack
+    t = cost.terms
+    n_norm = t["n_norm"]
+    w = cfg.weights
+    d_bayes = (s_e + s_o).sum(axis=1) / (2 * n_norm)
+    d_equality = np.maximum(s_e, s_o).sum(axis=1) / n_norm
+    breakers = np.zeros(s_o.shape[1], bool) if risk.rule_breaker is None else risk.rule_breaker
+    d_resp = (s_o * ~breakers).sum(axis=1) / n_norm
+    d_ego = s_e.sum(axis=1)
+    h = t["max_harm"]
+    h_up = np.maximum(np.maximum((risk.ego_harm_max + s_he).max(axis=1), (risk.other_harm_max + s_ho).max(axis=1)),
+                      risk.boundary_harm)
+    d_maximin = h_up**cfg.maximin_exponent - h**cfg.maximin_exponent
+    d_origin = w.risk * (w.bayes * d_bayes + w.equality * d_equality + w.maximin * d_maximin + w.ego * d_ego
+                         + w.responsibility * d_resp)
+    d_j = (s_e + s_o).sum(axis=1)
+    j, j_mean = t["j_total_risk"], t["j_mean"]
+    pool = np.ones(K, bool) if feasible is None else np.asarray(feasible, dtype=bool)
+    d_mean = float(d_j[pool].max()) if pool.any() else float(d_j.max())
+    if cfg.utility is UtilityMode.LITERAL:
+        d_mean = d_j  # J_mean = J / N_r moves with the candidate's own J
+    above = j > j_mean + d_mean + _TIE_RTOL * np.abs(j_mean)
+    below = j + d_j <= j_mean
+    d_utility = cfg.utility_scale * np.where(above, d_j, np.where(below, 0.0, j + d_j))
+    return cfg.omega_o * d_origin + cfg.omega_u * d_utility

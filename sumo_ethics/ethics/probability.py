@@ -603,11 +603,12 @@ def bounded_shapes_terms(
     weight: np.ndarray,
     harm_inputs: tuple,
     need_at_risk: bool = False,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The "shapes" risk terms of one mode by :mod:`sumo_ethics.ethics.search`'s bounded search,
     to ``cfg.tolerance``: ((4, K, N) weight x max P h_ego, weight x max P h_other, max ramp h_ego,
-    max ramp h_other; (K, N) bool at_risk: some step counts (with a tolerance, settled exactly only
-    with ``need_at_risk``); (3,) counts: gated steps, integrals, pairs at risk).
+    max ramp h_other; (4, K, N) their slack, how far above each its exact value may lie; (K, N)
+    bool at_risk: some step counts (with a tolerance, settled exactly only with ``need_at_risk``);
+    (3,) counts: gated steps, integrals, pairs at risk).
 
     weight: (N,) the mode's weight per agent (a step counts where weight p >= p_min);
     harm_inputs: (ego speed (K, T) [m/s] >= 0, ego mass [kg], ego vulnerable, agent speed (N, Tp)
@@ -622,7 +623,7 @@ def bounded_shapes_terms(
     N = len(pred.ids)
     tp = min(T, pred.mean.shape[1]) if N else 0
     if K == 0 or N == 0 or tp == 0:
-        return np.zeros((4, K, N)), np.zeros((K, N), bool), np.zeros(3, np.int64)
+        return np.zeros((4, K, N)), np.zeros((4, K, N)), np.zeros((K, N), bool), np.zeros(3, np.int64)
     ev, ego_mass, ego_vul, av, amass, avul, coeffs = harm_inputs
     sxx, sxy, syy, at = shapes_covariances(pred, cand.dt, tp, cfg)
     return bounded_terms(

@@ -48,6 +48,10 @@ class RiskTerms:
     at_risk: (K, N) bool, some step of (k, n) counts (an entry; the "at_risk" normalisation).
     complete: False where the terms come from the bounded search (``assess_risk(..., steps=False)``):
     the same (K, N) terms and at_risk (:mod:`sumo_ethics.ethics.search`), ``sparse`` empty, the (K, N, T) views raise.
+    slack: None (exact) or (4, K, N): how far the exact ego_risk, other_risk, ego_harm_max and
+    other_harm_max may lie above these, each at most ``ProbabilityConfig.tolerance`` (0 where the
+    search left nothing unexamined); :func:`sumo_ethics.ethics.cost.tolerance_bound` turns it into
+    a bound on each candidate's cost.
     """
 
     ego_risk: np.ndarray
@@ -62,6 +66,7 @@ class RiskTerms:
     rule_breaker: np.ndarray | None = None
     at_risk: np.ndarray | None = None
     complete: bool = True
+    slack: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = self.ego_risk.shape[1]
@@ -200,14 +205,17 @@ def _entries(cand: Candidates, pred: Prediction, agents: AgentStates, ego_mass: 
 
 def _bounded(cand: Candidates, pred: Prediction, agents: AgentStates, ego_mass: float, ego_cls: int,
              ego_length: float, ego_width: float, coeffs: HarmCoefficients, prob_cfg: ProbabilityConfig,
-             need_at_risk: bool) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
-    """((ego_risk, other_risk, ego_harm_max, other_harm_max) (K, N), at_risk (K, N)) by the bounded
-    search (:func:`~sumo_ethics.ethics.probability.bounded_shapes_terms`), mode by mode: the risks
-    summed over the modes (each weighted by its weight), the harm maxima and at_risk over them. A
+             need_at_risk: bool) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray]:
+    """((ego_risk, other_risk, ego_harm_max, other_harm_max) (K, N), at_risk (K, N), slack (4, K, N))
+    by the bounded search (:func:`~sumo_ethics.ethics.probability.bounded_shapes_terms`), mode by
+    mode: the risks and their slack summed over the modes (each weighted by its weight), the harm
+    maxima, their slack (the largest a maximum over the modes can gain) and at_risk over them. A
     mode is searched only for the agents whose weight reaches p_min (elsewhere it counts nowhere)."""
     K = cand.x.shape[0]
     N = len(agents)
     out = np.zeros((4, K, N))
+    slack = np.zeros((4, K, N))
+    upper = np.zeros((2, K, N))  # the harm maxima's upper ends over the modes
     at_risk = np.zeros((K, N), dtype=bool)
     ego_speed = np.abs(cand.speed)
     vul = VULNERABLE[np.asarray(agents.cls, dtype=np.intp)]
@@ -222,12 +230,15 @@ def _bounded(cand: Candidates, pred: Prediction, agents: AgentStates, ego_mass: 
             sub = agents
         harm_inputs = (ego_speed, float(ego_mass), bool(VULNERABLE[int(ego_cls)]), _agent_speed(mode, sub),
                        mass.take(rows), vul.take(rows), coeffs.as_array())
-        terms, mode_at, _ = bounded_shapes_terms(cand, mode, sub.length, sub.width, ego_length, ego_width, prob_cfg,
-                                                 w, harm_inputs, need_at_risk)
+        terms, gap, mode_at, _ = bounded_shapes_terms(cand, mode, sub.length, sub.width, ego_length, ego_width,
+                                                      prob_cfg, w, harm_inputs, need_at_risk)
         out[:2, :, rows] += terms[:2]
+        slack[:2, :, rows] += gap[:2]
         out[2:, :, rows] = np.maximum(out[2:, :, rows], terms[2:])
+        upper[:, :, rows] = np.maximum(upper[:, :, rows], terms[2:] + gap[2:])
         at_risk[:, rows] |= mode_at
-    return (out[0], out[1], out[2], out[3]), at_risk
+    slack[2:] = upper - out[2:]
+    return (out[0], out[1], out[2], out[3]), at_risk, slack
 
 
 def _integrate_modes(cand: Candidates, pred: Prediction, agents: AgentStates,
@@ -331,10 +342,10 @@ def assess_risk(
     N = len(agents)
     args = (ego_mass, ego_cls, ego_length, ego_width, coeffs, prob_cfg)
     bounded = not steps and prob_cfg.method == "shapes"
-    at_risk = None
+    at_risk = slack = None
     if bounded:
-        (ego_risk, other_risk, ego_harm_max, other_harm_max), at_risk = _bounded(cand, pred, agents, *args,
-                                                                                  need_at_risk)
+        (ego_risk, other_risk, ego_harm_max, other_harm_max), at_risk, slack = _bounded(cand, pred, agents, *args,
+                                                                                         need_at_risk)
         sp, h_e, h_o = SparseProbability.none((K, N, cand.x.shape[1])), np.zeros(0), np.zeros(0)
     elif pred.weight is None:
         sp, h_e, h_o = _entries(cand, pred, agents, *args)
@@ -357,4 +368,5 @@ def assess_risk(
         rule_breaker=rule_breaker,
         at_risk=at_risk,
         complete=not bounded,
+        slack=slack,
     )

@@ -302,6 +302,7 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
     hv = np.empty((2, tp))
     key = np.empty(tp)
     terms = np.zeros((4, K, N))  # max P h_ego, max P h_other (times w), max ramp h_ego, max ramp h_other
+    slack = np.zeros((4, K, N))  # how far above its term each maximum may lie (the bound left when the search stopped)
     at_risk = np.zeros((K, N), dtype=np.bool_)
     counts = np.zeros(3, dtype=np.int64)  # gated steps that can count, integrals, (k, n) pairs at risk
     for k in range(K):
@@ -361,9 +362,13 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
                     else:
                         key[i] = (1.0 if full[i] else _ramp(wn * ub[i], p_min, p_full)) * h[i]
                 best = 0.0  # the largest value found
+                left = 0.0  # the largest bound not searched
                 while True:
                     j = _pop_max(key, g)
-                    if j < 0 or key[j] <= best + tol:
+                    if j < 0:
+                        break
+                    if key[j] <= best + tol:
+                        left = key[j]
                         break
                     key[j] = -1.0
                     if px[j] < 0.0:
@@ -387,6 +392,7 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
                         value = px[j] if risk else _ramp(wn * px[j], p_min, p_full)
                         best = max(best, value * h[j])
                 terms[phase, k, n] = wn * best if risk else best
+                slack[phase, k, n] = (wn if risk else 1.0) * max(left - best, 0.0)
             if need_at_risk and not found:  # does any step count? by decreasing upper bound
                 for i in range(g):
                     key[i] = ub[i]
@@ -412,7 +418,7 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
             if found:
                 at_risk[k, n] = True
                 counts[2] += 1
-    return terms, at_risk, counts
+    return terms, slack, at_risk, counts
 
 
 def bounded_terms(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, other_length, other_width,
@@ -420,7 +426,9 @@ def bounded_terms(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, othe
                   need_at_risk: bool, weight, ego_mass: float, ego_vulnerable: bool, other_mass, other_vulnerable,
                   coeffs: np.ndarray):
     """The risk terms of one mode: ((4, K, N) weight x max_t P h_ego, weight x max_t P h_other,
-    max_t ramp(weight P) h_ego, max_t ramp(weight P) h_other, each to ``tol``; (K, N) bool
+    max_t ramp(weight P) h_ego, max_t ramp(weight P) h_other, each to ``tol``; (4, K, N) their
+    slack: how far above each term its exact value may lie, at most ``tol`` (the largest bound the
+    search left unexamined, less the term; 0 where it examined every step); (K, N) bool
     ``at_risk``: some step counts (with tol > 0 settled exactly only with ``need_at_risk``); (3,)
     counts: gated steps that can count, integrals, pairs at risk).
 
@@ -453,5 +461,5 @@ def bounded_terms(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, othe
     if len(parts) <= 1:
         return kernel(*e, *rest)
     outs = cores.map_ordered(kernel, [tuple(a[lo:hi] for a in e) + rest for lo, hi in parts])
-    return (np.concatenate([o[0] for o in outs], axis=1), np.concatenate([o[1] for o in outs]),
-            np.sum([o[2] for o in outs], axis=0))
+    return (np.concatenate([o[0] for o in outs], axis=1), np.concatenate([o[1] for o in outs], axis=1),
+            np.concatenate([o[2] for o in outs]), np.sum([o[3] for o in outs], axis=0))
