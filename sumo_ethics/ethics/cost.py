@@ -14,10 +14,11 @@ boundary harm b (K,) from :class:`~sumo_ethics.ethics.risk.RiskTerms`:
 - Bayes ``B = (sum_n ego_risk + sum_n other_risk + b) / (2N)``;
 - Equality ``E = sum_n |ego_risk - other_risk| / N``;
 - Maximin ``M = h_max ** maximin_exponent`` with h_max the largest harm among the parties the
-  candidate can collide with: max over n of the ego's and agent n's harm at the steps with
-  P > 0 (``ego_harm_max``, ``other_harm_max``), and b. A party with P = 0 everywhere (beyond the
-  5 m gate or below ``p_min``) contributes nothing. (Origin keeps harms only where the risk is
-  below 1e-9, the opposite of its comment; not copied.)
+  candidate can collide with: max over n of the ego's and agent n's harm, each weighed by Maximin's
+  ramp of that step's share of the collision probability (0 up to ``ProbabilityConfig.p_min``,
+  rising to 1 at ``maximin_full`` x p_min: ``ego_harm_max``, ``other_harm_max``), and b. A party
+  whose share of P stays below p_min contributes nothing, and its price grows continuously with
+  P. (Origin keeps harms only where the risk is below 1e-9, the opposite of its comment; not copied.)
 - Ego ``Ego = sum_n ego_risk + b``;
 - Responsibility ``R = sum_n (1 - breaks_rules_n) other_risk_n / N``: the risk the candidate puts on
   road users who keep the rules (``RiskTerms.rule_breaker``; see :mod:`sumo_ethics.sim.rules`), so

@@ -6,10 +6,13 @@ parties; a candidate's risk against n is the maximum over t. Harm comes from
 agent's predicted state at t (mean position, predicted yaw, speed from finite differences of
 the predicted mean, prefixed with the agent's current position).
 
-Harm is evaluated only where P > 0 (inside the 5 m gate and above ``ProbabilityConfig.p_min``):
-elsewhere it cannot contribute to any risk and the dense harm arrays hold 0. Everything per
-step is kept sparse (typically a few % of K x N x T); the dense (K, N, T) arrays are built on
-first access. Leaving the road is a risk to the ego with probability 1: ``boundary_harm`` is
+Harm counts only where a step's share of the collision probability reaches the one threshold
+``ProbabilityConfig.p_min`` (1e-3 for "shapes": the gate per mode weight, the risk terms, Maximin and
+the at-risk set; 1e-9 for Origin's score): elsewhere it cannot contribute to any risk and the dense
+harm arrays hold 0. Everything per step is kept sparse (typically a few % of K x N x T); the dense
+(K, N, T) arrays are built on first access. The planner's terms come from the bounded search
+instead (``steps=False``, :mod:`sumo_ethics.ethics.search`), to ``ProbabilityConfig.tolerance``,
+each with its slack. Leaving the road is a risk to the ego with probability 1: ``boundary_harm`` is
 the angle-free harm at the speed of leaving.
 
 A multi-modal prediction (several futures per agent, with weights) is integrated mode by mode:

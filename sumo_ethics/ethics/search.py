@@ -1,32 +1,34 @@
-"""The "shapes" risk terms by a bounded search over the horizon steps (numba).
+"""The "shapes" risk terms by a bounded search over the horizon steps (numba), to a stated tolerance.
 
-The planner needs, per candidate k and road user n, four maxima over the steps t at which a
-collision counts (P >= p_min and w P >= p_min, w the mode's weight):
+The planner needs, per candidate k and road user n (each mode of its prediction apart, w the
+mode's weight), four maxima over the steps t at which a collision counts (w P >= p_min, the one
+threshold of :class:`~sumo_ethics.ethics.probability.ProbabilityConfig`):
 
-    max_t P h_ego,  max_t P h_other,  max_t h_ego,  max_t h_other,
+    w max_t P h_ego,  w max_t P h_other,  max_t r(w P) h_ego,  max_t r(w P) h_other,
 
-and whether any step counts at all (the "at_risk" normalisation). The exhaustive evaluation
-(:func:`sumo_ethics.ethics.shapes.shapes_sparse`) integrates every gated (k, n, t). Here two
-cheap bounds on P (:func:`_box_bounds`) decide which steps must be integrated:
+(r: Maximin's ramp, 0 up to p_min and 1 from p_full on) and whether any step counts at all (the
+"at_risk" normalisation). The exhaustive evaluation (:func:`sumo_ethics.ethics.shapes.shapes_sparse`)
+integrates every gated (k, n, t). Here two cheap bounds on P (:func:`_box_bounds`) decide which
+steps must be integrated:
 
 - along the agent's principal axes its centre's two coordinates are independent normals, so the
   mass of a box aligned with them is a product of two 1-D masses (four normal CDFs): the
   octagon's bounding box gives an upper bound (median 1.1-1.2 x the exact P on the planner
   benchmark's entries), a box inside the octagon a lower bound.
-- For the maxima of P x harm: the steps in decreasing order of upper bound x harm are integrated
-  until the next one's bound x harm is no larger than the best P x harm found.
-- For the harm maxima: the steps in decreasing order of harm, down to the first that counts; a
-  step whose lower bound already shows that it counts is not integrated.
+- Each maximum: the steps in decreasing order of upper bound x harm are integrated until the next
+  one's bound x harm is no larger than the best value found plus ``tol``; the bound left (less the
+  best) is the term's *slack*, how far the exact maximum may lie above the term (at most tol, 0 in
+  the exact mode, tol = 0). A step whose lower bound already puts its share of P at p_full or more
+  is not integrated for Maximin (its ramp is 1 whatever P is).
+- at_risk: with ``need_at_risk`` a pair none of whose integrated steps counts is settled by
+  lower bounds and, failing those, integrals in decreasing order of upper bound.
 
-The gate, the slabs' quick exits (P = 0 or 1) and the integral of a step are those of the
-exhaustive path, the same function on the same numbers, so every P found is the same bit for
-bit. The harm used for ordering (:func:`_order_harm`) is an interval that holds numpy's
-(:func:`~sumo_ethics.ethics.harm.crash_outcome`) within ``_DH`` (a point but on an impact-area
-boundary), and every comparison allows for that. A step is
-passed over only where its bound proves that its true P x harm cannot beat the best found, so
-the terms differ from the exhaustive path's by at most the integrals' own error (shapes.py: below
-4e-8 in P); on every scene tested they are the same numbers (tests/test_search.py). The maxima
-themselves are taken with numpy from the returned entries, as before (sumo_ethics.ethics.risk).
+The gate (cut where w P < p_min), the slabs' quick exits (P = 0 or 1) and the integral of a step are
+those of the exhaustive path, the same function on the same numbers. The harm is
+:func:`_order_harm`'s: :func:`~sumo_ethics.ethics.harm.crash_outcome`'s model within ``_DH``,
+the larger of the two areas' harms on an impact-area boundary. In the exact mode the terms are the
+exhaustive path's to rounding (1e-12), in the tolerance mode below them by at most their slack
+(tests/test_search.py, tests/test_risk_tolerance.py).
 """
 
 from __future__ import annotations

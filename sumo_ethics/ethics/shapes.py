@@ -20,8 +20,10 @@ Gauss-Legendre, which it replaced); the
 triangles' angle parts add up to 1 inside the polygon and 0 outside, and an edge further
 than 8.3 standard units adds nothing else (error < 1e-16). Quick exits, per entry: the octagon is the intersection of four slabs
 (the two boxes' axes, the separating-axis theorem); a mean more than ``z`` standard
-deviations outside any slab gives P = 0 (bound Phi(-z)), one more than ``z`` inside all four
-gives P = 1 (bound 4 Phi(-z)). Total error of a P: below 4e-8 + 4 Phi(-z) (z = 6: 5e-8).
+deviations outside any slab has P < Phi(-z) and is taken as 0, one more than ``z_in`` inside
+all four gives P = 1 (bound 4 Phi(-z_in); z_in = 6: 4e-9). ``z`` comes from the risk's one
+threshold (:func:`sumo_ethics.ethics.probability.gate_widths`: Phi(-z) = p_min / mode weight), so
+a step taken as 0 could not count. Error of a P that counts: below 4e-8 + 4 Phi(-z_in) = 5e-8.
 
 The geometric gate decides which (k, n, t) are integrated at all: the ego's and the agent's
 half-diagonals plus ``z`` times the agent's largest standard deviation, first per block of
