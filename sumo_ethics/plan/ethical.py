@@ -83,7 +83,10 @@ class PlannerConfig:
     3rd step); the steps are staggered by the ego's id (a fleet's egos do not all plan in the same
     step), and the ego plans at once when a road user enters its range, the predicted road users
     enter the remaining plan's envelope, the ego is off its plan, or the plan runs out (1: every
-    step, the default; see :meth:`EthicalPlanner.follow`).
+    step, the default; see :meth:`EthicalPlanner.follow`);
+    share_plans: in a fleet, predict the other egos that share their plans by their committed
+    plans (one mode with a tracking spread) instead of the model, and share this ego's
+    (:class:`sumo_ethics.runner.fleet.SharedPrediction`; no effect on a single ego).
     """
 
     cost: CostConfig = field(default_factory=CostConfig)
@@ -103,6 +106,7 @@ class PlannerConfig:
     entry: float = 1000.0
     evasive: bool = True
     replan_every: int = 1
+    share_plans: bool = False
 
     def __post_init__(self) -> None:
         if self.selection not in SELECTIONS:
@@ -116,7 +120,7 @@ class PlannerConfig:
         if self.predictor == "cv" and self.predictor_weights:
             raise ConfigError("predictor_weights is a weights file for an LSTM predictor; predictor 'cv' "
                               "(constant velocity) has none")
-        for flag in ("calibrated", "evasive", "lateral_onset"):
+        for flag in ("calibrated", "evasive", "lateral_onset", "share_plans"):
             if not isinstance(getattr(self, flag), bool):
                 raise ConfigError(f"{flag} must be true or false, got {getattr(self, flag)!r}")
         if not (isinstance(self.replan_every, int) and not isinstance(self.replan_every, bool)
@@ -350,6 +354,7 @@ class EthicalPlanner:
         self._accel = 0.0
         self._sampling: SamplingConfig | None = None
         self._plan: Plan | None = None  # the committed plan (replan_every > 1)
+        self._shares_plans = cfg.share_plans and callable(getattr(self.predictor, "publish", None))
         self.replan_reason = REPLAN["no_plan"]
 
     @property
@@ -474,6 +479,8 @@ class EthicalPlanner:
         cmd = EgoCommand(float(cand.x[k, 0]), float(cand.y[k, 0]), float(cand.yaw[k, 0]), float(cand.speed[k, 0]))
         if self.cfg.replan_every > 1:
             self._plan = Plan(cand.take(np.array([k])), scene.time, frozenset(agents.ids), dict(info))
+        if self._shares_plans:
+            self.predictor.publish(scene.ego.ids[0], scene.time, cand.x[k], cand.y[k], cand.yaw[k])  # type: ignore[attr-defined]
         eligible = emergency_only(hard_pool(legal, on_road), evasive, overlap) if self.cfg.selection == "cost" else \
             (classes[cls] if cls < len(classes) else np.ones(len(fc), dtype=bool))
         trace = DecisionTrace(
@@ -489,7 +496,10 @@ class EthicalPlanner:
         obs = scene.history
         if obs is None:
             raise ValueError("the ethical planner needs the neighbours' history in its scene (needs_history)")
-        pred = self.predictor.predict(obs, horizon_steps, dt)
+        if self._shares_plans:  # the other egos' committed plans instead of their predictions
+            pred = self.predictor.predict(obs, horizon_steps, dt, plans=True)  # type: ignore[call-arg]
+        else:
+            pred = self.predictor.predict(obs, horizon_steps, dt)
         # the priors treat every mode of a multi-modal prediction alike (they map over the modes)
         if self.cfg.lateral_prior > 0.0:  # first: a car braking to a stand also stops moving sideways
             travel, lateral = recent_motion(obs) if self.cfg.lateral_onset else (None, None)

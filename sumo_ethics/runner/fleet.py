@@ -138,34 +138,96 @@ def make_fleet_controllers(cfg: RunConfig) -> Callable[[str, str], Controller]:
 
 
 class SharedPrediction:
-    """One batched prediction per step for every ego's neighbours.
+    """One batched prediction per step for every ego's neighbours, and the egos' shared plans.
 
     :meth:`begin` hands it the step's union observation (every road user some ego sees, the egos
     too); the first ``predict`` of a step with a horizon predicts them all at once, every call
     returns the rows of the agents it asks for. Everything else is the wrapped predictor's.
+
+    Plan sharing (``[planner] share_plans``): a planner :meth:`publish` es its committed plan; from
+    the next step on, every ego sharing plans predicts that ego by its plan instead of the model:
+    one mode, the plan's centre positions and headings from now on (past its end, on at its last
+    speed and heading), with a tracking spread of :data:`PLAN_SIGMA0` + :data:`PLAN_SIGMA_RATE` x t
+    [m] along and across (the ego may replan within its limits). Plans of the step are used from
+    the next step, so the order in which the egos act changes nothing.
     """
 
     def __init__(self, base: Any) -> None:
         self.base = base
         self.obs: Observation | None = None
         self.index: dict[str, int] = {}
-        self.cache: dict[tuple[int, float], Prediction] = {}
+        self.cache: dict[tuple[int, float, bool], Prediction] = {}
         self.calls = 0  # batched predictions made
+        self.plans: dict[str, tuple[float, np.ndarray, np.ndarray, np.ndarray]] = {}  # published this step
+        self.shared: dict[str, tuple[float, np.ndarray, np.ndarray, np.ndarray]] = {}  # usable this step
 
     def __getattr__(self, name: str) -> Any:  # kind, path, model, calibration ...
         return getattr(self.base, name)
 
     def begin(self, obs: Observation) -> None:
         self.obs, self.index, self.cache = obs, obs.current.index, {}
+        self.shared = {k: v for k, v in {**self.shared, **self.plans}.items() if k in self.index}
+        self.plans = {}
 
-    def predict(self, obs: Observation, horizon_steps: int, dt: float) -> Prediction:
+    def publish(self, ego_id: str, time: float, x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> None:
+        """Ego ``ego_id``'s committed plan, chosen at ``time`` [s]: its centre x, y [m] and heading [rad]
+        at time + dt, time + 2 dt, ... (T,) each."""
+        self.plans[ego_id] = (float(time), np.asarray(x, float), np.asarray(y, float), np.asarray(yaw, float))
+
+    def predict(self, obs: Observation, horizon_steps: int, dt: float, plans: bool = False) -> Prediction:
         if self.obs is None:
             return self.base.predict(obs, horizon_steps, dt)
-        key = (horizon_steps, float(dt))
+        key = (horizon_steps, float(dt), plans)
         if key not in self.cache:
-            self.cache[key] = self.base.predict(self.obs, horizon_steps, dt)
-            self.calls += 1
+            if (horizon_steps, float(dt), False) not in self.cache:
+                self.cache[(horizon_steps, float(dt), False)] = self.base.predict(self.obs, horizon_steps, dt)
+                self.calls += 1
+            if plans:
+                self.cache[key] = self._with_plans(self.cache[(horizon_steps, float(dt), False)], dt)
         return self.cache[key].take([self.index[k] for k in obs.current.ids])
+
+    def _with_plans(self, pred: Prediction, dt: float) -> Prediction:
+        """``pred`` with the rows of the egos whose plans are shared replaced by them (one mode)."""
+        rows = [(self.index[k], v) for k, v in sorted(self.shared.items())]
+        if not rows:
+            return pred
+        assert self.obs is not None
+        now = self.obs.time
+        H = pred.mean.shape[1]
+        t = dt * np.arange(1, H + 1)
+        sig = PLAN_SIGMA0 + PLAN_SIGMA_RATE * t
+        mean, cov, yaw = pred.mean.copy(), pred.cov.copy(), pred.yaw.copy()
+        weight = None if pred.weight is None else pred.weight.copy()
+        for i, (t0, x, y, h) in rows:
+            m = int(round((now - t0) / dt))  # plan step i holds time t0 + (i + 1) dt; now + (j + 1) dt is step m + j
+            idx = m + np.arange(H)
+            last = len(x) - 1
+            inside = np.minimum(idx, last)
+            beyond = np.maximum(idx - last, 0) * dt  # [s] past the plan's end
+            speed = np.hypot(x[last] - x[last - 1], y[last] - y[last - 1]) / dt if last > 0 else 0.0
+            mean[i, :, 0] = x[inside] + beyond * speed * np.cos(h[last])
+            mean[i, :, 1] = y[inside] + beyond * speed * np.sin(h[last])
+            yaw[i] = h[inside]
+            cov[i] = (sig**2)[:, None, None] * np.eye(2)
+            if weight is not None:
+                weight[i] = 0.0
+                weight[i, 0] = 1.0
+        main = Prediction(pred.ids, pred.dt, mean, cov, yaw)
+        if pred.weight is None:
+            return main
+        alts = tuple(Prediction(a.ids, a.dt, *_rows_from(a, main, [i for i, _ in rows])) for a in pred.alternatives)
+        return Prediction(pred.ids, pred.dt, mean, cov, yaw, alts, weight)
+
+
+#: a shared plan's tracking spread: standard deviation along and across, sigma0 + rate x t [m, m/s]
+PLAN_SIGMA0, PLAN_SIGMA_RATE = 0.1, 0.3
+
+
+def _rows_from(mode: Prediction, main: Prediction, rows: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``mode``'s mean, cov, yaw with ``rows`` taken from ``main`` (a weight-0 mode keeps the plan's shape)."""
+    mean, cov, yaw = mode.mean.copy(), mode.cov.copy(), mode.yaw.copy()
+    mean[rows], cov[rows], yaw[rows] = main.mean[rows], main.cov[rows], main.yaw[rows]
+    return mean, cov, yaw
 
 
 def union_states(parts: list[AgentStates]) -> AgentStates:
