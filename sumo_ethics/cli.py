@@ -162,7 +162,7 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
                    f"speed changes per step exceed its acceleration limits", err=True)
 
     if controller == "ethical" or fleet is not None:  # the planner's kernels compile while SUMO loads
-        from sumo_ethics.ethics import warmup
+        from sumo_ethics.plan import warmup
 
         warmup.start()
     from sumo_ethics import notes

@@ -74,7 +74,7 @@ def evaluate_cmd(suite_dir: Path, planners: tuple[str, ...], workers: int, out: 
     OUT/imported in --mode, each failed import listed with its cause in OUT/imports.csv while the rest
     go on) or of folders written by import-commonroad.
     """
-    from sumo_ethics.ethics import warmup
+    from sumo_ethics.plan import warmup
     from sumo_ethics.suite.evaluate import evaluate
 
     warmup.start()  # the planner's kernels compiled once, before the run processes load them

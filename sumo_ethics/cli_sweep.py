@@ -74,7 +74,7 @@ def sweep(scenario_or_suite: Path, omega_u: str, seeds: str, sets: tuple[str, ..
                "stop_at_collision": False if continue_after_collision else None,
                "record_decisions": None if record_decisions == "risky" else record_decisions}
     planner = load_toml(config_file) if config_file is not None else None
-    from sumo_ethics.ethics import warmup
+    from sumo_ethics.plan import warmup
 
     warmup.start()  # the planner's kernels compiled once, while the grid is checked
     sw = make_sweep(scenario_or_suite, omega_u, seeds, sets, options=options, planner=planner)

@@ -1,4 +1,4 @@
-"""The planner's kernels compiled in a background process (sumo_ethics.ethics.warmup): after it,
+"""The planner's kernels compiled in a background process (sumo_ethics.plan.warmup): after it,
 a new process finds every kernel the planner calls in numba's cache and compiles nothing."""
 
 from __future__ import annotations
@@ -8,14 +8,15 @@ import os
 import subprocess
 import sys
 
-from sumo_ethics.ethics import warmup
+from sumo_ethics.plan import warmup
 
 PROBE = """
 import json
-from sumo_ethics.ethics import search, shapes, warmup
+from sumo_ethics.ethics import search, shapes
+from sumo_ethics.plan import feasibility, warmup
 warmup.compile_kernels()
 print(json.dumps({f.__name__: [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]
-                  for f in (search._search_kernel, shapes._envelope_kernel)}))
+                  for f in (search._search_kernel, shapes._envelope_kernel, feasibility._check_kernel)}))
 """
 
 
@@ -23,7 +24,8 @@ def test_background_compile_fills_the_cache_a_new_process_loads(tmp_path, monkey
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))  # an empty cache: the background process compiles
     warmup.start()
     warmup.wait()
-    assert any(tmp_path.rglob("*search._search_kernel*.nbi")) and any(tmp_path.rglob("*_envelope_kernel*.nbi"))
+    for kernel in ("search._search_kernel", "shapes._envelope_kernel", "feasibility._check_kernel"):
+        assert any(tmp_path.rglob(f"*{kernel}*.nbi")), kernel
     out = subprocess.run([sys.executable, "-c", PROBE], env=dict(os.environ), capture_output=True, text=True,
                          check=True, timeout=300).stdout
     stats = json.loads(out.strip().splitlines()[-1])

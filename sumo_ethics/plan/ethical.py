@@ -21,7 +21,7 @@ from typing import Any, Callable, Protocol
 import numpy as np
 
 from sumo_ethics.errors import ConfigError, is_number
-from sumo_ethics.ethics import warmup
+from sumo_ethics.plan import warmup
 from sumo_ethics.ethics.cost import CostConfig, UtilityMode, score
 from sumo_ethics.ethics.probability import ProbabilityConfig
 from sumo_ethics.ethics.risk import assess_risk

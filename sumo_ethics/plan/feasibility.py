@@ -21,12 +21,12 @@ import math
 from dataclasses import dataclass
 from typing import Protocol
 
+import numba
 import numpy as np
 
 from sumo_ethics.config import EgoVehicle
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.geometry import Polyline
-from sumo_ethics.plan.sampling import reference_heading
 from sumo_ethics.types import Candidates
 
 __all__ = ["Feasibility", "LAT_ACCEL_RELAX", "ROAD_CURVATURE_TOL", "RouteLike", "check"]
@@ -133,40 +133,97 @@ def check(cand: Candidates, route: RouteLike, vehicle: EgoVehicle,
     """
     if speed_limit_factor is not None and not (math.isfinite(speed_limit_factor) and speed_limit_factor > 0):
         raise ConfigError(f"speed_limit_factor must be a positive number or None, got {speed_limit_factor!r}")
-    valid = np.asarray(cand.valid, dtype=bool)
-    invalid = ~valid
-
-    def every(ok: np.ndarray) -> np.ndarray:
-        return np.all(ok | invalid, axis=1)
-
-    v, a, k = cand.speed, cand.accel, cand.curvature
     path = route.path
-    speed_ok = (v >= -_TOL) & (v <= vehicle.max_speed + _TOL)
     limit = getattr(route, "speed_limit", None)
-    if speed_limit_factor is not None and limit is not None:
-        idx = np.clip(np.searchsorted(path.s, cand.s, side="right") - 1, 0, len(path.s) - 1)
-        speed_ok &= v <= speed_limit_factor * np.asarray(limit, dtype=float)[idx] + _TOL
-    accel_ok = (a >= -vehicle.max_decel - _TOL) & (a <= vehicle.max_accel + _TOL)
-    c = vehicle.max_curvature
-    upper: np.ndarray | float = c
-    lower: np.ndarray | float = -c
-    if cand.road_curvature is not None:
-        kr = cand.road_curvature
-        upper = np.where(kr > c, kr + ROAD_CURVATURE_TOL, c)
-        lower = np.where(kr < -c, kr - ROAD_CURVATURE_TOL, -c)
-    curvature_ok = (k <= upper + _TOL) & (k >= lower - _TOL)
-    beyond = np.abs(k) > c + _TOL
-    lat = np.abs(v * v * k)
-    lat_accel_ok = lat <= vehicle.max_lat_accel + _TOL
+    use_limit = speed_limit_factor is not None and limit is not None
+    f = np.ascontiguousarray
+    K, T = cand.x.shape
+    road = cand.road_curvature
+    res = _check_kernel(
+        f(cand.speed, dtype=float), f(cand.accel, dtype=float), f(cand.curvature, dtype=float),
+        f(np.zeros((K, T)) if road is None else road, dtype=float), road is not None, f(cand.yaw, dtype=float),
+        f(cand.s, dtype=float), f(cand.d, dtype=float), f(cand.valid, dtype=np.bool_), f(path.s, dtype=float),
+        f(_vertex_heading(path)), f(np.asarray(route.left, dtype=float)), f(np.asarray(route.right, dtype=float)),
+        f(np.asarray(limit, dtype=float)) if use_limit else np.zeros(len(path.s)), use_limit,
+        float(speed_limit_factor or 1.0), float(vehicle.max_speed), float(vehicle.max_decel), float(vehicle.max_accel),
+        float(vehicle.max_curvature), float(vehicle.max_lat_accel), float(vehicle.length), float(vehicle.width),
+        ROAD_CURVATURE_TOL, _TOL)
+    return Feasibility(speed_ok=res[0], accel_ok=res[1], curvature_ok=res[2], lat_accel_ok=res[3], on_road=res[4],
+                       beyond_limit=res[5], lat_accel_peak=res[6])
 
-    psi = cand.yaw - reference_heading(path, cand.s)
-    extent = 0.5 * vehicle.length * np.abs(np.sin(psi)) + 0.5 * vehicle.width * np.abs(np.cos(psi))
-    left = np.interp(cand.s, path.s, np.asarray(route.left, dtype=float))
-    right = np.interp(cand.s, path.s, np.asarray(route.right, dtype=float))
-    on_road = (cand.d + extent <= left + _TOL) & (cand.d - extent >= right - _TOL)
 
-    return Feasibility(
-        speed_ok=every(speed_ok), accel_ok=every(accel_ok), curvature_ok=every(curvature_ok),
-        lat_accel_ok=every(lat_accel_ok), on_road=every(on_road), beyond_limit=np.any(beyond & valid, axis=1),
-        lat_accel_peak=np.where(valid, lat, 0.0).max(axis=1),
-    )
+def _vertex_heading(path: Polyline) -> np.ndarray:
+    """(M,) the smooth heading at the path's vertices that :func:`sumo_ethics.plan.sampling.reference_heading`
+    interpolates [rad, unwrapped]."""
+    h = np.unwrap(path.heading)
+    hv = np.empty(len(path.s))
+    hv[0], hv[-1] = h[0], h[-1]
+    hv[1:-1] = 0.5 * (h[:-1] + h[1:])
+    return hv
+
+
+@numba.njit(cache=True, nogil=True)
+def _interp(x: float, xp, fp, j: int) -> float:
+    """np.interp(x, xp, fp) with j the index of the last xp <= x (numpy's formula, bit for bit)."""
+    n = len(xp)
+    if x < xp[0]:
+        return fp[0]
+    if x >= xp[n - 1]:
+        return fp[n - 1]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    return slope * (x - xp[j]) + fp[j]
+
+
+@numba.njit(cache=True, nogil=True)
+def _check_kernel(v, a, k, kr, has_kr, yaw, s, d, valid, ps, hv, left, right, limit, use_limit, factor, max_speed,
+                  max_decel, max_accel, c, max_lat, length, width, road_tol, tol):
+    """The verdicts of :func:`check` over (K, T), one pass per candidate."""
+    K, T = v.shape
+    n = len(ps)
+    speed_ok = np.ones(K, dtype=np.bool_)
+    accel_ok = np.ones(K, dtype=np.bool_)
+    curv_ok = np.ones(K, dtype=np.bool_)
+    lat_ok = np.ones(K, dtype=np.bool_)
+    on_road = np.ones(K, dtype=np.bool_)
+    beyond = np.zeros(K, dtype=np.bool_)
+    peak = np.zeros(K)
+    for i in range(K):
+        for t in range(T):
+            if not valid[i, t]:
+                continue
+            x = s[i, t]
+            j = np.searchsorted(ps, x, side="right") - 1  # the last vertex at or before s
+            j = min(max(j, 0), n - 1)
+            vi = v[i, t]
+            ok = vi >= -tol and vi <= max_speed + tol
+            if use_limit:
+                ok = ok and vi <= factor * limit[j] + tol
+            if not ok:
+                speed_ok[i] = False
+            ai = a[i, t]
+            if not (ai >= -max_decel - tol and ai <= max_accel + tol):
+                accel_ok[i] = False
+            ki = k[i, t]
+            upper = c
+            lower = -c
+            if has_kr:
+                r = kr[i, t]
+                if r > c:
+                    upper = r + road_tol
+                if r < -c:
+                    lower = r - road_tol
+            if not (ki <= upper + tol and ki >= lower - tol):
+                curv_ok[i] = False
+            if abs(ki) > c + tol:
+                beyond[i] = True
+            lat = abs(vi * vi * ki)
+            if not (lat <= max_lat + tol):
+                lat_ok[i] = False
+            if lat > peak[i]:
+                peak[i] = lat
+            psi = yaw[i, t] - _interp(x, ps, hv, j)
+            extent = 0.5 * length * abs(math.sin(psi)) + 0.5 * width * abs(math.cos(psi))
+            di = d[i, t]
+            if not (di + extent <= _interp(x, ps, left, j) + tol and di - extent >= _interp(x, ps, right, j) - tol):
+                on_road[i] = False
+    return speed_ok, accel_ok, curv_ok, lat_ok, on_road, beyond, peak

@@ -3,8 +3,8 @@
 numba compiles a kernel the first time it is called and keeps the machine code in its cache
 (``__pycache__`` beside the source, or numba's user cache where that is not writable), from which
 later processes load it in a fraction of a second. On a fresh install the first planning step
-would spend about 8 s compiling :mod:`sumo_ethics.ethics.search` and the envelope kernel of
-:mod:`sumo_ethics.ethics.shapes`.
+would spend about 9 s compiling :mod:`sumo_ethics.ethics.search`, the envelope kernel of
+:mod:`sumo_ethics.ethics.shapes` and the feasibility check of :mod:`sumo_ethics.plan.feasibility`.
 
 So ``sumo-ethics run``, ``evaluate`` and ``sweep`` call :func:`start` first thing: a separate
 process (a second core where there is one) compiles the kernels for the argument types the planner
@@ -32,9 +32,14 @@ _pending: subprocess.Popen | None = None
 def compile_kernels() -> None:
     """Call every kernel the planner uses once on a tiny input (types as in a planning step):
     numba compiles them, or loads them from its cache."""
+    from sumo_ethics.config import EgoVehicle
+    from sumo_ethics.contract import RoutePath
     from sumo_ethics.ethics.harm import HarmCoefficients
     from sumo_ethics.ethics.search import bounded_terms
     from sumo_ethics.ethics.shapes import envelope_first_hit
+    from sumo_ethics.geometry import Polyline
+    from sumo_ethics.plan.feasibility import check
+    from sumo_ethics.types import Candidates
 
     K, T, N = 2, 3, 1
     t = np.arange(1, T + 1) * 0.1
@@ -48,6 +53,11 @@ def compile_kernels() -> None:
                   np.full(N, 1.8), 4.5, 1.8, np.full(N, 3.0), 6.0, 1e-3, 1e-2, 1e-4, False, one, 1475.0, False,
                   np.full(N, 1400.0), np.zeros(N, bool), HarmCoefficients().as_array())
     envelope_first_hit(ex, ey, eyaw, ev, valid, mx, my, psi, np.full(N, 5.5), np.full(N, 2.3), 4.5, 1.8, 8.0)
+    path = Polyline.from_points(np.array([[0.0, 0.0], [100.0, 0.0]]))
+    route = RoutePath(edges=("e",), path=path, lane_of_vertex=("e_0", "e_0"), speed_limit=np.full(2, 14.0),
+                      left=np.full(2, 3.0), right=np.full(2, -3.0), links=())
+    z = np.zeros((K, T))
+    check(Candidates(0.1, ex, ey, eyaw, ev, z, z, ex, z, np.full(K, 0.3), valid, road_curvature=z), route, EgoVehicle())
 
 
 def start() -> None:
@@ -60,7 +70,7 @@ def start() -> None:
                PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH", "")) if p))
     try:
         _pending = subprocess.Popen(
-            [sys.executable, "-c", "from sumo_ethics.ethics.warmup import compile_kernels; compile_kernels()"],
+            [sys.executable, "-c", "from sumo_ethics.plan.warmup import compile_kernels; compile_kernels()"],
             env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     except OSError:  # no process to be had: the first step compiles
         _pending = None
