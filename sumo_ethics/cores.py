@@ -14,12 +14,14 @@ a process that sets nothing (1 when unset).
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Sequence, TypeVar
 
 __all__ = ["available", "threads", "set_threads", "map_ordered", "spans"]
 
 T = TypeVar("T")
+_local = threading.local()  # .inside: this thread is one of the pool's
 _threads: int | None = None
 _pool: ThreadPoolExecutor | None = None
 
@@ -65,11 +67,21 @@ def spans(rows: int, parts: int) -> list[tuple[int, int]]:
 
 
 def map_ordered(fn: Callable[..., T], args: Sequence[tuple]) -> list[T]:
-    """[fn(*a) for a in args], run on :func:`threads` threads where there is more than one."""
+    """[fn(*a) for a in args], run on :func:`threads` threads where there is more than one. A call
+    from inside one of those threads (a fleet's egos planning in parallel, each splitting its risk
+    kernels) runs in that thread: the pool's threads never wait on tasks queued behind them."""
     global _pool
     n = threads()
-    if n == 1 or len(args) < 2:
+    if n == 1 or len(args) < 2 or getattr(_local, "inside", False):
         return [fn(*a) for a in args]
     if _pool is None:
         _pool = ThreadPoolExecutor(max_workers=n, thread_name_prefix="sumo-ethics")
-    return list(_pool.map(lambda a: fn(*a), args))
+
+    def task(a: tuple) -> T:
+        _local.inside = True
+        try:
+            return fn(*a)
+        finally:
+            _local.inside = False
+
+    return list(_pool.map(task, args))

@@ -352,3 +352,29 @@ def test_shared_prediction_is_one_call_giving_each_ego_its_rows():
         own = ConstantVelocityPredictor().predict(obs, 30, 0.1)  # constant velocity: one agent's own alone
         assert got.ids == tuple(ids) and np.array_equal(got.mean, own.mean) and np.array_equal(got.cov, own.cov)
     assert shared.calls == 1
+
+
+def test_a_fleet_of_planners_is_the_same_bytes_on_one_or_two_threads(tmp_path):
+    """The egos plan on the kernels' threads (sumo_ethics.cores), their results taken in order: the
+    same outputs as one thread, with staggered replanning and shared plans on."""
+    from sumo_ethics import cores
+    from sumo_ethics.plan.ethical import PlannerConfig
+    from sumo_ethics.runner.fleet import make_fleet_controllers
+
+    scenario = SCENARIOS / "urban_grid" / "urban_grid.sumocfg"
+    before = cores.threads()
+    outs = []
+    try:
+        for n in (1, 2):
+            cores.set_threads(n)
+            rc = RunConfig(scenario=scenario, out=tmp_path / f"run{n}", progress=False, end=14.0, seed=4,
+                           planner=PlannerConfig(predictor="cv", replan_every=2, share_plans=True),
+                           fleet=FleetSpec(egos=3, shares=(("ethical", 1.0),)))
+            run_fleet(rc, make_fleet_controllers(rc))
+            outs.append(tmp_path / f"run{n}")
+    finally:
+        cores.set_threads(before)
+    for name in ("steps.parquet", "collisions.parquet", "trips.parquet"):
+        assert (outs[0] / name).read_bytes() == (outs[1] / name).read_bytes(), name
+    steps = pd.read_parquet(outs[0] / "steps.parquet")
+    assert steps["ego_id"].nunique() == 3 and (steps["replanned"] == 0).any() and (steps["replanned"] > 0).any()

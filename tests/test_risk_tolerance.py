@@ -262,3 +262,18 @@ def test_cost_terms_and_j_risk_stay_within_their_bound_of_the_exact_mode(monkeyp
     assert bound.max() > 0.0 and np.median(bound) < 1.0  # a bound that is mostly well below a cost unit
     j_fast, j_exact = int(np.argmin(cf.total)), int(np.argmin(ce.total))
     assert ce.total[j_fast] - ce.total[j_exact] <= bound[j_fast] + bound[j_exact] + 1e-9
+
+
+def test_nested_thread_maps_finish_in_order():
+    """A task of the pool that maps again (an ego planning on a thread, its kernels split) runs
+    that map in its own thread instead of waiting on the pool: no deadlock, results in order."""
+    from sumo_ethics import cores
+
+    before = cores.threads()
+    try:
+        cores.set_threads(2)
+        out = cores.map_ordered(lambda i: cores.map_ordered(lambda j: 10 * i + j, [(0,), (1,), (2,)]),
+                                [(1,), (2,), (3,)])
+    finally:
+        cores.set_threads(before)
+    assert out == [[10, 11, 12], [20, 21, 22], [30, 31, 32]]

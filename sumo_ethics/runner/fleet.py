@@ -27,6 +27,7 @@ ends; each ego party of a collision gets its own snapshot figure.
 
 from __future__ import annotations
 
+import threading
 import time as wallclock
 import zlib
 from dataclasses import asdict, dataclass, field, replace
@@ -35,7 +36,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from sumo_ethics import heap
+from sumo_ethics import cores, heap
 from sumo_ethics.collision import CollisionBook, booked_outcome, is_booked
 from sumo_ethics.config import FLEET_CONTROLLERS, FleetSpec, RunConfig
 from sumo_ethics.errors import ConfigError, SumoEthicsError
@@ -128,6 +129,7 @@ def make_fleet_controllers(cfg: RunConfig) -> Callable[[str, str], Controller]:
         key = (pc.predictor, pc.predictor_weights, pc.calibrated)
         if key not in shared:
             shared[key] = SharedPrediction(make_predictor(*key, maps=SumoMapSource))
+        shared[key].horizons.add(max(pc.sampling.horizons))
         return EthicalPlanner(pc, predictor=shared[key])
 
     make.shared = shared  # type: ignore[attr-defined]  # the factory carries its predictions (FleetRun reads them)
@@ -160,6 +162,8 @@ class SharedPrediction:
         self.calls = 0  # batched predictions made
         self.plans: dict[str, tuple[float, np.ndarray, np.ndarray, np.ndarray]] = {}  # published this step
         self.shared: dict[str, tuple[float, np.ndarray, np.ndarray, np.ndarray]] = {}  # usable this step
+        self.horizons: set[float] = set()  # [s] the horizons of the planners using it (see fill)
+        self.lock = threading.Lock()
 
     def __getattr__(self, name: str) -> Any:  # kind, path, model, calibration ...
         return getattr(self.base, name)
@@ -169,6 +173,21 @@ class SharedPrediction:
         self.shared = {k: v for k, v in {**self.shared, **self.plans}.items() if k in self.index}
         self.plans = {}
 
+    def fill(self, dt: float) -> None:
+        """Predict the step's union for every horizon of :attr:`horizons` now (in the thread that
+        may read SUMO), so the planners' calls only take rows."""
+        for h in sorted(self.horizons):
+            self._base(int(round(h / dt)), dt)
+
+    def _base(self, horizon_steps: int, dt: float) -> Prediction:
+        assert self.obs is not None
+        key = (horizon_steps, float(dt), False)
+        with self.lock:
+            if key not in self.cache:
+                self.cache[key] = self.base.predict(self.obs, horizon_steps, dt)
+                self.calls += 1
+            return self.cache[key]
+
     def publish(self, ego_id: str, time: float, x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> None:
         """Ego ``ego_id``'s committed plan, chosen at ``time`` [s]: its centre x, y [m] and heading [rad]
         at time + dt, time + 2 dt, ... (T,) each."""
@@ -177,14 +196,14 @@ class SharedPrediction:
     def predict(self, obs: Observation, horizon_steps: int, dt: float, plans: bool = False) -> Prediction:
         if self.obs is None:
             return self.base.predict(obs, horizon_steps, dt)
-        key = (horizon_steps, float(dt), plans)
-        if key not in self.cache:
-            if (horizon_steps, float(dt), False) not in self.cache:
-                self.cache[(horizon_steps, float(dt), False)] = self.base.predict(self.obs, horizon_steps, dt)
-                self.calls += 1
-            if plans:
-                self.cache[key] = self._with_plans(self.cache[(horizon_steps, float(dt), False)], dt)
-        return self.cache[key].take([self.index[k] for k in obs.current.ids])
+        pred = self._base(horizon_steps, dt)
+        if plans:
+            key = (horizon_steps, float(dt), True)
+            with self.lock:
+                if key not in self.cache:
+                    self.cache[key] = self._with_plans(pred, dt)
+                pred = self.cache[key]
+        return pred.take([self.index[k] for k in obs.current.ids])
 
     def _with_plans(self, pred: Prediction, dt: float) -> Prediction:
         """``pred`` with the rows of the egos whose plans are shared replaced by them (one mode)."""
@@ -243,6 +262,15 @@ def union_states(parts: list[AgentStates]) -> AgentStates:
     types = [t for s in parts for t in s.type_id]
     return AgentStates.trusted(tuple(uniq.tolist()), col("x"), col("y"), col("yaw"), col("speed"), col("accel"),
                                col("length"), col("width"), col("mass"), col("cls"), tuple(types[i] for i in first))
+
+
+def _decide(ctl: Controller, scene: Scene) -> tuple[Decision | None, float, Exception | None]:
+    """(decision, wall time [ms], the exception it raised) of one ego's controller."""
+    w = wallclock.perf_counter()
+    try:
+        return ctl.act(scene), 1e3 * (wallclock.perf_counter() - w), None
+    except Exception as exc:  # noqa: BLE001 - reported by the caller, for that ego alone
+        return None, 0.0, exc
 
 
 # ---- booking ------------------------------------------------------------------------------------
@@ -402,9 +430,8 @@ class FleetRun(Run):
                     return
                 w0 = wallclock.perf_counter()
                 acting = [a for a in self.active if a.snap is not None]
-                self._share_prediction(acting, shared, t)
-                for a in acting:
-                    self._act(a, t, dt)
+                self._share_prediction(acting, shared, t, dt)
+                self._act_all(acting, t, dt)
                 for a in self.active:
                     a.world.command(a.decision.command if a.decision is not None and a.snap is not None else None)
                 w1 = wallclock.perf_counter()
@@ -425,24 +452,43 @@ class FleetRun(Run):
                 progress[0].stop()
 
     # -- per step -----------------------------------------------------------------------------------
-    def _share_prediction(self, acting: list[Agent], shared: list[SharedPrediction], t: float) -> None:
+    def _share_prediction(self, acting: list[Agent], shared: list[SharedPrediction], t: float, dt: float) -> None:
         """The union of what the acting egos see (and the egos) into the history, every step (an
         empty one when nobody acts: a road user's rows keep their times), and the step's
-        observation of it for the shared predictions."""
+        observation of it for the shared predictions, predicted here (the map source reads SUMO,
+        which only this thread may call)."""
         snaps = [a.snap for a in acting if a.snap is not None]  # all: the acting egos were read
         union = union_states([s.ego for s in snaps] + [s.others for s in snaps])
         self.union_history.push(union)
         self._union_obs = obs = self.union_history.observation(t, AgentStates.empty(), union)
         for p in shared:
             p.begin(obs)
+            if acting:
+                p.fill(dt)
 
-    def _act(self, a: Agent, t: float, dt: float) -> None:
+    def _act_all(self, acting: list[Agent], t: float, dt: float) -> None:
+        """Every acting ego's decision: the scenes read here (SUMO: traffic lights), the planners run
+        on :func:`sumo_ethics.cores.threads` threads (each ego's planning is its own; they touch no
+        SUMO), the results taken in the egos' order: the same outputs with any number of threads."""
+        scenes = [self._scene(a, t, dt) for a in acting]
+        results = cores.map_ordered(_decide, [(a.controller, sc) for a, sc in zip(acting, scenes)])
+        for a, (decision, ms, exc) in zip(acting, results):
+            if exc is not None or decision is None:  # one ego's failure must not end everyone's run
+                a.decision = None
+                self._end(a, "error", f"its planner failed at t={format_time(t)}: {type(exc).__name__}: {exc}; "
+                                      "handed back to SUMO", t)
+                sim_egos.release(a.id, a.speed_factor)
+                continue
+            a.decision = decision
+            a.extra["controller_ms"] = ms
+            a.n_fallback += int(decision.info.get("n_fallback", 0))
+
+    def _scene(self, a: Agent, t: float, dt: float) -> Scene:
         snap, route = a.snap, a.world.route
         if snap is None or route is None:  # only egos read after their takeover act
             raise RuntimeError(f"ego {a.id} acts before its first read")
-        ctl = a.controller
         obs = None
-        if getattr(ctl, "needs_history", False):
+        if getattr(a.controller, "needs_history", False):
             u = self._union_obs
             idx = [u.current.index[k] for k in snap.others.ids]
             obs = Observation(time=t, dt=dt, history=u.history[idx], valid=u.valid[idx], current=snap.others,
@@ -451,17 +497,7 @@ class FleetRun(Run):
         a.scene = Scene(time=t, dt=dt, ego=snap.ego, others=snap.others, route=route, s=a.s, d=a.d,
                         stop_s=line, vehicle=a.vehicle, history=obs,
                         rule_breakers=a.rules.breakers(snap.others) if a.rules is not None else frozenset())
-        w = wallclock.perf_counter()
-        try:
-            a.decision = ctl.act(a.scene)
-        except Exception as exc:  # noqa: BLE001 - one ego's failure must not end everyone's run
-            a.decision = None
-            self._end(a, "error", f"its planner failed at t={format_time(t)}: {type(exc).__name__}: {exc}; "
-                                  "handed back to SUMO", t)
-            sim_egos.release(a.id, a.speed_factor)
-            return
-        a.extra["controller_ms"] = 1e3 * (wallclock.perf_counter() - w)
-        a.n_fallback += int(a.decision.info.get("n_fallback", 0))
+        return a.scene
 
     def _observe_all(self, now: float, dt: float, w: tuple[float, float]) -> None:
         """After a step: read every ego, give each ego's own state to the others' views of it, then
