@@ -6,10 +6,10 @@ later processes load it in a fraction of a second. On a fresh install the first 
 would spend about 9 s compiling :mod:`sumo_ethics.ethics.search`, the envelope kernel of
 :mod:`sumo_ethics.ethics.shapes` and the feasibility check of :mod:`sumo_ethics.plan.feasibility`.
 
-So ``sumo-ethics run``, ``evaluate`` and ``sweep`` call :func:`start` first thing: a separate
-process (a second core where there is one) compiles the kernels for the argument types the planner
-calls them with (:func:`compile_kernels`), while the main process loads the scenario, the predictor
-and SUMO and simulates up to the takeover. The planner's first step calls :func:`wait` and then
+So ``sumo-ethics run``, ``evaluate`` and ``sweep`` call :func:`start` first thing: two separate
+processes (a second core where there is one) compile the kernels for the argument types the planner
+calls them with (:func:`compile_kernels`, :func:`compile_helpers`), while the main process loads the
+scenario, the predictor and SUMO and simulates up to the takeover. The planner's first step calls :func:`wait` and then
 loads the compiled kernels from the cache. Where the cache is already warm the process only loads
 them. Nothing depends on it: if it fails, the first step compiles as before; the code is the same
 either way, so the results are too.
@@ -24,14 +24,37 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["compile_kernels", "start", "wait"]
+__all__ = ["compile_kernels", "compile_helpers", "start", "wait"]
 
-_pending: subprocess.Popen | None = None
+_pending: list[subprocess.Popen] = []
 
 
-def compile_kernels() -> None:
+def compile_helpers() -> None:
+    """Compile (or load) the envelope and feasibility kernels and the search kernel's late helpers
+    on their own: the second of :func:`start`'s two processes. The search kernel's compile, in the
+    first, then finds these in the cache instead of compiling them itself (numba caches every
+    function apart)."""
+    from sumo_ethics.ethics import search, shapes
+
+    buf = np.empty((4, 8))
+    shapes._entry_p(1.0, 0.5, 1.0, 0.0, 2.25, 0.9, 1.0, 0.0, 2.25, 0.9, 0.5, 0.0, 0.5, 3.0, 6.0, buf)
+    search._order_harm(1.0, 0.5, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 10.0, 5.0, 0.5, 0.5, False, False,
+                       tuple(float(c) for c in _coefficients()))
+    search._upper(1.0, 0.5, 1.0, 0.0, 2.25, 0.9, 1.0, 0.0, 0.5, 0.5, 2.25, 0.9)
+    search._lower(1.0, 0.5, 1.0, 0.0, 1.0, 0.0, 2.25, 0.9, 2.25, 0.9, 1.0, 0.0, 0.5, 0.5, 2.25, 0.9)
+    compile_kernels(search_kernel=False)
+
+
+def _coefficients() -> np.ndarray:
+    from sumo_ethics.ethics.harm import HarmCoefficients
+
+    return HarmCoefficients().as_array()
+
+
+def compile_kernels(search_kernel: bool = True) -> None:
     """Call every kernel the planner uses once on a tiny input (types as in a planning step):
-    numba compiles them, or loads them from its cache."""
+    numba compiles them, or loads them from its cache (``search_kernel=False``: all but the
+    risk's search kernel)."""
     from sumo_ethics.config import EgoVehicle
     from sumo_ethics.contract import RoutePath
     from sumo_ethics.ethics.harm import HarmCoefficients
@@ -49,9 +72,10 @@ def compile_kernels() -> None:
     mx, my, psi, av = np.full((N, T), 4.0), np.full((N, T), 1.0), np.zeros((N, T)), np.zeros((N, T))
     var = np.full((N, T), 0.25)
     one = np.ones(N)
-    bounded_terms(ex, ey, eyaw, ev, valid, mx, my, psi, av, var, np.zeros((N, T)), var, np.full(N, 4.5),
-                  np.full(N, 1.8), 4.5, 1.8, np.full(N, 3.0), 6.0, 1e-3, 1e-2, 1e-4, False, one, 1475.0, False,
-                  np.full(N, 1400.0), np.zeros(N, bool), HarmCoefficients().as_array())
+    if search_kernel:
+        bounded_terms(ex, ey, eyaw, ev, valid, mx, my, psi, av, var, np.zeros((N, T)), var, np.full(N, 4.5),
+                      np.full(N, 1.8), 4.5, 1.8, np.full(N, 3.0), 6.0, 1e-3, 1e-2, 1e-4, False, one, 1475.0, False,
+                      np.full(N, 1400.0), np.zeros(N, bool), HarmCoefficients().as_array())
     envelope_first_hit(ex, ey, eyaw, ev, valid, mx, my, psi, np.full(N, 5.5), np.full(N, 2.3), 4.5, 1.8, 8.0)
     path = Polyline.from_points(np.array([[0.0, 0.0], [100.0, 0.0]]))
     route = RoutePath(edges=("e",), path=path, lane_of_vertex=("e_0", "e_0"), speed_limit=np.full(2, 14.0),
@@ -61,30 +85,33 @@ def compile_kernels() -> None:
 
 
 def start() -> None:
-    """Compile the kernels in a background process (once per process; a no-op if one runs)."""
+    """Compile the kernels in two background processes (once per process; a no-op while they
+    run): one compiles the search kernel, the other the envelope and feasibility kernels and the
+    search kernel's late helpers, which the first then loads from the cache (about a quarter less
+    time than one process compiling all, measured with tools/bench_first_run.py)."""
     global _pending
-    if _pending is not None:
+    if _pending:
         return
     root = str(Path(__file__).resolve().parents[2])  # the folder holding this sumo_ethics
     env = dict(os.environ, PYTHONSAFEPATH="1",
                PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH", "")) if p))
-    try:
-        _pending = subprocess.Popen(
-            [sys.executable, "-c", "from sumo_ethics.plan.warmup import compile_kernels; compile_kernels()"],
-            env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    except OSError:  # no process to be had: the first step compiles
-        _pending = None
+    for call in ("compile_kernels()", "compile_helpers()"):
+        try:
+            _pending.append(subprocess.Popen(
+                [sys.executable, "-c", f"from sumo_ethics.plan.warmup import compile_kernels, compile_helpers; {call}"],
+                env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        except OSError:  # no process to be had: the first step compiles
+            break
 
 
 def wait(timeout: float = 300.0) -> None:
-    """Wait for :func:`start`'s process, if any (at most ``timeout`` s; then the first step
-    compiles whatever it has not cached)."""
+    """Wait for :func:`start`'s processes, if any (at most ``timeout`` s each; then the first
+    step compiles whatever is not cached)."""
     global _pending
-    proc, _pending = _pending, None
-    if proc is None:
-        return
-    try:
-        proc.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
+    procs, _pending = _pending, []
+    for proc in procs:
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
