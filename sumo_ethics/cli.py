@@ -61,8 +61,8 @@ def cli() -> None:
 @click.option("--out", type=click.Path(path_type=Path), help="Run folder (default runs/<scenario>-seed<N>).")
 @click.option("--controller", type=click.Choice(["ethical", "baseline"]), default="ethical", show_default=True,
               help="Ego controller: the ethical planner, or the naive route-following baseline.")
-@click.option("--omega-u", type=float, help="Weight w_u of the utility term J_utility, 0..1 in the paper's sense, larger values "
-              "accepted (default 0.5, see docs/method.md).")
+@click.option("--omega-u", type=float, help="Weight w_u of the utility term J_utility, from 0 to 1 (default 0.5, see "
+              "docs/method.md).")
 @click.option("--omega-o", type=float, help="Weight w_o of Origin's cost J_origin (default 1.0).")
 @click.option("--weights", help="J_origin principle weights: ethical (default), standard, ego, bayes, maximin "
               "or responsible.")
@@ -82,7 +82,8 @@ def cli() -> None:
               help="TOML file with a [planner] table and optionally a [conflicts] table.")
 @click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")
 @click.option("--radius", type=float, default=80.0, show_default=True, help="Sensing radius around the ego [m].")
-@click.option("--overwrite", is_flag=True, help="Replace the outputs of an earlier run in --out (refused otherwise).")
+@click.option("--overwrite", is_flag=True, help="Replace the earlier run in --out as a whole, its figures too (refused "
+              "otherwise, and for a folder holding anything no run writes).")
 @click.option("--record-decisions", type=click.Choice(["off", "collisions", "risky", "all"]), default="off",
               show_default=True, help="Keep what the planner weighed, for 'explain' and 'replay': every step, the "
               "steps with any risk (at most one per 0.5 s of simulated time) and the 5 s before each ego collision, only those 5 s, or nothing but the last step "
