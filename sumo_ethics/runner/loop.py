@@ -25,7 +25,7 @@ from sumo_ethics.collision import CollisionBook, booked_outcome, is_booked
 from sumo_ethics.interrupt import sigterm_as_interrupt, sigterm_deferred
 from sumo_ethics.config import RunConfig
 from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEthicsError, Terminated, add_note
-from sumo_ethics.notes import RunNotes
+from sumo_ethics.notes import RunNotes, blocker_ahead, held
 from sumo_ethics.contract import Controller, Scene, StopRun
 from sumo_ethics.plan.feasibility import ROAD_CURVATURE_TOL
 from sumo_ethics.plan.history import History
@@ -42,7 +42,7 @@ from sumo_ethics.sim.route import tight_bends
 from sumo_ethics.sim.rules import RuleMonitor
 from sumo_ethics.sumo_options import format_time
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld
-from sumo_ethics.types import VULNERABLE, RunStatus
+from sumo_ethics.types import VULNERABLE, RoadUserClass, RunStatus
 
 #: called every ego step with (snapshot, world) before the controller acts. A hook may also have
 #: ``at_takeover(world) -> RoutePath | None`` (called once, after the takeover and before the first
@@ -296,6 +296,7 @@ class Run:
                 self.meta["last_time"] = t
                 if t >= end - 1e-9:
                     self.status, self.message = RunStatus.TIMEOUT, f"time limit {format_time(end)} reached"
+                    self._held(snap, route, s, half)
                     return
                 w0 = wallclock.perf_counter()
                 try:
@@ -303,6 +304,8 @@ class Run:
                         hook(snap, world)
                 except StopRun as stop:
                     self.status, self.message = stop.status, stop.message
+                    if stop.status is RunStatus.TIMEOUT:  # e.g. a CommonRoad goal's last time step
+                        self._held(snap, route, s, half)
                     return
                 # read
                 obs = None
@@ -361,7 +364,8 @@ class Run:
                     timing["conflict_others_ms"] = others_ms
                 # flushes a chunk every CHUNK_SECONDS of simulated time; keeps the decision by mode
                 self.rec.step(row, timing, decision.trace, t, ego_hit)
-                notes.step(row["time"], s, row["speed"], row["n_neighbours"], row["stop_s"], row["lane"])
+                notes.step(row["time"], s, row["speed"], row["n_neighbours"], row["stop_s"], row["lane"],
+                           row.get("validity", float("nan")))
                 snap = new
                 if progress is not None and self.step % 50 == 0:
                     progress[0].update(progress[1], completed=min(snap.time, end))
@@ -379,6 +383,26 @@ class Run:
             self.meta["loop_wall"] = wallclock.perf_counter() - self.t_start  # s, before outputs are written
             if progress is not None:
                 progress[0].stop()
+
+    def _held(self, snap: Snapshot, route: Any, s: float, half: float) -> None:
+        """A timeout: what held the ego (summary.json ``held``, sumo_ethics.notes.held), the words
+        appended to the run's message."""
+        if self.notes is None:
+            return
+        front = s + half
+        line = self.stop_line(front)
+        red = None
+        if line is not None:
+            red = {"distance": max(line - front, 0.0), "phase_ends": self.world.red_phase_end()}
+        o = snap.others
+        blocker = None
+        if len(o):
+            ps, pd = route.path.project(np.stack([o.x, o.y], axis=-1))
+            blocker = blocker_ahead(s, half, ps, pd, o.speed, o.length, o.ids,
+                                    [RoadUserClass(int(c)).label for c in o.cls])
+        h = held(self.notes, route.length - front, red, blocker)
+        self.meta["held"] = h
+        self.message = f"{self.message}; {h['says']}"
 
     def _start_pairs(self, types: SumoWorld, dt: float) -> None:
         """With ``[conflicts] everyone``: read every road user from the next step on, and book their
