@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -352,3 +353,33 @@ def test_shared_prediction_is_one_call_giving_each_ego_its_rows():
         own = ConstantVelocityPredictor().predict(obs, 30, 0.1)  # constant velocity: one agent's own alone
         assert got.ids == tuple(ids) and np.array_equal(got.mean, own.mean) and np.array_equal(got.cov, own.cov)
     assert shared.calls == 1
+
+
+def test_the_first_line_of_a_fleet_run_counts_its_egos_outcomes():
+    """The run's own status ('completed': it reached its end) says nothing of the egos: the line
+    counts them first, every outcome named even at 0, and says how the run ended last."""
+    from sumo_ethics.cli import fleet_outcome_line
+
+    d = {"status": "completed", "message": "time limit 30 s reached",
+         "fleet": {"egos": 12, "by_status": {"timeout": 12}}}
+    assert fleet_outcome_line(d) == ("12 egos: 0 completed, 0 collision, 12 timeout, 0 error; the run ended: "
+                                     "time limit 30 s reached")
+    d["fleet"] = {"egos": 4, "by_status": {"teleported": 1, "completed": 2, "collision": 1}}
+    assert fleet_outcome_line(d).startswith("4 egos: 2 completed, 1 collision, 0 timeout, 0 error, 1 teleported;")
+    d["fleet"] = {"egos": 0, "by_status": {}}
+    assert fleet_outcome_line(d) == "no ego was taken over; the run ended: time limit 30 s reached"
+
+
+@pytest.mark.sumo
+def test_a_fleet_run_prints_its_egos_outcomes_first(tmp_path):
+    out = tmp_path / "run"
+    p = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "run", str(SCENARIOS / "testbed" / "testbed.sumocfg"),
+                        "--egos", "2", "--fleet", "baseline", "--end", "3", "--quiet", "--out", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    first = p.stdout.splitlines()[0]
+    s = json.loads((out / "summary.json").read_text())
+    n = s["fleet"]["by_status"]
+    assert s["status"] == "completed" and n.get("completed", 0) == 0  # the run ended, the egos did not
+    assert first == (f"{s['fleet']['egos']} egos: 0 completed, {n.get('collision', 0)} collision, "
+                     f"{n.get('timeout', 0)} timeout, 0 error; the run ended: time limit 3 s reached"), p.stdout
