@@ -184,7 +184,10 @@ def test_an_ego_ego_collision_is_one_event_with_harm_to_both(tmp_path, scenario_
     assert summary.data["status"] == "completed" and summary.data["sim_time"] == pytest.approx(20.0)
     trips = pd.read_parquet(tmp_path / "run" / "trips.parquet").set_index("id")
     assert not trips.loc["front", "arrived"] and not trips.loc["back", "arrived"]  # taken off the road
-    assert trips.loc["other", "route_length"] > 80.0  # and the traffic drove on
+    assert trips.loc["other", "distance"] > 80.0  # and the traffic drove on
+    assert "trips_error" not in summary.data  # summary.json's vehicle-km: the trips' distances driven
+    veh = trips[trips["kind"] == "vehicle"]
+    assert summary.data["traffic"]["vehicle_km"] == pytest.approx(veh["distance"].sum() / 1e3)
 
 
 def _plain_sumo_trips(cfg: Path, out: Path, end: float, seed: int = 42) -> pd.DataFrame:
@@ -206,7 +209,7 @@ def test_penetration_zero_reproduces_the_plain_sumo_trips(tmp_path):
     ours = pd.read_parquet(tmp_path / "run" / "trips.parquet")
     plain = _plain_sumo_trips(scenario, tmp_path / "plain.xml", 90.0)
     assert len(ours) > 50 and not ours["ego"].any()
-    cols = ["id", "kind", "depart", "arrival", "duration", "route_length", "time_loss", "waiting_time"]
+    cols = ["id", "kind", "depart", "arrival", "duration", "distance", "time_loss", "waiting_time"]
     pd.testing.assert_frame_equal(ours[cols].reset_index(drop=True), plain[cols].reset_index(drop=True))
 
 
