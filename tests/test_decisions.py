@@ -288,6 +288,7 @@ def test_figures_name_a_party_as_sumo_types_it():
     assert party_label(row, "b") == "car '4_left.3' (vType truck/trailer)"
     assert collision_mark(row) == (3.0, 4.0, "hit: car '4_left.3' (vType truck/trailer)")
     assert party_label(row | {"type_b": ""}, "b") == "car '4_left.3'"  # no vType recorded
+    assert party_label(row | {"type_b": "car"}, "b") == "car '4_left.3'"  # a vType named as its class
 
 
 @pytest.mark.parametrize("excluded, square", [(0, False), (4, False), (1, True), (0, True)])

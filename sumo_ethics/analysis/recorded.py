@@ -203,9 +203,10 @@ def party_label(row: dict[str, Any], p: str) -> str:
     """Party ``p`` ('a' or 'b') of a collisions/conflicts row as a figure names it: its class, id and
     SUMO vType, ``car 'veh3' (vType truck/trailer)``. The class follows the vType's vClass as SUMO
     types it (a vType without a vClass is SUMO's default, passenger: a car, whatever its id or
-    shape), so the vType is named beside it, as the row's ``type_a``/``type_b`` holds it."""
-    vtype = row.get(f"type_{p}") or ""
-    return f"{row[f'class_{p}']} '{row[f'id_{p}']}'" + (f" (vType {vtype})" if vtype else "")
+    shape), so the vType is named beside it, as the row's ``type_a``/``type_b`` holds it, unless it
+    is the class's own name."""
+    vtype, cls = row.get(f"type_{p}") or "", row[f"class_{p}"]
+    return f"{cls} '{row[f'id_{p}']}'" + (f" (vType {vtype})" if vtype and vtype.lower() != cls else "")
 
 
 def conflict_mark(run: Path, event: int, ego: str | None = None) -> tuple[float, float, str]:
