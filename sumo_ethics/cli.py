@@ -61,8 +61,8 @@ def cli() -> None:
 @click.option("--out", type=click.Path(path_type=Path), help="Run folder (default runs/<scenario>-seed<N>).")
 @click.option("--controller", type=click.Choice(["ethical", "baseline"]), default="ethical", show_default=True,
               help="Ego controller: the ethical planner, or the naive route-following baseline.")
-@click.option("--omega-u", type=float, help="Weight w_u of the utility term J_utility, 0..1 in the paper's sense, larger values "
-              "accepted (default 0.5, see docs/method.md).")
+@click.option("--omega-u", type=float, help="Weight w_u of the utility term J_utility, from 0 to 1 (default 0.5, see "
+              "docs/method.md).")
 @click.option("--omega-o", type=float, help="Weight w_o of Origin's cost J_origin (default 1.0).")
 @click.option("--weights", help="J_origin principle weights: ethical (default), standard, ego, bayes, maximin "
               "or responsible.")
@@ -82,7 +82,8 @@ def cli() -> None:
               help="TOML file with a [planner] table and optionally a [conflicts] table.")
 @click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")
 @click.option("--radius", type=float, default=80.0, show_default=True, help="Sensing radius around the ego [m].")
-@click.option("--overwrite", is_flag=True, help="Replace the outputs of an earlier run in --out (refused otherwise).")
+@click.option("--overwrite", is_flag=True, help="Replace the earlier run in --out as a whole, its figures too (refused "
+              "otherwise, and for a folder holding anything no run writes).")
 @click.option("--record-decisions", type=click.Choice(["off", "collisions", "risky", "all"]), default="off",
               show_default=True, help="Keep what the planner weighed, for 'explain' and 'replay': every step, the "
               "steps with any risk (at most one per 0.5 s of simulated time) and the 5 s before each ego collision, only those 5 s, or nothing but the last step "
@@ -234,15 +235,30 @@ def _others_line(c: dict, out: Path) -> str:
             f"{out / 'conflicts_others.parquet'}")
 
 
+#: the egos' outcomes in the order a fleet run's first line counts them (others follow)
+EGO_OUTCOMES = ("completed", "collision", "timeout", "error")
+
+
+def fleet_outcome_line(d: dict[str, Any]) -> str:
+    """A fleet run's first line: how its egos ended, then how the run itself ended, e.g. ``12 egos: 0
+    completed, 0 collision, 12 timeout; the run ended: time limit 30 s reached``. The run's own
+    status (``completed`` when it reached its end) says nothing of the egos, so it comes last."""
+    f = d["fleet"]
+    by = dict(f["by_status"])
+    parts = [f"{by.pop(k, 0)} {k}" for k in EGO_OUTCOMES] + [f"{v} {k}" for k, v in by.items()]
+    n = f["egos"]
+    who = f"{n} ego{'s' if n != 1 else ''}: " + ", ".join(parts) if n else "no ego was taken over"
+    return f"{who}; the run ended: {d['message']}"
+
+
 def _print_fleet(summary: Any) -> None:
     """What ``run`` prints at the end of a fleet run."""
     d = summary.data
     con = _console()
     f, h, e, c = d["fleet"], d["harm"], d["harm_everyone"], d["collisions"]
-    con.print(f"[bold]{d['status']}[/bold]: {d['message']}")
-    con.print(f"  {f['egos']} egos (" + ", ".join(f"{k} {v}" for k, v in f["by_planner"].items()) + "); "
-              + ", ".join(f"{k} {v}" for k, v in f["by_status"].items()) + f"; drove {d['distance'] / 1e3:.2f} km, "
-              f"{d['steps']} steps, wall {d['wall_time']:.1f} s")
+    con.print(fleet_outcome_line(d), markup=False)
+    con.print("  planners: " + (", ".join(f"{k} {v}" for k, v in f["by_planner"].items()) or "none")
+              + f"; drove {d['distance'] / 1e3:.2f} km, {d['steps']} steps, wall {d['wall_time']:.1f} s")
     con.print(f"  ego collisions {c['ego']} (ego-ego {c['ego_ego']}), others {c['others']}; harm booked to egos "
               f"{h['ego']:.3f}, third parties {h['third_party']:.3f} (VRU {h['vru']:.3f}); everyone's harm {e['total']:.3f}")
     if "traffic" in d:

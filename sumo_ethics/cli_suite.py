@@ -52,7 +52,7 @@ def generate_cmd(count: int, seed: int, out: Path, family: str) -> None:
 @click.option("--workers", type=int, default=2, show_default=True, help="Parallel processes (one run each).")
 @click.option("--out", type=click.Path(path_type=Path), default=Path("runs/evaluate"), show_default=True,
               help="Output folder: table1.csv, table1.md, paired.csv, results.csv, runs/.")
-@click.option("--limit", type=int, help="Only the first N scenarios.")
+@click.option("--limit", type=int, help="Only the first N scenarios (1 or more).")
 @click.option("--reference", help="Planner the others are compared with (default origin, else the first).")
 @click.option("--resume", is_flag=True, help="Keep finished runs found in OUT/runs, run only the rest.")
 @click.option("--record-decisions", type=click.Choice(["off", "collisions", "risky", "all"]), default="risky",

@@ -22,7 +22,8 @@ from sumo_ethics.settings import SET_PLANNER_KEYS
 @click.command()
 @click.argument("scenario_or_suite", type=click.Path(path_type=Path))
 @click.option("--omega-u", "omega_u", default="0.5", show_default=True,
-              help="Utility weights w_u: start:stop:step (stop included when on the grid), a,b,c or one value.")
+              help="Utility weights w_u, each from 0 to 1: start:stop:step (stop included when on the grid), a,b,c or one "
+                   "value.")
 @click.option("--seeds", default="0", show_default=True, help="Seeds: 0-9 (inclusive), 0,3,5 or mixed 0-3,8.")
 @click.option("--set", "sets", multiple=True, metavar="KEY=V1,V2",
               help=f"Sweep one more key over values (repeatable): planner keys ({', '.join(SET_PLANNER_KEYS)}, "

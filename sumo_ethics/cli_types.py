@@ -6,7 +6,8 @@ import click
 
 
 class _SumoTime(click.ParamType):
-    """A simulation time in SUMO's formats: ``50300``, ``0.5``, ``16:0:0`` (h:m:s), ``1:02:03:04`` (d:h:m:s)."""
+    """A simulation time in SUMO's formats: ``50300``, ``0.5``, ``16:0:0`` (h:m:s), ``1:02:03:04`` (d:h:m:s);
+    a clock time's minutes and seconds below 60 (``sumo_options.parse_time(strict=True)``)."""
 
     name = "time"
 
@@ -18,7 +19,7 @@ class _SumoTime(click.ParamType):
 
         what = param.opts[0] if param is not None else "time"
         try:
-            return parse_time(value, what)
+            return parse_time(value, what, strict=True)
         except ConfigError as exc:  # click names the option itself
             self.fail(str(exc).removeprefix(f"{what}: "), param, ctx)
 

@@ -59,6 +59,20 @@ def _weight(name: str, value: Any) -> float:
     return require_number(name, value, allow_zero=True)
 
 
+#: the documented range of w_u, the paper's (docs/method.md, "What w_u means")
+OMEGA_U_RANGE = (0.0, 1.0)
+
+
+def _omega_u(value: Any) -> float:
+    """w_u, refused outside :data:`OMEGA_U_RANGE` with one line."""
+    lo, hi = OMEGA_U_RANGE
+    w = _weight("omega_u", value)
+    if not lo <= w <= hi:
+        raise ConfigError(f"omega_u (w_u) must be from {lo:g} to {hi:g}, the paper's range (docs/method.md, "
+                          f"'What w_u means'), got {value!r}")
+    return w
+
+
 def load_toml(path: Path) -> dict[str, Any]:
     """The ``[planner]`` table of a TOML file (the only table sweeps read)."""
     return _read_toml(path, {"planner"})[0]
@@ -148,7 +162,7 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
                                           **{k: _weight(f"principles.{k}", v) for k, v in p.items()}})
         utility = t.get("utility", UtilityMode.CANDIDATE_MEAN.value)
         cost = CostConfig(weights=weights, omega_o=_weight("omega_o", t.get("omega_o", 1.0)),
-                          omega_u=_weight("omega_u", t.get("omega_u", DEFAULT_OMEGA_U)), utility=utility,
+                          omega_u=_omega_u(t.get("omega_u", DEFAULT_OMEGA_U)), utility=utility,
                           normalise=t.get("normalise", "in_range"))
         sampling = dict(t.get("sampling", {}))  # the caller's table stays as it was
         _known(sampling, {f.name for f in fields(SamplingConfig)}, "[planner.sampling]")

@@ -17,8 +17,13 @@ _RESERVED_ARGS = frozenset({"c", "configuration-file", "seed", "error-log", "ste
                             "intermodal-collision.action", "begin", "b", "end", "e", "remote-port", "save-configuration"})
 
 
-def parse_time(value: str, what: str) -> float:
-    """A SUMO time [s]: ``50300``, ``0.5``, ``16:0:0`` (h:m:s) or ``1:02:03:04`` (d:h:m:s)."""
+def parse_time(value: str, what: str, strict: bool = False) -> float:
+    """A SUMO time [s]: ``50300``, ``0.5``, ``16:0:0`` (h:m:s) or ``1:02:03:04`` (d:h:m:s).
+
+    SUMO itself adds the fields of a clock time up as they come (``15:99:00`` is 16:39:00), so a
+    scenario file is read that way too. ``strict`` (the command line's ``--end``, ``--ego-depart``)
+    refuses a clock time whose fields are not a clock's: a negative field, a fractional day, hour or
+    minute, minutes or seconds of 60 or more, or hours of 24 or more after a day."""
     text = str(value).strip()
     parts = text.split(":")
     try:
@@ -26,6 +31,8 @@ def parse_time(value: str, what: str) -> float:
             seconds = float(text)
         elif len(parts) in (3, 4):
             nums = [float(p) for p in parts]
+            if strict:
+                _check_clock(nums, value, what)
             seconds = sum(n * f for n, f in zip(reversed(nums), (1.0, 60.0, 3600.0, 86400.0)))
         else:
             raise ValueError(text)
@@ -34,6 +41,22 @@ def parse_time(value: str, what: str) -> float:
     if not math.isfinite(seconds):
         raise ConfigError(f"{what}: '{value}' is not a finite time")
     return seconds
+
+
+def _check_clock(nums: list[float], value: str, what: str) -> None:
+    """ConfigError unless h:m:s / d:h:m:s fields ``nums`` are a clock's (see :func:`parse_time`)."""
+    names = ("days", "hours", "minutes", "seconds")[4 - len(nums):]
+    for name, n in zip(names, nums):
+        if not math.isfinite(n) or n < 0:
+            raise ConfigError(f"{what}: '{value}' has {name} {n:g}: every field of a clock time is 0 or more")
+        if name != "seconds" and n != int(n):
+            raise ConfigError(f"{what}: '{value}' has {name} {n:g}: only the seconds of a clock time may have "
+                              f"a fraction")
+        limit = 24 if name == "hours" and len(nums) == 4 else 60 if name in ("minutes", "seconds") else None
+        if limit is not None and n >= limit:
+            read = sum(x * f for x, f in zip(reversed(nums), (1.0, 60.0, 3600.0, 86400.0)))
+            raise ConfigError(f"{what}: '{value}' has {name} {n:g}; a clock time's {name} are below {limit} "
+                              f"(SUMO would add the fields up to {format_time(read)})")
 
 
 def format_time(seconds: float) -> str:

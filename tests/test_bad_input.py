@@ -17,9 +17,16 @@ from conftest import SCENARIOS, TESTBED_NET
 TESTBED = SCENARIOS / "testbed" / "testbed.sumocfg"
 RAIL = Path(sumo.SUMO_HOME) / "tools" / "game" / "rail" / "test.sumocfg"  # edge -E0 is rail only
 
-# an earlier run's files (and one of the user's) in --out: a refused run must leave them all
-PREVIOUS = {"config.json": '{"old": true}\n', "sumo-errors.log": "old log\n", "summary.json": '{"status": "old"}\n',
-            "notes.txt": "mine\n"}
+# an earlier run's files (and a figure drawn from it) in --out: a refused run must leave them all
+PREVIOUS = {"config.json": '{"scenario": "old.sumocfg", "resolved": {}}\n', "sumo-errors.log": "old log\n",
+            "summary.json": '{"status": "old", "message": "", "seed": 1}\n', "explain/step_000010.png": "old figure\n",
+            "replay.gif": "old animation\n"}
+
+
+def _previous_run(out: Path) -> None:
+    for name, text in PREVIOUS.items():
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_text(text)
 
 
 def _scenario(folder: Path, net: str | None = None, routes: str | None = None) -> Path:
@@ -52,7 +59,7 @@ def _fake_sweep(folder: Path, damage: str) -> Path:
     from sumo_ethics.record.writer import write_json, write_table
     from sumo_ethics.sweep import Manifest, make_sweep
 
-    sw = make_sweep(TESTBED, "1000", "0", options={"end": 5.0, "controller": "baseline"})
+    sw = make_sweep(TESTBED, "1", "0", options={"end": 5.0, "controller": "baseline"})
     spec = sw.specs()[0]
     run = folder / "runs" / spec.run_id
     run.mkdir(parents=True)
@@ -78,7 +85,7 @@ def _fake_sweep(folder: Path, damage: str) -> Path:
     return folder
 
 
-SWEEP_FAST = ["--omega-u", "1000", "--seeds", "0", "--end", "5", "--controller", "baseline", "--quiet"]
+SWEEP_FAST = ["--omega-u", "1", "--seeds", "0", "--end", "5", "--controller", "baseline", "--quiet"]
 
 # (id, command builder(tmp) -> args, exit code, fragment of the error line)
 CASES = [
@@ -124,7 +131,28 @@ CASES = [
                                     str(_toml(t / "c", "[planner.sampling]\nhorizons = [1e5]"))], 2,
      "beyond the limit of 10 s"),
     ("end-negative", lambda t: ["run", str(TESTBED), "--end", "-5"], 2, "--end"),
-    ("sweep-omega-grid-too-large", lambda t: ["sweep", str(TESTBED), *SWEEP_FAST, "--omega-u", "0:1e9:1e-9"], 2,
+    # a clock time is read per field (SUMO itself would add 15:99:00 up to 16:39:00)
+    ("ego-depart-minutes-99", lambda t: ["run", str(TESTBED), "--ego-depart", "15:99:00"], 2,
+     "'15:99:00' has minutes 99; a clock time's minutes are below 60 (SUMO would add the fields up to 59940 s"),
+    ("end-seconds-99", lambda t: ["run", str(TESTBED), "--end", "0:01:99"], 2,
+     "'0:01:99' has seconds 99; a clock time's seconds are below 60 (SUMO would add the fields up to 159 s)"),
+    ("end-hours-24-after-a-day", lambda t: ["run", str(TESTBED), "--end", "1:24:00:00"], 2, "hours are below 24"),
+    ("end-fractional-minutes", lambda t: ["run", str(TESTBED), "--end", "0:1.5:00"], 2,
+     "only the seconds of a clock time may have a fraction"),
+    ("sweep-end-clock", lambda t: ["sweep", str(TESTBED), *SWEEP_FAST, "--end", "0:00:60"], 2, "seconds are below 60"),
+    # bounded parameters: one line outside the documented range
+    ("omega-u-above-1", lambda t: ["run", str(TESTBED), "--omega-u", "5"], 2, "omega_u (w_u) must be from 0 to 1"),
+    ("omega-u-toml-above-1", lambda t: ["run", str(TESTBED), "--config", str(_toml(t / "c", "[planner]\nomega_u = 1.5"))],
+     2, "omega_u (w_u) must be from 0 to 1"),
+    ("sweep-omega-u-above-1", lambda t: ["sweep", str(TESTBED), *SWEEP_FAST, "--omega-u", "0:2:0.5"], 2,
+     "omega_u (w_u) must be from 0 to 1"),
+    ("evaluate-omega-u-above-1", lambda t: ["evaluate", str(SCENARIOS / "suite"), "--planner", "x=omega_u=7", "--out",
+                                            str(t / "ev")], 2, "omega_u (w_u) must be from 0 to 1"),
+    ("evaluate-limit-0", lambda t: ["evaluate", str(SCENARIOS / "suite"), "--planner", "baseline", "--limit", "0",
+                                    "--out", str(t / "ev")], 2, "--limit must be a whole number of scenarios, 1 or more"),
+    ("evaluate-limit-negative", lambda t: ["evaluate", str(SCENARIOS / "suite"), "--planner", "baseline", "--limit",
+                                           "-3", "--out", str(t / "ev")], 2, "--limit must be a whole number"),
+    ("sweep-omega-grid-too-large", lambda t: ["sweep", str(TESTBED), *SWEEP_FAST, "--omega-u", "0:1:1e-9"], 2,
      "the limit is 10000"),
     ("sweep-seeds-too-many", lambda t: ["sweep", str(TESTBED), *SWEEP_FAST, "--seeds", "0-100000000"], 2,
      "the limit is 10000"),
@@ -136,7 +164,7 @@ CASES = [
      "malformed route file"),
     ("sweep-candidates", lambda t: ["sweep", str(TESTBED), *SWEEP_FAST, "--set", "sampling.n_speeds=15,100000"], 2,
      "the limit is 5000"),
-    ("sweep-resumed-over-corrupt-run", lambda t: ["sweep", str(TESTBED), "--omega-u", "1000", "--seeds", "0",
+    ("sweep-resumed-over-corrupt-run", lambda t: ["sweep", str(TESTBED), "--omega-u", "1", "--seeds", "0",
                                                   "--end", "5", "--controller", "baseline", "--quiet"], 2,
      "is corrupt (summary.json"),
     ("analyze-n-boot-0", lambda t: ["analyze", str(_fake_sweep(t / "sw", "none")), "--n-boot", "0"], 2,
@@ -170,8 +198,7 @@ def test_bad_input_gives_one_line_and_keeps_what_was_there(tmp_path, capfd, buil
     out = tmp_path / "out"
     if args[0] == "run":  # an earlier run in --out, replaced only if this one is accepted
         out.mkdir()
-        for name, text in PREVIOUS.items():
-            (out / name).write_text(text)
+        _previous_run(out)
         args += ["--out", str(out), "--overwrite", "--quiet"]
     elif args[0] == "sweep":
         if "corrupt" in fragment:
@@ -221,18 +248,46 @@ def test_sumo_start_failure_gives_exit_3_with_the_cause(tmp_path):
 
 
 @pytest.mark.sumo
-def test_overwrite_replaces_only_the_run_outputs(tmp_path):
+def test_overwrite_replaces_the_run_folder_as_a_whole(tmp_path):
+    """The earlier run's figures (explain/, a replay beside the outputs) go with its data: nothing of
+    the earlier run is left beside the new one."""
     from sumo_ethics.config import RunConfig
     from sumo_ethics.runner import run
 
     out = tmp_path / "out"
     out.mkdir()
-    for name, text in PREVIOUS.items():
-        (out / name).write_text(text)
+    _previous_run(out)
     (out / ".replaced-1").mkdir()  # left by an overwriting run that was killed
     run(RunConfig(TESTBED, out, end=3.0, controller="baseline", progress=False, overwrite=True))
     assert json.loads((out / "summary.json").read_text())["status"] == "timeout"
-    assert (out / "notes.txt").read_text() == PREVIOUS["notes.txt"]  # the user's file is kept
     assert sorted(p.name for p in out.iterdir()) == sorted(["collisions.parquet", "conflicts.parquet", "config.json",
-                                                            "notes.txt", "steps.parquet", "sumo-errors.log",
-                                                            "summary.json", "timings.parquet"])
+                                                            "steps.parquet", "sumo-errors.log", "summary.json",
+                                                            "timings.parquet"])
+
+
+@pytest.mark.parametrize("case", ["foreign file", "foreign folder", "not a run"])
+def test_overwrite_never_deletes_what_is_not_a_run(tmp_path, capfd, case):
+    """--overwrite replaces a run folder only: a folder with anything no run writes there, or whose
+    config.json and summary.json are not a run's, is refused with one line and left as it was."""
+    out = tmp_path / "out"
+    out.mkdir()
+    _previous_run(out)
+    if case == "foreign file":
+        (out / "notes.txt").write_text("mine\n")
+    elif case == "foreign folder":
+        (out / "src").mkdir()
+        (out / "src" / "main.py").write_text("print()\n")
+    else:
+        (out / "config.json").write_text('{"some": "other tool"}\n')
+        (out / "summary.json").write_text('{"status": "other tool"}\n')
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    p = _cli(["run", str(TESTBED), "--controller", "baseline", "--end", "1", "--quiet", "--out", str(out),
+              "--overwrite"], capfd)
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert p.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: --out"), p.stderr
+    assert ("not a run folder" if case == "not a run" else "which no run writes") in lines[0]
+    if case != "not a run":
+        assert ("notes.txt" if case == "foreign file" else "src") in lines[0]
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+

@@ -274,3 +274,65 @@ def test_predictions_are_kept_every_half_second_and_ellipses_fall_on_whole_secon
     np.testing.assert_allclose(d.pred_t, np.arange(1, 9) * 0.5, rtol=1e-6)
     assert d.pred_mean.shape[1] == d.pred_cov.shape[1] == 8
     assert d.whole_seconds().tolist() == [1, 3, 5, 7]
+
+
+def test_figures_name_a_party_as_sumo_types_it():
+    """The class follows SUMO's vClass; the vType is named beside it, as collisions.parquet and
+    conflicts.parquet hold it: a vType 'truck/trailer' without a vClass is SUMO's passenger car."""
+    from sumo_ethics.analysis.recorded import collision_mark, party_label
+    from sumo_ethics.types import RoadUserClass
+
+    assert RoadUserClass.from_vclass("passenger").label == "car"  # SUMO's default vClass
+    row = {"id_a": "ego", "id_b": "4_left.3", "class_a": "car", "class_b": "car", "type_a": "ego_type",
+           "type_b": "truck/trailer", "x_a": 0.0, "y_a": 0.0, "x_b": 3.0, "y_b": 4.0}
+    assert party_label(row, "b") == "car '4_left.3' (vType truck/trailer)"
+    assert collision_mark(row) == (3.0, 4.0, "hit: car '4_left.3' (vType truck/trailer)")
+    assert party_label(row | {"type_b": ""}, "b") == "car '4_left.3'"  # no vType recorded
+    assert party_label(row | {"type_b": "car"}, "b") == "car '4_left.3'"  # a vType named as its class
+
+
+@pytest.mark.parametrize("excluded, square", [(0, False), (4, False), (1, True), (0, True)])
+def test_explain_figure_text_fits(urban_runs, excluded, square):
+    """Every title, label, legend entry and cost-table cell of the explain figure lies on the canvas
+    and every table text inside its cell, in both layouts (maps side by side or stacked) and with the
+    longest note of a hard constraint (under the table, not in its header)."""
+    import dataclasses
+
+    import matplotlib.pyplot as plt
+
+    from sumo_ethics.analysis.explain import decision_figure, describe, overflowing_text
+    from sumo_ethics.analysis.recorded import road_of, weights_of
+
+    run = urban_runs["all"]
+    d = rec.load(run, rec.recorded_steps(run)[40])
+    if excluded:
+        d = dataclasses.replace(d, excluded=np.full(len(d.validity), excluded, dtype=np.int8))
+    hit = (float(d.ego[0]), float(d.ego[1]) + 45.0, "hit: car 'veh' (vType truck/trailer)") if square else None
+    fig, _, _ = decision_figure(d, road_of(run), describe(run, d), weights_of(run, None), hit)
+    try:
+        assert overflowing_text(fig) == []
+        notes = [t.get_text() for ax in fig.axes for t in ax.texts if t.get_text().startswith("* excluded: ")]
+        assert len(notes) == (1 if excluded else 0), notes
+    finally:
+        plt.close(fig)
+
+
+def test_overflowing_text_finds_text_off_the_canvas():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from sumo_ethics.analysis.explain import overflowing_text
+
+    fig, ax = plt.subplots(figsize=(4, 3))
+    ax.set_title("fits")
+    assert overflowing_text(fig) == []
+    ax.text(0.9, 0.5, "a long label running off the right edge", transform=ax.transAxes)
+    tab = ax.table(cellText=[["a much too long text for its narrow cell"]], colWidths=[0.1], loc="lower left")
+    tab.auto_set_font_size(False)
+    tab.set_fontsize(8)
+    got = overflowing_text(fig)
+    plt.close(fig)
+    assert "'a long label running off the right edge' beyond the canvas" in got
+    assert "'a much too long text for its narrow cell' beyond its table cell" in got

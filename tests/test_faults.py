@@ -126,7 +126,7 @@ def test_killed_sweep_parent_leaves_no_run_alive(tmp_path, sig):
     code = "import sys; from sumo_ethics.cli import main; sys.exit(main(sys.argv[1:]))"
     # the urban scenario's runs drive for about 8 s of wall time each: on the testbed (2.8 s) both
     # runs once finished between their start and the signal in a CI run
-    proc = subprocess.Popen([sys.executable, "-c", code, "sweep", str(URBAN), "--omega-u", "1000", "--seeds", "0-1",
+    proc = subprocess.Popen([sys.executable, "-c", code, "sweep", str(URBAN), "--omega-u", "1", "--seeds", "0-1",
                              "--end", "120", "--ego-depart", "2", "--predictor", "cv", "--workers", "2", "--quiet",
                              "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     runs = out / "runs"

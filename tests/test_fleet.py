@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -183,7 +184,10 @@ def test_an_ego_ego_collision_is_one_event_with_harm_to_both(tmp_path, scenario_
     assert summary.data["status"] == "completed" and summary.data["sim_time"] == pytest.approx(20.0)
     trips = pd.read_parquet(tmp_path / "run" / "trips.parquet").set_index("id")
     assert not trips.loc["front", "arrived"] and not trips.loc["back", "arrived"]  # taken off the road
-    assert trips.loc["other", "route_length"] > 80.0  # and the traffic drove on
+    assert trips.loc["other", "distance"] > 80.0  # and the traffic drove on
+    assert "trips_error" not in summary.data  # summary.json's vehicle-km: the trips' distances driven
+    veh = trips[trips["kind"] == "vehicle"]
+    assert summary.data["traffic"]["vehicle_km"] == pytest.approx(veh["distance"].sum() / 1e3)
 
 
 def _plain_sumo_trips(cfg: Path, out: Path, end: float, seed: int = 42) -> pd.DataFrame:
@@ -205,7 +209,7 @@ def test_penetration_zero_reproduces_the_plain_sumo_trips(tmp_path):
     ours = pd.read_parquet(tmp_path / "run" / "trips.parquet")
     plain = _plain_sumo_trips(scenario, tmp_path / "plain.xml", 90.0)
     assert len(ours) > 50 and not ours["ego"].any()
-    cols = ["id", "kind", "depart", "arrival", "duration", "route_length", "time_loss", "waiting_time"]
+    cols = ["id", "kind", "depart", "arrival", "duration", "distance", "time_loss", "waiting_time"]
     pd.testing.assert_frame_equal(ours[cols].reset_index(drop=True), plain[cols].reset_index(drop=True))
 
 
@@ -378,3 +382,33 @@ def test_a_fleet_of_planners_is_the_same_bytes_on_one_or_two_threads(tmp_path):
         assert (outs[0] / name).read_bytes() == (outs[1] / name).read_bytes(), name
     steps = pd.read_parquet(outs[0] / "steps.parquet")
     assert steps["ego_id"].nunique() == 3 and (steps["replanned"] == 0).any() and (steps["replanned"] > 0).any()
+
+
+def test_the_first_line_of_a_fleet_run_counts_its_egos_outcomes():
+    """The run's own status ('completed': it reached its end) says nothing of the egos: the line
+    counts them first, every outcome named even at 0, and says how the run ended last."""
+    from sumo_ethics.cli import fleet_outcome_line
+
+    d = {"status": "completed", "message": "time limit 30 s reached",
+         "fleet": {"egos": 12, "by_status": {"timeout": 12}}}
+    assert fleet_outcome_line(d) == ("12 egos: 0 completed, 0 collision, 12 timeout, 0 error; the run ended: "
+                                     "time limit 30 s reached")
+    d["fleet"] = {"egos": 4, "by_status": {"teleported": 1, "completed": 2, "collision": 1}}
+    assert fleet_outcome_line(d).startswith("4 egos: 2 completed, 1 collision, 0 timeout, 0 error, 1 teleported;")
+    d["fleet"] = {"egos": 0, "by_status": {}}
+    assert fleet_outcome_line(d) == "no ego was taken over; the run ended: time limit 30 s reached"
+
+
+@pytest.mark.sumo
+def test_a_fleet_run_prints_its_egos_outcomes_first(tmp_path):
+    out = tmp_path / "run"
+    p = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "run", str(SCENARIOS / "testbed" / "testbed.sumocfg"),
+                        "--egos", "2", "--fleet", "baseline", "--end", "3", "--quiet", "--out", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    first = p.stdout.splitlines()[0]
+    s = json.loads((out / "summary.json").read_text())
+    n = s["fleet"]["by_status"]
+    assert s["status"] == "completed" and n.get("completed", 0) == 0  # the run ended, the egos did not
+    assert first == (f"{s['fleet']['egos']} egos: 0 completed, {n.get('collision', 0)} collision, "
+                     f"{n.get('timeout', 0)} timeout, 0 error; the run ended: time limit 3 s reached"), p.stdout

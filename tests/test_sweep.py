@@ -377,3 +377,40 @@ def test_report_command_line_round_trips_its_set_values():
     words = shlex.split(line)
     given = [words[i + 1] for i, w in enumerate(words) if w == "--set"]
     assert parse_set(given) == sets
+
+
+def test_report_command_line_keeps_workers_and_relative_paths(tmp_path, monkeypatch):
+    """The reproduce line repeats --workers (or --scheduler) and names the scenario and the sweep
+    folder relative to where the command runs, eclipse-sumo's own scenarios under $SUMO_HOME."""
+    import shlex
+
+    import sumo
+
+    from sumo_ethics.analysis.report import command_line
+
+    monkeypatch.chdir(tmp_path)
+    d = {"scenarios": [str(tmp_path / "scen" / "a.sumocfg")], "omega_u": [0.5], "seeds": [0], "set": {}, "options": {}}
+    words = shlex.split(command_line(d, str(tmp_path / "runs" / "x"), {"workers": 2}))
+    assert words[:3] == ["sumo-ethics", "sweep", "scen/a.sumocfg"] and words[-2:] == ["--out", "runs/x"]
+    assert words[words.index("--workers") + 1] == "2" and "--scheduler" not in words
+    words = shlex.split(command_line(d, "runs/x", {"scheduler": "tcp://h:8786"}))
+    assert words[words.index("--scheduler") + 1] == "tcp://h:8786" and "--workers" not in words
+    fkk = str(Path(sumo.SUMO_HOME).resolve() / "tools" / "game" / "fkk_in.sumocfg")
+    line = command_line(d | {"scenarios": [fkk]}, "/elsewhere/x")
+    assert line.startswith("sumo-ethics sweep $SUMO_HOME/tools/game/fkk_in.sumocfg ") and line.endswith("--out /elsewhere/x")
+
+
+@pytest.mark.sumo
+def test_analyze_reproduce_line_of_a_real_sweep(tmp_path, monkeypatch):
+    from sumo_ethics.analysis.report import make_report
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s").mkdir()
+    (tmp_path / "s" / "testbed.sumocfg").write_text(
+        f'<configuration><input><net-file value="{TESTBED.parents[2] / "networks" / "testbed" / "testbed.net.xml"}"/>'
+        f'<route-files value="{TESTBED.parent / "testbed.rou.xml"}"/></input></configuration>')
+    sw = make_sweep(Path("s/testbed.sumocfg"), "0.5", "0", options={"end": 3.0, "controller": "baseline"})
+    run_sweep(sw, Path("runs/sw"), workers=2, progress=False)
+    first = make_report(Path("runs/sw")).report.read_text().split("```sh\n", 1)[1].splitlines()[0]
+    assert first == ("sumo-ethics sweep s/testbed.sumocfg --omega-u 0.5 --seeds 0 --end 3 --controller baseline "
+                     "--workers 2 --out runs/sw"), first

@@ -52,7 +52,7 @@ def urban(tmp_path_factory) -> dict:
 
 def test_one_row_per_departed_vehicle_and_person(urban):
     df = urban["df"]
-    assert list(df.columns) == list(COLUMNS)
+    assert list(df.columns) == list(COLUMNS) and "route_length" not in COLUMNS  # one meaning per name: distance
     assert df["id"].is_unique
     vehicles, persons = df[df.kind == "vehicle"], df[df.kind == "person"]
     assert len(vehicles) == int(urban["vehicles"]["inserted"]) > 0
@@ -70,13 +70,13 @@ def test_vehicle_times_and_lengths(urban):
     done, going = v[v.arrived], v[~v.arrived]
     assert len(done) and len(going)
     assert ((done.duration - (done.arrival - done.depart)).abs() < 1e-6).all()
-    assert (done.route_length > 0).all()
+    assert (done.distance > 0).all()
     # SUMO's duration of a trip under way is the time so far: depart + duration is the end
     assert going.arrival.isna().all()
     assert ((going.depart + going.duration - END).abs() < 1e-6).all()
     assert (v.time_loss <= v.duration + 1e-9).all()
     assert (v.waiting_time <= v.duration + 1e-9).all()
-    assert (v[["depart", "duration", "route_length", "time_loss", "waiting_time"]] >= 0).all().all()
+    assert (v[["depart", "duration", "distance", "time_loss", "waiting_time"]] >= 0).all().all()
 
 
 def test_classes_from_the_vtypes(urban):
@@ -99,10 +99,10 @@ def test_walking_persons(urban):
     done, going = p[p.arrived], p[~p.arrived]
     assert len(going)
     assert ((done.duration - (done.arrival - done.depart)).abs() < 1e-6).all()
-    assert (done.route_length > 0).all() and (done.time_loss <= done.duration).all()
+    assert (done.distance > 0).all() and (done.time_loss <= done.duration).all()
     # walkers under way: the time so far; length and time loss SUMO fills in only when a walk ends
     assert ((going.depart + going.duration - END).abs() < 1e-6).all()
-    assert going[["arrival", "route_length", "time_loss"]].isna().all().all()
+    assert going[["arrival", "distance", "time_loss"]].isna().all().all()
 
 
 def test_egos_are_flagged(urban):
@@ -180,7 +180,8 @@ def test_written_twice_the_same_bytes(urban, tmp_path):
     assert a.read_bytes() == b.read_bytes()
     table = pq.read_table(a)
     assert table.schema.equals(TRIPS) and table.num_rows == len(urban["df"])
-    pd.testing.assert_frame_equal(table.to_pandas(), urban["df"])
+    assert "distance" in table.schema.names and "route_length" not in table.schema.names  # one meaning per name:
+    pd.testing.assert_frame_equal(table.to_pandas(), urban["df"][list(COLUMNS)])  # distance is the whole route
     empty = tmp_path / "empty.parquet"
     write_trips(urban["df"].iloc[:0], empty)
     assert pq.read_table(empty).schema.equals(TRIPS) and pq.read_table(empty).num_rows == 0
@@ -239,9 +240,9 @@ def test_rides_and_stops_finished(plan):
             assert row.time_loss == pytest.approx(float(sumo_total["timeLoss"]), abs=0.011)  # rounded parts
             assert row.waiting_time == pytest.approx(float(sumo_total["waitingTime"]))
         assert row.duration == pytest.approx(row.arrival - row.depart)
-        assert 0 < row.time_loss < row.duration and row.route_length > 0
+        assert 0 < row.time_loss < row.duration and row.distance > 0
     # a rider's length includes the ride (W_in to E_out in the bus: about 250 m), a walker's the walks only
-    assert persons.loc["p_ride", "route_length"] > 250 + 48
+    assert persons.loc["p_ride", "distance"] > 250 + 48
     if "traveltime" in info["p_stop"]:  # SUMO's travel time leaves out the 5 s stop, the duration does not
         assert persons.loc["p_stop", "duration"] == pytest.approx(float(info["p_stop"]["traveltime"]) + 5)
     assert persons.loc["p_late", "waiting_time"] > 0  # waited for bus1
@@ -255,7 +256,7 @@ def test_rides_and_stops_under_way(plan):
     for pid in ("p_late", "p_stop"):
         row = df.loc[pid]
         assert row.duration == pytest.approx(130.0 - row.depart)
-        assert math.isnan(row.arrival) and math.isnan(row.route_length) and math.isnan(row.time_loss)
+        assert math.isnan(row.arrival) and math.isnan(row.distance) and math.isnan(row.time_loss)
     assert df.loc["p_late", "waiting_time"] > 0
     assert not df.loc["bus1", "arrived"] and df.loc["bus1", "duration"] == pytest.approx(130.0 - 100.0)
 

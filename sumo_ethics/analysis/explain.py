@@ -19,7 +19,7 @@ import numpy as np
 
 from sumo_ethics.analysis.drawing import (CLASS_COLOURS, EGO_COLOUR, VALIDITY_COLOURS, VALIDITY_LABELS, draw_agents,
                                           draw_candidates, draw_road, fmt, window)
-from sumo_ethics.analysis.recorded import collision_mark, decisions_of, load_checked, road_of, weights_of
+from sumo_ethics.analysis.recorded import collision_mark, decisions_of, load_checked, party_label, road_of, weights_of
 from sumo_ethics.record import decisions as rec
 from sumo_ethics.record.decisions import RecordedDecision
 from sumo_ethics.types import EXCLUSIONS, RoadUserClass
@@ -88,14 +88,20 @@ def excluded_note(d: RecordedDecision, k: int) -> str:
 
 def cost_panel(ax: Any, d: RecordedDecision, alt: int | None, weights: dict[str, float] | None = None) -> None:
     """A table of the chosen candidate's named cost terms beside the alternative's; with the
-    run's principle ``weights`` the J_origin rows are weighted (they then add up to J_origin)."""
+    run's principle ``weights`` the J_origin rows are weighted (they then add up to J_origin).
+    A hard constraint that kept the alternative from being chosen is a note under the table (a
+    header of two lines fits its cell)."""
+    import textwrap
+
     ax.axis("off")
     if alt is None:
         ax.text(0.5, 0.02, "Every candidate is in the chosen class:\nno alternative of another class.",
                 ha="center", va="bottom", fontsize=9, transform=ax.transAxes)
     head = ["term", f"chosen\n{VALIDITY_LABELS[int(d.validity[d.chosen])]}"]
+    note = excluded_note(d, alt).strip() if alt is not None else ""
     if alt is not None:
-        head.append(f"best of another class:\n{VALIDITY_LABELS[int(d.validity[alt])]}{excluded_note(d, alt)}")
+        head.append(f"best of another class:\n{VALIDITY_LABELS[int(d.validity[alt])]}{' *' if note else ''}")
+
     def label_of(name: str, label: str) -> str:
         if weights is None:
             return label
@@ -108,17 +114,55 @@ def cost_panel(ax: Any, d: RecordedDecision, alt: int | None, weights: dict[str,
     cells = [[label_of(name, label)] + [fmt(_term(d, d.chosen, name, weights))]
              + ([fmt(_term(d, alt, name, weights))] if alt is not None else []) for name, label in PANEL_TERMS]
     table = ax.table(cellText=cells, colLabels=head, loc="upper center", cellLoc="right", colLoc="center",
-                     colWidths=[0.46, 0.22, 0.32][:len(head)])
+                     colWidths=[0.47, 0.19, 0.33][:len(head)])
     table.auto_set_font_size(False)
     table.set_fontsize(8)
     table.scale(1.0, 1.35)
+    lines = max(h.count("\n") + 1 for h in head)
     for (r, c), cell in table.get_celld().items():
         if r == 0:
             cell.set_text_props(weight="bold")
-            cell.set_height(cell.get_height() * 1.8)
+            cell.set_height(cell.get_height() * (0.8 * lines + 0.4))
         if c == 0:
             cell.set_text_props(ha="left")
+    if note:  # right under the table (AXESPAD below the axes' top; cell heights are axes fractions), wrapped
+        bottom = 1.0 - table.AXESPAD - sum(cell.get_height() for (r, c), cell in table.get_celld().items() if c == 0)
+        ax.text(0.0, bottom - 0.01, "* " + textwrap.fill(note, 60, subsequent_indent="  "), ha="left", va="top",
+                fontsize=8, transform=ax.transAxes)
     ax.set_title("Named cost terms [cost units]\nrisks: P(collision) x harm, summed over parties", fontsize=9.5)
+
+
+def overflowing_text(fig: Any) -> list[str]:
+    """The texts of a drawn figure that do not fit: a title, axis label, drawn tick label, unclipped
+    annotation, legend entry or table cell reaching beyond the canvas, or a table cell's text beyond
+    its cell. Empty when every text fits (tests/test_decisions.py checks the explain figure)."""
+    from matplotlib.table import Table
+
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    w, h = fig.bbox.width, fig.bbox.height
+    texts = [fig._suptitle] if fig._suptitle is not None else []
+    for ax in fig.axes:
+        texts += [ax.title] + [t for t in ax.texts if not t.get_clip_on()]  # clipped ones stay in their axes
+        if not ax.axison:  # axis("off"): no labels or ticks drawn
+            continue
+        texts += [ax.xaxis.label, ax.yaxis.label]
+        for axis, (lo, hi) in ((ax.xaxis, sorted(ax.get_xlim())), (ax.yaxis, sorted(ax.get_ylim()))):
+            texts += [t for t, loc in zip(axis.get_ticklabels(), axis.get_ticklocs()) if lo <= loc <= hi]
+    texts += [t for leg in fig.legends for t in leg.get_texts()]
+    cells = [cell for tab in fig.findobj(Table) for cell in tab.get_celld().values()]
+    out = []
+    for t in texts + [c.get_text() for c in cells]:
+        if t.get_visible() and t.get_text().strip():
+            e = t.get_window_extent(r)
+            if e.x0 < -0.5 or e.y0 < -0.5 or e.x1 > w + 0.5 or e.y1 > h + 0.5:
+                out.append(f"{t.get_text()!r} beyond the canvas")
+    for cell in cells:
+        t, e = cell.get_text(), cell.get_window_extent(r)
+        te = t.get_window_extent(r)
+        if t.get_text().strip() and (te.x0 < e.x0 - 0.5 or te.x1 > e.x1 + 0.5 or te.y0 < e.y0 - 0.5 or te.y1 > e.y1 + 0.5):
+            out.append(f"{t.get_text()!r} beyond its table cell")
+    return out
 
 
 def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[str, float] | None = None,
@@ -165,7 +209,7 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
             if d.pred_alt_mean is not None:
                 handles.append(Line2D([], [], color="0.3", lw=1.2, ls=":",
                                       label="other modes' mean paths (width, %: probability)"))
-            fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 7), fontsize=8.5,
+            fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 5), fontsize=8.5,
                        frameon=False)
         else:
             j = np.asarray(d.j_risk, dtype=float)
@@ -249,7 +293,7 @@ def collision_snapshots(run: Path, rows: list[dict[str, Any]], egos: frozenset[s
         for r in rows:
             if not is_booked(r) or int(r["step"]) not in have:
                 continue
-            title = (f"Collision {r['event']}: ego and {r['class_b']} '{r['id_b']}' at t = {r['time']:.2f} s, "
+            title = (f"Collision {r['event']}: ego and {party_label(r, 'b')} at t = {r['time']:.2f} s, "
                      f"harm ego {r['harm_ego']:.3f}, third party {r['harm_third_party']:.3f}. "
                      f"The last decision before impact:")
             res = explain(run, int(r["step"]), snaps / f"collision_{r['event']}", title=title, hit=collision_mark(r))
@@ -267,7 +311,7 @@ def collision_snapshots(run: Path, rows: list[dict[str, Any]], egos: frozenset[s
                 kept[ego] = set(rec.recorded_steps(run, ego))
             if int(r["step"]) not in kept[ego]:
                 continue
-            title = (f"Collision {r['event']}: ego '{ego}' and {r[f'class_{q}']} '{r[f'id_{q}']}' at t = "
+            title = (f"Collision {r['event']}: ego '{ego}' and {party_label(r, q)} at t = "
                      f"{r['time']:.2f} s, harm to '{ego}' {r[f'harm_{p}']:.3f}, to '{r[f'id_{q}']}' "
                      f"{r[f'harm_{q}']:.3f}. The last decision of '{ego}' before impact:")
             # ".png" ends the name: explain drops it, and only it (an id may end in ".svg")

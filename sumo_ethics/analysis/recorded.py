@@ -199,6 +199,16 @@ def _conflict_row(run: Path, event: int, ego: str | None = None) -> dict:
     return match[0]
 
 
+def party_label(row: dict[str, Any], p: str) -> str:
+    """Party ``p`` ('a' or 'b') of a collisions/conflicts row as a figure names it: its class, id and
+    SUMO vType, ``car 'veh3' (vType truck/trailer)``. The class follows the vType's vClass as SUMO
+    types it (a vType without a vClass is SUMO's default, passenger: a car, whatever its id or
+    shape), so the vType is named beside it, as the row's ``type_a``/``type_b`` holds it, unless it
+    is the class's own name."""
+    vtype, cls = row.get(f"type_{p}") or "", row[f"class_{p}"]
+    return f"{cls} '{row[f'id_{p}']}'" + (f" (vType {vtype})" if vtype and vtype.lower() != cls else "")
+
+
 def conflict_mark(run: Path, event: int, ego: str | None = None) -> tuple[float, float, str]:
     """Where the other party of conflict ``event`` (other than fleet ego ``ego``) was at its worst
     moment, and what the conflict was."""
@@ -207,7 +217,7 @@ def conflict_mark(run: Path, event: int, ego: str | None = None) -> tuple[float,
     what = [f"min TTC {r['min_ttc']:.2f} s" if np.isfinite(r["min_ttc"]) else "",
             f"min PET {r['min_pet']:.2f} s" if np.isfinite(r["min_pet"]) else ""]
     return (float(r[f"x_{p}"]), float(r[f"y_{p}"]),
-            f"conflict {event}: {r[f'class_{p}']} '{r[f'id_{p}']}', {', '.join(w for w in what if w)}")
+            f"conflict {event}: {party_label(r, p)}, {', '.join(w for w in what if w)}")
 
 
 def hit_of(run: Path, event: int, ego: str | None = None) -> tuple[float, float, str] | None:
@@ -225,7 +235,7 @@ def collision_mark(row: dict[str, Any], ego: str | None = None) -> tuple[float, 
     """Where the other party of collision ``row`` (other than fleet ego ``ego``) was just before
     impact, and who it was."""
     p = other_party(row, ego)
-    return float(row[f"x_{p}"]), float(row[f"y_{p}"]), f"hit: {row[f'class_{p}']} '{row[f'id_{p}']}'"
+    return float(row[f"x_{p}"]), float(row[f"y_{p}"]), f"hit: {party_label(row, p)}"
 
 
 def _time_of(run: Path, step: int, ego: str | None = None) -> float:

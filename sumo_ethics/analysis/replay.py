@@ -200,7 +200,7 @@ def _total_steps(run: Path, ego: str | None = None) -> int:
 def _collisions(run: Path, ego: str | None = None) -> dict[int, str]:
     """The run's booked ego collisions (those of fleet ego ``ego``): step -> a line naming the
     other party and the harm booked."""
-    from sumo_ethics.analysis.recorded import other_party
+    from sumo_ethics.analysis.recorded import other_party, party_label
     from sumo_ethics.collision import is_booked
     from sumo_ethics.record.reader import read_table
 
@@ -213,12 +213,12 @@ def _collisions(run: Path, ego: str | None = None) -> dict[int, str]:
         if not is_booked(r):
             continue
         if ego is None:
-            line = (f"COLLISION at t = {r['time']:.1f} s: ego and {r['class_b']} '{r['id_b']}'\n"
+            line = (f"COLLISION at t = {r['time']:.1f} s: ego and {party_label(r, 'b')}\n"
                     f"harm P(MAIS 3+): ego {r['harm_ego']:.3f}, third party {r['harm_third_party']:.3f}")
         elif ego in (r["id_a"], r["id_b"]):
             q = other_party(r, ego)
             p = "a" if q == "b" else "b"
-            line = (f"COLLISION at t = {r['time']:.1f} s: ego '{ego}' and {r[f'class_{q}']} '{r[f'id_{q}']}'\n"
+            line = (f"COLLISION at t = {r['time']:.1f} s: ego '{ego}' and {party_label(r, q)}\n"
                     f"harm P(MAIS 3+): '{ego}' {r[f'harm_{p}']:.3f}, '{r[f'id_{q}']}' {r[f'harm_{q}']:.3f}")
         else:
             continue

@@ -22,14 +22,34 @@ class Report:
     unfinished: int = 0  # runs of the sweep not finished (pending, failed, or killed with the sweep)
 
 
-def command_line(definition: dict[str, Any], out: str = "OUT") -> str:
+def shown_path(path: str, cwd: Path | None = None) -> str:
+    """A path as a command line to copy shows it: ``$SUMO_HOME/...`` below SUMO's own folder,
+    relative to ``cwd`` (default: the current folder) below it, else as it is."""
+    p = Path(path)
+    if p.is_absolute():
+        try:
+            import sumo
+
+            return "$SUMO_HOME/" + p.relative_to(Path(sumo.SUMO_HOME).resolve()).as_posix()
+        except (ImportError, ValueError):
+            pass
+        try:
+            return p.relative_to((cwd or Path.cwd()).resolve()).as_posix()
+        except ValueError:
+            pass
+    return str(path)
+
+
+def command_line(definition: dict[str, Any], out: str = "OUT", execution: dict[str, Any] | None = None,
+                 cwd: Path | None = None) -> str:
     """A ``sumo-ethics sweep`` command that reproduces ``definition`` (the report's first line;
-    the sweep definition is :mod:`sumo_ethics.sweep.grid`'s)."""
+    the sweep definition is :mod:`sumo_ethics.sweep.grid`'s), run as ``execution`` says
+    (``workers`` or ``scheduler``, manifest.json's), the paths relative to ``cwd`` (:func:`shown_path`)."""
     flags = {"end": "--end", "ego_depart": "--ego-depart", "ego_from": "--ego-from", "ego_to": "--ego-to",
              "controller": "--controller", "predictor": "--predictor", "radius": "--radius",
              "step_length": "--step-length"}
     scen = definition["scenarios"]
-    parts = ["sumo-ethics sweep", scen[0] if len(scen) == 1 else os.path.commonpath(scen),
+    parts = ["sumo-ethics sweep", shown_path(scen[0] if len(scen) == 1 else os.path.commonpath(scen), cwd),
              "--omega-u", ",".join(f"{v:g}" for v in definition["omega_u"]),
              "--seeds", ",".join(map(str, definition["seeds"]))]
 
@@ -45,7 +65,12 @@ def command_line(definition: dict[str, Any], out: str = "OUT") -> str:
             parts += [flags[k], value(v)]
     if definition.get("planner"):
         parts += ["--config", "PLANNER.toml"]
-    return " ".join(parts + ["--out", out])
+    execution = execution or {}
+    if execution.get("scheduler"):
+        parts += ["--scheduler", str(execution["scheduler"])]
+    elif execution.get("workers"):
+        parts += ["--workers", str(execution["workers"])]
+    return " ".join(parts + ["--out", shown_path(out, cwd)])
 
 
 def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Path | None = None,
@@ -109,8 +134,8 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
         f"# Sweep report: {sweep_dir.name}",
         "",
         "```sh",
-        command_line(d, str(sweep_dir)),
-        f"sumo-ethics analyze {sweep_dir} --by {','.join(by)}",
+        command_line(d, str(sweep_dir), manifest.get("execution")),
+        f"sumo-ethics analyze {shown_path(str(sweep_dir))} --by {','.join(by)}",
         "```",
         "",
         f"- scenarios: {', '.join(Path(s).name for s in d['scenarios'])}",

@@ -26,7 +26,8 @@ default string dtype, as a Parquet file read back gives it):
 ``depart``         float64   s, departure time
 ``arrival``        float64   s, end of the trip; NaN while under way
 ``duration``       float64   s, ``arrival - depart``; under way: the time so far
-``route_length``   float64   m, distance travelled (a vehicle under way: so far)
+``distance``       float64   m, distance travelled (a vehicle under way: so far); SUMO's
+                             ``routeLength``
 ``time_loss``      float64   s, time lost to driving/walking below the ideal speed
 ``waiting_time``   float64   s, time at (nearly) standstill (persons: also waiting for a ride);
                              under way: so far
@@ -36,8 +37,11 @@ default string dtype, as a Parquet file read back gives it):
 
 A person's values are the sums over its stages (a ride's ``duration`` counts only the time in the
 vehicle, so its ``waitingTime`` is added to a person's time so far). SUMO computes a stage's
-length and time loss only when the stage ends, so for a person under way ``route_length`` and
+length and time loss only when the stage ends, so for a person under way ``distance`` and
 ``time_loss`` are NaN, and a stop under way at the end is missing from its duration so far.
+
+``distance`` means what it means in ``summary.json`` (the distance driven); ``route_length``
+there is the length of the ego's whole route.
 """
 
 from __future__ import annotations
@@ -69,7 +73,7 @@ TRIPS = pa.schema([
     ("depart", pa.float64()),       # s
     ("arrival", pa.float64()),      # s, NaN while under way
     ("duration", pa.float64()),     # s
-    ("route_length", pa.float64()),  # m
+    ("distance", pa.float64()),     # m, so far
     ("time_loss", pa.float64()),    # s
     ("waiting_time", pa.float64()),  # s
     ("arrived", pa.bool_()),
@@ -115,7 +119,7 @@ def _vehicle(el: ET.Element, vclass_of: Mapping[str, str]) -> dict[str, Any]:
     arrival = _num(a.get("arrival"))
     return {
         "kind": "vehicle", "type_id": type_id, "vclass": vclass, "cls": RoadUserClass.from_vclass(vclass).label,
-        "arrival": arrival, "duration": _num(a.get("duration")), "route_length": _num(a.get("routeLength")),
+        "arrival": arrival, "duration": _num(a.get("duration")), "distance": _num(a.get("routeLength")),
         "time_loss": _num(a.get("timeLoss")), "waiting_time": _num(a.get("waitingTime")),
         "arrived": not math.isnan(arrival) and a.get("vaporized", "") == "",
     }
@@ -137,14 +141,14 @@ def _person(el: ET.Element, depart: float) -> dict[str, Any]:
     arrived = not math.isnan(arrival)
     if arrived:
         duration = arrival - depart
-        route_length, time_loss = _stage_sum(stages, "routeLength"), _stage_sum(stages, "timeLoss")
+        distance, time_loss = _stage_sum(stages, "routeLength"), _stage_sum(stages, "timeLoss")
     else:  # the time so far: the stages' durations, and the waits for rides (not in a ride's duration)
         duration = (_known(_num(s.attrib.get("duration")) for s in stages)
                     + _known(_num(s.attrib.get("waitingTime")) for s in stages if s.tag == "ride"))
-        route_length = time_loss = _NAN
+        distance = time_loss = _NAN
     return {
         "kind": "person", "type_id": el.attrib.get("type", ""), "vclass": "pedestrian", "cls": "pedestrian",
-        "arrival": arrival, "duration": duration, "route_length": route_length, "time_loss": time_loss,
+        "arrival": arrival, "duration": duration, "distance": distance, "time_loss": time_loss,
         "waiting_time": _known(_num(s.attrib.get("waitingTime")) for s in stages), "arrived": arrived,
     }
 

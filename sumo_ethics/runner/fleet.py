@@ -684,8 +684,8 @@ class FleetRun(Run):
             per = df[df["kind"] == "person"]
             self.meta["traffic"] = {
                 "trips": int(len(df)), "vehicle_trips": int(len(veh)), "person_trips": int(len(per)),
-                "arrived": int(df["arrived"].sum()), "vehicle_km": float(veh["route_length"].sum() / 1e3),
-                "person_km": float(per["route_length"].sum() / 1e3),
+                "arrived": int(df["arrived"].sum()), "vehicle_km": float(veh["distance"].sum() / 1e3),
+                "person_km": float(per["distance"].sum() / 1e3),
                 "time_loss_h": {"egos": float(veh.loc[veh["ego"], "time_loss"].sum() / 3600),
                                 "other_vehicles": float(veh.loc[~veh["ego"], "time_loss"].sum() / 3600),
                                 "persons": float(per["time_loss"].sum() / 3600)},

@@ -25,7 +25,7 @@ from sumo_ethics.collision import CollisionBook, booked_outcome, is_booked
 from sumo_ethics.interrupt import sigterm_as_interrupt, sigterm_deferred
 from sumo_ethics.config import RunConfig
 from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEthicsError, Terminated, add_note
-from sumo_ethics.notes import RunNotes
+from sumo_ethics.notes import RunNotes, blocker_ahead, held
 from sumo_ethics.contract import Controller, Scene, StopRun
 from sumo_ethics.plan.feasibility import ROAD_CURVATURE_TOL
 from sumo_ethics.plan.history import History
@@ -42,7 +42,7 @@ from sumo_ethics.sim.route import tight_bends
 from sumo_ethics.sim.rules import RuleMonitor
 from sumo_ethics.sumo_options import format_time
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld
-from sumo_ethics.types import VULNERABLE, RunStatus
+from sumo_ethics.types import VULNERABLE, RoadUserClass, RunStatus
 
 #: called every ego step with (snapshot, world) before the controller acts. A hook may also have
 #: ``at_takeover(world) -> RoutePath | None`` (called once, after the takeover and before the first
@@ -66,16 +66,47 @@ class RunSummary:
 
 #: every file or folder a run writes into its --out folder
 OUTPUT_NAMES = ("summary.json", "config.json", "steps.parquet", "timings.parquet", "collisions.parquet",
-                "conflicts.parquet", "conflicts_others.parquet", "sumo-errors.log", "sumo-outputs", PARTIAL, DECISIONS, SNAPSHOTS)
+                "conflicts.parquet", "conflicts_others.parquet", "trips.parquet", "sumo-errors.log", "sumo-outputs",
+                PARTIAL, DECISIONS, SNAPSHOTS)
+#: what the other commands write into a run folder: ``explain``'s figures (RUN/explain/), and a
+#: ``replay`` or ``explain --out`` put beside the outputs (any file with these suffixes)
+DERIVED_NAMES = ("explain",)
+DERIVED_SUFFIXES = (".png", ".svg", ".gif", ".mp4")
+
+
+def is_run_folder(out: Path) -> bool:
+    """True if ``out`` holds the ``config.json`` a run writes first (its ``scenario`` and ``resolved``
+    settings), or a run's ``summary.json`` (``status``, ``message``, ``seed``)."""
+    import json
+
+    for name, keys in (("config.json", ("scenario", "resolved")), ("summary.json", ("status", "message", "seed"))):
+        try:
+            data = json.loads((out / name).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if isinstance(data, dict) and all(k in data for k in keys):
+            return True
+    return False
+
+
+def foreign_entries(out: Path) -> list[str]:
+    """The names in run folder ``out`` that no sumo-ethics command writes there (sorted)."""
+    return sorted(p.name for p in out.iterdir()
+                  if p.name not in OUTPUT_NAMES and p.name not in DERIVED_NAMES
+                  and not p.name.startswith((".replaced-", ".write-test"))
+                  and not (p.is_file() and p.suffix.lower() in DERIVED_SUFFIXES))
 
 
 def prepare_out(out: Path, overwrite: bool = False) -> tuple[bool, Path | None]:
     """Create the run folder and prove it is writable (ConfigError otherwise).
 
-    A folder holding a run's outputs is refused unless ``overwrite``; then those outputs (and
-    nothing else) are moved into ``out/.replaced-<pid>/``, put back if this run is refused for
-    bad input and deleted when it ends. Other files in the folder are never touched.
-    Returns (whether the folder was created, the folder holding the replaced outputs or None).
+    A folder holding a run's outputs is refused unless ``overwrite``; then the earlier run is
+    replaced as a whole: everything in the folder (its outputs and the figures and animations made
+    from them) is moved into ``out/.replaced-<pid>/``, put back if this run is refused for bad input
+    and deleted when it ends. Only a run folder is replaced (:func:`is_run_folder`), and only one
+    holding nothing but what sumo-ethics writes there: a folder with any other file or folder
+    (:func:`foreign_entries`) is refused, so nothing else is ever deleted.
+    Returns (whether the folder was created, the folder holding the replaced run or None).
     """
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} exists and is not a folder")
@@ -83,6 +114,15 @@ def prepare_out(out: Path, overwrite: bool = False) -> tuple[bool, Path | None]:
     if old and not overwrite:
         raise ConfigError(f"--out {out} already holds a run ({', '.join(old)}); give --overwrite to replace it "
                           "or choose another folder")
+    if old:
+        if not is_run_folder(out):
+            raise ConfigError(f"--out {out} holds {', '.join(old)} but is not a run folder (no config.json or "
+                              "summary.json of a run); --overwrite replaces run folders only: choose another folder")
+        foreign = foreign_entries(out)
+        if foreign:
+            shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+            raise ConfigError(f"--out {out} holds a run and {shown}, which no run writes; --overwrite replaces "
+                              "the run folder as a whole: move them out or choose another folder")
     created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -90,14 +130,15 @@ def prepare_out(out: Path, overwrite: bool = False) -> tuple[bool, Path | None]:
         probe.write_text("ok")
         probe.unlink()
         backup = None
-        if overwrite:  # outputs an earlier overwriting run moved aside and was killed before deleting
+        if overwrite:  # an earlier run an overwriting run moved aside and was killed before deleting
             for stale in out.glob(".replaced-*"):
                 shutil.rmtree(stale, ignore_errors=True)
-        if old:  # --overwrite: the previous run's outputs, nothing else
+        if old:  # --overwrite: the previous run as a whole (foreign_entries found nothing else)
             backup = out / f".replaced-{os.getpid()}"
             backup.mkdir()
-            for name in old:
-                os.rename(out / name, backup / name)
+            for p in list(out.iterdir()):
+                if p != backup:
+                    os.rename(p, backup / p.name)
     except OSError as exc:
         raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
     return created, backup
@@ -255,6 +296,7 @@ class Run:
                 self.meta["last_time"] = t
                 if t >= end - 1e-9:
                     self.status, self.message = RunStatus.TIMEOUT, f"time limit {format_time(end)} reached"
+                    self._held(snap, route, s, half)
                     return
                 w0 = wallclock.perf_counter()
                 try:
@@ -262,6 +304,8 @@ class Run:
                         hook(snap, world)
                 except StopRun as stop:
                     self.status, self.message = stop.status, stop.message
+                    if stop.status is RunStatus.TIMEOUT:  # e.g. a CommonRoad goal's last time step
+                        self._held(snap, route, s, half)
                     return
                 # read
                 obs = None
@@ -320,7 +364,8 @@ class Run:
                     timing["conflict_others_ms"] = others_ms
                 # flushes a chunk every CHUNK_SECONDS of simulated time; keeps the decision by mode
                 self.rec.step(row, timing, decision.trace, t, ego_hit)
-                notes.step(row["time"], s, row["speed"], row["n_neighbours"], row["stop_s"], row["lane"])
+                notes.step(row["time"], s, row["speed"], row["n_neighbours"], row["stop_s"], row["lane"],
+                           row.get("validity", float("nan")))
                 snap = new
                 if progress is not None and self.step % 50 == 0:
                     progress[0].update(progress[1], completed=min(snap.time, end))
@@ -338,6 +383,26 @@ class Run:
             self.meta["loop_wall"] = wallclock.perf_counter() - self.t_start  # s, before outputs are written
             if progress is not None:
                 progress[0].stop()
+
+    def _held(self, snap: Snapshot, route: Any, s: float, half: float) -> None:
+        """A timeout: what held the ego (summary.json ``held``, sumo_ethics.notes.held), the words
+        appended to the run's message."""
+        if self.notes is None:
+            return
+        front = s + half
+        line = self.stop_line(front)
+        red = None
+        if line is not None:
+            red = {"distance": max(line - front, 0.0), "phase_ends": self.world.red_phase_end()}
+        o = snap.others
+        blocker = None
+        if len(o):
+            ps, pd = route.path.project(np.stack([o.x, o.y], axis=-1))
+            blocker = blocker_ahead(s, half, ps, pd, o.speed, o.length, o.ids,
+                                    [RoadUserClass(int(c)).label for c in o.cls])
+        h = held(self.notes, route.length - front, red, blocker)
+        self.meta["held"] = h
+        self.message = f"{self.message}; {h['says']}"
 
     def _start_pairs(self, types: SumoWorld, dt: float) -> None:
         """With ``[conflicts] everyone``: read every road user from the next step on, and book their

@@ -217,6 +217,17 @@ class SumoWorld:
                        for part in (slice(None, 1), slice(1, None)))
         return ego, others
 
+    def red_phase_end(self) -> float | None:
+        """When the phase of the ego's next traffic light ends [s], if that light shows it red or
+        yellow (SUMO's getNextTLS and getNextSwitch); None otherwise."""
+        try:
+            upcoming = sumo.vehicle.getNextTLS(self.ego_id)
+            if upcoming and upcoming[0][3] in "rRyYu":
+                return float(sumo.trafficlight.getNextSwitch(upcoming[0][0]))
+        except sumo.TraCIException:
+            pass
+        return None
+
     def link_state(self, link: JunctionLink) -> str:
         """Current signal state character of a link on the ego's path ('G', 'r', ...)."""
         return sumo.lane.getLinks(link.lane)[link.index][5]

@@ -579,6 +579,8 @@ def evaluate(suite: Path, planner_texts: list[str], out: Path, workers: int = 2,
     from sumo_ethics.suite import commonroad
     from sumo_ethics.suite.spec import HAZARD_FILE, load_suite
 
+    if limit is not None and not (isinstance(limit, int) and limit >= 1):
+        raise ConfigError(f"--limit must be a whole number of scenarios, 1 or more, got {limit!r}")
     planners = parse_planners(planner_texts)
     names = [p.name for p in planners]
     ref = reference or ("origin" if "origin" in names else names[0])

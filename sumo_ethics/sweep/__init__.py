@@ -106,7 +106,8 @@ def run_sweep(sweep: Sweep, out: Path, workers: int = 1, scheduler: str | None =
             raise
 
 
-def _start(sweep: Sweep, out: Path, specs: list[RunSpec]) -> tuple[float, Path, Manifest, list[RunSpec], int]:
+def _start(sweep: Sweep, out: Path, specs: list[RunSpec],
+           execution: dict[str, Any] | None = None) -> tuple[float, Path, Manifest, list[RunSpec], int]:
     """Create the folders, clean a killed start's leftovers, check the finished runs and write the
     manifest; the runs still to do."""
     t0 = time.perf_counter()
@@ -116,7 +117,7 @@ def _start(sweep: Sweep, out: Path, specs: list[RunSpec]) -> tuple[float, Path, 
     except OSError as exc:
         raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
     clean_temporaries(out)
-    manifest = Manifest(out, sweep, specs)
+    manifest = Manifest(out, sweep, specs, execution)
     manifest.load_previous()
     todo: list[RunSpec] = []
     skipped = 0
@@ -140,7 +141,8 @@ def _run_sweep(sweep: Sweep, out: Path, workers: int, scheduler: str | None, pro
     check_out(out, sweep)
     executor: LocalPool | DaskPool = DaskPool(scheduler) if scheduler else LocalPool(workers)
     try:
-        t0, runs_dir, manifest, todo, skipped = _start(sweep, out, specs)
+        t0, runs_dir, manifest, todo, skipped = _start(sweep, out, specs,
+                                                       {"scheduler": scheduler} if scheduler else {"workers": workers})
     except BaseException:
         executor.close()
         raise

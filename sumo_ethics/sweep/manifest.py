@@ -32,10 +32,13 @@ def result_from_folder(run_id: str, folder: Path, skipped: bool = False) -> dict
 class Manifest:
     """``DIR/manifest.json``: the definition and the state of every run."""
 
-    def __init__(self, out: Path, sweep: Sweep, specs: list[RunSpec]) -> None:
+    def __init__(self, out: Path, sweep: Sweep, specs: list[RunSpec], execution: dict[str, Any] | None = None) -> None:
         self.path = out / "manifest.json"
         self.out = out
         self.sweep = sweep
+        #: how the last start ran it (``workers``, or a Dask ``scheduler``): not part of the definition, as
+        #: it changes no result, but the report's command line repeats it
+        self.execution = dict(execution or {})
         self.runs: dict[str, dict[str, Any]] = {}
         for s in specs:
             self.runs[s.run_id] = {"run_id": s.run_id, "params": s.params, "status": PENDING, "error": None,
@@ -74,7 +77,7 @@ class Manifest:
             counts[r["status"]] = counts.get(r["status"], 0) + 1
         fileio.write_json(self.path, {
             "version": MANIFEST_VERSION, "definition": self.sweep.definition(),
-            "parameters": self.sweep.parameters, "counts": counts,
+            "parameters": self.sweep.parameters, "counts": counts, "execution": self.execution,
             "updated": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "runs": list(self.runs.values())},
             tmp_name=f".manifest.json.tmp-{os.getpid()}")  # workers of several processes may write it
 
