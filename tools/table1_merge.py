@@ -65,7 +65,7 @@ def main() -> None:
     rows = [{k: v for k, v in r.items() if not (isinstance(v, float) and pd.isna(v))} for r in df.to_dict("records")]
     # the runs' own wall times summed: the time of one worker running them all, not of one evaluation
     meta = {"suite": a.suite, "sources": a.sources, "scenarios": int(len(both)), "planners": described,
-            "reference": a.reference, "wall_s": float(df.wall_s.sum()), "workers": 1}
+            "reference": a.reference, "wall_s": float(df.wall_s.sum()), "workers": None}
     _, md = write_outputs(rows, [PlannerSpec(n, {}) for n in names], a.out, a.reference, meta)  # meta.json too
     print(md.read_text())
 

@@ -458,7 +458,8 @@ def markdown(t1: list[dict[str, Any]], paired: list[dict[str, Any]], by_hazard: 
                       "late: " + ", ".join(f"{k} {v}" for k, v in late.items()) + "."]
     if meta:
         lines += ["", "Planners: " + "; ".join(f"`{k}` = {v}" for k, v in meta.get("planners", {}).items()) + ".",
-                  f"Wall time {meta.get('wall_s', 0):.0f} s with {meta.get('workers')} workers."]
+                  f"Wall time {meta.get('wall_s', 0):.0f} s with {meta.get('workers')} workers." if meta.get("workers")
+                  else f"Wall time of the runs, summed: {meta.get('wall_s', 0):.0f} s (one worker running them all)."]
     return "\n".join(lines) + "\n"
 
 
