@@ -24,6 +24,8 @@ from sumo_ethics.ethics.probability import ProbabilityConfig
 from sumo_ethics.ethics.risk import assess_risk
 from sumo_ethics.contract import Decision, EgoCommand, Scene
 from sumo_ethics.plan.feasibility import check
+from sumo_ethics.plan.perception import Perception, PerceptionConfig, SightMap
+from sumo_ethics.plan.phantoms import phantom_risk, with_phantom_term
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
 from sumo_ethics.predict import PREDICTORS
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior, recent_motion
@@ -75,7 +77,11 @@ class PlannerConfig:
     moving to the lateral end offsets (:func:`evasive_candidates`): the grid's own profiles start
     from the current acceleration and take about a second to build up braking, and the straight
     braking candidates keep their lateral offset, so without them the ego can brake or swerve but
-    not both at once (a car cutting in ahead; ``origin`` and ``paper`` run without them, as published).
+    not both at once (a car cutting in ahead; ``origin`` and ``paper`` run without them, as published);
+    occlusion: the planner knows only the road users its sensor sees and remembers (``perception``:
+    range, memory, ...; :mod:`~sumo_ethics.plan.perception`), else every one in the sensing radius;
+    phantoms: hypothetical road users where one could come out of a shadow, their risk a cost term of
+    its own (:mod:`~sumo_ethics.plan.phantoms`); both off by default.
     """
 
     cost: CostConfig = field(default_factory=CostConfig)
@@ -94,6 +100,9 @@ class PlannerConfig:
     envelope: float = 1000.0
     entry: float = 1000.0
     evasive: bool = True
+    occlusion: bool = False
+    phantoms: bool = False
+    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
 
     def __post_init__(self) -> None:
         if self.selection not in SELECTIONS:
@@ -107,7 +116,7 @@ class PlannerConfig:
         if self.predictor == "cv" and self.predictor_weights:
             raise ConfigError("predictor_weights is a weights file for an LSTM predictor; predictor 'cv' "
                               "(constant velocity) has none")
-        for flag in ("calibrated", "evasive", "lateral_onset"):
+        for flag in ("calibrated", "evasive", "lateral_onset", "occlusion", "phantoms"):
             if not isinstance(getattr(self, flag), bool):
                 raise ConfigError(f"{flag} must be true or false, got {getattr(self, flag)!r}")
         if not (isinstance(self.max_risk, (int, float)) and 0.0 < self.max_risk <= 1.0):
@@ -310,15 +319,20 @@ class EthicalPlanner:
     needs_history = True
 
     def __init__(self, cfg: PlannerConfig = PlannerConfig(), predictor: Predictor | None = None,
-                 maps: Callable[[int], MapSource] | None = None) -> None:
+                 maps: Callable[[int], MapSource] | None = None,
+                 sight: Callable[[tuple[str, ...]], SightMap] | SightMap | None = None) -> None:
         """``predictor``: a ready one (else built from ``cfg``); ``maps``: the map source factory a
-        map-aware predictor is given (:func:`make_predictor`)."""
+        map-aware predictor is given (:func:`make_predictor`); ``sight``: the sensor's static world
+        (or a factory of it from the opaque polygon types) for ``occlusion`` and ``phantoms``."""
         self.cfg = cfg
         self.predictor = predictor or make_predictor(cfg.predictor, cfg.predictor_weights, cfg.calibrated, maps)
         keep_heap_warm()
         self._lateral = (0.0, 0.0)  # d', d'' of the last chosen candidate at the next step
         self._accel = 0.0
         self._sampling: SamplingConfig | None = None
+        # [planner] occlusion / phantoms: the ego's own sensor, memory and phantoms (plan/perception.py)
+        self.perception = (Perception(cfg.perception, cfg.occlusion, cfg.phantoms, sight)
+                           if cfg.occlusion or cfg.phantoms else None)
 
     @property
     def predictor_info(self) -> dict:
@@ -347,6 +361,10 @@ class EthicalPlanner:
         if obs is None:
             raise ValueError("the ethical planner needs the neighbours' history in its scene (needs_history)")
         agents = scene.others
+        percept = None
+        if self.perception is not None:  # occlusion: only what the sensor sees, its history as seen
+            percept = self.perception.perceive(scene, horizon_steps, sc.dt)
+            obs, agents = percept.observed(obs, agents)
         pred = self.predictor.predict(obs, horizon_steps, sc.dt)
         # the priors treat every mode of a multi-modal prediction alike (they map over the modes)
         if self.cfg.lateral_prior > 0.0:  # first: a car braking to a stand also stops moving sideways
@@ -357,6 +375,8 @@ class EthicalPlanner:
             pred = apply_braking_prior(pred, obs.current, self.cfg.braking_prior)
         # an agent with a non-finite mean, covariance or yaw in any mode is predicted at constant velocity
         pred, n_fallback = replace_non_finite(pred, obs, horizon_steps, sc.dt)
+        if percept is not None:  # the road users remembered while hidden, from where they were last seen
+            pred, agents = percept.with_remembered(pred, agents, horizon_steps, sc.dt)
         w1 = time.perf_counter()
         route = scene.route
         i = route.vertex_at(scene.s)
@@ -412,6 +432,11 @@ class EthicalPlanner:
         # J_mean averages over the candidates the selection rule chooses among
         cost = score(fc, risk, self.cfg.cost, desired_speed=v_desired,
                      feasible=self.pool(classes, legal, on_road, overlap, evasive))
+        ph_risk = None
+        if percept is not None and percept.phantoms is not None:  # the phantoms' risk: a term of its own
+            ph_risk = phantom_risk(fc, percept.phantoms, scene.ego, self.cfg.probability, self.cfg.perception.reaction,
+                                   veh.max_decel)
+            cost = with_phantom_term(cost, ph_risk.sum(axis=1), self.cfg.perception.weight)
         w3 = time.perf_counter()
         envelope = self.cfg.envelope * overlap
         entry = self.cfg.entry * np.maximum(horizon_steps - first_hit, 0) / horizon_steps
@@ -433,6 +458,9 @@ class EthicalPlanner:
                     utility_literal=float(self.cfg.cost.utility is UtilityMode.LITERAL))
         if scene.desired_speed is not None:
             info["desired_speed"] = v_desired
+        if percept is not None:  # road users in range, seen, remembered; phantoms
+            info.update(percept.counts())
+            timings.update(percept.timings_ms)
         d0 = scene.d
         dt = sc.dt
         d1, d2 = float(cand.d[k, 0]), float(cand.d[k, min(1, cand.d.shape[1] - 1)])
@@ -446,7 +474,8 @@ class EthicalPlanner:
             validity=validity_classes(classes), eligible=eligible, first_hit=first_hit,
             risk=(risk.ego_risk.sum(axis=1) + risk.other_risk.sum(axis=1)) if len(agents) else np.zeros(len(fc)),
             chosen=j, excluded=exclusion_codes(legal, on_road, overlap, self.cfg.selection, evasive),
-            agent_risk=risk.ego_risk[j] + risk.other_risk[j] if len(agents) else np.zeros(0))
+            agent_risk=risk.ego_risk[j] + risk.other_risk[j] if len(agents) else np.zeros(0),
+            view=None if percept is None else percept.trace(None if ph_risk is None else ph_risk[j]))
         return Decision(cmd, info=info, timings_ms=timings, trace=trace)
 
     def pool(self, classes: list[np.ndarray], legal: np.ndarray, on_road: np.ndarray,
