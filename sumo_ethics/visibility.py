@@ -10,9 +10,10 @@ The model (2-D, every obstacle as tall as the sight line; see docs/occlusion.md)
   corners and of the corners pushed out along their sight rays beyond the range, less the box
   itself: a box is seen by its near side, so its own far half is not in its own shadow (it may be
   in another's). Vectorised over the boxes (:func:`box_shadows`).
-- The shadow of a polygon (a building, convex or not) is the polygon and, for every edge of it,
-  the quadrilateral between the edge and the edge pushed out along its sight rays beyond the
-  range (:func:`polygon_shadows`); vectorised over all edges.
+- The shadow of an opaque polygon (a building) includes the polygon: for a convex one, the convex
+  hull of its vertices and of those pushed out (as a box's); for any other, the polygon and, for
+  every edge facing the eye, the quadrilateral between the edge and the edge pushed out along its
+  sight rays beyond the range (:func:`polygon_shadows`); vectorised over polygons and edges.
 - An obstacle that contains the eye casts no shadow (the ego's own box is never an obstacle).
 
 Exact polygons, not a ray cast: a ray cast of M rays misses objects narrower than the ray spacing
@@ -90,37 +91,63 @@ def box_shadows(eye: np.ndarray, corners: np.ndarray, radius: float) -> np.ndarr
     return out
 
 
-def _rings(polygons: Sequence[Any]) -> list[np.ndarray]:
-    """The (P, 2) coordinates of every ring (exterior and holes) of ``polygons`` (MultiPolygons split)."""
-    rings = []
-    for g in shapely.get_parts(np.asarray(list(polygons), dtype=object)):
-        if g is None or g.is_empty:
-            continue
-        rings.append(np.asarray(g.exterior.coords)[:, :2])
-        rings.extend(np.asarray(r.coords)[:, :2] for r in g.interiors)
-    return rings
+def _hull_shadows(e: np.ndarray, polys: list[Any], radius: float) -> np.ndarray:
+    """(P,) the shadows of convex ``polys`` (the polygons included): the convex hull of each one's
+    vertices and of those vertices pushed out along their sight rays; vectorised over the polygons."""
+    coords, idx = shapely.get_coordinates(shapely.get_exterior_ring(np.asarray(polys, dtype=object)), return_index=True)
+    rel = coords - e
+    starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]])
+    counts = np.diff(np.r_[starts, len(idx)])
+    mid = np.add.reduceat(rel, starts, axis=0) / counts[:, None]  # (P, 2) towards each polygon
+    m = mid[idx]
+    ang = np.arctan2(m[:, 0] * rel[:, 1] - m[:, 1] * rel[:, 0], (m * rel).sum(axis=1))
+    half = 0.5 * (np.maximum.reduceat(ang, starts) - np.minimum.reduceat(ang, starts))
+    far = _push(e, coords, _reach(radius, np.cos(half), np.maximum.reduceat(np.hypot(*rel.T), starts))[idx])
+    pts = np.concatenate([coords, far])
+    group = np.concatenate([idx, idx])
+    order = np.argsort(group, kind="stable")
+    return np.asarray(shapely.convex_hull(shapely.multipoints(pts[order], indices=group[order])), dtype=object)
 
 
-def polygon_shadows(eye: np.ndarray, polygons: Sequence[Any], radius: float) -> Any:
-    """The region opaque ``polygons`` hide from ``eye`` within ``radius`` [m] and past it, the
-    polygons included (one geometry; empty without polygons). A polygon containing the eye hides
-    nothing (the sensor would be inside it)."""
-    e = np.asarray(eye, dtype=float).reshape(2)
-    polys = [p for p in polygons if p is not None and not p.is_empty and not p.covers(shapely.Point(e))]
-    rings = _rings(polys)
-    if not rings:
-        return shapely.GeometryCollection()
-    a = np.concatenate([r[:-1] for r in rings])
-    b = np.concatenate([r[1:] for r in rings])
+def _edge_shadows(e: np.ndarray, polys: list[Any], radius: float) -> np.ndarray:
+    """The quadrilaterals between each edge of ``polys`` (any shape) that faces the eye and that edge
+    pushed out along its sight rays (their union with the polygons is the polygons' shadow)."""
+    rings = shapely.get_rings(shapely.orient_polygons(np.asarray(polys, dtype=object)))  # solid on the left
+    coords, idx = shapely.get_coordinates(rings, return_index=True)
+    same = idx[1:] == idx[:-1]  # consecutive vertices of one ring: an edge
+    a, b = coords[:-1][same], coords[1:][same]
     ra, rb = a - e, b - e
-    cross = ra[:, 0] * rb[:, 1] - ra[:, 1] * rb[:, 0]
-    dot = (ra * rb).sum(axis=1)
-    ok = np.abs(cross) > 1e-9 * np.maximum(np.hypot(*ra.T) * np.hypot(*rb.T), 1e-12)  # edges seen end-on hide nothing
-    a, b, cross, dot = a[ok], b[ok], cross[ok], dot[ok]
+    cross = ra[:, 0] * rb[:, 1] - ra[:, 1] * rb[:, 0]  # < 0: the eye right of a -> b, outside the solid
+    facing = cross < -1e-9 * np.maximum(np.hypot(*ra.T) * np.hypot(*rb.T), 1e-12)  # end-on edges hide nothing
+    a, b, cross, dot = a[facing], b[facing], cross[facing], (ra * rb).sum(axis=1)[facing]
     half = 0.5 * np.abs(np.arctan2(cross, dot))
     reach = _reach(radius, np.cos(half), np.maximum(np.hypot(*(a - e).T), np.hypot(*(b - e).T)))
     quads = np.stack([a, b, _push(e, b, reach), _push(e, a, reach), a], axis=1)
-    return shapely.union_all(np.concatenate([shapely.polygons(quads), np.asarray(polys, dtype=object)]))
+    return np.asarray(shapely.polygons(quads), dtype=object) if len(quads) else np.empty(0, dtype=object)
+
+
+def polygon_shadows(eye: np.ndarray, polygons: Sequence[Any], radius: float) -> list[Any]:
+    """The shadows that opaque ``polygons`` cast from ``eye`` within ``radius`` [m] and past it, the
+    polygons included (a list of geometries whose union is the hidden region). A convex polygon's is
+    the convex hull of its vertices and of those pushed out along their sight rays; a non-convex
+    one's is the polygon and, for every edge facing the eye, the quadrilateral between the edge and
+    the edge pushed out. A polygon containing the eye hides nothing (the sensor would be inside it)."""
+    e = np.asarray(eye, dtype=float).reshape(2)
+    parts = [g for p in polygons if p is not None for g in shapely.get_parts(p) if g.geom_type == "Polygon"]
+    polys = [p for p in parts if not p.is_empty and not p.covers(shapely.Point(e))]
+    if not polys:
+        return []
+    arr = np.asarray(polys, dtype=object)
+    area = shapely.area(arr)
+    convex = shapely.area(shapely.convex_hull(arr)) <= area * (1.0 + 1e-9) + 1e-12
+    convex &= shapely.get_num_interior_rings(arr) == 0
+    out: list[Any] = []
+    if convex.any():
+        out += list(_hull_shadows(e, [polys[i] for i in np.flatnonzero(convex)], radius))
+    if (~convex).any():
+        rest = [polys[i] for i in np.flatnonzero(~convex)]
+        out += rest + list(_edge_shadows(e, rest, radius))
+    return out
 
 
 @dataclass(frozen=True)
@@ -147,10 +174,7 @@ def view(eye: np.ndarray, radius: float, corners: np.ndarray, opaque: Sequence[A
     if len(c):  # boxes wholly beyond the range hide nothing within it
         near = np.hypot(*(c.mean(axis=1) - e).T) - np.hypot(*(c[:, 0] - c[:, 2]).T) / 2.0 <= radius
         c = c[near]
-    parts = [g for g in box_shadows(e, c, radius) if g is not None]
-    walls = polygon_shadows(e, opaque, radius)
-    if not walls.is_empty:
-        parts.append(walls)
+    parts = [g for g in box_shadows(e, c, radius) if g is not None] + polygon_shadows(e, opaque, radius)
     if not parts:
         return View(e, float(radius), disc, shapely.Polygon())
     shade = shapely.union_all(np.asarray(parts, dtype=object))

@@ -70,7 +70,7 @@ def test_a_building_casts_the_shadow_it_should():
 def test_an_eye_inside_an_obstacle_is_not_blinded():
     """A box or building around the eye (the ego's own box, a collision, a tunnel) hides nothing."""
     assert box_shadows(np.zeros(2), corners(0.0, 0.0, 0.3, 4.0, 2.0), 50.0)[0] is None
-    assert polygon_shadows(np.zeros(2), [shapely.box(-1.0, -1.0, 1.0, 1.0)], 50.0).is_empty
+    assert polygon_shadows(np.zeros(2), [shapely.box(-1.0, -1.0, 1.0, 1.0)], 50.0) == []
     assert view(np.zeros(2), 30.0, corners(0.0, 0.0, 0.3, 4.0, 2.0)).visible.area == pytest.approx(
         view(np.zeros(2), 30.0, np.zeros((0, 4, 2))).visible.area)
 
@@ -146,3 +146,23 @@ def test_a_wall_seen_wide_hides_everything_behind_it_up_to_the_range():
         assert v.hidden.contains(shapely.Point(p)), p
     for p in ((-29.0, 2.5), (28.0, 2.0), (0.0, -29.5)):
         assert v.visible.contains(shapely.Point(p)), p
+
+
+def test_a_convex_building_shadow_by_its_hull_equals_the_union_of_its_edges():
+    """The two ways of casting a building's shadow agree: for convex polygons (the hull of its
+    vertices and of those pushed out) and edge by edge (the polygon and a quadrilateral per edge
+    facing the eye, as non-convex polygons are cast): the same region within the range."""
+    from sumo_ethics.visibility import _edge_shadows, _hull_shadows
+
+    rng = np.random.default_rng(3)
+    eye = np.array([2.0, -1.0])
+    disc = shapely.Point(eye).buffer(40.0)
+    for _ in range(20):
+        pts = rng.uniform(-30, 30, (9, 2))
+        poly = shapely.convex_hull(shapely.multipoints(pts))
+        if poly.covers(shapely.Point(eye)):
+            continue
+        hull = _hull_shadows(eye, [poly], 40.0)[0].intersection(disc)
+        edges = shapely.union_all(np.r_[_edge_shadows(eye, [poly], 40.0), [poly]]).intersection(disc)
+        assert hull.symmetric_difference(edges).area < 1e-6 * max(hull.area, 1.0)
+        assert hull.area > poly.area  # it hides more than itself
