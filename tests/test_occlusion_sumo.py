@@ -51,7 +51,8 @@ def _steps(out: Path) -> bytes:
 def test_occlusion_off_leaves_the_outputs_as_they_were(scenario_dir, tmp_path):
     """A 12 s run on the testbed with a pedestrian crossing: the default planner and the same planner
     with occlusion and phantoms said false write the same steps.parquet, byte for byte, with none of
-    the perception columns."""
+    the perception columns, and the same config.json but for the folder's name (without the
+    perception keys, as before they existed)."""
     from sumo_ethics.config import RunConfig
     from sumo_ethics.runner import run
     from sumo_ethics.settings import planner_config
@@ -65,6 +66,10 @@ def test_occlusion_off_leaves_the_outputs_as_they_were(scenario_dir, tmp_path):
         run(RunConfig(cfg, out, ego_id="ego", end=12, progress=False, planner=planner_config(table), seed=3))
         outs.append(out)
     assert _steps(outs[0]) == _steps(outs[1])
+    configs = [json.loads((o / "config.json").read_text()) for o in outs]
+    for c in configs:
+        del c["out"]
+    assert configs[0] == configs[1] and "occlusion" not in configs[0]["planner"]  # as before, byte for byte
     cols = set(pd.read_parquet(outs[0] / "steps.parquet").columns)
     assert not cols & {"n_in_range", "n_visible", "n_remembered", "n_phantoms", "cost_phantom"}
 
@@ -101,3 +106,24 @@ def test_a_suite_pedestrian_behind_a_parked_car(tmp_path):
     pts = shapely.points(d.view.phantoms[:, :2])
     assert shapely.contains(d.view.hidden.buffer(0.01), pts).all()
     assert np.isfinite(d.view.phantom_risk).all()
+
+
+def test_each_ego_of_a_fleet_has_its_own_view(scenario_dir, tmp_path):
+    """Three cars in one lane of the testbed, 20 m apart: egos "a" (middle) and "b" (behind), "c" ahead
+    driven by SUMO. "a" sees both others; from "b", "c" is hidden behind "a" (a 1.8 m wide box 20 m
+    away covers +-2.6 deg of b's view, c 50 m away spans +-1.0 deg within it): in range but not seen."""
+    from sumo_ethics.config import FleetSpec, RunConfig
+    from sumo_ethics.runner.fleet import run_fleet
+    from sumo_ethics.settings import planner_config
+
+    routes = ''.join(f'<vehicle id="{v}" type="car" route="r_main" depart="0" departPos="{p}" departLane="1" '
+                     'departSpeed="8"/>' for v, p in (("b", 10), ("a", 30), ("c", 50)))
+    cfg = write_scenario(scenario_dir, routes, end=2.0)
+    rc = RunConfig(scenario=cfg, out=tmp_path / "run", progress=False, planner=planner_config(
+        {"predictor": "cv", "occlusion": True}), fleet=FleetSpec(ids=("a", "b")))
+    run_fleet(rc)
+    steps = pd.read_parquet(tmp_path / "run" / "steps.parquet")
+    first = steps.groupby("ego_id").head(5).set_index(["ego_id", "step"])
+    a, b = first.loc["a"], first.loc["b"]
+    assert (a.n_in_range == 2).all() and (a.n_visible == 2).all()
+    assert (b.n_in_range == 2).all() and (b.n_visible == 1).all()
