@@ -155,7 +155,7 @@ def test_decision_shapes_by_hand():
 
 def test_view_shapes_by_hand():
     """A sensor at the origin, range 20 m, a 2 x 2 m box centred at (5, 0): one shadow, the sector
-    behind it (its near corners' bearings +-atan(1/4)), drawn filled; the range as a ring of radius
+    behind it (its near corners' bearings +-atan(1/4)), its outline drawn; the range as a ring of radius
     20; a phantom 0.3 x 0.5 m at (8, 3) heading +y as its box (corners 0.15 m along, 0.25 m across)
     and its mean path from where it stands."""
     from sumo_ethics.geometry import OrientedBoxes
@@ -171,7 +171,7 @@ def test_view_shapes_by_hand():
     shapes = gui.view_shapes(trace)
     assert sorted(shapes) == sorted(f"{gui.PREFIX}{k}" for k in ("hidden:0", "range", "phantom:0", "phantom:0:path"))
     pts, colour, filled, _ = shapes[f"{gui.PREFIX}hidden:0"]
-    assert filled and colour == gui.HIDDEN_COLOUR
+    assert not filled and colour == gui.HIDDEN_COLOUR
     bearing = np.arctan2(pts[:, 1], pts[:, 0])
     assert np.abs(bearing).max() == pytest.approx(np.arctan2(1.0, 4.0))  # through the near corners (4, +-1)
     ring = shapes[f"{gui.PREFIX}range"][0]

@@ -7,8 +7,10 @@ puts at risk (orange: the predicted mean path and the 1-sigma ellipse every seco
 rest of the run, a red ring where the ego collided. Drawing only: polygons (the highlight is one)
 take no part in the simulation, so a run writes the same steps.parquet as without --gui. The ego
 is not painted: ``vehicle.setColor`` would show in a scenario's vehroute-output. With ``[planner]
-occlusion`` or ``phantoms`` the sensor's view is drawn too: the shadows within its range (grey, filled),
-the range's edge (a grey ring) and each phantom road user (violet: its box and predicted mean path).
+occlusion`` or ``phantoms`` the sensor's view is drawn too: the outline of each shadow within its range
+and the range's edge (dark grey-blue; a translucent fill would let sumo-gui's background through the
+map's own polygons where they are drawn later than ours) and each phantom road user (violet: its box
+and predicted mean path).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ EGO_COLOUR = (0, 255, 255, 255)
 TRAJECTORY_COLOUR = (255, 0, 255, 255)
 RISK_COLOUR = (255, 140, 0, 255)
 COLLISION_COLOUR = (255, 0, 0, 255)
-HIDDEN_COLOUR = (60, 60, 90, 110)
+HIDDEN_COLOUR = (60, 60, 90, 255)
 RANGE_COLOUR = (60, 60, 90, 255)
 PHANTOM_COLOUR = (150, 60, 220, 255)
 #: the polygons' layer: above roads and vehicles
@@ -90,9 +92,9 @@ def decision_shapes(trace: Any) -> dict[str, tuple[np.ndarray, tuple[int, ...], 
 
 
 def view_shapes(view: Any) -> dict[str, tuple[np.ndarray, tuple[int, ...], bool, float]]:
-    """What the sensor's view draws (a types.ViewTrace; None: nothing): each part of the shadows
-    within the range filled (its outline; sumo-gui polygons have no holes), the range's edge, each
-    phantom's box and predicted mean path."""
+    """What the sensor's view draws (a types.ViewTrace; None: nothing): the outline of each part of
+    the shadows within the range (its exterior), the range's edge, each phantom's box and predicted
+    mean path."""
     if view is None:
         return {}
     import shapely
@@ -102,7 +104,7 @@ def view_shapes(view: Any) -> dict[str, tuple[np.ndarray, tuple[int, ...], bool,
     out: dict[str, tuple[np.ndarray, tuple[int, ...], bool, float]] = {}
     parts = [g for g in shapely.get_parts(view.hidden) if g.geom_type == "Polygon" and not g.is_empty]
     for n, g in enumerate(parts):
-        out[f"{PREFIX}hidden:{n}"] = (np.asarray(g.exterior.coords)[:, :2], HIDDEN_COLOUR, True, PATH_WIDTH)
+        out[f"{PREFIX}hidden:{n}"] = (np.asarray(g.exterior.coords)[:, :2], HIDDEN_COLOUR, False, PATH_WIDTH)
     a = np.linspace(0.0, 2.0 * np.pi, 72)
     ring = np.asarray(view.eye)[None, :] + view.radius * np.c_[np.cos(a), np.sin(a)]
     out[f"{PREFIX}range"] = (ring, RANGE_COLOUR, False, PATH_WIDTH)
