@@ -331,3 +331,32 @@ def test_sweep_sets_occlusion(tmp_path):
     cfgs = [s.run_config(tmp_path).planner for s in sweep.specs()]
     assert sorted(c.occlusion for c in cfgs) == [False, True]
     assert {c.perception.sensor_range for c in cfgs} == {30.0}
+
+
+def test_a_recorded_decision_keeps_the_view_and_explain_draws_it(tmp_path):
+    """The decision of the planner with occlusion and phantoms, recorded (record.decisions) and read
+    back: the sensor's position and range, the visible and hidden regions (WKB, exact), who was seen,
+    the phantom (float32 relative to the ego: within a millimetre) with its existence probability;
+    explain's figure draws it (the hidden region, the phantom with its legend entry)."""
+    from sumo_ethics.analysis.explain import decision_figure
+    from sumo_ethics.record import decisions as rec
+
+    others = agents([[40.0, -2.4, 0.0, 0.0, 5.0, 2.0, 2000.0, CAR], [43.5, -3.2, np.pi / 2, 0.0, 0.3, 0.5, 75.0, PED]])
+    sc = straight_road_scene(others, np.repeat(others.xy[:, None], 31, axis=1))
+    sight = SightMap(walkable=(shapely.box(0.0, -4.75, 500.0, -1.75),))
+    d = EthicalPlanner(PlannerConfig(predictor="cv", occlusion=True, phantoms=True), sight=sight).act(sc)
+    rec.write(rec.step_path(tmp_path, 1), rec.encode(d.trace, 1, 0.0, 0.1))
+    back = rec.load(tmp_path, 1)
+    v = back.view
+    assert v is not None and v.radius == 50.0 and v.eye.tolist() == [10.0, 0.0]
+    assert v.visible.equals(d.trace.view.visible) and v.hidden.equals(d.trace.view.hidden)
+    assert v.seen == ("a0",) and v.remembered == ()
+    assert v.phantoms[0, :2] == pytest.approx([42.75, -2.0], abs=1e-3)
+    assert v.phantom_existence.tolist() == pytest.approx([0.1])
+    assert "phantom" in back.terms and "phantom_risk" in back.terms
+    fig, _, _ = decision_figure(back, None, "test")
+    labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+    assert any(lb.startswith("phantom") for lb in labels) and any(lb.startswith("hidden") for lb in labels)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)

@@ -3,7 +3,7 @@
     python tools/occlusion_study.py runs/occ_main [runs/occ_held ...] [--reference ours]
 
 Per folder (a suite's scenarios run with the omniscient planner and with occlusion, without and with
-phantoms), per planner: runs, ego collisions (all, and with the hazard's pedestrian), harm (total,
+phantoms), per planner: runs, ego collisions (all, and with a pedestrian), harm (total,
 VRU), completion, and the travel time on the scenarios every planner completed (mean, and its ratio
 to the reference's, paired: the same scenarios); then each planner against the reference, paired
 over the scenarios, with a 95 % bootstrap interval (2,000 resamples of the scenarios, seed 0) of the
@@ -23,8 +23,7 @@ import pandas as pd
 def load(folder: Path) -> pd.DataFrame:
     df = pd.read_csv(folder / "results.csv")
     df["collided"] = df["status"].eq("collision")
-    df["ped_hit"] = df["collided"] & df["collided_with"].fillna("").str.contains("hazard_h", regex=False) & \
-        df["collided_with"].fillna("").str.contains("pedestrian")
+    df["ped_hit"] = df["collided"] & df["collided_with"].fillna("").str.contains("pedestrian")
     return df
 
 
@@ -41,7 +40,7 @@ def table(df: pd.DataFrame, reference: str) -> str:
     common = done.index[done.all(axis=1)]
     times = df[df["scenario"].isin(common)].pivot(index="scenario", columns="planner", values="drive_time")
     lines = [f"{df['scenario'].nunique()} scenarios; travel time over the {len(common)} every planner completed",
-             "", "| planner | runs | ego collisions | with the pedestrian | total harm | VRU harm | completed (%) | "
+             "", "| planner | runs | ego collisions | with a pedestrian | total harm | VRU harm | completed (%) | "
              "travel time [s] | x reference |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for p in planners:
         d = df[df["planner"] == p]

@@ -175,7 +175,8 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
             if viewed:
                 handles.append(Patch(fc=HIDDEN_COLOUR, alpha=0.28, hatch="///", ec=HIDDEN_COLOUR,
                                      label="hidden from the sensor (within its range, dashed)"))
-                handles.append(Patch(fc="none", ec="black", ls=":", label="remembered, unseen"))
+                if d.view is not None and d.view.remembered:
+                    handles.append(Patch(fc="none", ec="black", ls=":", label="remembered, unseen"))
                 if d.view is not None and len(d.view.phantoms):
                     handles.append(Patch(fc="none", ec=PHANTOM_COLOUR, ls="--",
                                          label="phantom (p: existence; its expected risk)"))
