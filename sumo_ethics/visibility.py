@@ -162,7 +162,12 @@ class View:
     hidden: Geometry
 
     def disc(self) -> Any:
-        return shapely.Point(self.eye).buffer(self.radius, quad_segs=QUAD_SEGS)
+        """The disc of the range (a polygon of 4 x QUAD_SEGS vertices), built once."""
+        d = self.__dict__.get("_disc")
+        if d is None:
+            d = shapely.Point(self.eye).buffer(self.radius, quad_segs=QUAD_SEGS)
+            object.__setattr__(self, "_disc", d)
+        return d
 
 
 def view(eye: np.ndarray, radius: float, corners: np.ndarray, opaque: Sequence[Any] = ()) -> View:
@@ -176,9 +181,12 @@ def view(eye: np.ndarray, radius: float, corners: np.ndarray, opaque: Sequence[A
         c = c[near]
     parts = [g for g in box_shadows(e, c, radius) if g is not None] + polygon_shadows(e, opaque, radius)
     if not parts:
-        return View(e, float(radius), disc, shapely.Polygon())
-    shade = shapely.union_all(np.asarray(parts, dtype=object))
-    return View(e, float(radius), shapely.difference(disc, shade), shapely.intersection(disc, shade))
+        out = View(e, float(radius), disc, shapely.Polygon())
+    else:
+        shade = shapely.union_all(np.asarray(parts, dtype=object))
+        out = View(e, float(radius), shapely.difference(disc, shade), shapely.intersection(disc, shade))
+    object.__setattr__(out, "_disc", disc)
+    return out
 
 
 def visible_share(v: View, corners: np.ndarray) -> np.ndarray:

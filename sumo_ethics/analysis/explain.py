@@ -174,14 +174,14 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
                                       label="other modes' mean paths (width, %: probability)"))
             if viewed:
                 handles.append(Patch(fc=HIDDEN_COLOUR, alpha=0.28, hatch="///", ec=HIDDEN_COLOUR,
-                                     label="hidden from the sensor (within its range, dashed)"))
+                                     label="hidden from the sensor (range dashed)"))
                 if d.view is not None and d.view.remembered:
                     handles.append(Patch(fc="none", ec="black", ls=":", label="remembered, unseen"))
                 if d.view is not None and len(d.view.phantoms):
                     handles.append(Patch(fc="none", ec=PHANTOM_COLOUR, ls="--",
-                                         label="phantom (p: existence; its expected risk)"))
-            fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 7), fontsize=8.5,
-                       frameon=False)
+                                         label="phantom (p: existence), its risk"))
+            fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 5 if viewed else 7),
+                       fontsize=8.5, frameon=False)
         else:
             j = np.asarray(d.j_risk, dtype=float)
             pos = j[j > 0]

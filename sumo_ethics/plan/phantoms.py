@@ -4,8 +4,8 @@
 Where (:func:`place`), within ``lookahead`` of the ego along its path (``PerceptionConfig``):
 
 - **pedestrians** in the hidden part of a walkable area (sidewalks, crossings, walking areas of the
-  :class:`~sumo_ethics.plan.perception.SightMap`), shrunk by half the phantom's size so that all of
-  it is hidden and on walkable ground: at the point of each hidden patch nearest the ego's path
+  :class:`~sumo_ethics.plan.perception.SightMap`) outside the buildings, shrunk by half the
+  phantom's size so that all of it is hidden and on walkable ground: at the point of each hidden patch nearest the ego's path
   (then the nearest along it) from which the straight walk to the path crosses no road user's box
   and no opaque polygon; walking straight towards the path and across it at ``pedestrian_speed``;
   at most one per patch, ``spacing`` apart along the path. A shadow with no walkable ground in it
@@ -114,41 +114,47 @@ def _window(scene: Any, cfg: Any) -> tuple[float, float]:
     return scene.s + float(scene.ego.length[0]) / 2.0, scene.s + ahead
 
 
-def _pedestrians(v: View, sight: Any, scene: Any, walls: Any, cfg: Any, window: tuple[float, float]
-                 ) -> list[tuple[float, float, float, float]]:
-    """(x, y, yaw, s) of the pedestrian phantoms, nearest along the path first."""
+def _pedestrians(v: View, sight: Any, scene: Any, walls: np.ndarray, opaque: list[Any], cfg: Any,
+                 window: tuple[float, float]) -> list[tuple[float, float, float, float]]:
+    """(x, y, yaw, s) of the pedestrian phantoms, nearest along the path first. ``walls``: the
+    geometries a phantom's walk to the path may not cross (known road users' boxes, buildings);
+    ``opaque``: the buildings in range (no phantom stands in one)."""
     walkable = sight.near("walkable", v.disc())
     if not len(walkable):
         return []
     _, length, width = SIZES["pedestrian"]
     r = 0.5 * max(length, width)
-    hidden = shapely.intersection(shapely.union_all(np.asarray([sight.walkable[i] for i in walkable], dtype=object)),
-                                  v.hidden)
-    if not walls.is_empty:
-        hidden = shapely.difference(hidden, walls)
-    hidden = shapely.buffer(hidden, -r)
-    if hidden.is_empty:
+    patches = shapely.intersection(np.asarray([sight.walkable[i] for i in walkable], dtype=object), v.hidden)
+    patches = patches[~shapely.is_empty(patches)]
+    if opaque and len(patches):
+        patches = shapely.difference(patches, shapely.union_all(np.asarray(opaque, dtype=object)))
+    parts = shapely.get_parts(shapely.buffer(patches, -r)) if len(patches) else np.empty(0, dtype=object)
+    parts = parts[(shapely.get_type_id(parts) == 3) & ~shapely.is_empty(parts)] if len(parts) else parts  # polygons
+    if not len(parts):
         return []
+    pts, part = shapely.get_coordinates(shapely.segmentize(shapely.get_exterior_ring(parts), SAMPLE),
+                                        return_index=True)
     path = scene.route.path
-    picks = []
-    for part in shapely.get_parts(hidden):
-        if part.geom_type != "Polygon" or part.is_empty:
-            continue
-        pts = shapely.get_coordinates(shapely.segmentize(part.exterior, SAMPLE))
-        s, d = path.project(pts)
-        ok = (s > window[0] + r) & (s <= window[1]) & (np.abs(d) <= LATERAL)
-        if not ok.any():
-            continue
-        pts, s, d = pts[ok], s[ok], d[ok]
-        fx, fy, _ = path.to_xy(s, np.zeros_like(s))
-        walks = shapely.linestrings(np.stack([pts, np.c_[fx, fy]], axis=1))
-        clear = ~shapely.intersects(walks, walls) if not walls.is_empty else np.ones(len(pts), bool)
-        if not clear.any():
-            continue
-        pts, s, d = pts[clear], s[clear], d[clear]
-        j = np.lexsort((s, np.round(np.abs(d), 1)))[0]  # nearest the path, then nearest along it
-        h = float(path.heading_at(np.array(s[j])))
-        picks.append((float(pts[j, 0]), float(pts[j, 1]), h + (np.pi / 2 if d[j] < 0 else -np.pi / 2), float(s[j])))
+    s, d = path.project(pts)
+    ok = np.flatnonzero((s > window[0] + r) & (s <= window[1]) & (np.abs(d) <= LATERAL))
+    if not len(ok):
+        return []
+    pts, part, s, d = pts[ok], part[ok], s[ok], d[ok]
+    fx, fy, _ = path.to_xy(s, np.zeros_like(s))
+    walks = shapely.linestrings(np.stack([pts, np.c_[fx, fy]], axis=1))
+    blocked = np.zeros(len(pts), dtype=bool)
+    if len(walls):
+        hit = shapely.STRtree(walls).query(walks, predicate="intersects")
+        blocked[hit[0]] = True
+    clear = np.flatnonzero(~blocked)
+    if not len(clear):
+        return []
+    pts, part, s, d = pts[clear], part[clear], s[clear], d[clear]
+    order = np.lexsort((s, np.round(np.abs(d), 1), part))  # per patch: nearest the path, then nearest along it
+    first = order[np.r_[True, part[order][1:] != part[order][:-1]]]
+    heading = path.heading_at(s[first])
+    picks = [(float(pts[j, 0]), float(pts[j, 1]), float(h) + (np.pi / 2 if d[j] < 0 else -np.pi / 2), float(s[j]))
+             for j, h in zip(first, heading)]
     picks.sort(key=lambda p: p[3])
     kept: list[tuple[float, float, float, float]] = []
     for p in picks:
@@ -197,11 +203,11 @@ def place(v: View, sight: Any, scene: Any, known: AgentStates, cfg: Any, horizon
     window = _window(scene, cfg)
     opaque = [sight.opaque[i] for i in sight.near("opaque", v.disc())]
     parts = list(boxes(OrientedBoxes(known.x, known.y, known.yaw, known.length, known.width).corners())) if len(known) else []
-    walls = shapely.union_all(np.asarray(parts + opaque, dtype=object)) if parts or opaque else shapely.Polygon()
+    walls = np.asarray(parts + opaque, dtype=object)
     t = (np.arange(horizon_steps) + 1) * dt
     rows: dict[str, list[tuple[np.ndarray, np.ndarray, float, float, float]]] = {k: [] for k in KINDS}
     if cfg.pedestrian_existence > 0.0:
-        for x, y, yaw, _ in _pedestrians(v, sight, scene, walls, cfg, window):
+        for x, y, yaw, _ in _pedestrians(v, sight, scene, walls, opaque, cfg, window):
             heading = np.array([np.cos(yaw), np.sin(yaw)])
             mean = np.array([x, y]) + cfg.pedestrian_speed * t[:, None] * heading
             rows["pedestrian"].append((mean, np.full(horizon_steps, yaw), x, y, cfg.pedestrian_speed))
