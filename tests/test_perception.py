@@ -106,6 +106,17 @@ def test_no_phantom_whose_walk_to_the_path_crosses_a_road_user():
     assert len(past) == 1 and past.agents.x[0] == pytest.approx(47.25)
 
 
+def test_no_phantom_inside_a_building_over_the_sidewalk():
+    """The parked car of the test above with a building x 42..60, y -6..-1.9 over the sidewalk's
+    kerb strip (maps overlap so): the point past the car's front where the phantom stood, (42.75, -2.0),
+    is inside it, and so is every hidden sidewalk point up to x = 60, beyond the 50 m window: no phantom."""
+    car = [40.0, -2.4, 0.0, 0.0, 5.0, 2.0, 1500.0, CAR]
+    walk = (shapely.box(0.0, -4.75, 500.0, -1.75),)
+    assert len(phantoms_of(agents([car]), SightMap(walkable=walk)).phantoms) == 1
+    inside = SightMap(walkable=walk, opaque=(shapely.box(42.0, -6.0, 60.0, -1.9),))
+    assert len(phantoms_of(agents([car]), inside).phantoms) == 0
+
+
 def test_phantom_cyclist_and_vehicle_on_hidden_lanes():
     """A bike lane along y = -2.5 (x 0..200) behind the parked car: its hidden stretch ends where the
     sight line over the car's near front corner (42.5, -1.4) reaches y = -2.5: x = 10 + 2.5 x 32.5 / 1.4

@@ -162,6 +162,11 @@ class SightMap:
             tree = self._trees[name] = shapely.STRtree(np.asarray(geoms, dtype=object))
         return tree
 
+    def lines(self) -> np.ndarray:
+        """(L,) the lanes' centre lines as shapely LineStrings (built once)."""
+        self._tree("lanes")
+        return self._tree("lanes").geometries
+
     def near(self, name: str, area: Geometry) -> np.ndarray:
         """Indexes of the ``opaque``, ``walkable`` or ``lanes`` items whose bounding boxes meet ``area``."""
         if not getattr(self, name):

@@ -4,8 +4,8 @@
 Where (:func:`place`), within ``lookahead`` of the ego along its path (``PerceptionConfig``):
 
 - **pedestrians** in the hidden part of a walkable area (sidewalks, crossings, walking areas of the
-  :class:`~sumo_ethics.plan.perception.SightMap`) outside the buildings, shrunk by half the
-  phantom's size so that all of it is hidden and on walkable ground: at the point of each hidden patch nearest the ego's path
+  :class:`~sumo_ethics.plan.perception.SightMap`), shrunk by half the phantom's size so that all of
+  it is hidden and on walkable ground: at the point of each hidden patch nearest the ego's path
   (then the nearest along it) from which the straight walk to the path crosses no road user's box
   and no opaque polygon; walking straight towards the path and across it at ``pedestrian_speed``;
   at most one per patch, ``spacing`` apart along the path. A shadow with no walkable ground in it
@@ -114,11 +114,11 @@ def _window(scene: Any, cfg: Any) -> tuple[float, float]:
     return scene.s + float(scene.ego.length[0]) / 2.0, scene.s + ahead
 
 
-def _pedestrians(v: View, sight: Any, scene: Any, walls: np.ndarray, opaque: list[Any], cfg: Any,
-                 window: tuple[float, float]) -> list[tuple[float, float, float, float]]:
+def _pedestrians(v: View, sight: Any, scene: Any, walls: np.ndarray, cfg: Any, window: tuple[float, float]
+                 ) -> list[tuple[float, float, float, float]]:
     """(x, y, yaw, s) of the pedestrian phantoms, nearest along the path first. ``walls``: the
-    geometries a phantom's walk to the path may not cross (known road users' boxes, buildings);
-    ``opaque``: the buildings in range (no phantom stands in one)."""
+    geometries a phantom's walk to the path may not cross (known road users' boxes, buildings; a
+    point inside a building, where a walkable area overlaps one, starts its walk in it: none there)."""
     walkable = sight.near("walkable", v.disc())
     if not len(walkable):
         return []
@@ -126,8 +126,6 @@ def _pedestrians(v: View, sight: Any, scene: Any, walls: np.ndarray, opaque: lis
     r = 0.5 * max(length, width)
     patches = shapely.intersection(np.asarray([sight.walkable[i] for i in walkable], dtype=object), v.hidden)
     patches = patches[~shapely.is_empty(patches)]
-    if opaque and len(patches):
-        patches = shapely.difference(patches, shapely.union_all(np.asarray(opaque, dtype=object)))
     parts = shapely.get_parts(shapely.buffer(patches, -r)) if len(patches) else np.empty(0, dtype=object)
     parts = parts[(shapely.get_type_id(parts) == 3) & ~shapely.is_empty(parts)] if len(parts) else parts  # polygons
     if not len(parts):
@@ -135,7 +133,7 @@ def _pedestrians(v: View, sight: Any, scene: Any, walls: np.ndarray, opaque: lis
     pts, part = shapely.get_coordinates(shapely.segmentize(shapely.get_exterior_ring(parts), SAMPLE),
                                         return_index=True)
     path = scene.route.path
-    s, d = path.project(pts)
+    s, d = path.project(pts, near=(window[0] - LATERAL, window[1] + LATERAL))  # only the window's segments
     ok = np.flatnonzero((s > window[0] + r) & (s <= window[1]) & (np.abs(d) <= LATERAL))
     if not len(ok):
         return []
@@ -166,24 +164,29 @@ def _pedestrians(v: View, sight: Any, scene: Any, walls: np.ndarray, opaque: lis
 def _on_lanes(v: View, sight: Any, lanes: list[int], kind: str, cfg: Any) -> list[tuple[float, float, float, int, float]]:
     """(x, y, distance from the eye, lane index, arc length [m]) of a phantom on each lane of
     ``lanes`` that has a hidden stretch, the nearest ``max_phantoms``: at the stretch's downstream
-    end, set back half the phantom's length."""
+    end, set back half the phantom's length. Vectorised over the lanes."""
+    if not lanes:
+        return []
     _, length, _ = SIZES[kind]
+    idx = np.asarray(lanes, dtype=np.intp)
+    lines = sight.lines()[idx]
+    hidden = shapely.intersection(lines, v.hidden)
+    some = np.flatnonzero(~shapely.is_empty(hidden))
+    if not len(some):
+        return []
+    ends, which = shapely.get_coordinates(shapely.boundary(hidden[some]), return_index=True)
+    if not len(ends):
+        return []
+    u = shapely.line_locate_point(lines[some][which], shapely.points(ends))
+    order = np.lexsort((-u, which))  # per lane, the farthest along it first: the stretch's downstream end
+    first = order[np.r_[True, which[order][1:] != which[order][:-1]]]
     out = []
-    for i in lanes:
-        ln = sight.lanes[i]
-        line = shapely.linestrings(ln.xy)
-        hidden = shapely.intersection(line, v.hidden)
-        if hidden.is_empty:
-            continue
-        ends = shapely.get_coordinates(shapely.boundary(hidden))
-        if not len(ends):
-            continue
-        u = shapely.line_locate_point(line, shapely.points(ends))
-        j = int(np.argmax(u))
+    for j in first:
         if np.hypot(*(ends[j] - v.eye)) >= v.radius - 0.5:  # the range's edge, not a shadow's
             continue
+        i = int(idx[some[which[j]]])
         u0 = float(u[j]) - length / 2.0
-        xy, _ = _along(ln.xy, np.array([u0]))
+        xy, _ = _along(sight.lanes[i].xy, np.array([u0]))
         out.append((float(xy[0, 0]), float(xy[0, 1]), float(np.hypot(*(xy[0] - v.eye))), i, u0))
     out.sort(key=lambda p: p[2])
     return out[:cfg.max_phantoms]
@@ -207,7 +210,7 @@ def place(v: View, sight: Any, scene: Any, known: AgentStates, cfg: Any, horizon
     t = (np.arange(horizon_steps) + 1) * dt
     rows: dict[str, list[tuple[np.ndarray, np.ndarray, float, float, float]]] = {k: [] for k in KINDS}
     if cfg.pedestrian_existence > 0.0:
-        for x, y, yaw, _ in _pedestrians(v, sight, scene, walls, opaque, cfg, window):
+        for x, y, yaw, _ in _pedestrians(v, sight, scene, walls, cfg, window):
             heading = np.array([np.cos(yaw), np.sin(yaw)])
             mean = np.array([x, y]) + cfg.pedestrian_speed * t[:, None] * heading
             rows["pedestrian"].append((mean, np.full(horizon_steps, yaw), x, y, cfg.pedestrian_speed))
