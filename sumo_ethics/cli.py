@@ -79,7 +79,7 @@ def cli() -> None:
 @click.option("--predictor-weights", type=click.Path(path_type=Path),
               help="Weights file for the LSTM predictor (default: the one shipped in the package).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path),
-              help="TOML file with a [planner] table and optionally a [conflicts] table.")
+              help="TOML file with a [planner] table and optionally [conflicts] and [perception] tables.")
 @click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")
 @click.option("--radius", type=float, default=80.0, show_default=True, help="Sensing radius around the ego [m].")
 @click.option("--overwrite", is_flag=True, help="Replace the earlier run in --out as a whole, its figures too (refused "

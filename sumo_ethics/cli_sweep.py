@@ -27,8 +27,8 @@ from sumo_ethics.settings import SET_PLANNER_KEYS
 @click.option("--seeds", default="0", show_default=True, help="Seeds: 0-9 (inclusive), 0,3,5 or mixed 0-3,8.")
 @click.option("--set", "sets", multiple=True, metavar="KEY=V1,V2",
               help=f"Sweep one more key over values (repeatable): planner keys ({', '.join(SET_PLANNER_KEYS)}, "
-                   "sampling.*, probability.*, principles.*) or run keys (end, ego_depart, penetration, fleet, "
-                   "controller, radius, stop_at_collision, ...).")
+                   "sampling.*, probability.*, principles.*, perception.*) or run keys (end, ego_depart, penetration, "
+                   "fleet, controller, radius, stop_at_collision, ...).")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Sweep folder (resumed if it exists).")
 @click.option("--workers", type=int, default=None, help="Local processes (default: the number of CPUs).")
 @click.option("--scheduler", metavar="tcp://HOST:PORT", help="Run on an existing Dask distributed cluster.")

@@ -191,6 +191,10 @@ class RunConfig:
         d["out"] = str(self.out)
         d["sumo_args"] = list(self.sumo_args)
         d["planner"] = _plain(d["planner"])
+        p = d["planner"]
+        if isinstance(p, dict) and not p.get("occlusion") and not p.get("phantoms"):
+            for key in ("occlusion", "phantoms", "perception"):  # off: config.json keeps its bytes
+                p.pop(key, None)
         if self.fleet is None:  # the single-ego run's config.json keeps its bytes
             del d["fleet"]
         else:

@@ -3,9 +3,12 @@
 A TOML file for ``run`` may also have a ``[conflicts]`` table (:class:`~sumo_ethics.config.ConflictConfig`:
 enabled, ttc, pet, gap, crossing_angle, everyone; sweeps read ``[planner]`` alone). A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, normalise, predictor,
 predictor_weights, calibrated, max_risk, braking_prior, lateral_prior, lateral_onset, selection, envelope, entry,
-evasive) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]`` and
-``[planner.principles]`` (custom J_origin weights); unknown keys are errors. ``probability =
-"origin"`` (or ``"shapes"``) is short for ``[planner.probability] method = ...``.
+evasive, occlusion, phantoms) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]``,
+``[planner.principles]`` (custom J_origin weights) and ``[planner.perception]`` (the sensor, memory and
+phantoms: :class:`~sumo_ethics.plan.perception.PerceptionConfig`); unknown keys are errors. ``probability =
+"origin"`` (or ``"shapes"``) is short for ``[planner.probability] method = ...``. A ``run`` file's
+``[perception]`` table is the same as ``[planner.perception]`` and may also switch ``occlusion`` and
+``phantoms`` (``[perception] occlusion = true``).
 """
 
 from __future__ import annotations
@@ -81,14 +84,38 @@ def load_toml(path: Path) -> dict[str, Any]:
 def load_run_toml(path: Path):
     """The ``[planner]`` table and the :class:`~sumo_ethics.config.ConflictConfig` of ``[conflicts]``
     (enabled, ttc, pet, gap, crossing_angle, everyone) of a TOML file for ``run``."""
-    planner, data = _read_toml(path, {"planner", "conflicts", "planners"})
-    return planner, conflicts_config(data.get("conflicts"), str(path))
+    planner, data = _read_toml(path, {"planner", "conflicts", "planners", "perception"})
+    return with_perception(planner, data.get("perception"), str(path)), conflicts_config(data.get("conflicts"), str(path))
+
+
+#: the keys of a run file's [perception] table that switch the planner's perception (the rest are
+#: PerceptionConfig's, [planner.perception])
+PERCEPTION_SWITCHES = ("occlusion", "phantoms")
+
+
+def with_perception(planner: dict[str, Any], table: Any, where: str = "settings") -> dict[str, Any]:
+    """The ``[planner]`` table with a ``[perception]`` table merged in: ``occlusion`` and ``phantoms``
+    as planner keys, the rest into ``[planner.perception]`` (a key given in both is an error)."""
+    if table is None:
+        return planner
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: 'perception' must be a table ([perception]), got {table!r}")
+    out = dict(planner)
+    sub = dict(out.get("perception", {})) if isinstance(out.get("perception", {}), dict) else out["perception"]
+    for k, val in table.items():
+        dest, name = (out, k) if k in PERCEPTION_SWITCHES else (sub, k)
+        if name in dest:
+            raise ConfigError(f"{where}: '{k}' is set in both [perception] and [planner]")
+        dest[name] = val
+    if sub:
+        out["perception"] = sub
+    return out
 
 
 def named_planners(path: Path) -> dict[str, dict[str, Any]]:
     """The ``[planners.NAME]`` tables of a TOML file for ``run --fleet``: name -> its keys (those of
     ``[planner]``, which they override)."""
-    named = _read_toml(path, {"planner", "conflicts", "planners"})[1].get("planners", {})
+    named = _read_toml(path, {"planner", "conflicts", "planners", "perception"})[1].get("planners", {})
     if not isinstance(named, dict) or not all(isinstance(v, dict) for v in named.values()):
         raise ConfigError(f"{path}: 'planners' must hold named tables ([planners.NAME]), got {named!r}")
     return named
@@ -131,7 +158,7 @@ def _read_toml(path: Path, tables: set[str]) -> tuple[dict[str, Any], dict[str, 
 COST_KEYS = ("omega_u", "omega_o", "weights", "utility", "normalise")
 PLANNER_KEYS = COST_KEYS + ("predictor", "predictor_weights", "calibrated", "max_risk", "braking_prior", "lateral_prior",
                             "lateral_onset", "selection", "envelope", "entry", "evasive", "replan_every",
-                            "share_plans")
+                            "share_plans", "occlusion", "phantoms")
 #: the ones ``sweep --set`` takes: all but omega_u, which has ``--omega-u``
 SET_PLANNER_KEYS = tuple(k for k in PLANNER_KEYS if k != "omega_u")
 
@@ -141,16 +168,17 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
     from sumo_ethics.ethics.cost import DEFAULT_OMEGA_U, CostConfig, PrincipleWeights, UtilityMode
     from sumo_ethics.ethics.probability import ProbabilityConfig
     from sumo_ethics.plan.ethical import PlannerConfig
+    from sumo_ethics.plan.perception import PerceptionConfig
     from sumo_ethics.plan.sampling import SamplingConfig
 
     if table is not None and not isinstance(table, dict):
         raise ConfigError(f"[planner] must be a table, got {table!r}")
     t = dict(table or {})
     t.update({k: v for k, v in overrides.items() if v is not None})
-    _known(t, set(PLANNER_KEYS) | {"sampling", "probability", "principles"}, "[planner]")
+    _known(t, set(PLANNER_KEYS) | {"sampling", "probability", "principles", "perception"}, "[planner]")
     if isinstance(t.get("probability"), str):  # probability = "origin" is short for [planner.probability] method
         t["probability"] = {"method": t["probability"]}
-    for sub in ("sampling", "probability", "principles"):
+    for sub in ("sampling", "probability", "principles", "perception"):
         if not isinstance(t.get(sub, {}), dict):
             raise ConfigError(f"[planner.{sub}] must be a table, got {t[sub]!r}")
     try:
@@ -176,7 +204,9 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
         given = {k: t[k] for k in PLANNER_KEYS[len(COST_KEYS):] if k in t and k != "predictor_weights"}
         if t.get("predictor_weights") is not None:
             given["predictor_weights"] = str(t["predictor_weights"])
-        return PlannerConfig(cost=cost, sampling=grid, probability=ProbabilityConfig(**probability), **given)
+        perception = PerceptionConfig.from_table(t.get("perception", {}))
+        return PlannerConfig(cost=cost, sampling=grid, probability=ProbabilityConfig(**probability),
+                             perception=perception, **given)
     except ConfigError:
         raise
     except (TypeError, ValueError) as exc:

@@ -327,6 +327,30 @@ EXCLUSIONS = ("", "crosses a red/yellow stop line", "leaves the road", "enters a
 
 
 @dataclass(frozen=True)
+class ViewTrace:
+    """What the ego's sensor gave the planner at one step (``[planner] occlusion`` / ``phantoms``,
+    :mod:`sumo_ethics.plan.perception`), kept for explain and the sumo-gui view.
+
+    eye: (2,) the sensor's position [m]; radius: its range [m]; visible, hidden: shapely geometries of
+    the visible region and of the shadows within the range; seen, remembered: ids of the road users
+    seen and remembered while hidden; phantoms: the P hypothetical road users, phantom_prediction
+    their predictions (None without phantoms), phantom_existence (P,) their existence probabilities,
+    phantom_risk (P,) the chosen candidate's expected risk with each [-].
+    """
+
+    eye: np.ndarray
+    radius: float
+    visible: object
+    hidden: object
+    seen: tuple[str, ...]
+    remembered: tuple[str, ...]
+    phantoms: AgentStates
+    phantom_prediction: Prediction | None
+    phantom_existence: np.ndarray
+    phantom_risk: np.ndarray
+
+
+@dataclass(frozen=True)
 class DecisionTrace:
     """What one planning step weighed, kept so the decision can be explained afterwards.
 
@@ -342,7 +366,8 @@ class DecisionTrace:
     excluded: (K,) int8 the hard constraint that kept a candidate from being chosen
     (:data:`EXCLUSIONS`; 0 none), None where not known; agent_risk: (N,) the chosen candidate's
     ex-ante risk with each neighbour (to the ego and to it, summed) [-], None where not known
-    (what ``run --gui`` draws: the road users at risk).
+    (what ``run --gui`` draws: the road users at risk); view: what the ego's sensor saw
+    (:class:`ViewTrace`), None without ``[planner] occlusion`` or ``phantoms``.
     """
 
     ego: AgentStates
@@ -358,3 +383,4 @@ class DecisionTrace:
     chosen: int
     excluded: np.ndarray | None = None
     agent_risk: np.ndarray | None = None
+    view: ViewTrace | None = None

@@ -153,6 +153,35 @@ def test_decision_shapes_by_hand():
     assert gui.decision_shapes(None) == {}
 
 
+def test_view_shapes_by_hand():
+    """A sensor at the origin, range 20 m, a 2 x 2 m box centred at (5, 0): one shadow, the sector
+    behind it (its near corners' bearings +-atan(1/4)), its outline drawn; the range as a ring of radius
+    20; a phantom 0.3 x 0.5 m at (8, 3) heading +y as its box (corners 0.15 m along, 0.25 m across)
+    and its mean path from where it stands."""
+    from sumo_ethics.geometry import OrientedBoxes
+    from sumo_ethics.types import AgentStates, Prediction, ViewTrace
+    from sumo_ethics.visibility import view
+
+    v = view(np.zeros(2), 20.0, OrientedBoxes(5.0, 0.0, 0.0, 2.0, 2.0).corners()[None])
+    ph = AgentStates(("phantom:pedestrian:0",), np.array([8.0]), np.array([3.0]), np.array([np.pi / 2]), np.ones(1),
+                     np.zeros(1), np.array([0.3]), np.array([0.5]), np.array([75.0]), np.array([5], np.int8))
+    pred = Prediction(ph.ids, 0.1, np.array([[[8.0, 3.1], [8.0, 3.2]]]), np.tile(np.eye(2), (1, 2, 1, 1)),
+                      np.full((1, 2), np.pi / 2))
+    trace = ViewTrace(np.zeros(2), 20.0, v.visible, v.hidden, (), (), ph, pred, np.array([0.1]), np.array([0.0]))
+    shapes = gui.view_shapes(trace)
+    assert sorted(shapes) == sorted(f"{gui.PREFIX}{k}" for k in ("hidden:0", "range", "phantom:0", "phantom:0:path"))
+    pts, colour, filled, _ = shapes[f"{gui.PREFIX}hidden:0"]
+    assert not filled and colour == gui.HIDDEN_COLOUR
+    bearing = np.arctan2(pts[:, 1], pts[:, 0])
+    assert np.abs(bearing).max() == pytest.approx(np.arctan2(1.0, 4.0))  # through the near corners (4, +-1)
+    ring = shapes[f"{gui.PREFIX}range"][0]
+    assert np.allclose(np.hypot(ring[:, 0], ring[:, 1]), 20.0)
+    box = shapes[f"{gui.PREFIX}phantom:0"][0]
+    assert np.allclose(np.sort(box[:4, 0]), [7.75, 7.75, 8.25, 8.25]) and np.allclose(np.sort(box[:4, 1]), [2.85, 2.85, 3.15, 3.15])
+    assert shapes[f"{gui.PREFIX}phantom:0:path"][0].tolist() == [[8.0, 3.0], [8.0, 3.1], [8.0, 3.2]]
+    assert gui.view_shapes(None) == {}
+
+
 def test_only_the_backend_imports_libsumo_or_traci():
     """The layering: sumo_ethics reaches SUMO's APIs only through sumo_ethics/sim/backend.py."""
     pattern = re.compile(r"^\s*(import|from)\s+(libsumo|traci)\b", re.M)

@@ -69,7 +69,7 @@ def test_every_planner_setting_can_be_swept():
     from sumo_ethics.plan.ethical import PlannerConfig
     from sumo_ethics.settings import COST_KEYS, PLANNER_KEYS
 
-    own = {f.name for f in fields(PlannerConfig)} - {"cost", "sampling", "probability"}
+    own = {f.name for f in fields(PlannerConfig)} - {"cost", "sampling", "probability", "perception"}
     assert set(PLANNER_KEYS) - set(COST_KEYS) == own
     s = parse_set(["calibrated=true,false", "lateral_prior=0,1.5", "evasive=false"])
     assert s == {"calibrated": [True, False], "lateral_prior": [0.0, 1.5], "evasive": [False]}

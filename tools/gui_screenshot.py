@@ -8,7 +8,9 @@ few steps past ``--at``, asking sumo-gui at ``--at`` for a screenshot of its vie
 (``gui.screenshot``; the file is written while the next step is simulated). The image is the
 view's size, set through the window's (``--window``: about 10 x 215 pixels more than the view).
 The run folder (``--out``, default a temporary one) holds what ``run`` writes. Needs a display
-(DISPLAY, e.g. from xvfb-run). docs/gui.png is made so.
+(DISPLAY, e.g. from xvfb-run). docs/gui.png is made so. ``--config`` (a ``run --config`` TOML file, e.g.
+``[perception] occlusion = true``) and ``--ego-from``/``--ego-to``/``--ego-depart`` as for ``run``
+(docs/occlusion.md's screenshot is made so).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from pathlib import Path
 from sumo_ethics.config import RunConfig
 from sumo_ethics.errors import SumoEthicsError
 from sumo_ethics.runner import make_controller, run
+from sumo_ethics.settings import load_run_toml, planner_config
 from sumo_ethics.sim.backend import sumo
 from sumo_ethics.sim.gui import VIEW, GuiOptions
 
@@ -46,14 +49,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--window", default="1010,915", help="sumo-gui's window size W,H in pixels (default 1010,915: "
                     "a view of about 1000 x 700)")
     ap.add_argument("--out", type=Path, help="run folder (default: a temporary one)")
+    ap.add_argument("--config", type=Path, help="a run --config TOML file ([planner], [perception])")
+    ap.add_argument("--ego-from", help="insert our own ego on a route from this edge ...")
+    ap.add_argument("--ego-to", help="... to this edge")
+    ap.add_argument("--ego-depart", type=float, help="when the inserted ego departs [s]")
     a = ap.parse_args(argv)
     a.png.parent.mkdir(parents=True, exist_ok=True)
     a.png.unlink(missing_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         # a few steps past the shot: the file is written while the next step is simulated
-        cfg = RunConfig(scenario=a.scenario, out=a.out or Path(tmp) / "run", seed=a.seed, end=a.at + 0.5,
-                        progress=False, sumo_args=("--window-size", a.window))
         try:
+            planner = planner_config(load_run_toml(a.config)[0]) if a.config is not None else None
+            cfg = RunConfig(scenario=a.scenario, out=a.out or Path(tmp) / "run", seed=a.seed, end=a.at + 0.5,
+                            progress=False, sumo_args=("--window-size", a.window), planner=planner,
+                            ego_from=a.ego_from, ego_to=a.ego_to, ego_depart=a.ego_depart)
             run(cfg, controller=make_controller(cfg), hooks=(Screenshot(a.png, a.at),), gui=GuiOptions())
         except SumoEthicsError as exc:
             print(f"error: {exc}", file=sys.stderr)

@@ -29,8 +29,8 @@ FLOORS: list[tuple[str, ...]] = [
     # values, the C heap's trim, the kernels' threads; and the package's __init__
     ("sumo_ethics", "errors", "types", "geometry", "interrupt", "_worker_signals", "forkserver", "fileio",
      "cli_types", "sumo_options", "heap", "cores"),
-    # 1 configuration, the runner/controller contract, the goal region, the ethics and safety maths
-    ("config", "contract", "goal", "ethics", "safety", "collision", "notes"),
+    # 1 configuration, the runner/controller contract, the goal region, what a sensor sees, the ethics and safety maths
+    ("config", "contract", "goal", "visibility", "ethics", "safety", "collision", "notes"),
     ("predict",),  # 2 the predictors (the only importer of torch)
     ("plan", "settings"),  # 3 the planners, and the TOML settings that build their configs
     ("record",),  # 4 the run's files: schema, writers, readers

@@ -115,6 +115,68 @@ def draw_agents(ax: Any, d: RecordedDecision, predictions: bool = True) -> list[
     return seen
 
 
+#: what the sensor did not see (the shadows within its range) and the phantom road users
+HIDDEN_COLOUR = "#5a5a78"
+PHANTOM_COLOUR = "#7b2cbf"
+
+
+def geometry_patch(geom: Any, **kw: Any) -> Any:
+    """A matplotlib PathPatch of a shapely (Multi)Polygon, holes included (None if empty)."""
+    import shapely
+    from matplotlib.patches import PathPatch
+    from matplotlib.path import Path as MPath
+
+    rings = []
+    for part in shapely.get_parts(geom):
+        if part.geom_type != "Polygon" or part.is_empty:
+            continue
+        rings.append(np.asarray(part.exterior.coords)[:, :2])
+        rings.extend(np.asarray(r.coords)[:, :2] for r in part.interiors)
+    if not rings:
+        return None
+    verts = np.concatenate(rings)
+    codes = np.concatenate([[MPath.MOVETO] + [MPath.LINETO] * (len(r) - 2) + [MPath.CLOSEPOLY] for r in rings])
+    return PathPatch(MPath(verts, codes), **kw)
+
+
+def draw_view(ax: Any, d: RecordedDecision) -> bool:
+    """What the ego's sensor saw (``d.view``, ``[planner] occlusion``/``phantoms``): the shadows within
+    its range shaded and hatched, the range's edge dashed, the remembered road users' boxes ringed
+    with dots, each phantom as a dashed box with its predicted mean path and its existence
+    probability (and the chosen candidate's expected risk with it). False (nothing drawn) without a view."""
+    from matplotlib.patches import Circle, Polygon as Patch
+    from matplotlib.patheffects import withStroke
+
+    v = d.view
+    if v is None:
+        return False
+    patch = geometry_patch(v.hidden, fc=HIDDEN_COLOUR, alpha=0.28, ec=HIDDEN_COLOUR, lw=0.4, hatch="///", zorder=1)
+    if patch is not None:
+        ax.add_patch(patch)
+    ax.add_patch(Circle((float(v.eye[0]), float(v.eye[1])), v.radius, fill=False, ec=HIDDEN_COLOUR, lw=1.0, ls="--",
+                        zorder=1.1))
+    ax.plot(v.eye[0], v.eye[1], marker="^", ms=6, color="white", mec="black", zorder=6.5)
+    remembered = set(v.remembered)
+    for aid, row in zip(d.agent_ids, d.agents):
+        if aid in remembered:
+            x, y, yaw, _, length, width, _ = row
+            c = OrientedBoxes(x, y, yaw, length + 1.0, width + 1.0).corners()
+            ax.add_patch(Patch(c, closed=True, fill=False, ec="black", lw=1.0, ls=":", zorder=5.2))
+    for i, row in enumerate(v.phantoms):
+        x, y, yaw, _, length, width, _ = row
+        ax.add_patch(Patch(OrientedBoxes(x, y, yaw, length, width).corners(), closed=True, fc="none",
+                           ec=PHANTOM_COLOUR, lw=1.4, ls="--", zorder=5.3))
+        ax.plot(x, y, "o", ms=11, mfc="none", mec=PHANTOM_COLOUR, mew=1.2, ls="none", zorder=5.3)
+        if v.phantom_mean.shape[0] > i:
+            m = v.phantom_mean[i]
+            ax.plot(np.r_[x, m[:, 0]], np.r_[y, m[:, 1]], color=PHANTOM_COLOUR, lw=1.2, ls="--", zorder=4)
+        risk = v.phantom_risk[i] if len(v.phantom_risk) > i else float("nan")
+        ax.text(x, y, f"  p={v.phantom_existence[i]:.2g}\n  risk {fmt(float(risk))}", fontsize=7,
+                color=PHANTOM_COLOUR, ha="left", va="center", zorder=8, clip_on=True,
+                path_effects=[withStroke(linewidth=2.0, foreground="white")])
+    return True
+
+
 def draw_candidates(ax: Any, d: RecordedDecision, colours: Any, chosen: bool = True) -> int:
     from matplotlib.collections import LineCollection
 

@@ -17,8 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from sumo_ethics.analysis.drawing import (CLASS_COLOURS, EGO_COLOUR, VALIDITY_COLOURS, VALIDITY_LABELS, draw_agents,
-                                          draw_candidates, draw_road, fmt, window)
+from sumo_ethics.analysis.drawing import (CLASS_COLOURS, EGO_COLOUR, HIDDEN_COLOUR, PHANTOM_COLOUR, VALIDITY_COLOURS,
+                                          VALIDITY_LABELS, draw_agents, draw_candidates, draw_road, draw_view, fmt,
+                                          window)
 from sumo_ethics.analysis.recorded import collision_mark, decisions_of, load_checked, party_label, road_of, weights_of
 from sumo_ethics.record import decisions as rec
 from sumo_ethics.record.decisions import RecordedDecision
@@ -41,7 +42,11 @@ PANEL_TERMS = (
     ("other_risk_sum", "risk to third parties"),
     ("vru_risk_sum", "  of which VRUs"),
     ("boundary_harm", "leaving the road (ego harm)"),
+    ("phantom", "phantoms: weight x risk"),
+    ("phantom_risk", "phantoms' risk (x existence)"),
 )
+#: rows shown only where the decision has the term (``[planner] phantoms``)
+OPTIONAL_TERMS = ("phantom", "phantom_risk")
 
 
 @dataclass(frozen=True)
@@ -111,8 +116,9 @@ def cost_panel(ax: Any, d: RecordedDecision, alt: int | None, weights: dict[str,
             return f"{label} x {weights.get('velocity' if name == 'progress' else 'lateral', 1.0):g}"
         return label
 
+    rows = [(name, label) for name, label in PANEL_TERMS if name not in OPTIONAL_TERMS or name in d.terms]
     cells = [[label_of(name, label)] + [fmt(_term(d, d.chosen, name, weights))]
-             + ([fmt(_term(d, alt, name, weights))] if alt is not None else []) for name, label in PANEL_TERMS]
+             + ([fmt(_term(d, alt, name, weights))] if alt is not None else []) for name, label in rows]
     table = ax.table(cellText=cells, colLabels=head, loc="upper center", cellLoc="right", colLoc="center",
                      colWidths=[0.47, 0.19, 0.33][:len(head)])
     table.auto_set_font_size(False)
@@ -195,6 +201,7 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
         if box is not None:
             draw_road(ax, box)
         seen = draw_agents(ax, d)
+        viewed = draw_view(ax, d)
         if i == 0:
             n_drawn = draw_candidates(ax, d, [VALIDITY_COLOURS[int(v)] for v in d.validity])
             ax.set_title(f"Candidates by validity class ({d.n_candidates}; chosen in black)", fontsize=10)
@@ -209,6 +216,14 @@ def decision_figure(d: RecordedDecision, road: Any, title: str, weights: dict[st
             if d.pred_alt_mean is not None:
                 handles.append(Line2D([], [], color="0.3", lw=1.2, ls=":",
                                       label="other modes' mean paths (width, %: probability)"))
+            if viewed:
+                handles.append(Patch(fc=HIDDEN_COLOUR, alpha=0.28, hatch="///", ec=HIDDEN_COLOUR,
+                                     label="hidden from the sensor (range dashed)"))
+                if d.view is not None and d.view.remembered:
+                    handles.append(Patch(fc="none", ec="black", ls=":", label="remembered, unseen"))
+                if d.view is not None and len(d.view.phantoms):
+                    handles.append(Patch(fc="none", ec=PHANTOM_COLOUR, ls="--",
+                                         label="phantom (p: existence), its risk"))
             fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 5), fontsize=8.5,
                        frameon=False)
         else:

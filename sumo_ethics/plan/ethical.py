@@ -27,6 +27,8 @@ from sumo_ethics.ethics.probability import ProbabilityConfig
 from sumo_ethics.ethics.risk import assess_risk
 from sumo_ethics.contract import Decision, EgoCommand, Scene
 from sumo_ethics.plan.feasibility import check
+from sumo_ethics.plan.perception import Perception, PerceptionConfig, SightMap
+from sumo_ethics.plan.phantoms import phantom_risk, with_phantom_term
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
 from sumo_ethics.predict import PREDICTORS
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior, recent_motion
@@ -81,12 +83,17 @@ class PlannerConfig:
     not both at once (a car cutting in ahead; ``origin`` and ``paper`` run without them, as published);
     replan_every: plan every n-th step and follow the committed plan between (Frenetix plans every
     3rd step); the steps are staggered by the ego's id (a fleet's egos do not all plan in the same
-    step), and the ego plans at once when a road user enters its range, the predicted road users
-    enter the remaining plan's envelope, the ego is off its plan, or the plan runs out (1: every
-    step, the default; see :meth:`EthicalPlanner.follow`);
+    step), and the ego plans at once when it is off its plan, a predicted road user enters the rest
+    of the plan's envelope, a road user the plan did not weigh is at risk from it, or the plan runs
+    out (1: every step, the default; with occlusion or phantoms every step too; see
+    :meth:`EthicalPlanner.follow`);
     share_plans: in a fleet, predict the other egos that share their plans by their committed
     plans (one mode with a tracking spread) instead of the model, and share this ego's
-    (:class:`sumo_ethics.runner.fleet.SharedPrediction`; no effect on a single ego).
+    (:class:`sumo_ethics.runner.fleet.SharedPrediction`; no effect on a single ego);
+    occlusion: the planner knows only the road users its sensor sees and remembers (``perception``:
+    range, memory, ...; :mod:`~sumo_ethics.plan.perception`), else every one in the sensing radius;
+    phantoms: hypothetical road users where one could come out of a shadow, their risk a cost term of
+    its own (:mod:`~sumo_ethics.plan.phantoms`); both off by default.
     """
 
     cost: CostConfig = field(default_factory=CostConfig)
@@ -107,6 +114,9 @@ class PlannerConfig:
     evasive: bool = True
     replan_every: int = 1
     share_plans: bool = False
+    occlusion: bool = False
+    phantoms: bool = False
+    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
 
     def __post_init__(self) -> None:
         if self.selection not in SELECTIONS:
@@ -120,7 +130,7 @@ class PlannerConfig:
         if self.predictor == "cv" and self.predictor_weights:
             raise ConfigError("predictor_weights is a weights file for an LSTM predictor; predictor 'cv' "
                               "(constant velocity) has none")
-        for flag in ("calibrated", "evasive", "lateral_onset", "share_plans"):
+        for flag in ("calibrated", "evasive", "lateral_onset", "share_plans", "occlusion", "phantoms"):
             if not isinstance(getattr(self, flag), bool):
                 raise ConfigError(f"{flag} must be true or false, got {getattr(self, flag)!r}")
         if not (isinstance(self.replan_every, int) and not isinstance(self.replan_every, bool)
@@ -344,9 +354,11 @@ class EthicalPlanner:
     needs_history = True
 
     def __init__(self, cfg: PlannerConfig = PlannerConfig(), predictor: Predictor | None = None,
-                 maps: Callable[[int], MapSource] | None = None) -> None:
+                 maps: Callable[[int], MapSource] | None = None,
+                 sight: Callable[[tuple[str, ...]], SightMap] | SightMap | None = None) -> None:
         """``predictor``: a ready one (else built from ``cfg``); ``maps``: the map source factory a
-        map-aware predictor is given (:func:`make_predictor`)."""
+        map-aware predictor is given (:func:`make_predictor`); ``sight``: the sensor's static world
+        (or a factory of it from the opaque polygon types) for ``occlusion`` and ``phantoms``."""
         self.cfg = cfg
         self.predictor = predictor or make_predictor(cfg.predictor, cfg.predictor_weights, cfg.calibrated, maps)
         keep_heap_warm()
@@ -356,6 +368,9 @@ class EthicalPlanner:
         self._plan: Plan | None = None  # the committed plan (replan_every > 1)
         self._shares_plans = cfg.share_plans and callable(getattr(self.predictor, "publish", None))
         self.replan_reason = REPLAN["no_plan"]
+        # [planner] occlusion / phantoms: the ego's own sensor, memory and phantoms (plan/perception.py)
+        self.perception = (Perception(cfg.perception, cfg.occlusion, cfg.phantoms, sight)
+                           if cfg.occlusion or cfg.phantoms else None)
 
     @property
     def predictor_info(self) -> dict:
@@ -394,7 +409,16 @@ class EthicalPlanner:
         w0 = time.perf_counter()
         horizon_steps = int(round(max(sc.horizons) / sc.dt))
         agents = scene.others
-        pred, n_fallback = self._predict(scene, horizon_steps, sc.dt)
+        obs = scene.history
+        if obs is None:
+            raise ValueError("the ethical planner needs the neighbours' history in its scene (needs_history)")
+        percept = None
+        if self.perception is not None:  # occlusion: only what the sensor sees, its history as seen
+            percept = self.perception.perceive(scene, horizon_steps, sc.dt)
+            obs, agents = percept.observed(obs, agents)
+        pred, n_fallback = self._predict(obs, horizon_steps, sc.dt)
+        if percept is not None:  # the road users remembered while hidden, from where they were last seen
+            pred, agents = percept.with_remembered(pred, agents, horizon_steps, sc.dt)
         w1 = time.perf_counter()
         route = scene.route
         i = route.vertex_at(scene.s)
@@ -450,6 +474,11 @@ class EthicalPlanner:
         # J_mean averages over the candidates the selection rule chooses among
         cost = score(fc, risk, self.cfg.cost, desired_speed=v_desired,
                      feasible=self.pool(classes, legal, on_road, overlap, evasive))
+        ph_risk = None
+        if percept is not None and percept.phantoms is not None:  # the phantoms' risk: a term of its own
+            ph_risk = phantom_risk(fc, percept.phantoms, scene.ego, self.cfg.probability, self.cfg.perception.reaction,
+                                   veh.max_decel)
+            cost = with_phantom_term(cost, ph_risk.sum(axis=1), self.cfg.perception.weight)
         w3 = time.perf_counter()
         envelope = self.cfg.envelope * overlap
         entry = self.cfg.entry * np.maximum(horizon_steps - first_hit, 0) / horizon_steps
@@ -471,6 +500,9 @@ class EthicalPlanner:
                     utility_literal=float(self.cfg.cost.utility is UtilityMode.LITERAL))
         if scene.desired_speed is not None:
             info["desired_speed"] = v_desired
+        if percept is not None:  # road users in range, seen, remembered; phantoms
+            info.update(percept.counts())
+            timings.update(percept.timings_ms)
         d0 = scene.d
         dt = sc.dt
         d1, d2 = float(cand.d[k, 0]), float(cand.d[k, min(1, cand.d.shape[1] - 1)])
@@ -488,12 +520,12 @@ class EthicalPlanner:
             validity=validity_classes(classes), eligible=eligible, first_hit=first_hit,
             risk=(risk.ego_risk.sum(axis=1) + risk.other_risk.sum(axis=1)) if len(agents) else np.zeros(len(fc)),
             chosen=j, excluded=exclusion_codes(legal, on_road, overlap, self.cfg.selection, evasive),
-            agent_risk=risk.ego_risk[j] + risk.other_risk[j] if len(agents) else np.zeros(0))
+            agent_risk=risk.ego_risk[j] + risk.other_risk[j] if len(agents) else np.zeros(0),
+            view=None if percept is None else percept.trace(None if ph_risk is None else ph_risk[j]))
         return Decision(cmd, info=info, timings_ms=timings, trace=trace)
 
-    def _predict(self, scene: Scene, horizon_steps: int, dt: float) -> tuple[Prediction, int]:
-        """The neighbours' prediction with the priors, and how many road users fell back to constant velocity."""
-        obs = scene.history
+    def _predict(self, obs: Observation | None, horizon_steps: int, dt: float) -> tuple[Prediction, int]:
+        """The prediction of ``obs``' road users with the priors, and how many fell back to constant velocity."""
         if obs is None:
             raise ValueError("the ethical planner needs the neighbours' history in its scene (needs_history)")
         if self._shares_plans:  # the other egos' committed plans instead of their predictions
@@ -521,7 +553,7 @@ class EthicalPlanner:
         probability reaches p_min). The step's numbers are those of the plan it follows
         (``replanned`` 0)."""
         plan, n, dt = self._plan, self.cfg.replan_every, scene.dt
-        if plan is None:
+        if plan is None or self.perception is not None:  # with occlusion or phantoms: every step
             self.replan_reason = REPLAN["no_plan"]
             return None
         T = plan.cand.x.shape[1]
@@ -541,7 +573,7 @@ class EthicalPlanner:
             self.replan_reason = REPLAN["off_plan"]
             return None
         w0 = time.perf_counter()
-        pred, n_fallback = self._predict(scene, T - j, dt)
+        pred, n_fallback = self._predict(scene.history, T - j, dt)
         rest = c.take_steps(j)
         others = scene.others
         pc = self.cfg.probability

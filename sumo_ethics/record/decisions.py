@@ -40,6 +40,15 @@ time, so float32 keeps millimetres):
                                         the best (lowest selection) of every other validity class
 ``terms``              (R, M)           their values
 ``meta``               (6,) float64     step, time, chosen, dt, horizon steps T, stride
+``view_eye``           (3,) float64     only with ``[planner] occlusion``/``phantoms``: the sensor's x, y
+                                        (network frame) and range [m]
+``view_visible``       (B,) uint8       the visible region, WKB (network frame, float64)
+``view_hidden``        (B,) uint8       the shadows within the range, WKB
+``view_seen``          (S,) str         the road users seen (``view_remembered``: remembered while hidden)
+``phantoms``           (P, 7)           the phantom road users, as ``agents``
+``phantom_mean``       (P, P', 2)       their predicted centres, as ``pred_mean``
+``phantom_existence``  (P,)             their existence probabilities
+``phantom_risk``       (P,)             the chosen candidate's expected risk with each
 =====================  ==============  =========================================================
 
 Modes (``--record-decisions``): ``all`` every planning step; ``risky`` the steps whose chosen
@@ -124,6 +133,7 @@ def encode(trace: DecisionTrace, step: int, time: float, dt: float) -> dict[str,
         modes = {"pred_weight": np.asarray(p.weight, dtype=f32),
                  "pred_alt_mean": np.stack([a.mean[:, pidx] - np.array([ox, oy]) for a in p.alternatives]).astype(f32)}
     return {
+        **({} if trace.view is None else _encode_view(trace.view, ox, oy, pidx)),
         "meta": np.array([step, time, trace.chosen, dt, p.mean.shape[1] if len(a) else T, stride], dtype=np.float64),
         "ego": np.array([ox, oy, e.yaw[0], e.speed[0], e.length[0], e.width[0], e.mass[0], e.cls[0]], dtype=np.float64),
         "agent_ids": np.array(a.ids, dtype=str),
@@ -146,6 +156,31 @@ def encode(trace: DecisionTrace, step: int, time: float, dt: float) -> dict[str,
         "term_rows": np.array(rows, dtype=np.int32),
         "terms": np.stack([trace.cost.terms[n][rows] for n in names], axis=-1).astype(f32)
         if names else np.zeros((len(rows), 0), f32),
+    }
+
+
+def _encode_view(v: Any, ox: float, oy: float, pidx: np.ndarray) -> dict[str, np.ndarray]:
+    """A decision's view (types.ViewTrace): see the module docstring (absent without one: those files
+    stay byte for byte as before)."""
+    import shapely
+
+    f32 = np.float32
+    ph = v.phantoms
+    pred = v.phantom_prediction
+    tp = 0 if pred is None else pred.mean.shape[1]
+    keep = pidx[pidx < tp]
+    return {
+        "view_eye": np.array([v.eye[0], v.eye[1], v.radius], dtype=np.float64),
+        "view_visible": np.frombuffer(shapely.to_wkb(v.visible), dtype=np.uint8),
+        "view_hidden": np.frombuffer(shapely.to_wkb(v.hidden), dtype=np.uint8),
+        "view_seen": np.array(v.seen, dtype=str),
+        "view_remembered": np.array(v.remembered, dtype=str),
+        "phantoms": np.stack([ph.x - ox, ph.y - oy, ph.yaw, ph.speed, ph.length, ph.width, ph.cls], axis=-1).astype(f32)
+        if len(ph) else np.zeros((0, 7), f32),
+        "phantom_mean": (pred.mean[:, keep] - np.array([ox, oy])).astype(f32) if pred is not None and len(ph)
+        else np.zeros((0, len(keep), 2), f32),
+        "phantom_existence": np.asarray(v.phantom_existence, dtype=f32),
+        "phantom_risk": np.asarray(v.phantom_risk, dtype=f32),
     }
 
 
@@ -265,7 +300,8 @@ class RecordedDecision:
     recorded before it); terms: name -> (K,), NaN but for
     the chosen candidate and the best one of every other validity class (the ones kept);
     pred_weight: (N, Q) mode weights and pred_alt_mean: (Q-1, N, T, 2) the other modes' centres,
-    None for a single-mode prediction (pred_mean / pred_cov are then the most likely mode).
+    None for a single-mode prediction (pred_mean / pred_cov are then the most likely mode); view: what
+    the ego's sensor saw (:class:`RecordedView`), None without ``[planner] occlusion`` or ``phantoms``.
     """
 
     step: int
@@ -290,6 +326,7 @@ class RecordedDecision:
     pred_weight: np.ndarray | None = None
     pred_alt_mean: np.ndarray | None = None
     excluded: np.ndarray | None = None
+    view: "RecordedView | None" = None
 
     @property
     def n_candidates(self) -> int:
@@ -298,6 +335,41 @@ class RecordedDecision:
     def whole_seconds(self) -> np.ndarray:
         """Indices of the prediction samples (``pred_t``) on a whole second: where ellipses are drawn."""
         return whole_seconds(self.pred_t)
+
+
+@dataclass(frozen=True)
+class RecordedView:
+    """What the ego's sensor saw at a recorded decision, network frame: eye (2,) and radius [m];
+    visible, hidden: shapely geometries; seen, remembered: road user ids; phantoms (P, 7) as
+    ``RecordedDecision.agents``; phantom_mean (P, P', 2) at the decision's ``pred_t``;
+    phantom_existence, phantom_risk (P,)."""
+
+    eye: np.ndarray
+    radius: float
+    visible: Any
+    hidden: Any
+    seen: tuple[str, ...]
+    remembered: tuple[str, ...]
+    phantoms: np.ndarray
+    phantom_mean: np.ndarray
+    phantom_existence: np.ndarray
+    phantom_risk: np.ndarray
+
+
+def _view(d: dict[str, np.ndarray], origin: np.ndarray) -> RecordedView | None:
+    if "view_eye" not in d:
+        return None
+    import shapely
+
+    ph = d["phantoms"].astype(np.float64)
+    ph[:, :2] += origin
+    return RecordedView(eye=d["view_eye"][:2].astype(np.float64), radius=float(d["view_eye"][2]),
+                        visible=shapely.from_wkb(d["view_visible"].tobytes()),
+                        hidden=shapely.from_wkb(d["view_hidden"].tobytes()),
+                        seen=tuple(str(x) for x in d["view_seen"]), remembered=tuple(str(x) for x in d["view_remembered"]),
+                        phantoms=ph, phantom_mean=d["phantom_mean"].astype(np.float64) + origin,
+                        phantom_existence=d["phantom_existence"].astype(np.float64),
+                        phantom_risk=d["phantom_risk"].astype(np.float64))
 
 
 def whole_seconds(t: np.ndarray) -> np.ndarray:
@@ -327,7 +399,7 @@ def load(run: Path, step: int, ego: str | None = None) -> RecordedDecision:
         terms=_terms(d, len(d["j_risk"])),
         pred_weight=d["pred_weight"].astype(np.float64) if "pred_weight" in d else None,
         pred_alt_mean=d["pred_alt_mean"].astype(np.float64) + origin if "pred_alt_mean" in d else None,
-        excluded=d.get("excluded"))
+        excluded=d.get("excluded"), view=_view(d, origin))
 
 
 def _terms(d: dict[str, np.ndarray], k: int) -> dict[str, np.ndarray]:

@@ -20,6 +20,7 @@ from sumo_ethics.runner.loop import (OUTPUT_NAMES, Run, RunSummary, StepHook, ex
                                      resolved_end)
 from sumo_ethics.sim.gui import GuiOptions
 from sumo_ethics.sim.lanes import SumoMapSource
+from sumo_ethics.sim.sight import sight_map
 
 __all__ = ["CONTROLLERS", "OUTPUT_NAMES", "Run", "RunSummary", "StepHook", "execute", "make_controller",
            "prepare_out", "resolved_end", "run"]
@@ -40,7 +41,7 @@ def make_controller(cfg: RunConfig) -> Controller:
 
         planner = cfg.planner or PlannerConfig()
         check_grid_bounds(planner.sampling)  # also for a PlannerConfig built in Python, not from settings
-        return EthicalPlanner(planner, maps=SumoMapSource)
+        return EthicalPlanner(planner, maps=SumoMapSource, sight=sight_map)
     raise ConfigError(f"unknown controller '{cfg.controller}'; known: {', '.join(CONTROLLERS)}")
 
 

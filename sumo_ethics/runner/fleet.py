@@ -110,6 +110,7 @@ def make_fleet_controllers(cfg: RunConfig) -> Callable[[str, str], Controller]:
     from sumo_ethics.plan.baseline import RouteFollower
     from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig, make_predictor
     from sumo_ethics.sim.lanes import SumoMapSource
+    from sumo_ethics.sim.sight import sight_map
 
     spec = cfg.fleet
     assert spec is not None
@@ -130,7 +131,7 @@ def make_fleet_controllers(cfg: RunConfig) -> Callable[[str, str], Controller]:
         if key not in shared:
             shared[key] = SharedPrediction(make_predictor(*key, maps=SumoMapSource))
         shared[key].horizons.add(max(pc.sampling.horizons))
-        return EthicalPlanner(pc, predictor=shared[key])
+        return EthicalPlanner(pc, predictor=shared[key], sight=sight_map)  # each ego its own sensor view
 
     make.shared = shared  # type: ignore[attr-defined]  # the factory carries its predictions (FleetRun reads them)
     for name, share in spec.shares:  # a bad weights file fails before SUMO starts

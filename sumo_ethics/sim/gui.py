@@ -6,7 +6,11 @@ layer: the chosen trajectory (magenta), the predictions of the road users the ch
 puts at risk (orange: the predicted mean path and the 1-sigma ellipse every second) and, for the
 rest of the run, a red ring where the ego collided. Drawing only: polygons (the highlight is one)
 take no part in the simulation, so a run writes the same steps.parquet as without --gui. The ego
-is not painted: ``vehicle.setColor`` would show in a scenario's vehroute-output.
+is not painted: ``vehicle.setColor`` would show in a scenario's vehroute-output. With ``[planner]
+occlusion`` or ``phantoms`` the sensor's view is drawn too: the outline of each shadow within its range
+and the range's edge (dark grey-blue; a translucent fill would let sumo-gui's background through the
+map's own polygons where they are drawn later than ours) and each phantom road user (violet: its box
+and predicted mean path).
 """
 
 from __future__ import annotations
@@ -25,6 +29,9 @@ EGO_COLOUR = (0, 255, 255, 255)
 TRAJECTORY_COLOUR = (255, 0, 255, 255)
 RISK_COLOUR = (255, 140, 0, 255)
 COLLISION_COLOUR = (255, 0, 0, 255)
+HIDDEN_COLOUR = (60, 60, 90, 255)
+RANGE_COLOUR = (60, 60, 90, 255)
+PHANTOM_COLOUR = (150, 60, 220, 255)
 #: the polygons' layer: above roads and vehicles
 LAYER = 120
 #: line widths [m]
@@ -67,6 +74,7 @@ def decision_shapes(trace: Any) -> dict[str, tuple[np.ndarray, tuple[int, ...], 
     front = [x + half * np.cos(yaw), y + half * np.sin(yaw)]
     out: dict[str, tuple[np.ndarray, tuple[int, ...], bool, float]] = {
         f"{PREFIX}trajectory": (np.r_[[front], ahead], TRAJECTORY_COLOUR, False, TRAJECTORY_WIDTH)}
+    out.update(view_shapes(getattr(trace, "view", None)))
     risk = trace.agent_risk
     if risk is None or not len(risk):
         return out
@@ -80,6 +88,33 @@ def decision_shapes(trace: Any) -> dict[str, tuple[np.ndarray, tuple[int, ...], 
         for t in seconds:
             e = ellipses(m[t], p.cov[i, t], 1.0, 24)
             out[f"{PREFIX}risk:{n}:{t}"] = (np.r_[e, e[:1]], RISK_COLOUR, False, PATH_WIDTH)
+    return out
+
+
+def view_shapes(view: Any) -> dict[str, tuple[np.ndarray, tuple[int, ...], bool, float]]:
+    """What the sensor's view draws (a types.ViewTrace; None: nothing): the outline of each part of
+    the shadows within the range (its exterior), the range's edge, each phantom's box and predicted
+    mean path."""
+    if view is None:
+        return {}
+    import shapely
+
+    from sumo_ethics.geometry import OrientedBoxes
+
+    out: dict[str, tuple[np.ndarray, tuple[int, ...], bool, float]] = {}
+    parts = [g for g in shapely.get_parts(view.hidden) if g.geom_type == "Polygon" and not g.is_empty]
+    for n, g in enumerate(parts):
+        out[f"{PREFIX}hidden:{n}"] = (np.asarray(g.exterior.coords)[:, :2], HIDDEN_COLOUR, False, PATH_WIDTH)
+    a = np.linspace(0.0, 2.0 * np.pi, 72)
+    ring = np.asarray(view.eye)[None, :] + view.radius * np.c_[np.cos(a), np.sin(a)]
+    out[f"{PREFIX}range"] = (ring, RANGE_COLOUR, False, PATH_WIDTH)
+    ph = view.phantoms
+    for i in range(len(ph)):
+        c = OrientedBoxes(ph.x[i], ph.y[i], ph.yaw[i], ph.length[i], ph.width[i]).corners()
+        out[f"{PREFIX}phantom:{i}"] = (np.r_[c, c[:1]], PHANTOM_COLOUR, False, PATH_WIDTH)
+        if view.phantom_prediction is not None:
+            m = view.phantom_prediction.mean[i]
+            out[f"{PREFIX}phantom:{i}:path"] = (np.r_[[[ph.x[i], ph.y[i]]], m], PHANTOM_COLOUR, False, PATH_WIDTH)
     return out
 
 

@@ -65,11 +65,12 @@ def planner_keys() -> list[str]:
 
     from sumo_ethics.ethics.cost import PrincipleWeights
     from sumo_ethics.ethics.probability import ProbabilityConfig
+    from sumo_ethics.plan.perception import PerceptionConfig
     from sumo_ethics.plan.sampling import SamplingConfig
 
     keys = list(PLANNER_SIMPLE)
     for prefix, cls in (("sampling", SamplingConfig), ("probability", ProbabilityConfig),
-                        ("principles", PrincipleWeights)):
+                        ("principles", PrincipleWeights), ("perception", PerceptionConfig)):
         keys += [f"{prefix}.{f.name}" for f in fields(cls)]
     return keys
 
