@@ -602,7 +602,8 @@ class FleetRun(Run):
                                                                   a.world.sumo_lane(), scene.stop_s)
         timing = {"ego_id": a.id, "step": self.step, "controller_ms": a.extra.get("controller_ms", 0.0),
                   "sumo_ms": 1e3 * w[1] / max(len(self.active), 1), "collision_ms": 1e3 * (w4 - w3),
-                  "conflict_ms": 1e3 * (w5 - w4), "wall_s": w5 - self.t_start} | decision.timings_ms
+                  "conflict_ms": 1e3 * (w5 - w4), "wall_s": w5 - self.t_start,
+                  "fleet_plan_ms": 1e3 * w[0]} | decision.timings_ms
         self.rec.step(row, timing, decision.trace, before.time, hit, log=a.log)
         a.steps += 1
         a.snap = new
