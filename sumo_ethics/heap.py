@@ -4,7 +4,7 @@ A long fleet run frees as much as it allocates (egos come and go), but glibc kee
 chunks of its heap resident: a chunk still in use above them pins the heap's top, and free pages
 inside the heap are only returned by ``malloc_trim``. Over 300 s of urban_grid at penetration 1
 that was about 6 MB per 100 simulated seconds of free-but-kept heap (issue 39,
-``tools/probe_fleet_rss.py``, docs/fleets.md). :func:`trim` returns those pages; elsewhere than
+docs/fleets.md). :func:`trim` returns those pages; elsewhere than
 glibc (musl, macOS) it does nothing.
 """
 

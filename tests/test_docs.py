@@ -77,16 +77,6 @@ def test_site_home_has_the_readme_commands():
     assert blocks(DOCS / "index.md") == blocks(README)
 
 
-def test_cli_reference_is_current():
-    sys.path.insert(0, str(ROOT / "tools"))
-    try:
-        import cli_reference
-    finally:
-        sys.path.remove(str(ROOT / "tools"))
-    assert cli_reference.PAGE.read_text(encoding="utf-8") == cli_reference.render(), (
-        "docs/cli-reference.md is stale: run python tools/cli_reference.py")
-
-
 def _missing_docs_packages() -> list[str]:
     missing = []
     for name in ("mkdocs", "material", "mkdocstrings", "mkdocstrings_handlers.python"):

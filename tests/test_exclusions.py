@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
@@ -12,8 +10,7 @@ from sumo_ethics.analysis.explain import excluded_note
 from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig, exclusion_codes
 from sumo_ethics.record import decisions as rec
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-import bench_planner  # noqa: E402  (the synthetic straight road, no SUMO)
+from sumo_ethics.plan import synthetic  # the synthetic straight road, no SUMO
 
 
 def test_codes_by_hand():
@@ -37,7 +34,7 @@ def test_codes_by_hand():
 
 
 def test_a_red_light_exclusion_is_recorded_and_named(tmp_path):
-    sc = bench_planner.scene(3)
+    sc = synthetic.scene(3)
     stop = sc.s + 25.0  # a red stop line 25 m ahead of the ego's centre, at 12 m/s
     sc = replace(sc, stop_s=stop)
     d = EthicalPlanner(PlannerConfig(predictor="cv")).act(sc)

@@ -1,20 +1,16 @@
-"""tools/hazard_margins.py against numbers worked out by hand, on hand-built run folders."""
+"""The margins of tools/hazard_margins.py (sumo_ethics.suite.margins) against numbers worked out by hand, on hand-built run folders."""
 
 from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tools"))
-import hazard_margins as hm  # noqa: E402
+from sumo_ethics.suite import margins as hm
 
-sys.path.remove(str(ROOT / "tools"))
 
 
 def test_needed_deceleration_by_hand():

@@ -4,7 +4,7 @@ work without the simulator.
 - ``tools/import_graph.py`` reads every import of the package (function-local ones too): no loop
   among sub-packages or files, and no arrow from a floor to a higher one (its FLOORS).
 - With libsumo, traci and sumolib made unimportable, the ethical planner with the shipped map-aware
-  attention LSTM plans a step on a synthetic three-lane road (tools/bench_planner.py's scene) and
+  attention LSTM plans a step on a synthetic three-lane road (``sumo_ethics.plan.synthetic``'s scene, the one tools/bench_planner.py times) and
   picks a candidate that keeps clear of the agents' boxes at their predicted means.
 """
 
@@ -57,13 +57,12 @@ BLOCKED = textwrap.dedent("""
     import sys
     for name in ("libsumo", "traci", "sumolib", "sumo"):
         sys.modules[name] = None  # any import of them raises ImportError
-    sys.path.insert(0, {tools!r})
     import numpy as np
-    import bench_planner
+    from sumo_ethics.plan import synthetic
     from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
-    sc = bench_planner.scene(8, seed=3)
+    sc = synthetic.scene(8, seed=3)
     planner = EthicalPlanner(PlannerConfig())  # the default: the map-aware attention LSTM, calibrated
-    planner.predictor.map_source = bench_planner.lane_source(sc)
+    planner.predictor.map_source = synthetic.lane_source(sc)
     d = planner.act(sc)
     c = d.command
     assert all(np.isfinite([c.x, c.y, c.yaw, c.speed])), c
@@ -75,7 +74,7 @@ BLOCKED = textwrap.dedent("""
 
 
 def test_the_planner_and_predictor_plan_a_step_with_libsumo_blocked():
-    code = BLOCKED.format(tools=str(ROOT / "tools"))
+    code = BLOCKED
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert out.returncode == 0, out.stderr[-3000:]
     line = out.stdout.strip().splitlines()[-1]

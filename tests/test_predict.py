@@ -339,8 +339,8 @@ def test_prediction_breakdown_refuses_bad_input_in_one_line(tmp_path):
         assert r.returncode == 2 and says in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 
-def test_long_red_scenario_holds_each_red_119_s(tmp_path, monkeypatch):
-    """tools/train_shipped's long-red urban_grid: each light's greens of 30 s or more three times as
+def test_long_red_scenario_holds_each_red_119_s(tmp_path):
+    """The long-red urban_grid of tools/train_shipped.py: each light's greens of 30 s or more three times as
     long (37 -> 111 s; the 5 s green and the 3 s yellow kept), so a red holds 111 + 5 + 3 = 119 s.
     SUMO runs the config with that program: J00's link 4 (red in the first three phases) is red
     from 0 to 119 s, green from then until 119 + 111 + 5 = 235 s, then yellow for 3 s."""
@@ -348,10 +348,11 @@ def test_long_red_scenario_holds_each_red_119_s(tmp_path, monkeypatch):
 
     import sumo
 
-    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "tools"))
-    from train_shipped import long_red_scenario
+    from sumo_ethics.recording.long_red import long_red_scenario
 
-    cfg = long_red_scenario(tmp_path / "scen")
+    root = Path(__file__).resolve().parents[1]
+    cfg = long_red_scenario(tmp_path / "scen", root / "networks" / "urban_grid" / "urban_grid.net.xml",
+                            root / "scenarios" / "urban_grid" / "urban_grid.rou.xml")
     add = ET.parse(cfg.with_name("urban_grid_long_red.add.xml")).getroot()
     durations = {tl.get("id"): [float(p.get("duration")) for p in tl.iter("phase")] for tl in add.iter("tlLogic")}
     assert durations == {j: [111, 5, 3, 111, 5, 3] for j in ("J00", "J01", "J10", "J11")}
@@ -367,12 +368,11 @@ def test_long_red_scenario_holds_each_red_119_s(tmp_path, monkeypatch):
     assert states[238.0][4] == "r"
 
 
-def test_prediction_breakdown_red_and_truth_subsets(monkeypatch):
+def test_prediction_breakdown_red_and_truth_subsets():
     """The subsets by how long a red holds and by where the future really ends, on four samples
     worked out by hand: red holding 2 s (ends within 4 s), red holding 30 s (clipped at 20 s:
     8 s or more), green, and no light; futures ending 0.3, 0.6 (then invalid) and 0 m away."""
-    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "tools"))
-    from prediction_breakdown import subsets
+    from sumo_ethics.predict.breakdown import subsets
 
     sc = np.zeros((4, 10), dtype=np.float32)
     sc[:3, 1] = 1.0  # a light ahead for the first three

@@ -196,10 +196,9 @@ def test_dataset_train_evaluate_chain(tmp_path, capsys, monkeypatch):
     assert "95 % interval" in (tmp_path / "eval3" / "prediction_eval_ci.md").read_text()
     one = ci.set_index(["model", "reference", "group"])["ratio"]  # one scenario: its rows are the classes' rows
     assert one.loc[("map_cslstm", "constant_velocity", "urban/vehicle")] == one.loc[("map_cslstm", "constant_velocity", "vehicle")]
-    # tools/prediction_breakdown.py on the same samples (the shipped default): its "all" row is the
-    # table's vehicle row; the closest mode is never further than the most likely one
-    monkeypatch.syspath_prepend(str(ROOT / "tools"))
-    from prediction_breakdown import breakdown
+    # the breakdown of tools/prediction_breakdown.py on the same samples (the shipped default): its "all"
+    # row is the table's vehicle row; the closest mode is never further than the most likely one
+    from sumo_ethics.predict.breakdown import breakdown
 
     br = breakdown(data, "vehicle", ["urban"]).set_index("subset")
     assert br.loc["all", "n"] == full.loc[("map", "vehicle"), "n"]

@@ -21,8 +21,7 @@ from sumo_ethics.predict.predictor import LSTMPredictor, straight_history  # noq
 from sumo_ethics.types import AgentStates, Observation, RoadUserClass  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tools"))
-from bench_predictor import lane_source, make_observation  # noqa: E402
+from sumo_ethics.predict.synthetic import lane_source, make_observation  # noqa: E402
 
 
 def _model(kind: str, seed: int = 0) -> TrajectoryLSTM:

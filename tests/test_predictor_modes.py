@@ -5,7 +5,6 @@ evaluation's mixture NLL."""
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,8 +24,7 @@ from sumo_ethics.predict.models import (  # noqa: E402
 from sumo_ethics.predict.predictor import LSTMPredictor  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tools"))
-from bench_predictor import lane_source, make_observation  # noqa: E402
+from sumo_ethics.predict.synthetic import lane_source, make_observation  # noqa: E402
 
 LOG_2PI = math.log(2.0 * math.pi)
 

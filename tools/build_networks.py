@@ -460,7 +460,11 @@ BUILDERS = {
 
 
 def main(argv: list[str] | None = None) -> int:
-    names = (argv if argv is not None else sys.argv[1:]) or list(BUILDERS)
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("names", nargs="*", metavar="NETWORK", help=f"networks to build (default: all of {', '.join(BUILDERS)})")
+    names = ap.parse_args(argv).names or list(BUILDERS)
     for name in names:
         if name not in BUILDERS:
             print(f"unknown network {name!r}; choose from {', '.join(BUILDERS)}", file=sys.stderr)

@@ -49,6 +49,8 @@ import sys
 import time
 from pathlib import Path
 
+from sumo_ethics.recording.long_red import LONG_RED_GROUPS, long_red_scenario
+
 ROOT = Path(__file__).resolve().parents[1]
 WEIGHTS = ROOT / "sumo_ethics" / "predict" / "weights"
 SCENARIOS = ("urban", "rural", "highway", "urban_grid")
@@ -93,46 +95,6 @@ BUDGET = {"map": 45.0, "map_cslstm": 45.0, "map_cslstm_fast": 45.0}
 #: need the speed; the selection rule kept the default (docs/predictor_seeds.md, "Fewer decoder steps")
 VARIANTS = {"map_cslstm_fast": ("map_cslstm", {**TRAIN["map_cslstm"], "seed": 2, "map_version": 4, "dec_steps": 5, "ema": None,
                                               "extra": None})}
-
-
-#: the long-red runs (stage "long_red"): urban_grid with every green phase of 30 s or more three times
-#: as long (37 -> 111 s, so a red holds 119 s), seeds 1-7 x 600 s; long queues of cyclists and
-#: pedestrians wait at red, most of them back from the stop line, as at real city lights and the
-#: game configs' lights that never switch. Only their cyclists' and pedestrians' training samples
-#: are trained on (train --extra-dataset WORK_long_red --extra-groups cyclist,pedestrian)
-LONG_RED_FACTOR, LONG_RED_MIN_PHASE = 3.0, 30.0
-LONG_RED_GROUPS = ("cyclist", "pedestrian")
-
-
-def long_red_scenario(folder: Path) -> Path:
-    """Write the long-red variant of the bundled urban_grid into ``folder`` (its net and routes,
-    plus an additional file with each light's program, green phases of LONG_RED_MIN_PHASE s or more
-    LONG_RED_FACTOR times as long, which replaces the net's) and return its .sumocfg."""
-    import xml.etree.ElementTree as ET
-
-    net = ROOT / "networks" / "urban_grid" / "urban_grid.net.xml"
-    routes = ROOT / "scenarios" / "urban_grid" / "urban_grid.rou.xml"
-    lines = ["<additional>"]
-    for tl in ET.parse(net).getroot().iter("tlLogic"):
-        lines.append(f'    <tlLogic id="{tl.get("id")}" type="static" programID="long_red" offset="{tl.get("offset")}">')
-        for ph in tl.iter("phase"):
-            d = float(ph.get("duration"))
-            lines.append(f'        <phase duration="{d * LONG_RED_FACTOR if d >= LONG_RED_MIN_PHASE else d:g}" '
-                         f'state="{ph.get("state")}"/>')
-        lines.append("    </tlLogic>")
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "urban_grid_long_red.add.xml").write_text("\n".join(lines + ["</additional>"]) + "\n")
-    cfg = folder / "urban_grid_long_red.sumocfg"
-    cfg.write_text(f"""<configuration>
-    <input>
-        <net-file value="{net}"/>
-        <route-files value="{routes}"/>
-        <additional-files value="urban_grid_long_red.add.xml"/>
-    </input>
-    <time><begin value="0"/><end value="600"/><step-length value="0.1"/></time>
-</configuration>
-""")
-    return cfg
 
 
 def record_never_trained(game: tuple[str, ...], first: int, count: int, out: Path, workers: int, what: str) -> None:
@@ -204,7 +166,8 @@ def main() -> None:
     # before training: the default trains on its cyclists and pedestrians as well
     if "long_red" in stages:
         t0 = time.time()
-        cfg = long_red_scenario(Path(str(work) + "_long_red_scenario"))
+        cfg = long_red_scenario(Path(str(work) + "_long_red_scenario"), ROOT / "networks" / "urban_grid" / "urban_grid.net.xml",
+                                ROOT / "scenarios" / "urban_grid" / "urban_grid.rou.xml")
         dataset_main([cfg], Path(str(work) + "_long_red"), seeds=SEEDS, workers=args.workers)
         logging.info("long-red dataset: %.1f min", (time.time() - t0) / 60)
     if "train" in stages:
