@@ -15,6 +15,8 @@ import multiprocessing.forkserver
 import os
 from typing import TYPE_CHECKING
 
+from sumo_ethics.sumo_options import NO_SUMO_ENV
+
 if TYPE_CHECKING:
     from multiprocessing.context import ForkServerContext  # defined on POSIX only
 
@@ -27,6 +29,8 @@ def forkserver_context(preload: list[str]) -> ForkServerContext:
     ctx.set_forkserver_preload(preload)
     before = os.environ.get("PYTHONSAFEPATH")
     os.environ["PYTHONSAFEPATH"] = "1"
+    # the server outlives the test that starts it: it does not keep the tests' bar on SUMO starts
+    barred = os.environ.pop(NO_SUMO_ENV, None)
     try:
         multiprocessing.forkserver.ensure_running()
     finally:
@@ -34,4 +38,6 @@ def forkserver_context(preload: list[str]) -> ForkServerContext:
             os.environ.pop("PYTHONSAFEPATH", None)
         else:
             os.environ["PYTHONSAFEPATH"] = before
+        if barred is not None:
+            os.environ[NO_SUMO_ENV] = barred
     return ctx

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from sumo_ethics.contract import Decision, EgoCommand, Scene
+from sumo_ethics.sumo_options import NO_SUMO_ENV
 
 ROOT = Path(__file__).resolve().parents[1]
 TESTBED_NET = ROOT / "networks" / "testbed" / "testbed.net.xml"
@@ -56,6 +60,48 @@ class Scripted:
         if v > 0:
             yaw = yaw + np.arctan2(d - scene.d, v * scene.dt)
         return Decision(EgoCommand(float(x), float(y), float(yaw), v))
+
+
+def sumo_binary(name: str) -> str:
+    """The path of SUMO's ``name`` binary (sumo, netconvert) for a test that runs it directly; refused
+    like every SUMO start in a test not marked ``sumo``."""
+    import sumo
+
+    from sumo_ethics.sumo_options import refuse_if_barred
+
+    refuse_if_barred(name)
+    return str(Path(sumo.SUMO_HOME) / "bin" / name)
+
+
+_NO_SUMO_FLAG = pytest.StashKey[Path]()
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    """A test not marked ``sumo`` may not start SUMO, sumo-gui or netconvert, in this process or in
+    any process it starts, nor may the fixtures set up for it (sumo_options.NO_SUMO_ENV; the
+    forkserver's run processes excepted: the server outlives the test). A start raises there, and
+    the test fails here even when the raise was caught (:func:`pytest_runtest_makereport`)."""
+    if item.get_closest_marker("sumo"):
+        os.environ.pop(NO_SUMO_ENV, None)
+        return
+    flag = Path(tempfile.mkdtemp(prefix="no_sumo_")) / "started"
+    item.stash[_NO_SUMO_FLAG] = flag
+    os.environ[NO_SUMO_ENV] = str(flag)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    flag = item.stash.get(_NO_SUMO_FLAG, None)
+    if call.when != "teardown" or flag is None:
+        return
+    os.environ.pop(NO_SUMO_ENV, None)
+    if flag.exists():
+        report = outcome.get_result()
+        report.outcome = "failed"
+        report.longrepr = f"{item.nodeid} is not marked sumo but started: {flag.read_text().strip()}"
+    shutil.rmtree(flag.parent, ignore_errors=True)
 
 
 @pytest.fixture

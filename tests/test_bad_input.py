@@ -228,6 +228,7 @@ def test_existing_run_folder_is_refused_without_overwrite(tmp_path, capfd):
     assert json.loads((out / "summary.json").read_text()) == {"status": "old"}
 
 
+@pytest.mark.sumo
 def test_sumo_start_failure_gives_exit_3_with_the_cause(tmp_path):
     """Input that passes the pre-flight checks but SUMO refuses (a bus stop on a lane the net does
     not have): exit 3, SUMO's own reason in the one error line and in summary.json (libsumo says

@@ -76,6 +76,7 @@ def test_ego_depart_after_the_end(tmp_path):
                           "--ego-depart 700 s is not before the end of the simulation (600 s)", 2)
 
 
+@pytest.mark.sumo
 def test_ego_that_never_departs(tmp_path):
     cfg = write_scenario(tmp_path / "s", '<vehicle id="late" type="car" route="r_main" depart="500"/>', end=50)
     assert_one_line_error(cli("run", str(cfg), "--ego", "late", "--out", str(tmp_path / "o")), "never departed", 2)
@@ -131,6 +132,7 @@ def test_corrupt_predictor_weights(tmp_path):
     assert_one_line_error(p, str(bad), 2)
 
 
+@pytest.mark.sumo
 def test_toml_settings_reach_the_run(tmp_path):
     f = tmp_path / "p.toml"
     f.write_text("[planner]\nomega_u = 0.25\nweights = 'standard'\nutility = 'literal'\npredictor = 'cv'\n")

@@ -339,6 +339,7 @@ def test_reactive_starts_as_recorded(imported, tmp_path: Path) -> None:
             assert math.hypot(row.x - r.x[k], row.y - r.y[k]) < 0.01
 
 
+@pytest.mark.sumo
 @needs_cr
 def test_cli_import_then_run(tmp_path: Path, capsys) -> None:
     """The command line end to end on the gz file: import, then run with the default planner."""

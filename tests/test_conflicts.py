@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -28,7 +27,7 @@ from sumo_ethics.settings import conflicts_config
 from sumo_ethics.types import AgentStates
 from sumo_ethics.types import RoadUserClass as C
 
-from conftest import SCENARIOS, Scripted, write_scenario
+from conftest import SCENARIOS, Scripted, write_scenario, sumo_binary
 
 CAR = {"length": 4.5, "width": 1.8}
 PED = {"length": 0.3, "width": 0.5}  # SUMO's pedestrian box (the testbed's vType)
@@ -447,7 +446,6 @@ def test_a_killed_runs_rebuilt_summary_counts_conflicts_and_faults(tmp_path):
 def build_signalised(folder):
     """A road W (-100, 0) -> C (0, 0) -> E (100, 0) with a side road S -> C -> N, C a traffic light
     held red for every link (an additional tlLogic); returns (net, additional file)."""
-    import sumo
 
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "n.nod.xml").write_text(
@@ -459,7 +457,7 @@ def build_signalised(folder):
         '<edge id="SC" from="S" to="C" numLanes="1" speed="13.89"/>'
         '<edge id="CN" from="C" to="N" numLanes="1" speed="13.89"/></edges>')
     net = folder / "x.net.xml"
-    subprocess.run([str(Path(sumo.SUMO_HOME) / "bin" / "netconvert"), "-n", "n.nod.xml", "-e", "e.edg.xml",
+    subprocess.run([sumo_binary("netconvert"), "-n", "n.nod.xml", "-e", "e.edg.xml",
                     "-o", net.name, "--offset.disable-normalization", "true", "--no-turnarounds", "true",
                     "--no-warnings", "true"], cwd=folder, check=True, capture_output=True)
     import xml.etree.ElementTree as ET

@@ -198,6 +198,7 @@ def test_bad_mode_is_one_line_exit_2(tmp_path):
 
 
 # ---- a collision draws its snapshot ----------------------------------------------------------------
+@pytest.mark.sumo
 def test_unavoidable_collision_writes_its_snapshot(tmp_path):
     from sumo_ethics.analysis.report import snapshot_links
     from sumo_ethics.plan.ethical import EthicalPlanner

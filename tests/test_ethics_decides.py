@@ -190,6 +190,7 @@ def test_dilemma_generation_is_reproducible(tmp_path):
 
 
 # ---- a real run: the recorded ex-ante risk is the chosen candidate's ----------------------------------
+@pytest.mark.sumo
 def test_recorded_exante_risk_equals_the_chosen_candidates_risk_terms(tmp_path, monkeypatch):
     import sumo_ethics.plan.ethical as ethical
     from sumo_ethics.runner import run
@@ -232,6 +233,7 @@ def test_recorded_exante_risk_equals_the_chosen_candidates_risk_terms(tmp_path, 
     assert summary.data["status"] == "collision"  # unavoidable by construction
 
 
+@pytest.mark.sumo
 def test_red_light_clause_in_sumo(tmp_path):
     """Vehicles that ignore the signal cross the suite's signalised junction every 7 s: each one
     is a rule breaker on the junction exactly when its link showed red as it entered, and only

@@ -11,9 +11,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-import sumo
 
-from conftest import SCENARIOS, Scripted, write_scenario
+from conftest import SCENARIOS, Scripted, write_scenario, sumo_binary
 from sumo_ethics.config import FleetSpec, RunConfig
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.runner.fleet import draw, fleet_booking, inserted_departs, planner_of, run_fleet, union_states
@@ -126,6 +125,7 @@ class Recording:
         return d
 
 
+@pytest.mark.sumo
 def test_two_egos_each_driven_by_its_own_planner(tmp_path, scenario_dir):
     routes = ('<vehicle id="a" type="car" route="r_main" depart="0" departPos="80" departLane="1" departSpeed="5"/>'
               '<vehicle id="b" type="car" route="r_main" depart="2" departPos="10" departLane="2" departSpeed="8"/>'
@@ -159,6 +159,7 @@ def test_two_egos_each_driven_by_its_own_planner(tmp_path, scenario_dir):
     assert json.loads((tmp_path / "run" / "config.json").read_text())["fleet"]["ids"] == ["a", "b"]
 
 
+@pytest.mark.sumo
 def test_an_ego_ego_collision_is_one_event_with_harm_to_both(tmp_path, scenario_dir):
     routes = ('<vehicle id="front" type="car" route="r_main" depart="0" departPos="60" departLane="1" departSpeed="3"/>'
               '<vehicle id="back" type="car" route="r_main" depart="0" departPos="10" departLane="1" departSpeed="12"/>'
@@ -193,7 +194,7 @@ def test_an_ego_ego_collision_is_one_event_with_harm_to_both(tmp_path, scenario_
 def _plain_sumo_trips(cfg: Path, out: Path, end: float, seed: int = 42) -> pd.DataFrame:
     from sumo_ethics.record.trips import read_tripinfo
 
-    cmd = [str(Path(sumo.SUMO_HOME) / "bin" / "sumo"), "-c", str(cfg), "--seed", str(seed), "--end", f"{end:g}",
+    cmd = [sumo_binary("sumo"), "-c", str(cfg), "--seed", str(seed), "--end", f"{end:g}",
            "--no-step-log", "true", "--tripinfo-output", str(out), "--tripinfo-output.write-unfinished", "true"]
     for k, v in FORCED_OPTIONS.items():  # the collision reporting a run switches on (it changes no motion)
         cmd += [f"--{k}", v]
@@ -201,6 +202,7 @@ def _plain_sumo_trips(cfg: Path, out: Path, end: float, seed: int = 42) -> pd.Da
     return read_tripinfo(out)
 
 
+@pytest.mark.sumo
 def test_penetration_zero_reproduces_the_plain_sumo_trips(tmp_path):
     scenario = SCENARIOS / "urban_grid" / "urban_grid.sumocfg"
     rc = RunConfig(scenario=scenario, out=tmp_path / "run", progress=False, end=90.0, fleet=FleetSpec(penetration=0.0))
@@ -213,6 +215,7 @@ def test_penetration_zero_reproduces_the_plain_sumo_trips(tmp_path):
     pd.testing.assert_frame_equal(ours[cols].reset_index(drop=True), plain[cols].reset_index(drop=True))
 
 
+@pytest.mark.sumo
 def test_penetration_one_makes_every_eligible_vehicle_an_ego(tmp_path):
     scenario = SCENARIOS / "urban_grid" / "urban_grid.sumocfg"
     rc = RunConfig(scenario=scenario, out=tmp_path / "run", progress=False, end=40.0,
@@ -237,6 +240,7 @@ def test_penetration_one_makes_every_eligible_vehicle_an_ego(tmp_path):
         assert (np.diff(v) / 0.1).min() > -8.5 and (np.diff(v) / 0.1).max() < 3.5
 
 
+@pytest.mark.sumo
 def test_the_single_ego_run_writes_no_fleet_columns(tmp_path, scenario_dir):
     from sumo_ethics.runner import run
 
@@ -249,6 +253,7 @@ def test_the_single_ego_run_writes_no_fleet_columns(tmp_path, scenario_dir):
     assert not (tmp_path / "run" / "trips.parquet").exists()
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM"])
 def test_a_killed_fleet_run_keeps_its_rows(tmp_path, sig):
     import signal
@@ -305,6 +310,7 @@ def test_traffic_table_rates_by_hand():
     assert traffic_table(runs.drop(columns=["vehicle_km"]), ["penetration"]).empty  # no fleet runs
 
 
+@pytest.mark.sumo
 def test_named_planner_tables_of_the_toml_drive_their_share(tmp_path, capfd):
     from sumo_ethics.cli import main
     from sumo_ethics.ethics.cost import PRESETS
@@ -326,6 +332,7 @@ def test_named_planner_tables_of_the_toml_drive_their_share(tmp_path, capfd):
     assert "unknown planner 'careful'" in capfd.readouterr().err
 
 
+@pytest.mark.sumo
 def test_a_fleet_run_is_the_same_bytes_with_the_same_seed(tmp_path):
     scenario = SCENARIOS / "urban_grid" / "urban_grid.sumocfg"
     outs = []
@@ -358,6 +365,7 @@ def test_shared_prediction_is_one_call_giving_each_ego_its_rows():
     assert shared.calls == 1
 
 
+@pytest.mark.sumo
 def test_a_fleet_of_planners_is_the_same_bytes_on_one_or_two_threads(tmp_path):
     """The egos plan on the kernels' threads (sumo_ethics.cores), their results taken in order: the
     same outputs as one thread, with staggered replanning and shared plans on."""

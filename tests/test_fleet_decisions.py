@@ -269,6 +269,7 @@ class Forced:
         return replace(self.planner.act(scene), command=self.script.act(scene).command)
 
 
+@pytest.mark.sumo
 def test_an_ego_ego_collision_keeps_and_draws_both_egos_last_decision(tmp_path):
     """Default --record-decisions off: each ego keeps nothing but its decision of the step of impact,
     party b's too (the collision was found by party a's check), and each gets its own snapshot."""

@@ -29,6 +29,7 @@ def test_trim_gives_the_heap_freed_around_pinned_chunks_back():
     assert len(kept) == 400
 
 
+@pytest.mark.sumo
 def test_a_fleet_run_trims_the_heap_as_it_goes(tmp_path, monkeypatch):
     calls: list[float] = []
     trim = heap.trim

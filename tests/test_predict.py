@@ -29,6 +29,8 @@ from sumo_ethics.predict.models import (  # noqa: E402
 )
 from sumo_ethics.predict.predictor import LSTMPredictor, default_weights  # noqa: E402
 
+from conftest import sumo_binary  # noqa: E402
+
 
 def states(xy, yaw, speed, cls, prefix="a") -> AgentStates:
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
@@ -339,6 +341,7 @@ def test_prediction_breakdown_refuses_bad_input_in_one_line(tmp_path):
         assert r.returncode == 2 and says in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 
+@pytest.mark.sumo
 def test_long_red_scenario_holds_each_red_119_s(tmp_path):
     """The long-red urban_grid of tools/train_shipped.py: each light's greens of 30 s or more three times as
     long (37 -> 111 s; the 5 s green and the 3 s yellow kept), so a red holds 111 + 5 + 3 = 119 s.
@@ -346,7 +349,6 @@ def test_long_red_scenario_holds_each_red_119_s(tmp_path):
     from 0 to 119 s, green from then until 119 + 111 + 5 = 235 s, then yellow for 3 s."""
     import xml.etree.ElementTree as ET
 
-    import sumo
 
     from sumo_ethics.recording.long_red import long_red_scenario
 
@@ -358,7 +360,7 @@ def test_long_red_scenario_holds_each_red_119_s(tmp_path):
     assert durations == {j: [111, 5, 3, 111, 5, 3] for j in ("J00", "J01", "J10", "J11")}
     (tmp_path / "save.add.xml").write_text(
         f'<additional><timedEvent type="SaveTLSStates" source="J00" dest="{tmp_path / "tls.xml"}"/></additional>')
-    subprocess.run([str(Path(sumo.SUMO_HOME) / "bin" / "sumo"), "-c", str(cfg), "--end", "240", "--step-length", "1",
+    subprocess.run([sumo_binary("sumo"), "-c", str(cfg), "--end", "240", "--step-length", "1",
                     "--additional-files", f"{cfg.with_name('urban_grid_long_red.add.xml')},{tmp_path / 'save.add.xml'}",
                     "--no-step-log", "--no-warnings"], check=True, capture_output=True)
     states = {float(e.get("time")): e.get("state") for e in ET.parse(tmp_path / "tls.xml").getroot().iter("tlsState")}

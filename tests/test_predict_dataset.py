@@ -124,6 +124,7 @@ def test_ctrl_c_while_dataset_workers_start_prints_one_line_and_leaves_no_proces
     assert not (tmp_path / "ds").exists()
 
 
+@pytest.mark.sumo
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
 @pytest.mark.parametrize("how", ["ctrl-c", "sigterm", "ctrl-c-suite"])
 def test_a_dataset_stopped_mid_run_leaves_no_scratch_folder_and_no_worker(tmp_path, how):

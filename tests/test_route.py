@@ -17,6 +17,7 @@ def testbed(tmp_path):
     session.close()
 
 
+@pytest.mark.sumo
 def test_lane_labels_change_at_the_lane_boundaries(testbed):
     from sumo_ethics.sim.route import build_route_path
 
@@ -32,6 +33,7 @@ def test_lane_labels_change_at_the_lane_boundaries(testbed):
     assert labels == {"main_1_2"}
 
 
+@pytest.mark.sumo
 def test_lane_labels_are_the_lanes_own_strings(testbed):
     """One str object per lane, shared by its vertices (not one numpy.str_ per vertex: a fleet
     holds a route per ego driving, thousands of vertices each)."""

@@ -23,6 +23,7 @@ def _tree(d: Path) -> dict[str, bytes]:
     return {str(p.relative_to(d)): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.sumo
 def test_generator_is_deterministic_byte_for_byte(tmp_path):
     from sumo_ethics.suite.generate import generate
 
@@ -186,6 +187,7 @@ class Probe:
         return d
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("kind", sorted(HAZARDS))
 def test_hazard_fires_at_its_trigger(kind, tmp_path):
     from sumo_ethics.config import RunConfig
@@ -237,6 +239,7 @@ def test_hazard_fires_at_its_trigger(kind, tmp_path):
         assert abs(at[0] - 200) < 0.5 and at[1] > 5.0
 
 
+@pytest.mark.sumo
 def test_parked_vehicle_stays_put_off_the_carriageway(tmp_path):
     import libsumo
 
@@ -266,6 +269,7 @@ def test_parked_vehicle_stays_put_off_the_carriageway(tmp_path):
     assert lanes == {"main_1_0"}
 
 
+@pytest.mark.sumo
 def test_hazard_vehicle_over_a_crosswalk_does_not_crash_sumo(tmp_path):
     """A narrow-street scenario of an earlier suite: the oncoming car, matched onto the junction's
     crossing when lane permissions were ignored, crashed SUMO 1.28 (segfault) at t = 48.4 s."""

@@ -14,22 +14,24 @@ from pathlib import Path
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
-import sumo
 
 from sumo_ethics.record.trips import COLUMNS, TRIPS, read_tripinfo, write_trips
 from sumo_ethics.sim.scenario import declared, read_scenario
 from sumo_ethics.types import RoadUserClass
 
+from conftest import sumo_binary
+
+pytestmark = pytest.mark.sumo
+
 ROOT = Path(__file__).resolve().parents[1]
 URBAN = ROOT / "scenarios" / "urban" / "urban.sumocfg"
 URBAN_NET = ROOT / "networks" / "urban" / "urban.net.xml"
-SUMO = str(Path(sumo.SUMO_HOME) / "bin" / "sumo")
 END = 120.0
 
 
 def run_sumo(folder: Path, *args: str) -> None:
     folder.mkdir(parents=True, exist_ok=True)
-    subprocess.run([SUMO, *args, "--no-step-log", "--no-warnings", "--tripinfo-output.write-unfinished", "true"],
+    subprocess.run([sumo_binary("sumo"), *args, "--no-step-log", "--no-warnings", "--tripinfo-output.write-unfinished", "true"],
                    cwd=folder, check=True, capture_output=True, timeout=120)
 
 
@@ -268,7 +270,7 @@ def test_removed_early_is_not_arrived_and_own_types_keep_their_class(tmp_path):
 
     (tmp_path / "plan.rou.xml").write_text(PLAN)
     out = tmp_path / "tripinfo.xml"
-    libsumo.start([SUMO, "-n", str(URBAN_NET), "-r", str(tmp_path / "plan.rou.xml"), "--end", "130",
+    libsumo.start([sumo_binary("sumo"), "-n", str(URBAN_NET), "-r", str(tmp_path / "plan.rou.xml"), "--end", "130",
                    "--tripinfo-output", str(out), "--tripinfo-output.write-unfinished", "true",
                    "--no-step-log", "--no-warnings"])
     try:

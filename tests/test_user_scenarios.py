@@ -24,7 +24,7 @@ from sumo_ethics.runner import run
 from sumo_ethics.sim.scenario import redirected_outputs, read_scenario
 from sumo_ethics.sumo_options import parse_time
 
-from conftest import Scripted, TESTBED_NET, write_scenario
+from conftest import Scripted, TESTBED_NET, write_scenario, sumo_binary
 
 BEGIN = 50000.0
 
@@ -56,7 +56,7 @@ def build_crossing(folder: Path, bridge_z: float) -> Path:
         '<edges><edge id="road" from="W" to="E" numLanes="1" speed="13.89"/>'
         '<edge id="bridge" from="S" to="N" numLanes="1" speed="13.89"/></edges>')
     net = folder / "x.net.xml"
-    subprocess.run([str(Path(sumo.SUMO_HOME) / "bin" / "netconvert"), "-n", "n.nod.xml", "-e", "e.edg.xml",
+    subprocess.run([sumo_binary("netconvert"), "-n", "n.nod.xml", "-e", "e.edg.xml",
                     "-o", net.name, "--offset.disable-normalization", "true", "--no-warnings", "true"],
                    cwd=folder, check=True, capture_output=True)
     return net
@@ -100,11 +100,13 @@ def test_bad_sumo_times(text):
         parse_time(text, "t")
 
 
+@pytest.mark.sumo
 def test_scenario_times_are_read_in_sumos_formats(tmp_path, bridge_net):
     files = read_scenario(crossing_scenario(tmp_path, bridge_net))
     assert (files.begin, files.end, files.step_length) == (50000.0, 50020.0, None)  # end "13:53:40"
 
 
+@pytest.mark.sumo
 def test_end_before_the_begin_is_refused_at_once(tmp_path, bridge_net):
     cfg = crossing_scenario(tmp_path, bridge_net)
     out = tmp_path / "o"
@@ -178,6 +180,7 @@ def test_no_collision_where_roads_cross_without_a_junction(tmp_path, flat_net):
 
 
 # ---- the scenario's own outputs ---------------------------------------------------------------------
+@pytest.mark.sumo
 def test_output_options_are_pointed_into_the_run_folder(tmp_path, bridge_net):
     cfg = crossing_scenario(tmp_path, bridge_net, '<output><tripinfo-output value="tripinfos.xml"/>'
                             '<summary-output value="sub/summary.xml"/><fcd-output value="/abs/fcd.xml"/></output>'
@@ -330,6 +333,7 @@ def test_suite_generate_needs_a_new_or_empty_out(tmp_path):
     assert [q.name for q in suite.iterdir()] == ["old_scenario"] and seconds < 1.0  # untouched
 
 
+@pytest.mark.sumo
 def test_sweep_refuses_an_end_before_the_begin(tmp_path, bridge_net):
     from sumo_ethics.sweep import make_sweep
 

@@ -21,6 +21,8 @@ import libsumo
 import traci
 from sumolib.miscutils import getFreeSocketPort
 
+from sumo_ethics.sumo_options import refuse_if_barred
+
 #: SUMO's constants (the same module for both APIs)
 tc = traci.constants
 #: what either API raises when SUMO refuses a call or fails (TraCI: also a lost connection)
@@ -41,9 +43,22 @@ class Api:
         self.__dict__.clear()
         self.__dict__.update({k: v for k, v in vars(module).items() if not k.startswith("_")})
         self.__dict__["module"] = module
+        for name in ("start", "load"):  # a SUMO start refused where the tests bar it (sumo_options.NO_SUMO_ENV)
+            if name in self.__dict__:
+                self.__dict__[name] = _barred(self.__dict__[name], f"{module.__name__}.{name}")
 
     def __getattr__(self, name: str) -> Any:  # only for names the module lacks: say which API
         raise AttributeError(f"{self.__dict__['module'].__name__} has no '{name}'")
+
+
+def _barred(call: Any, what: str) -> Any:
+    """``call``, refused while :data:`sumo_ethics.sumo_options.NO_SUMO_ENV` is set."""
+
+    def guarded(*args: Any, **kwargs: Any) -> Any:
+        refuse_if_barred(what)
+        return call(*args, **kwargs)
+
+    return guarded
 
 
 #: the SUMO API every sim module calls
@@ -74,6 +89,7 @@ def start_gui(cmd: list[str], stderr: IO[bytes]) -> None:
     used: it prints its retries and starts a failed SUMO again, up to 60 times.
     """
     global _process
+    refuse_if_barred("sumo-gui")
     port = getFreeSocketPort()
     proc = subprocess.Popen([*cmd, "--remote-port", str(port)], stdin=subprocess.DEVNULL,
                             stdout=subprocess.DEVNULL, stderr=stderr)

@@ -48,6 +48,9 @@ def netconvert() -> Path:
     """The netconvert binary of the installed eclipse-sumo package."""
     import sumo  # the eclipse-sumo package: only its SUMO_HOME
 
+    from sumo_ethics.sumo_options import refuse_if_barred
+
+    refuse_if_barred("netconvert")
     exe = Path(sumo.SUMO_HOME) / "bin" / "netconvert"
     return exe if exe.exists() else exe.with_suffix(".exe")
 
