@@ -403,7 +403,8 @@ class EthicalPlanner:
         self._plan = None
         veh = scene.vehicle
         ego_length, ego_width = float(scene.ego.length[0]), float(scene.ego.width[0])
-        if self._sampling is None:  # plan at the simulation's step so commands fall on samples
+        if self._sampling is None:  # plan at the simulation's step so commands fall on samples (the one step:
+            # settings.planner_config refuses a sampling dt that differs, runner.loop.on_run_step sets it)
             self._sampling = replace(self.cfg.sampling, dt=scene.dt)
         sc = self._sampling
         w0 = time.perf_counter()
