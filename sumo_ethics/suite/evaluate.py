@@ -1,17 +1,19 @@
 """``sumo-ethics evaluate``: every scenario of a suite with every planner -> the paper's Table 1.
 
-Each (scenario, planner) run is one task in a fresh process (libsumo: one simulation per
-process, and none after a fatal SUMO error): a ProcessPoolExecutor with
-``max_tasks_per_child=1`` on a forkserver that has imported torch, libsumo and the package
-once (a spawned worker would re-import torch for every run). Every planner meets the same
-scenarios with the same seeds, so the comparison is paired.
+Each (scenario, planner) run is a process of its own (libsumo: one simulation per process, and
+none after a fatal SUMO error), at most ``workers`` at once (:func:`run_suite`): each is forked
+from a forkserver that has imported torch, libsumo and the package once (``suite/preload.py``; a
+spawned process would re-import torch for every run) and sends its row back over a pipe; one that
+dies is an error row. Every planner meets the same scenarios with the same seeds, so the
+comparison is paired.
 
-Table columns as in the paper (docs/suite.md, "evaluate: Table 1 for a suite"): Completed (%),
-and harm summed over all runs: Total = Ego + Third party, VRU (part of third party). 95 %
-confidence intervals are percentile bootstraps over scenarios (:func:`table`): a planner's row
-resamples the scenarios it has a run for; the paired comparison gives, per planner against the
-reference, the bootstrap interval of the per-scenario differences over the scenarios both have
-a run for (each drawn uniformly) and a Wilcoxon signed-rank p-value of those differences.
+Table columns as in the paper (METHOD.md section 5; docs/suite.md, "evaluate: Table 1 for a
+suite"): Completed (%), and harm summed over all runs: Total = Ego + Third party, VRU (part of
+third party). 95 % confidence intervals are percentile bootstraps over scenarios
+(:func:`table`): a planner's row resamples the scenarios it has a run for; the paired comparison
+gives, per planner against the reference, the bootstrap interval of the per-scenario differences
+over the scenarios both have a run for (each drawn uniformly) and a Wilcoxon signed-rank p-value
+of those differences.
 """
 
 from __future__ import annotations
