@@ -154,7 +154,9 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
                     fleet=fleet)
     times = scenario_files.plan(cfg.scenario, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id,
                                 tuple(e for e in (ego_from, ego_to) if e is not None))
-    on_step: dict[str, Any] = {"step": times.step_length, "step_source": times.step_source}  # the planner plans on the run's step
+    # the planner plans on the run's step (a fleet's egos too: a fleet needs --controller ethical)
+    on_step: dict[str, Any] = {"step": times.step_length, "step_source": times.step_source} \
+        if controller == "ethical" else {}
     scenario_files.check_out(out)
     if gui and not os.environ.get("DISPLAY"):
         raise ConfigError("--gui needs a display and DISPLAY is not set; run without --gui, or under a virtual "

@@ -85,6 +85,9 @@ def test_the_runner_puts_the_planner_on_the_run_step(tmp_path):
     with pytest.raises(ConfigError, match="400 steps"):  # the defaults' grid too
         on_run_step(RunConfig(TESTBED, tmp_path / "o"), 0.01, "--step-length")
     assert on_run_step(RunConfig(TESTBED, tmp_path / "o", controller="baseline"), 0.01, "x").planner is None
+    # the baseline plans nothing: a planner config beside it (a sweep passes one) is not checked
+    base = RunConfig(TESTBED, tmp_path / "o", controller="baseline", planner=PlannerConfig())
+    assert on_run_step(base, 0.01, "--step-length") == base
 
 
 # ---- the memory bound at the run's step ---------------------------------------------------------
@@ -113,6 +116,15 @@ def test_candidate_steps_are_counted_at_the_run_step(tmp_path, capfd):
     assert lines[0] == ("error: the candidate grid at the run's step of 0.01 s (--step-length): 2500 candidates x "
                         "100 steps = 250000 candidate steps; the limit is 200000 (a step of at least 0.0125 s, "
                         "shorter horizons or fewer candidates)")
+
+
+def test_the_baseline_is_not_held_to_the_planner_grid(tmp_path, capfd):
+    """--controller baseline plans no candidates: --step-length 0.01 passes the settings (the sweep's
+    validation builds every run's config, so it gets as far as the runs' validation)."""
+    from sumo_ethics.sweep.grid import make_sweep
+
+    sweep = make_sweep(TESTBED, "1", "0", options={"controller": "baseline", "step_length": 0.01, "end": 5.0})
+    assert sweep.validate()[0].run_config(tmp_path / "r").step_length == 0.01
 
 
 def test_sweep_checks_the_grid_at_its_step(tmp_path, capfd):

@@ -185,6 +185,8 @@ def on_run_step(cfg: RunConfig, step: float, source: str) -> RunConfig:
         check_grid_bounds(planner.sampling, step, source)
         return replace(planner, sampling=replace(planner.sampling, dt=step))
 
+    if cfg.controller != "ethical" and cfg.fleet is None:  # the baseline plans nothing
+        return cfg
     if cfg.planner is not None:
         cfg = replace(cfg, planner=at_step(cfg.planner))
     elif cfg.controller == "ethical":

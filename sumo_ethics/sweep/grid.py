@@ -269,9 +269,12 @@ class RunSpec:
             overrides["predictor"] = opts["predictor"]
         kw = {RUN_KEYS[k][0]: v for k, v in opts.items() if k in RUN_KEYS}
         # the planner plans on the run's step: --step-length (or a step_length axis), else the scenario's
-        given = kw.get("step_length")
-        step, source = scenario_files.resolve_step(scenario_files.read_scenario(Path(self.scenario)),
-                                                   given if is_number(given, 0.0, lo_open=True) else None)
+        step: float | None = None
+        source: str | None = None
+        if kw.get("controller", "ethical") == "ethical":  # the baseline plans nothing
+            given = kw.get("step_length")
+            step, source = scenario_files.resolve_step(scenario_files.read_scenario(Path(self.scenario)),
+                                                       given if is_number(given, 0.0, lo_open=True) else None)
         planner = planner_config(table, step=step, step_source=source, **overrides)
         fleet = {k.removeprefix("fleet."): kw.pop(k) for k in list(kw) if k.startswith("fleet.")}
         if fleet:
