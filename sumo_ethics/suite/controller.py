@@ -5,8 +5,9 @@ the scene is built; the hazard injector (``sim.hazards.HazardInjector.on_step``)
 :class:`Scene`: the ego's route, its arc length ``s`` on it, its speed, the time and step. So
 the hazards come in through the controller: the runner calls ``act(scene)`` once per ego step,
 after the hooks and the scene are read and before it applies the ego's command and steps SUMO,
-which is when the injector commands its actors for the next step (t + dt). ``evaluate`` and
-``suite.traffic`` wrap the controller this way.
+which is when the injector commands its actors for the next step (t + dt). ``evaluate`` wraps
+the controller in this class; ``suite.traffic`` does the same in a wrapper of its own that also
+records the traffic.
 """
 
 from __future__ import annotations
