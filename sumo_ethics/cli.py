@@ -152,8 +152,11 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
                     sensing_radius=radius, progress=not quiet, overwrite=overwrite, step_length=step_length,
                     sumo_args=parse_sumo_args(sumo_arg), record_decisions=record_decisions,
                     fleet=fleet)
-    scenario_files.plan(cfg.scenario, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id,
-                        tuple(e for e in (ego_from, ego_to) if e is not None))
+    times = scenario_files.plan(cfg.scenario, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id,
+                                tuple(e for e in (ego_from, ego_to) if e is not None))
+    # the planner plans on the run's step (a fleet's egos too: a fleet needs --controller ethical)
+    on_step: dict[str, Any] = {"step": times.step_length, "step_source": times.step_source} \
+        if controller == "ethical" else {}
     scenario_files.check_out(out)
     if gui and not os.environ.get("DISPLAY"):
         raise ConfigError("--gui needs a display and DISPLAY is not set; run without --gui, or under a virtual "
@@ -172,7 +175,8 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
 
     table, conflicts = load_run_toml(config_file) if config_file is not None else (None, conflicts_config(None))
     planner = planner_config(table, omega_u=omega_u, omega_o=omega_o, weights=weights, utility=utility,
-                             normalise=normalise, predictor=predictor, predictor_weights=predictor_weights, selection=selection)
+                             normalise=normalise, predictor=predictor, predictor_weights=predictor_weights,
+                             selection=selection, **on_step)
     if (scenario.parent / "hazards.json").is_file():  # a suite scenario: run does not inject hazards
         click.echo(f"note: {scenario.parent / 'hazards.json'} is not used by 'run' (no hazards, your ego); "
                    f"'sumo-ethics evaluate {scenario.parent}' runs the scenario as the suite defines it", err=True)
@@ -186,7 +190,7 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
         spec = replace(fleet, planners=tuple(
             (n, planner_config({**(table or {}), **named[n]}, omega_u=omega_u, omega_o=omega_o, weights=weights,
                                utility=utility, normalise=normalise, predictor=predictor,
-                               predictor_weights=predictor_weights, selection=selection)) for n in used))
+                               predictor_weights=predictor_weights, selection=selection, **on_step)) for n in used))
         cfg = replace(cfg, fleet=spec)
         check_fleet_names(spec)
 

@@ -29,27 +29,68 @@ else:  # tomllib is Python 3.11+; tomli is the same parser (a dependency on 3.10
 
 #: bounds on the candidate grid, checked before anything is allocated: the planner holds
 #: (candidates x neighbours x steps) arrays, so these keep one planning step within memory
-#: (measured: 5000 candidates x 40 steps against 100 neighbours peaks at about 600 MB)
+#: (measured: 5000 candidates x 40 steps against 100 neighbours peaks at about 600 MB). The steps
+#: are the run's: the planner plans on the simulation's step (see :func:`planner_config`)
 MAX_CANDIDATES = 5000  # len(horizons) x n_speeds x n_offsets (default 4 x 15 x 17 = 1020)
 MAX_HORIZON = 10.0  # s, the longest horizon (default 4 s)
-MAX_HORIZON_STEPS = 100  # longest horizon / sampling.dt (default 40)
+MAX_HORIZON_STEPS = 100  # longest horizon / the run's step (default 4 s / 0.1 s = 40)
 MAX_CANDIDATE_STEPS = 200_000  # candidates x horizon steps (default 1020 x 40 = 40,800)
 
 
-def check_grid_bounds(sampling: Any) -> None:
-    """ConfigError when a SamplingConfig's grid is beyond the stated limits."""
+def step_phrase(step: float, source: str | None = None) -> str:
+    """``the run's step of 0.01 s (--step-length)``: a step [s] and where it came from (``sim.scenario.Plan``'s
+    step_source: "--step-length", "scenario" or "the default: ..."; None: the grid's own ``sampling.dt``)."""
+    if source is None:
+        return f"sampling.dt = {step:g} s"
+    where = {"scenario": "the scenario's <step-length>"}.get(source, source)
+    return f"the run's step of {step:g} s ({where})"
+
+
+def check_grid_size(sampling: Any) -> None:
+    """ConfigError when a SamplingConfig's grid has more candidates or a longer horizon [s] than the
+    stated limits (the bounds that do not depend on the step)."""
     k = sampling.n_candidates
     if k > MAX_CANDIDATES:
         raise ConfigError(f"the candidate grid is too large: {len(sampling.horizons)} horizons x {sampling.n_speeds} "
                           f"speeds x {sampling.n_offsets} offsets = {k} candidates; the limit is {MAX_CANDIDATES}")
     if max(sampling.horizons) > MAX_HORIZON:
         raise ConfigError(f"sampling.horizons: {max(sampling.horizons):g} s is beyond the limit of {MAX_HORIZON:g} s")
-    if sampling.n_steps > MAX_HORIZON_STEPS:
-        raise ConfigError(f"sampling: the longest horizon is {sampling.n_steps} steps of {sampling.dt:g} s; the limit "
-                          f"is {MAX_HORIZON_STEPS} steps (raise sampling.dt or shorten the horizons)")
-    if k * sampling.n_steps > MAX_CANDIDATE_STEPS:
-        raise ConfigError(f"the candidate grid is too large: {k} candidates x {sampling.n_steps} steps = "
-                          f"{k * sampling.n_steps} candidate steps; the limit is {MAX_CANDIDATE_STEPS}")
+
+
+def check_grid_bounds(sampling: Any, step: float | None = None, source: str | None = None) -> None:
+    """ConfigError when a SamplingConfig's grid is beyond the stated limits at ``step`` [s], the step
+    the planner will plan on (the run's; None: ``sampling.dt``; ``source`` as in :func:`step_phrase`).
+
+    Steps counted: ceil(longest horizon / step). Candidate steps: the grid's candidates x those steps
+    (the braking and evasive candidates come on top: see docs/usage.md)."""
+    check_grid_size(sampling)
+    if step is not None and step != sampling.dt:
+        sampling = replace(sampling, dt=step)  # ConfigError if a horizon is shorter than the step
+    k, n = sampling.n_candidates, sampling.n_steps
+    at = step_phrase(sampling.dt, source if step is not None else None)
+    fit = max(sampling.horizons) / MAX_HORIZON_STEPS  # the shortest step the longest horizon fits in
+    if n > MAX_HORIZON_STEPS:
+        raise ConfigError(f"the candidate grid at {at}: the longest horizon of {max(sampling.horizons):g} s is {n} "
+                          f"steps; the limit is {MAX_HORIZON_STEPS} steps (a step of at least {fit:g} s, or "
+                          "shorter horizons)")
+    if k * n > MAX_CANDIDATE_STEPS:
+        fit = max(sampling.horizons) * k / MAX_CANDIDATE_STEPS
+        raise ConfigError(f"the candidate grid at {at}: {k} candidates x {n} steps = {k * n} candidate steps; the "
+                          f"limit is {MAX_CANDIDATE_STEPS} (a step of at least {fit:.3g} s, shorter horizons or "
+                          "fewer candidates)")
+
+
+def planning_step(sampling: Any, given: dict[str, Any], step: float, source: str | None = None) -> Any:
+    """``sampling`` on the run's ``step`` [s]: the planner plans on the simulation's step (its commands fall on
+    the candidates' samples, the predictors read histories at that step). A ``dt`` in ``given`` (the
+    ``[planner.sampling]`` table) that differs from ``step`` is a ConfigError naming both; the grid's bounds
+    are checked at ``step``."""
+    if "dt" in given and not abs(float(given["dt"]) - step) <= 1e-9 * max(1.0, step):
+        raise ConfigError(f"[planner.sampling] dt = {float(given['dt']):g} s differs from {step_phrase(step, source)}: "
+                          f"the planner plans on the run's step; run with --step-length {float(given['dt']):g} "
+                          "(or set the scenario's <step-length>), or drop dt")
+    check_grid_bounds(sampling, step, source)
+    return replace(sampling, dt=step)
 
 
 def _known(table: dict[str, Any], allowed: set[str], where: str) -> None:
@@ -163,8 +204,15 @@ PLANNER_KEYS = COST_KEYS + ("predictor", "predictor_weights", "calibrated", "max
 SET_PLANNER_KEYS = tuple(k for k in PLANNER_KEYS if k != "omega_u")
 
 
-def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
-    """A validated PlannerConfig from a ``[planner]`` table and command-line overrides (None = unset)."""
+def planner_config(table: dict[str, Any] | None = None, step: float | None = None, step_source: str | None = None,
+                   **overrides: Any):
+    """A validated PlannerConfig from a ``[planner]`` table and command-line overrides (None = unset).
+
+    step: the run's step [s] when it is known (``sim.scenario.resolve_step``; ``step_source`` says where
+    it came from): the grid plans on it (``sampling.dt`` = step), a ``[planner.sampling] dt`` that
+    differs is refused and the grid's bounds are checked at it (:func:`planning_step`). None: the
+    grid keeps ``dt`` (given or 0.1 s) and its bounds are checked at that; the runner plans on the
+    run's step all the same and checks the bounds at it before SUMO starts."""
     from sumo_ethics.ethics.cost import DEFAULT_OMEGA_U, CostConfig, PrincipleWeights, UtilityMode
     from sumo_ethics.ethics.probability import ProbabilityConfig
     from sumo_ethics.plan.ethical import PlannerConfig
@@ -200,7 +248,10 @@ def planner_config(table: dict[str, Any] | None = None, **overrides: Any):
         _known(probability, {f.name for f in fields(ProbabilityConfig)}, "[planner.probability]")
         # keys not set keep PlannerConfig's own defaults (its grid, not SamplingConfig's bare one)
         grid = replace(PlannerConfig().sampling, **sampling)
-        check_grid_bounds(grid)
+        if step is not None:
+            grid = planning_step(grid, sampling, step, step_source)
+        else:
+            check_grid_bounds(grid)
         given = {k: t[k] for k in PLANNER_KEYS[len(COST_KEYS):] if k in t and k != "predictor_weights"}
         if t.get("predictor_weights") is not None:
             given["predictor_weights"] = str(t["predictor_weights"])

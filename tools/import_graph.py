@@ -25,18 +25,22 @@ PACKAGE = "sumo_ethics"
 
 # the house plan, ground floor first: a room may import rooms on its own floor or below
 FLOORS: list[tuple[str, ...]] = [
-    # 0 the ground: datatypes, errors, geometry, files, signals, the run processes' forkserver, SUMO's option
-    # values, the C heap's trim, the kernels' threads; and the package's __init__
+    # 0 the ground: the package's __init__ (its version), errors, datatypes (types), geometry, signals (interrupt:
+    # Ctrl-C and SIGTERM; _worker_signals: a worker dies with its parent), the run processes' forkserver, files
+    # written whole (fileio), the click parameter types (cli_types), SUMO's option values (sumo_options), the C
+    # heap's trim (heap), the kernels' threads (cores)
     ("sumo_ethics", "errors", "types", "geometry", "interrupt", "_worker_signals", "forkserver", "fileio",
      "cli_types", "sumo_options", "heap", "cores"),
-    # 1 configuration, the runner/controller contract, the goal region, what a sensor sees, the ethics and safety maths
+    # 1 configuration (config), the runner/controller contract, the goal region (goal), what a sensor sees
+    # (visibility), the ethics and safety maths (ethics, safety), collisions found and booked (collision), a run's
+    # notes (notes: tight bends, a lonely standstill, what held the ego)
     ("config", "contract", "goal", "visibility", "ethics", "safety", "collision", "notes"),
     ("predict",),  # 2 the predictors (the only importer of torch)
     ("plan", "settings"),  # 3 the planners, and the TOML settings that build their configs
     ("record",),  # 4 the run's files: schema, writers, readers
     ("sim",),  # 5 the SUMO adapter (sim/backend.py: the only importer of libsumo and traci)
     ("analysis",),  # 6 result folders read, tables, figures, explain and replay
-    ("runner", "fleet"),  # 7 the one simulation loop
+    ("runner",),  # 7 the one simulation loop, a single ego's (runner/loop.py) and a fleet's (runner/fleet.py)
     ("suite", "sweep", "recording", "commonroad"),  # 8 many runs: suites, sweeps, training data, imports
     ("cli", "cli_suite", "cli_sweep"),  # 9 the command line
 ]

@@ -1,4 +1,6 @@
-"""Tables of a sweep: completion rate and harm per class per parameter value, bootstrap 95% CIs.
+"""Tables of a sweep: completion rate and harm per class per parameter value, bootstrap 95% CIs;
+and the package's one bootstrap draw (:func:`resample`, :func:`bootstrap`), which ``suite/evaluate``
+uses too.
 
 The CI is a seeded percentile bootstrap over runs (runs are the independent samples: seeds
 of the same grid point). A group of one run has a zero-width interval.
@@ -7,7 +9,7 @@ of the same grid point). A group of one run has a zero-width interval.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -22,6 +24,22 @@ MAX_BOOT = 100_000
 HARM_UNIT = "harm [-] (P(MAIS 3+), summed over the run's ego collisions)"
 
 
+def resample(n: int, n_boot: int = 2000, seed: int = 0) -> np.ndarray:
+    """(n_boot, n) int indices into n samples, every one drawn uniformly from 0..n-1 with replacement
+    (``np.random.default_rng(seed).integers(0, n, (n_boot, n))``): the draw of every bootstrap of
+    the package. n >= 1."""
+    return np.random.default_rng(seed).integers(0, n, size=(n_boot, n))
+
+
+def bootstrap(samples: np.ndarray, stat: Callable[[np.ndarray], np.ndarray], n_boot: int = 2000,
+              seed: int = 0) -> np.ndarray:
+    """``stat`` of ``n_boot`` uniform resamples (:func:`resample`) of ``samples`` (n, ...): rows are
+    resampled whole (the two values of a pair, a numerator with its denominator). ``stat`` maps the
+    resamples (n_boot, n, ...) to (n_boot, ...); returns that."""
+    x = np.asarray(samples)
+    return stat(x[resample(len(x), n_boot, seed)])
+
+
 def bootstrap_ci(values: Sequence[float] | np.ndarray | pd.Series, n_boot: int = 2000, seed: int = 0,
                  level: float = 0.95) -> tuple[float, float]:
     """Percentile bootstrap CI of the mean of ``values`` (NaN, NaN for no values)."""
@@ -31,8 +49,7 @@ def bootstrap_ci(values: Sequence[float] | np.ndarray | pd.Series, n_boot: int =
         return math.nan, math.nan
     if x.size == 1 or np.all(x == x[0]):
         return float(x[0]), float(x[0])
-    rng = np.random.default_rng(seed)
-    means = x[rng.integers(0, x.size, size=(n_boot, x.size))].mean(axis=1)
+    means = bootstrap(x, lambda r: r.mean(axis=1), n_boot, seed)
     a = (1.0 - level) / 2.0
     lo, hi = np.quantile(means, [a, 1.0 - a])
     return float(lo), float(hi)
@@ -74,9 +91,9 @@ def ratio_ci(num: np.ndarray, den: np.ndarray, n_boot: int = 2000, seed: int = 0
     num, den = np.asarray(num, dtype=float), np.asarray(den, dtype=float)
     if len(num) == 0:
         return float("nan"), float("nan")
-    idx = np.random.default_rng(seed).integers(0, len(num), size=(n_boot, len(num)))
     with np.errstate(divide="ignore", invalid="ignore"):
-        r = num[idx].sum(axis=1) / den[idx].sum(axis=1)
+        r = bootstrap(np.stack([num, den]).T, lambda b: (np.ascontiguousarray(b[..., 0]).sum(axis=1)
+                                                          / np.ascontiguousarray(b[..., 1]).sum(axis=1)), n_boot, seed)
     r = r[np.isfinite(r)]
     if len(r) == 0:
         return float("nan"), float("nan")

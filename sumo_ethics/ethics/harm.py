@@ -1,14 +1,18 @@
 """Harm: probability of a serious (MAIS 3+) injury to each party of a collision.
 
-METHOD.md section 1. Crash geometry from the two parties' states just before impact,
-closing speed split by momentum, then one of three logistic injury models per party:
+METHOD.md section 1; docs/method.md, "Harm". Crash geometry from the two parties' states just
+before impact, closing speed split by momentum, then one of three logistic injury models per party:
 
 - protected party hit by a protected party: ``1 / (1 + exp(-(b0 + b1 dv + c_area)))``
   with the party's own impact area (front / side / rear);
 - protected party hit by a vulnerable road user: angle-free ``1 / (1 + exp(a0 - a1 dv))``;
-- vulnerable party (pedestrian, bicycle, motorcycle): ``1 / (1 + exp(u0 - u1 dv))``.
+- vulnerable party (pedestrian, bicycle, motorcycle: ``types.VULNERABLE``): ``1 / (1 + exp(u0 - u1 dv))``.
 
-Every function broadcasts over arbitrary shapes, e.g. (K, N) or (K, N, T); no loops.
+Leaving the road (:func:`leave_road_harm`) uses the angle-free model on the ego's speed.
+
+The crash geometry and injury models (:func:`crash_outcome`, :func:`impact_area`,
+:func:`leave_road_harm`, :meth:`MassModel.mass`) broadcast over arbitrary shapes, e.g. (K, N) or
+(K, N, T), with no loops over their elements; :func:`vtype_mass` reads one vType's figures.
 Units: metres, seconds, radians (yaw CCW from +x), kilograms.
 """
 
@@ -153,7 +157,8 @@ def vtype_mass(vclass: str, sumo_mass: float, param: str = "") -> float:
     3. else, for a vClass this project has no class mass for (RoadUserClass OTHER: rail, tram,
        ship, ...), SUMO's class default is used where it is not the generic 1500 kg: a tram's
        37,900 kg beats a car's size formula;
-    4. else NaN: METHOD.md's class mass applies (truck 25,000, bus 13,000, a car from its size).
+    4. else NaN: METHOD.md's class mass applies (:class:`MassModel`: truck 25,000 kg, bus 13,000 kg,
+       a car and any other class from its footprint).
 
     So a mass attribute equal to SUMO's default for the class counts as not given; to state
     exactly that mass, use the param (rule 1).

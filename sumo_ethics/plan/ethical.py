@@ -74,8 +74,8 @@ class PlannerConfig:
     braking distance) in "cost" selection [-], about 100x a typical progress term, so the ego keeps
     out of envelopes whenever it can and only unavoidable entries are weighed by the risk terms;
     entry: in "cost" selection, the cost of entering an envelope at once, falling linearly to 0
-    for an entry at the end of the horizon [-] (a time-to-collision term: later is better; on the
-    first 30 suite scenarios it raised completion from 63 % without it to 73 %, the TTC rule's 77 %);
+    for an entry at the end of the horizon [-] (a time-to-collision term: later is better; what it
+    did to completion: docs/method.md, step 6 "Select");
     evasive: also sample candidates that brake at ``vehicle.max_decel`` from the first step while
     moving to the lateral end offsets (:func:`evasive_candidates`): the grid's own profiles start
     from the current acceleration and take about a second to build up braking, and the straight
@@ -403,7 +403,8 @@ class EthicalPlanner:
         self._plan = None
         veh = scene.vehicle
         ego_length, ego_width = float(scene.ego.length[0]), float(scene.ego.width[0])
-        if self._sampling is None:  # plan at the simulation's step so commands fall on samples
+        if self._sampling is None:  # plan at the simulation's step so commands fall on samples (the one step:
+            # settings.planner_config refuses a sampling dt that differs, runner.loop.on_run_step sets it)
             self._sampling = replace(self.cfg.sampling, dt=scene.dt)
         sc = self._sampling
         w0 = time.perf_counter()

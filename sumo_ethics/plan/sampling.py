@@ -74,7 +74,9 @@ class SamplingConfig:
     """
 
     horizons: tuple[float, ...] = (2.0, 3.0, 4.0)  # s
-    dt: float = 0.1  # s, output step
+    # s, output step; the ethical planner samples at the run's step (EthicalPlanner.plan sets dt to the
+    # scene's; settings.planner_config refuses a [planner.sampling] dt that differs from it)
+    dt: float = 0.1
     n_speeds: int = 15
     n_offsets: int = 23
     max_offset: float = 3.5  # m

@@ -2,10 +2,9 @@
 
 The learned predictors output, per agent, mode and 0.2 s step, a bivariate Gaussian in the
 agent's heading frame now (x along its heading, y to its left): mean (mu_x, mu_y), standard
-deviations (sigma_x, sigma_y) and correlation rho. Measured on scenarios the default never saw
-(issue 37), its most likely mode's 2-sigma ellipse held 88 % of true vehicle positions overall
-(nominal 86.5 %) but 46 % in lane changes and 84 % in turns, while its 1-sigma ellipse held 71 %
-(nominal 39.3 %): too wide in the core, too narrow exactly when a road user moves sideways.
+deviations (sigma_x, sigma_y) and correlation rho. Those spreads are too wide in the core and
+too narrow exactly when a road user moves sideways (issue 37; the coverage of the ellipses before
+and after: docs/prediction-accuracy.md, "Calibrated uncertainty").
 
 The calibration leaves the means, the correlations and the mode weights as they are and
 multiplies the two standard deviations:
@@ -23,12 +22,10 @@ manoeuvre state s that is known when the prediction is made (never the future's 
   and ``standing``: steady, and slower than STAND_SPEED (0.5 m/s) now.
 
 STANDING (version 2). Version 1 had no ``standing`` state: a car parked at the kerb shared the
-``steady`` factors of moving traffic, whose lateral errors (drifts, lane changes at speed) set a
-lateral sigma of 1.9 m at 4 s (median, validation split). Standing steady vehicles' own lateral
-errors are far smaller (99th percentile 0.27 m at 3 s and 0.60 m at 4 s), and their 2-sigma
-ellipse held 98-99.5 % of them: the ethical planner then waited behind parked cars for the rest
-of the run (issue 37, suite s0052 and s0073). They now get their own cell, fitted by the same
-rule as every other.
+``steady`` factors of moving traffic, whose lateral errors (drifts, lane changes at speed) are
+far larger than a standing vehicle's own, and the ethical planner waited behind parked cars
+(issue 37; the figures: docs/prediction-accuracy.md, "Calibrated uncertainty", its paragraph
+"Standing road users"). They now get their own cell, fitted by the same rule as every other.
 
 Fit (:func:`fit`), per (g, s, horizon bin) on held-out samples (the validation split), from the
 standardised errors z_x = (x - mu_x) / sigma_x, z_y = (y - mu_y) / sigma_y of the most likely mode:
@@ -37,15 +34,14 @@ standardised errors z_x = (x - mu_x) / sigma_x, z_y = (y - mu_y) / sigma_y of th
 2. one common factor so that a share FIT_LEVEL of the (weighted) points lies inside the 2-sigma
    ellipse (closed form: the squared Mahalanobis distance scales as 1 / factor^2).
 The points are weighted so that each future manoeuvre of a class group (straight, turn, stop at
-a light, lane change, hazard: ``dataset.manoeuvre_labels``, at least 500 samples' worth each)
+a light, lane change, hazard: ``samples.manoeuvre_labels``, at least 500 samples' worth each)
 weighs as much as any other (:func:`balanced_weights`). The label is used only to weight the fit;
 which factors an agent gets depends only on what is known when it is predicted (its class and
-its modes). Without the weights, the rare lane changes (4 % of the validation vehicles, and no
-observable state in which they are more than a fifth) are outvoted by straight driving, and the
-fitted ellipses held 47 % of them (validation) instead of 86.5 %.
+its modes). Without the weights, the rare lane changes (no observable state in which they are
+the majority) are outvoted by straight driving.
 
 FAVOURING THE TAIL. SUMO's lane changes are a lateral jump of a lane width at a moment the
-histories, blinkers (38 % of them blink) and modes mostly do not announce: the lateral errors
+histories, blinkers and modes mostly do not announce: the lateral errors
 are a mixture of "stays in lane" (centimetres) and "changed lane" (3 m). One Gaussian per mode
 cannot fit both core and tail. The fit favours the tail, by choice: FIT_LEVEL = 0.91 instead of
 the nominal 0.865 on the balanced points, the smallest level (0.865, 0.90, 0.91 tried, before the
@@ -56,13 +52,12 @@ mixture NLL per point rises (docs/predictor_calibration/coverage.md has the numb
 
 A cap keeps a factor from blowing up a spread the model already made wide: a calibrated sigma is
 at most the CAP_QUANTILE (99.5 %) of the absolute validation errors along that axis, for the class
-group and horizon bin (so no 1-sigma band is wider than what 99.5 % of the errors needed; half of
-it, tried first, cost the lane changes 4 points of 2-sigma coverage), or the model's own sigma
-where that is larger (the cap never narrows a spread):
-``sigma' = min(c sigma, max(sigma, cap))``. Without it, the factors fitted on the common case (a
-lateral sigma at its 0.1 m floor needs x10-x25) took a 14 m/s car without map input from 11 m to
-87 m longitudinal sigma at 4 s, which spreads the Gaussian so thin that the collision probability
-near its mean falls: wider is not always safer.
+group and horizon bin (so no 1-sigma band is wider than what 99.5 % of the errors needed), or
+the model's own sigma where that is larger (the cap never narrows a spread):
+``sigma' = min(c sigma, max(sigma, cap))``. Without it, factors fitted on the common case (a
+lateral sigma at its floor) could spread a fast car's Gaussian so thin that the collision
+probability near its mean falls: wider is not always safer (docs/prediction-accuracy.md,
+"Calibrated uncertainty", has the case).
 
 A cell with fewer than ``min_points`` points takes the pooled fit of its group and bin over
 all states, and with fewer still the factor 1. Factors are clipped to

@@ -16,17 +16,16 @@ Neighbours come packed: row p of ``nbr_*`` belongs to target ``nbr_batch[p]`` an
 social-grid cell ``nbr_cell[p]`` (lon * 3 + lat); ``nbr_valid[p] = False`` removes it
 entirely (a padded neighbour changes nothing).
 
-Sizes follow Deo & Trivedi / METHOD.md section 4: Linear(2->32) input embedding (plus a
+Sizes follow Deo & Trivedi / METHOD.md section 4 (docs/prediction.md): Linear(2->32) input embedding (plus a
 32-d embedding of the agent class group, added), shared LSTM encoder 64, dynamics
 embedding 32, 13 x 3 social grid, Conv 3x3 (64) -> Conv 3x1 (16) -> MaxPool(2,1) = 80,
-decoder LSTM 128, linear output of 5 per future step. No manoeuvre classes.
-Residual decoding (residual=True, the default, for vehicles and cyclists only):
+decoder LSTM ``dec`` (128; 64 for the map kinds, :func:`default_options`), a linear output of
+5 per future step and mode. No manoeuvre classes.
+Residual decoding (residual=True, the default, for ``residual_groups``: vehicles and cyclists):
 mu = constant-velocity rollout of the target's last observed displacement + the decoder's
-output, so an untrained decoder
-already predicts constant velocity and training learns the corrections (absolute
-positions up to ~60 m ahead were otherwise learnt less precisely than CV predicts them).
-Pedestrians decode absolute positions: their stop-and-go made the residual form worse
-(test ADE 0.156 m vs 0.097-0.114 m without it, in our runs).
+output, so an untrained decoder already predicts constant velocity and training learns the
+corrections. Pedestrians decode absolute positions (their stop-and-go made the residual form
+worse: docs/prediction.md, "Options of the default").
 sigma = softplus(.) + sigma_min (normalised units; 0.01 = 10 cm for vehicles, 2 cm for
 pedestrians), rho = 0.95 tanh(.): SUMO's exactly-standing agents would otherwise drive
 sigma to zero and make the NLL explode on the first one that starts moving.
@@ -67,14 +66,14 @@ weights learned, the others weight 0 (one Gaussian averages a standing pedestria
 than it over the last 0.2 s of history, the faster ones get mode 0 alone (weight 1);
 ``dec``, the decoder's size (64 instead of 128); ``dec_steps``, the decoder's steps (default
 ``fut_steps``, one per output step; with fewer, each decoder step emits ``fut_steps // dec_steps``
-consecutive output steps through its own rows of the output layer: 5 decoder steps of 0.8 s
-instead of 20 make a call about 1 ms faster, tools/bench_predictor.py). An earlier default
-(weights/map_cslstm_v3.pt) had ``cv_mode`` too; the selection rule of docs/predictor_seeds.md
+consecutive output steps through its own rows of the output layer, e.g. 5 decoder steps of
+0.8 s instead of 20; its cost: docs/prediction.md, "The shipped weight files"). An earlier default
+(models/superseded/map_cslstm_v3.pt) had ``cv_mode`` too; the selection rule of docs/predictor_seeds.md
 chose the file without it.
 
 Neighbour encoding (``nbr_frame``). "target" (cslstm, attention, the first map model map_v1): each
 neighbour's history is encoded in its target's frame, once per (target, neighbour) pair, as
-CS-LSTM does; a 32-agent scene had 271 pairs. "agent" (the shipped map and map_cslstm): every agent's
+CS-LSTM does (up to M (M - 1) encodings for M agents). "agent" (the shipped map and map_cslstm): every agent's
 history is encoded once in its own frame (origin now, +x its heading, normalised by its own
 class scale) and placed into a target's grid with its pose there, ``act(H + W_pose [x, y,
 cos dyaw, sin dyaw])`` (x, y by the target's scale). Training still feeds per-pair rows and
@@ -116,7 +115,7 @@ NBR_FRAMES = ("target", "agent")
 def default_nbr_frame(kind: str) -> str:
     """The neighbour encoding a new model of ``kind`` gets: that of its shipped file ("agent" for
     the map-aware kinds, "target" for the others, kept as they were for the ablation; the first
-    map file, weights/map_v1.pt, had "target")."""
+    map file, models/superseded/map_v1.pt, had "target")."""
     return "agent" if kind in MAP_KINDS else "target"
 
 
@@ -145,7 +144,8 @@ def lstm_recurrence(pre: torch.Tensor, w_hh: torch.Tensor, steps: int) -> torch.
     """(B, 4 n) input projection (with both biases), (n, 4 n) recurrent weights transposed ->
     (B, steps, n) hidden states of an LSTM fed the same input every step from zero states (gate
     rows as nn.LSTM's: input, forget, cell, output). Inference only: every operation writes into
-    buffers allocated once (about 20 % faster than allocating per step, the same arithmetic)."""
+    buffers allocated once (the same arithmetic as allocating per step; the timing:
+    docs/predictor_latency.md, "The decoder's recurrence into preallocated buffers")."""
     n, b = w_hh.shape[0], pre.shape[0]
     out = pre.new_empty(b, steps, n)
     gates, sg = pre.new_empty(b, 4 * n), pre.new_empty(b, 4 * n)
@@ -470,8 +470,8 @@ class TrajectoryLSTM(nn.Module):
         """(B, E) -> (B, dec_steps, dec) decoder states; the same input every step.
 
         Without autograd, ``nbr_frame="agent"`` models take the input projection once and run
-        the recurrence by hand (:func:`lstm_recurrence`; about 30 % faster than nn.LSTM for a few
-        dozen targets, equal to it within float rounding, see tests/test_predictor_fast.py).
+        the recurrence by hand (:func:`lstm_recurrence`, equal to nn.LSTM within float rounding, see
+        tests/test_predictor_fast.py; its speed: docs/predictor_latency.md).
         Older models keep nn.LSTM, so their shipped outputs stay bit for bit."""
         b = enc.shape[0]
         if self.nbr_frame != "agent" or torch.is_grad_enabled():

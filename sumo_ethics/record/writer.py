@@ -12,7 +12,8 @@ While a run is going (and after it was killed) its rows live under ``RUN/partial
 
 The file is flushed after each batch, so a run killed by any signal, even ``kill -9``, leaves
 streams holding every row up to the last flush (a batch cut off by the kill is dropped when
-reading). Appending a batch costs about 0.05 ms; a Parquet file per chunk cost 2 ms. When the
+reading); an append writes one batch, not a Parquet file per chunk (the cost of each: the
+opening paragraph of docs/outputs.md). When the
 run ends, :meth:`~sumo_ethics.record.recorder.RunRecorder.close` writes ``steps.parquet`` and
 ``timings.parquet`` from the streams (row groups of ROW_GROUP_ROWS rows, so the bytes depend
 only on the rows), writes ``collisions.parquet`` and removes ``partial/``. Memory holds one

@@ -37,10 +37,12 @@ def make_controller(cfg: RunConfig) -> Controller:
         return RouteFollower()
     if cfg.controller == "ethical":
         from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
-        from sumo_ethics.settings import check_grid_bounds
+        from sumo_ethics.settings import check_grid_size
 
         planner = cfg.planner or PlannerConfig()
-        check_grid_bounds(planner.sampling)  # also for a PlannerConfig built in Python, not from settings
+        # also for a PlannerConfig built in Python, not from settings; the bounds that depend on the
+        # step are checked at the run's step when the run starts (loop.on_run_step)
+        check_grid_size(planner.sampling)
         return EthicalPlanner(planner, maps=SumoMapSource, sight=sight_map)
     raise ConfigError(f"unknown controller '{cfg.controller}'; known: {', '.join(CONTROLLERS)}")
 

@@ -172,6 +172,30 @@ def resolved_end(cfg: RunConfig, files: session.ScenarioFiles) -> float:
     return scenario_files.plan(files.config, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id).end
 
 
+def on_run_step(cfg: RunConfig, step: float, source: str) -> RunConfig:
+    """``cfg`` with its planners on the run's ``step`` [s]: the planner plans on the simulation's step
+    (``EthicalPlanner.plan`` samples at the scene's dt), so each PlannerConfig's grid is checked
+    against the memory bounds at that step (ConfigError before SUMO starts) and its ``sampling.dt``
+    set to it (config.json records the step the planner plans on). A configured ``[planner.sampling]
+    dt`` that differs is refused earlier, where the settings are read (``settings.planner_config``)."""
+    from sumo_ethics.plan.ethical import PlannerConfig
+    from sumo_ethics.settings import check_grid_bounds
+
+    def at_step(planner: Any) -> Any:
+        check_grid_bounds(planner.sampling, step, source)
+        return replace(planner, sampling=replace(planner.sampling, dt=step))
+
+    if cfg.controller != "ethical" and cfg.fleet is None:  # the baseline plans nothing
+        return cfg
+    if cfg.planner is not None:
+        cfg = replace(cfg, planner=at_step(cfg.planner))
+    elif cfg.controller == "ethical":
+        at_step(PlannerConfig())  # the defaults' grid: checked, left unset in config.json
+    if cfg.fleet is not None and cfg.fleet.planners:
+        cfg = replace(cfg, fleet=replace(cfg.fleet, planners=tuple((n, at_step(p)) for n, p in cfg.fleet.planners)))
+    return cfg
+
+
 # ---- the run ----------------------------------------------------------------------------------
 class Run:
     """State of one run; :meth:`execute` is the loop."""
@@ -211,6 +235,7 @@ class Run:
         cfg = self.cfg
         plan = scenario_files.plan(cfg.scenario, cfg.end, cfg.ego_depart, cfg.step_length, cfg.ego_id)
         files, end = plan.files, plan.end
+        self.cfg = cfg = on_run_step(cfg, plan.step_length, plan.step_source)
         preflight.check_scenario(files, cfg.ego_from, cfg.ego_to)  # what SUMO reports badly or crashes on
         ego_id = cfg.ego_id or "ego"
         declared = scenario_files.declared(files)

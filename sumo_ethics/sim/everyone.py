@@ -4,8 +4,8 @@
 One context subscription per domain (vehicles, persons) around one junction, with a radius that
 covers the whole network (its boundary plus ``MARGIN``), returns every vehicle and person in one
 call per step, like the ego's own subscriptions (``sim.world``); persons riding a vehicle are left
-out (they travel inside it). Measured on eclipse-sumo's ``tools/game/fokr_bs_demo``: reading the
-results cost about 0.05 ms a step for some 10 road users, against 0.16 ms for per-id getters.
+out (they travel inside it): one call per domain instead of per-id getters (their cost:
+docs/conflicts.md, "Conflicts among everyone").
 """
 
 from __future__ import annotations

@@ -166,8 +166,8 @@ def after_walking_area(graph: LaneGraph, area: int, targets: frozenset[str], ski
     SUMO's own router adds 20 s for a crossing that is red when the pedestrian enters the walking
     area, and routes again while it waits there, so on a diagonal walk (two crossings either
     way) it may take the other one: ``tools/walk_check.py`` measures how often this is right.
-    Reckoning the lights in here was tried and was right less often (93.7 against 95.0 % of
-    4,186 rows on urban and urban_grid).
+    The lights are not reckoned in here: tried, it was right less often (docs/prediction.md,
+    "Lanes and signals").
     """
     cache = graph.__dict__.setdefault("_after", {})
     key = (area, targets, skip)

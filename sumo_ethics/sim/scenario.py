@@ -341,6 +341,18 @@ class Plan:
                 "scenario_step_length": self.files.step_length, "scenario_outputs": self.files.outputs()}
 
 
+def resolve_step(files: ScenarioFiles, step_length: float | None) -> tuple[float, str]:
+    """The run's step [s] and why (see :class:`Plan`'s step_source): ``step_length`` (--step-length)
+    if given, else the scenario's if it sets one of at most MAX_TRUSTED_STEP, else DEFAULT_STEP.
+    The planner plans on this step too (``settings.planner_config``'s ``step``)."""
+    if step_length is not None:
+        return step_length, "--step-length"
+    if files.step_length is not None and files.step_length <= MAX_TRUSTED_STEP + 1e-9:
+        return files.step_length, "scenario"
+    return DEFAULT_STEP, ("the default: the scenario sets none, SUMO's own default is 1 s" if files.step_length is None
+                          else f"the default: the scenario's {files.step_length:g} s is above {MAX_TRUSTED_STEP:g} s")
+
+
 def plan(scenario: Path, end: float | None, ego_depart: float | None, step_length: float | None,
          ego_id: str | None = None, ego_edges: tuple[str, ...] = ()) -> Plan:
     """Read and check the scenario against the run's times and ego (ConfigError for bad input)."""
@@ -360,14 +372,7 @@ def plan(scenario: Path, end: float | None, ego_depart: float | None, step_lengt
                           f"a simulation time, e.g. --ego-depart {begin + ego_depart:g}")
     if ego_id is None and ego_depart >= end:
         raise ConfigError(f"--ego-depart {ego_depart:g} s is not before the end of the simulation ({end:g} s)")
-    if step_length is not None:
-        step, source = step_length, "--step-length"
-    elif files.step_length is not None and files.step_length <= MAX_TRUSTED_STEP + 1e-9:
-        step, source = files.step_length, "scenario"
-    else:
-        step = DEFAULT_STEP
-        source = ("the default: the scenario sets none, SUMO's own default is 1 s" if files.step_length is None else
-                  f"the default: the scenario's {files.step_length:g} s is above {MAX_TRUSTED_STEP:g} s")
+    step, source = resolve_step(files, step_length)
     if ego_id is not None:
         check_ego_id(files, ego_id)
     if ego_edges:

@@ -1,8 +1,13 @@
 """Wrap a controller so that a scenario's hazards are injected every step before it acts.
 
-Until the runner has a per-step hook, this is how hazards reach the simulation: the runner
-calls ``act(scene)`` once per step, before it applies the ego's command and steps SUMO, which
-is exactly when the injector must command its actors for the same step.
+The runner has per-step hooks (``runner.loop.StepHook``), but they get the raw snapshot before
+the scene is built; the hazard injector (``sim.hazards.HazardInjector.on_step``) reads the
+:class:`Scene`: the ego's route, its arc length ``s`` on it, its speed, the time and step. So
+the hazards come in through the controller: the runner calls ``act(scene)`` once per ego step,
+after the hooks and the scene are read and before it applies the ego's command and steps SUMO,
+which is when the injector commands its actors for the next step (t + dt). ``evaluate`` wraps
+the controller in this class; ``suite.traffic`` does the same in a wrapper of its own that also
+records the traffic.
 """
 
 from __future__ import annotations

@@ -1,16 +1,19 @@
 """``sumo-ethics evaluate``: every scenario of a suite with every planner -> the paper's Table 1.
 
-Each (scenario, planner) run is one task in a fresh process (libsumo: one simulation per
-process, and none after a fatal SUMO error): a ProcessPoolExecutor with
-``max_tasks_per_child=1`` on a forkserver that has imported torch, libsumo and the package
-once (a spawned worker would re-import torch for every run). Every planner meets the same
-scenarios with the same seeds, so the comparison is paired.
+Each (scenario, planner) run is a process of its own (libsumo: one simulation per process, and
+none after a fatal SUMO error), at most ``workers`` at once (:func:`run_suite`): each is forked
+from a forkserver that has imported torch, libsumo and the package once (``suite/preload.py``; a
+spawned process would re-import torch for every run) and sends its row back over a pipe; one that
+dies is an error row. Every planner meets the same scenarios with the same seeds, so the
+comparison is paired.
 
-Table columns as in the paper (METHOD.md s5): Completed (%), and harm summed over all runs:
-Total = Ego + Third party, VRU (part of third party). 95 % confidence intervals are
-percentile bootstraps over scenarios; the paired comparison gives, per planner against the
-reference, the bootstrap interval of the difference (same resampled scenarios for both)
-and a Wilcoxon signed-rank p-value of the per-scenario differences.
+Table columns as in the paper (METHOD.md section 5; docs/suite.md, "evaluate: Table 1 for a
+suite"): Completed (%), and harm summed over all runs: Total = Ego + Third party, VRU (part of
+third party). 95 % confidence intervals are percentile bootstraps over scenarios
+(:func:`table`): a planner's row resamples the scenarios it has a run for; the paired comparison
+gives, per planner against the reference, the bootstrap interval of the per-scenario differences
+over the scenarios both have a run for (each drawn uniformly) and a Wilcoxon signed-rank p-value
+of those differences.
 """
 
 from __future__ import annotations
@@ -380,18 +383,34 @@ def _wilcoxon_p(d: np.ndarray) -> float:
 
 def table(rows: list[dict[str, Any]], planners: list[str], reference: str | None = None, n_boot: int = 2000,
           seed: int = 0) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """(Table 1 rows with 95 % bootstrap CIs, paired comparison rows against ``reference``)."""
+    """(Table 1 rows with 95 % bootstrap CIs, paired comparison rows against ``reference``).
+
+    Each interval is the 2.5th and 97.5th percentile of the statistic over ``n_boot`` resamples
+    (:func:`sumo_ethics.analysis.stats.bootstrap`, seeded with ``seed``) that draw scenarios
+    uniformly, with replacement, from the scenarios the statistic is computed on: a planner's
+    row from the k scenarios it has a run for, a paired comparison from the k scenarios both
+    planners have a run for (a difference exists only there). So every resample holds k runs,
+    as the estimate does (a harm summed over k runs stays a sum over k runs), and every one of
+    the k scenarios has the same chance 1/k at each draw however many runs are missing. With no
+    run missing, k is the number of scenarios and every planner and pair draws the same
+    resamples. A planner without runs: completion NaN, harms 0, intervals NaN.
+    """
+    from sumo_ethics.analysis.stats import bootstrap
+
     scen, mats = _matrix(rows, planners)
-    n = len(scen)
-    rng = np.random.default_rng(seed)
-    boot = rng.integers(0, n, size=(n_boot, n))
+
+    def interval(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if not len(samples):
+            return np.full(len(METRICS), np.nan), np.full(len(METRICS), np.nan)
+        b = bootstrap(samples, _stat, n_boot, seed)  # (n_boot, 5)
+        return np.percentile(b, 2.5, axis=0), np.percentile(b, 97.5, axis=0)
+
     t1 = []
     for p in planners:
-        m = mats[p]
-        value = _stat(m)
-        b = _stat(m[boot])
-        lo, hi = np.nanpercentile(b, 2.5, axis=0), np.nanpercentile(b, 97.5, axis=0)
-        row: dict[str, Any] = {"planner": p, "runs": int(np.sum(~np.isnan(m[:, 0])))}
+        m = mats[p][~np.isnan(mats[p][:, 0])]  # (k, 5): the scenarios it has a run for
+        value = _stat(m) if len(m) else np.array([np.nan] + [0.0] * (len(METRICS) - 1))
+        lo, hi = interval(m)
+        row: dict[str, Any] = {"planner": p, "runs": len(m)}
         for j, k in enumerate(METRICS):
             row[k], row[f"{k}_lo"], row[f"{k}_hi"] = float(value[j]), float(lo[j]), float(hi[j])
         t1.append(row)
@@ -402,14 +421,14 @@ def table(rows: list[dict[str, Any]], planners: list[str], reference: str | None
             if p == reference:
                 continue
             ok = ~np.isnan(mats[p][:, 0]) & ~np.isnan(ref[:, 0])
-            d = mats[p][ok] - ref[ok]
-            bd = _stat(d[boot[:, : ok.sum()] % max(ok.sum(), 1)]) if ok.any() else np.zeros((n_boot, 5))
-            val = _stat(d) if ok.any() else np.zeros(5)
+            d = mats[p][ok] - ref[ok]  # (k, 5): per scenario both have, planner - reference
+            val = _stat(d) if ok.any() else np.zeros(len(METRICS))
+            lo, hi = interval(d) if ok.any() else (np.zeros(len(METRICS)), np.zeros(len(METRICS)))
             for j, k in enumerate(METRICS):
                 col = d[:, j]
                 pval = _wilcoxon_p(col)
                 paired.append({"planner": p, "reference": reference, "metric": k, "difference": float(val[j]),
-                               "lo": float(np.percentile(bd[:, j], 2.5)), "hi": float(np.percentile(bd[:, j], 97.5)),
+                               "lo": float(lo[j]), "hi": float(hi[j]),
                                "better": int(np.sum(col > 0) if k == "completed" else np.sum(col < 0)),
                                "worse": int(np.sum(col < 0) if k == "completed" else np.sum(col > 0)),
                                "wilcoxon_p": pval, "scenarios": int(ok.sum())})
@@ -484,14 +503,16 @@ RISK_METRICS = ("risk_ego_mean", "risk_third_party_mean", "risk_vru_mean", "risk
 def paired_risk(rows: list[dict[str, Any]], planners: list[str], reference: str, n_boot: int = 2000,
                 seed: int = 0) -> list[dict[str, Any]]:
     """Per planner and risk metric: mean over scenarios of (planner - reference) [95 % paired
-    bootstrap CI], scenarios lower / higher, Wilcoxon p (scenarios where both have a value)."""
+    bootstrap CI], scenarios lower / higher, Wilcoxon p, over the scenarios where both have a value
+    (the CI resamples those uniformly, as :func:`table` does, seeded with ``seed`` for each metric)."""
     scen = sorted({r["scenario"] for r in rows})
     idx = {sc: i for i, sc in enumerate(scen)}
     val = {p: np.full((len(scen), len(RISK_METRICS)), np.nan) for p in planners}
     for r in rows:
         if r["planner"] in val:
             val[r["planner"]][idx[r["scenario"]]] = [float(r.get(m, np.nan)) for m in RISK_METRICS]
-    rng = np.random.default_rng(seed)
+    from sumo_ethics.analysis.stats import bootstrap
+
     out = []
     for p in planners:
         if p == reference:
@@ -501,7 +522,7 @@ def paired_risk(rows: list[dict[str, Any]], planners: list[str], reference: str,
             d = d[~np.isnan(d)]
             if not len(d):
                 continue
-            boot = d[rng.integers(0, len(d), size=(n_boot, len(d)))].mean(axis=1)
+            boot = bootstrap(d, lambda r: r.mean(axis=1), n_boot, seed)  # uniform over the scenarios both have
             pval = _wilcoxon_p(d)
             out.append({"planner": p, "reference": reference, "metric": m, "difference": float(d.mean()),
                         "lo": float(np.percentile(boot, 2.5)), "hi": float(np.percentile(boot, 97.5)),

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
-from sumo_ethics.errors import ConfigError
+from sumo_ethics.errors import ConfigError, is_number
 from sumo_ethics.settings import SET_PLANNER_KEYS
 
 #: bounds checked before a grid is built: values per swept axis (--omega-u, --seeds, each --set)
@@ -250,6 +250,7 @@ class RunSpec:
         """The RunConfig of this run writing into ``out`` (validated; ConfigError otherwise)."""
         from sumo_ethics.config import RunConfig
         from sumo_ethics.settings import planner_config
+        from sumo_ethics.sim import scenario as scenario_files
 
         opts = dict(self.options)
         table = json.loads(json.dumps(self.planner))  # deep copy
@@ -266,8 +267,15 @@ class RunSpec:
                 overrides[key] = value
         if opts.get("predictor") is not None and "predictor" not in overrides:
             overrides["predictor"] = opts["predictor"]
-        planner = planner_config(table, **overrides)
         kw = {RUN_KEYS[k][0]: v for k, v in opts.items() if k in RUN_KEYS}
+        # the planner plans on the run's step: --step-length (or a step_length axis), else the scenario's
+        step: float | None = None
+        source: str | None = None
+        if kw.get("controller", "ethical") == "ethical":  # the baseline plans nothing
+            given = kw.get("step_length")
+            step, source = scenario_files.resolve_step(scenario_files.read_scenario(Path(self.scenario)),
+                                                       given if is_number(given, 0.0, lo_open=True) else None)
+        planner = planner_config(table, step=step, step_source=source, **overrides)
         fleet = {k.removeprefix("fleet."): kw.pop(k) for k in list(kw) if k.startswith("fleet.")}
         if fleet:
             from sumo_ethics.config import FleetSpec
