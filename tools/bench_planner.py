@@ -24,7 +24,8 @@ import numpy as np  # noqa: E402
 from sumo_ethics.config import EgoVehicle  # noqa: E402
 from sumo_ethics.geometry import Polyline  # noqa: E402
 from sumo_ethics.contract import RoutePath, Scene  # noqa: E402
-from sumo_ethics.plan.ethical import PREDICTORS, EthicalPlanner, PlannerConfig  # noqa: E402
+from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig  # noqa: E402
+from sumo_ethics.predict import registry  # noqa: E402
 from sumo_ethics.plan.history import History  # noqa: E402
 from sumo_ethics.types import AgentStates, RoadUserClass  # noqa: E402
 
@@ -78,7 +79,7 @@ def lane_source(sc: Scene):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--predictor", default="cv", choices=PREDICTORS)
+    ap.add_argument("--predictor", default="cv", choices=registry.names())
     ap.add_argument("--agents", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=200)
     a = ap.parse_args()
