@@ -15,19 +15,24 @@ entry says it may (:func:`sumo_ethics.runner.fleet.make_fleet_controllers`).
 
 A factory is a callable or a ``"module:attribute"`` string imported on the first :func:`make`, so
 naming the learned predictors imports no torch. The shipped predictors are registered at the end
-of this module, one line each.
+of this module, one line each. Another package adds its own through the entry point group
+:data:`GROUP` (``[project.entry-points."sumo_ethics.predictors"]`` in its pyproject.toml, ``ca =
+"my_package.ca"``): the first :func:`names` or :func:`get` of a process imports each such module,
+whose ``register(...)`` line then runs; so its predictor is a choice of the command line and known
+to every run, sweep and evaluation process without an import of it anywhere.
 """
 
 from __future__ import annotations
 
 import importlib
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.predict.protocols import MapSourceFactory, Predictor
 
-__all__ = ["Entry", "RegistryError", "register", "unregister", "get", "names", "check", "make"]
+__all__ = ["GROUP", "Entry", "RegistryError", "register", "unregister", "get", "names", "check", "make"]
 
 
 class RegistryError(ValueError):
@@ -66,7 +71,28 @@ class Entry:
         return getattr(importlib.import_module(module), attr)
 
 
+#: the entry point group of other packages' predictor modules (imported once per process, see above)
+GROUP = "sumo_ethics.predictors"
+
 _ENTRIES: dict[str, Entry] = {}
+_plugins_loaded = False
+
+
+def _load_plugins() -> None:
+    """Import the modules of the :data:`GROUP` entry points once (each registers its predictors);
+    one that fails to import is skipped with a warning naming it (the shipped predictors still work)."""
+    global _plugins_loaded
+    if _plugins_loaded:
+        return
+    _plugins_loaded = True
+    from importlib.metadata import entry_points
+
+    for ep in entry_points(group=GROUP):
+        try:
+            ep.load()
+        except Exception as exc:  # noqa: BLE001 - another package's bug must not stop the shipped predictors
+            warnings.warn(f"predictor plugin {ep.name!r} ({ep.value}) failed to load: {exc!r}", RuntimeWarning,
+                          stacklevel=2)
 
 
 def register(name: str, factory: Callable[..., Predictor] | str, *, learned: bool = False, needs_map: bool = False,
@@ -97,6 +123,7 @@ def unregister(name: str) -> Entry:
 
 def get(name: str) -> Entry:
     """The entry of predictor ``name``; a ConfigError naming the known ones if there is none."""
+    _load_plugins()
     try:
         return _ENTRIES[name]
     except (KeyError, TypeError):
@@ -106,6 +133,7 @@ def get(name: str) -> Entry:
 def names(*, learned: bool | None = None) -> tuple[str, ...]:
     """The registered names in the order of registration (the shipped ones first); ``learned``:
     only the learned (True) or the other (False) predictors."""
+    _load_plugins()
     return tuple(n for n, e in _ENTRIES.items() if learned is None or e.learned == learned)
 
 
