@@ -190,6 +190,8 @@ def test_a_name_taken_is_refused(plugin):
         registry.register("c a", lambda: None)
     with pytest.raises(registry.RegistryError, match="callable or 'module:attribute'"):
         registry.register("cz", "no_colon")
+    with pytest.raises(registry.RegistryError, match="a map-aware predictor must be shareable"):
+        registry.register("cz", "m:f", needs_map=True, shareable=False)
     assert registry.get("cv") is cv and registry.names() == (*SHIPPED, "ca")
     with pytest.raises(ConfigError, match="unknown predictor 'cq'; known: map_cslstm, map, attention, cslstm, cv, ca"):
         registry.get("cq")

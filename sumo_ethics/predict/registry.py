@@ -50,7 +50,8 @@ class Entry:
     needs_map: given the run's map source factory (``maps``: map version -> :class:`MapSource`).
     shareable: a fleet's egos may share one instance, predicting all their neighbours in one
     batched call per step (:class:`sumo_ethics.runner.fleet.SharedPrediction`); False for a
-    predictor that keeps state of one ego between calls: each ego gets its own.
+    predictor that keeps state of one ego between calls: each ego gets its own, called in the
+    thread its planner runs on (so a map-aware predictor, which reads SUMO, must be shareable).
     summary: one line for the documentation and error messages.
     options: keyword arguments always passed to the factory (e.g. the LSTM's ``kind``).
     """
@@ -106,6 +107,10 @@ def register(name: str, factory: Callable[..., Predictor] | str, *, learned: boo
     if name in _ENTRIES:
         raise RegistryError(f"predictor {name!r} is already registered (by {_describe(_ENTRIES[name].factory)}); "
                             f"unregister it first to replace it")
+    if needs_map and not shareable:
+        raise RegistryError(f"predictor {name!r}: a map-aware predictor must be shareable (a fleet's egos plan on "
+                            "several threads, and only the fleet's own thread may read SUMO's map: it predicts "
+                            "for them all there)")
     if not (callable(factory) or (isinstance(factory, str) and factory.count(":") == 1)):
         raise RegistryError(f"predictor {name!r}: the factory must be a callable or 'module:attribute', got {factory!r}")
     entry = Entry(name, factory, learned=bool(learned), needs_map=bool(needs_map), shareable=bool(shareable),
