@@ -17,9 +17,10 @@ A factory is a callable or a ``"module:attribute"`` string imported on the first
 naming the learned predictors imports no torch. The shipped predictors are registered at the end
 of this module, one line each. Another package adds its own through the entry point group
 :data:`GROUP` (``[project.entry-points."sumo_ethics.predictors"]`` in its pyproject.toml, ``ca =
-"my_package.ca"``): the first :func:`names` or :func:`get` of a process imports each such module,
-whose ``register(...)`` line then runs; so its predictor is a choice of the command line and known
-to every run, sweep and evaluation process without an import of it anywhere.
+"my_package.ca"``): the first :func:`names` of a process, or :func:`get` of a name not registered
+yet, imports each such module, whose ``register(...)`` line then runs; so its predictor is a choice
+of the command line and known to every run, sweep and evaluation process without an import of it
+anywhere.
 """
 
 from __future__ import annotations
@@ -128,7 +129,11 @@ def unregister(name: str) -> Entry:
 
 def get(name: str) -> Entry:
     """The entry of predictor ``name``; a ConfigError naming the known ones if there is none."""
-    _load_plugins()
+    try:
+        return _ENTRIES[name]
+    except (KeyError, TypeError):
+        pass
+    _load_plugins()  # only for a name not registered yet: PlannerConfig() at import time loads no plugin
     try:
         return _ENTRIES[name]
     except (KeyError, TypeError):
