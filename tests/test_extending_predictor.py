@@ -1,9 +1,9 @@
 """docs/extending_predictor.md works as written: its code blocks make a constant-acceleration
 predictor module and an entry point for it (in a package of a temporary folder on sys.path), and
 the predictor is then listed by the registry, predicts what a person computes by hand, plans a
-step in the ethical planner without SUMO, is a choice of the command line, a value of sweep's
---set and evaluate's --planner keys, and is shared by a fleet's egos. The registry refuses a name
-taken. Every registration made here is removed again (the registry is per process)."""
+step in the ethical planner without SUMO, is a choice of the command line (and drives a short
+SUMO run of ``sumo-ethics run --predictor ca`` in a process of its own), a value of sweep's --set
+and evaluate's --planner keys, and is shared by a fleet's egos. The registry refuses a name taken. Every registration made here is removed again (the registry is per process)."""
 
 from __future__ import annotations
 
@@ -140,6 +140,29 @@ def test_the_command_line_offers_it(plugin):
     assert ctx.params["predictor"] == "ca"
     bad = runner.invoke(cli, ["run", cfg, "--predictor", "cq"])
     assert bad.exit_code == 2 and "'cq' is not one of" in bad.output
+
+
+def test_a_run_of_the_command_line_in_a_new_process_predicts_with_it(tmp_path):
+    """The page's package on PYTHONPATH (as if installed): ``sumo-ethics run --predictor ca`` in a
+    process of its own finds it through the entry point and records it in summary.json."""
+    import json
+    import os
+
+    plug = tmp_path / "plug"
+    (plug / "my_predictors").mkdir(parents=True)
+    (plug / "my_predictors" / "__init__.py").write_text("")
+    (plug / MODULE).write_text(module_text())
+    (plug / "my_predictors-0.1.dist-info").mkdir()
+    (plug / "my_predictors-0.1.dist-info" / "METADATA").write_text("Metadata-Version: 2.1\nName: my-predictors\n"
+                                                                   "Version: 0.1\n")
+    (plug / "my_predictors-0.1.dist-info" / "entry_points.txt").write_text(entry_points_txt())
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(plug), str(ROOT)])}
+    out = subprocess.run([sys.executable, "-m", "sumo_ethics.cli", "run", str(SCENARIOS / "urban" / "urban.sumocfg"),
+                          "--predictor", "ca", "--end", "5", "--quiet", "--out", str(tmp_path / "run")],
+                         capture_output=True, text=True, timeout=300, cwd=tmp_path, env=env)
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["predictor"]["kind"] == "ca"
 
 
 def test_sweep_and_evaluate_take_it(plugin):
