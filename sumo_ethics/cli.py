@@ -13,9 +13,9 @@ from typing import Any
 
 import click
 
-from sumo_ethics.cli_types import SUMO_TIME
+from sumo_ethics.cli_types import SUMO_TIME, LazyChoice
 from sumo_ethics.errors import ConfigError, SumoEthicsError, Terminated
-from sumo_ethics.predict import PREDICTORS, PredictorError
+from sumo_ethics.predict import PredictorError, registry
 
 
 def _console():
@@ -73,7 +73,7 @@ def cli() -> None:
 @click.option("--normalise", type=click.Choice(["in_range", "at_risk"]),
               help="What Bayes, equality and responsibility divide by: every road user in range (default, Origin's) "
                    "or the road users at risk from the candidate.")
-@click.option("--predictor", type=click.Choice(PREDICTORS),
+@click.option("--predictor", type=LazyChoice(registry.names),
               help="Neighbour prediction (default map: the paper's attention LSTM reading lanes and signals "
                    "too; map_cslstm: the same without the attention).")
 @click.option("--predictor-weights", type=click.Path(path_type=Path),

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import click
 
-from sumo_ethics.cli_types import SUMO_TIME
-from sumo_ethics.predict import PREDICTORS
+from sumo_ethics.cli_types import SUMO_TIME, LazyChoice
+from sumo_ethics.predict import registry
 from sumo_ethics.settings import SET_PLANNER_KEYS
 
 
@@ -39,7 +39,7 @@ from sumo_ethics.settings import SET_PLANNER_KEYS
 @click.option("--ego-from", help="Route of the inserted ego: from this edge ...")
 @click.option("--ego-to", help="... to this edge.")
 @click.option("--controller", type=click.Choice(["ethical", "baseline"]), help="Ego controller (default ethical).")
-@click.option("--predictor", type=click.Choice(PREDICTORS),
+@click.option("--predictor", type=LazyChoice(registry.names),
               help="Neighbour prediction (default map, as for run).")
 @click.option("--radius", type=float, help="Sensing radius around the ego [m].")
 @click.option("--continue-after-collision", is_flag=True, help="Keep running after the ego's first collision.")

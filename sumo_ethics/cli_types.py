@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+
 import click
 
 
@@ -26,3 +28,21 @@ class _SumoTime(click.ParamType):
 
 #: --end, --ego-depart and the like: seconds or SUMO's h:m:s / d:h:m:s
 SUMO_TIME = _SumoTime()
+
+
+class LazyChoice(click.Choice):
+    """A ``click.Choice`` whose choices are asked of ``names()`` whenever click reads them (help, parsing,
+    completion), e.g. ``LazyChoice(registry.names)``: what is registered after this module is
+    imported is offered too."""
+
+    def __init__(self, names: Callable[[], Sequence[str]], case_sensitive: bool = True) -> None:
+        self._names = names
+        self.case_sensitive = case_sensitive
+
+    @property
+    def choices(self) -> tuple[str, ...]:
+        return tuple(self._names())
+
+    @choices.setter
+    def choices(self, value: Sequence[str]) -> None:  # click's own __init__ sets it; ours asks names()
+        raise AttributeError("LazyChoice reads its choices from names()")

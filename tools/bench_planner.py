@@ -21,13 +21,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from sumo_ethics.plan.ethical import PREDICTORS, EthicalPlanner, PlannerConfig  # noqa: E402
+from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig  # noqa: E402
 from sumo_ethics.plan.synthetic import lane_source, scene  # noqa: E402
+from sumo_ethics.predict import registry  # noqa: E402
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--predictor", default="cv", choices=PREDICTORS)
+    ap.add_argument("--predictor", default="cv", choices=registry.names())
     ap.add_argument("--agents", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=200)
     a = ap.parse_args()

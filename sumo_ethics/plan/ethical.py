@@ -16,7 +16,7 @@ import time
 import zlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Protocol
+from typing import Any, Callable
 
 import numpy as np
 
@@ -30,10 +30,10 @@ from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.perception import Perception, PerceptionConfig, SightMap
 from sumo_ethics.plan.phantoms import phantom_risk, with_phantom_term
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
-from sumo_ethics.predict import PREDICTORS
+from sumo_ethics.predict import registry
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior, recent_motion
 from sumo_ethics.predict.constant_velocity import replace_non_finite
-from sumo_ethics.predict.features import MapSource
+from sumo_ethics.predict.protocols import MapSourceFactory, Predictor
 from sumo_ethics.types import Candidates, DecisionTrace, Observation, Prediction
 
 
@@ -49,18 +49,16 @@ VALIDITY = ("safe", "no_overlap_on_road", "no_overlap", "feasible", "emergency")
 SELECTIONS = ("cost", "validity", "validity_ttc")
 
 
-class Predictor(Protocol):
-    def predict(self, obs: Observation, horizon_steps: int, dt: float) -> Prediction: ...
-
-
 @dataclass(frozen=True)
 class PlannerConfig:
     """Everything the ethical planner decides with.
 
     max_risk: a candidate is "safe" when its largest risk against any party (ego's plus the
-    other's) stays below this [-]; predictor: "map" (the paper's attention LSTM that also reads lanes
+    other's) stays below this [-]; predictor: a name of the predictor registry
+    (:mod:`sumo_ethics.predict.registry`): "map" (the paper's attention LSTM that also reads lanes
     and signals, the default), "map_cslstm" (the same without the attention), "attention" (the
-    paper's), "cslstm" or "cv" (constant velocity);
+    paper's), "cslstm", "cv" (constant velocity), or one registered since; predictor_weights: a
+    weights file of a learned predictor (None: its shipped one);
     braking_prior: agents decelerating at least this hard [m/s^2] are predicted to keep braking
     until they stand; lateral_prior: agents moving across their straight predicted path keep
     their lateral speed for this long [s] (both ``sumo_ethics.predict.braking``; 0 = off);
@@ -102,7 +100,7 @@ class PlannerConfig:
                                                                             n_offsets=17))
     probability: ProbabilityConfig = field(default_factory=ProbabilityConfig)
     predictor: str = "map"
-    predictor_weights: str | None = None  # a weights file for the LSTM predictors (default: shipped)
+    predictor_weights: str | None = None  # a weights file for a learned predictor (default: shipped)
     calibrated: bool = True
     max_risk: float = 0.01
     braking_prior: float = 3.0
@@ -125,11 +123,7 @@ class PlannerConfig:
             value = getattr(self, name)
             if not is_number(value, 0.0, 1e12, hi_open=True):
                 raise ConfigError(f"{name} must be a cost >= 0, got {value!r}")
-        if self.predictor not in PREDICTORS:
-            raise ConfigError(f"unknown predictor '{self.predictor}'; known: {', '.join(PREDICTORS)}")
-        if self.predictor == "cv" and self.predictor_weights:
-            raise ConfigError("predictor_weights is a weights file for an LSTM predictor; predictor 'cv' "
-                              "(constant velocity) has none")
+        registry.check(self.predictor, self.predictor_weights)  # known, and a weights file only for a learned one
         for flag in ("calibrated", "evasive", "lateral_onset", "share_plans", "occlusion", "phantoms"):
             if not isinstance(getattr(self, flag), bool):
                 raise ConfigError(f"{flag} must be true or false, got {getattr(self, flag)!r}")
@@ -156,21 +150,14 @@ def keep_heap_warm(pad: int = 64 << 20) -> None:
 
 
 def make_predictor(name: str, weights: str | None = None, calibrated: bool = True,
-                   maps: Callable[[int], MapSource] | None = None) -> Predictor:
-    """"cv", or an LSTM ("map", "map_cslstm", "attention", "cslstm") from ``weights`` or the shipped
-    file, with the calibration shipped beside it unless ``calibrated=False``. ``maps``: the map source
+                   maps: MapSourceFactory | None = None) -> Predictor:
+    """Predictor ``name`` of the registry (:func:`sumo_ethics.predict.registry.make`): a learned one
+    (the LSTMs "map", "map_cslstm", "attention", "cslstm") from ``weights`` or its shipped file,
+    with the calibration shipped beside it unless ``calibrated=False``. ``maps``: the map source
     for a model of a map version (in a run the runner passes ``sim.lanes.SumoMapSource``, which reads
     lanes and signals from the running simulation); None: a map-aware model predicts without map
     context (tests, benchmarks that set ``map_source`` themselves)."""
-    from sumo_ethics.predict import ConstantVelocityPredictor, LSTMPredictor
-
-    if name == "cv":
-        return ConstantVelocityPredictor()
-    predictor = (LSTMPredictor.from_file(weights, kind=name, calibrated=calibrated) if weights
-                 else LSTMPredictor.default(name, calibrated=calibrated))
-    if predictor.uses_map and maps is not None:
-        predictor.map_source = maps(predictor.model.map_version)  # looks up what the model reads
-    return predictor
+    return registry.make(name, weights=weights, calibrated=calibrated, maps=maps)
 
 
 def first_overlap(cand: Candidates, pred: Prediction, length: np.ndarray, width: np.ndarray, ego_length: float,
@@ -354,7 +341,7 @@ class EthicalPlanner:
     needs_history = True
 
     def __init__(self, cfg: PlannerConfig = PlannerConfig(), predictor: Predictor | None = None,
-                 maps: Callable[[int], MapSource] | None = None,
+                 maps: MapSourceFactory | None = None,
                  sight: Callable[[tuple[str, ...]], SightMap] | SightMap | None = None) -> None:
         """``predictor``: a ready one (else built from ``cfg``); ``maps``: the map source factory a
         map-aware predictor is given (:func:`make_predictor`); ``sight``: the sensor's static world

@@ -1,7 +1,10 @@
 """Trajectory prediction: constant velocity baseline and LSTM predictors (CS-LSTM, attention, map-aware attention).
 
+The predictors by name: :mod:`sumo_ethics.predict.registry` (``registry.names()``, ``registry.make(name)``);
+what a predictor and a map source are: :mod:`sumo_ethics.predict.protocols`.
+
 Importing this package is cheap: torch is imported only when an LSTM class or the
-training/evaluation code is first used (attributes resolve lazily).
+training/evaluation code is first used (attributes resolve lazily), or a learned predictor is made.
 """
 
 from __future__ import annotations
@@ -15,10 +18,6 @@ class PredictorError(RuntimeError):
     """A predictor cannot be built: missing, corrupt or incompatible weights file."""
 
 
-#: the planner's predictors: the learned kinds (models.KINDS; map the default) and constant velocity
-PREDICTORS = ("map_cslstm", "map", "attention", "cslstm", "cv")
-
-
 _LAZY = {
     "ConstantVelocityPredictor": "sumo_ethics.predict.constant_velocity",
     "LSTMPredictor": "sumo_ethics.predict.predictor",
@@ -28,7 +27,7 @@ _LAZY = {
     "evaluate_main": "sumo_ethics.predict.commands",
 }
 
-__all__ = ["PREDICTORS", "PredictorError", "one_thread", *_LAZY]
+__all__ = ["PredictorError", "one_thread", *_LAZY]
 
 
 def one_thread(load: bool = False) -> None:

@@ -27,7 +27,7 @@ Layout (FEATURE_VERSION 1):
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -289,9 +289,6 @@ def own_frame(hist: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 # spans 15 m or more, and a row that starts far ahead and off to the side made the models predict
 # the pedestrian would stop. Datasets keep the earlier row 0 as well (``map_row0_v4``), so that a
 # model of versions 2-4 reads its own inputs from a version-5 dataset (``models.batch_to_tensors``).
-#: (ids, is_person (N,)) -> (LaneGraph | None, MapContext) of those agents, e.g. sim.lanes.SumoMapSource
-MapSource = Callable[[tuple, np.ndarray], tuple]
-
 MAP_VERSION = 5
 #: map versions this code can build (version 1: pedestrians get no map context; version 2: no
 #: time to the light's switch, 7 scalars; version 3: no blinkers and no lane after a walking area;

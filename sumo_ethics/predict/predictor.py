@@ -37,7 +37,7 @@ import torch
 from sumo_ethics.predict import PredictorError
 from sumo_ethics.predict import features as F
 from sumo_ethics.predict.calibration import Calibration, load_for
-from sumo_ethics.predict.features import MapSource
+from sumo_ethics.predict.protocols import MapSource, MapSourceFactory
 from sumo_ethics.predict.models import KINDS, MAP_KINDS, TrajectoryLSTM, load_model, rank_modes
 from sumo_ethics.types import AgentStates, Observation, Prediction
 
@@ -49,6 +49,18 @@ MIN_YAW_SPEED = 0.3  # [m/s] below this the predicted yaw is held
 def default_weights(kind: str) -> Path:
     """Path of the weights shipped in the package for ``kind`` ("map_cslstm", "map", "attention" or "cslstm")."""
     return WEIGHTS_DIR / f"{kind}.pt"
+
+
+def lstm(kind: str, weights: Path | str | None = None, calibrated: bool = True,
+         maps: MapSourceFactory | None = None) -> "LSTMPredictor":
+    """The registry's factory of the LSTM predictors (:mod:`sumo_ethics.predict.registry`): model
+    ``kind`` from ``weights`` or the shipped file, with the calibration beside it unless
+    ``calibrated=False``; a map-aware model gets ``maps(its map version)`` (None: no map context)."""
+    predictor = (LSTMPredictor.from_file(weights, kind=kind, calibrated=calibrated) if weights
+                 else LSTMPredictor.default(kind, calibrated=calibrated))
+    if predictor.uses_map and maps is not None:
+        predictor.map_source = maps(predictor.model.map_version)  # looks up what the model reads
+    return predictor
 
 
 def straight_history(xy: np.ndarray, yaw: np.ndarray, speed: np.ndarray) -> np.ndarray:

@@ -105,10 +105,13 @@ def check_fleet_names(spec: FleetSpec) -> None:
 
 def make_fleet_controllers(cfg: RunConfig) -> Callable[[str, str], Controller]:
     """A factory: (fleet planner name, ego id) -> a new controller for that ego. The ethical planners share
-    one predictor per predictor setting (loaded once), wrapped in a :class:`SharedPrediction`."""
+    one predictor per predictor setting (loaded once), wrapped in a :class:`SharedPrediction`, when the
+    predictor registry says it may be shared (:attr:`sumo_ethics.predict.registry.Entry.shareable`);
+    else each ego gets its own."""
     from sumo_ethics.ethics.cost import PrincipleWeights
     from sumo_ethics.plan.baseline import RouteFollower
     from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig, make_predictor
+    from sumo_ethics.predict import registry
     from sumo_ethics.sim.lanes import SumoMapSource
     from sumo_ethics.sim.sight import sight_map
 
@@ -128,6 +131,8 @@ def make_fleet_controllers(cfg: RunConfig) -> Callable[[str, str], Controller]:
         else:
             pc = replace(base, cost=replace(base.cost, weights=PrincipleWeights.preset(name)))
         key = (pc.predictor, pc.predictor_weights, pc.calibrated)
+        if not registry.get(pc.predictor).shareable:  # one of its own, outside the step's batched prediction
+            return EthicalPlanner(pc, predictor=make_predictor(*key, maps=SumoMapSource), sight=sight_map)
         if key not in shared:
             shared[key] = SharedPrediction(make_predictor(*key, maps=SumoMapSource))
         shared[key].horizons.add(max(pc.sampling.horizons))

@@ -199,6 +199,14 @@ def parse_set(items: Iterable[str]) -> dict[str, list[Any]]:
             values = [float(v) for v in values]
         if len(set(map(repr, values))) != len(values):
             raise ConfigError(f"--set {key}: repeated values")
+        if key == "predictor":  # the names of the predictor registry, checked before any run is built
+            from sumo_ethics.predict import registry
+
+            for v in values:
+                try:
+                    registry.get(v if isinstance(v, str) else repr(v))
+                except ConfigError as exc:
+                    raise ConfigError(f"--set predictor: {exc}") from None
         out[key] = values
     return out
 
