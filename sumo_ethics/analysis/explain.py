@@ -1,6 +1,7 @@
 """Pictures of recorded decisions: ``sumo-ethics explain`` (one planning step) and the collision
-snapshots a run writes (reading the run: :mod:`recorded`; drawing: :mod:`drawing`; the frames of
-``sumo-ethics replay``: :mod:`replay`).
+snapshots drawn from a finished run folder (:func:`draw_snapshots`: by ``sumo-ethics run`` when the
+run ends, ``evaluate`` and sweeps, or ``sumo-ethics explain RUN --snapshots``; reading the run:
+:mod:`recorded`; drawing: :mod:`drawing`; the frames of ``sumo-ethics replay``: :mod:`replay`).
 
 A decision figure has three parts. Left, the scene: the road from the SUMO network, every road
 user as its true box coloured by class, each predicted trajectory (mean and 1- / 2-sigma ellipses
@@ -20,7 +21,8 @@ import numpy as np
 from sumo_ethics.analysis.drawing import (CLASS_COLOURS, EGO_COLOUR, HIDDEN_COLOUR, PHANTOM_COLOUR, VALIDITY_COLOURS,
                                           VALIDITY_LABELS, draw_agents, draw_candidates, draw_road, draw_view, fmt,
                                           window)
-from sumo_ethics.analysis.recorded import collision_mark, decisions_of, load_checked, party_label, road_of, weights_of
+from sumo_ethics.analysis.recorded import (collision_mark, decisions_of, fleet_egos, is_fleet, load_checked, party_label,
+                                            road_of, weights_of)
 from sumo_ethics.ethics.terms import BUILTIN, CostTerm, cost_terms, term
 from sumo_ethics.record import decisions as rec
 from sumo_ethics.record.decisions import RecordedDecision
@@ -350,4 +352,49 @@ def collision_snapshots(run: Path, rows: list[dict[str, Any]], egos: frozenset[s
             res = explain(run, int(r["step"]), snaps / f"collision_{r['event']}_{rec.ego_folder(ego)}.png",
                           title=title, hit=collision_mark(r, ego), ego=ego)
             out.extend(res.paths)
+    return out
+
+
+def draw_snapshots(run: Path, update_summary: bool = True) -> dict[str, Any]:
+    """Draw the collision snapshot figures of run folder ``run`` from what it recorded
+    (collisions.parquet and the decisions kept: :func:`collision_snapshots`; in a fleet run one per
+    ego party), as ``sumo-ethics run`` does when a run ends (the run loop itself draws nothing) and
+    ``sumo-ethics explain RUN --snapshots`` on request; ``evaluate`` and sweeps draw them for each run.
+
+    Returns summary.json's keys for them: ``snapshots`` (the .png files, relative to ``run``),
+    ``snapshot_wall`` [s] and, when drawing failed (never raised: the decisions stay on disk for
+    ``explain``), ``snapshot_error``; empty when the run booked no ego collision. With
+    ``update_summary`` those keys are written into the run's summary.json (when it has one)."""
+    import json
+    import time
+
+    from sumo_ethics import fileio
+    from sumo_ethics.collision import is_booked
+    from sumo_ethics.record.reader import read_table
+
+    run = Path(run)
+    try:
+        rows = read_table(run, "collisions").to_pylist()
+    except Exception:  # noqa: BLE001 - no run folder, or an unreadable table: nothing to draw
+        return {}
+    if not any(is_booked(r) for r in rows):
+        return {}
+    out: dict[str, Any] = {}
+    w = time.perf_counter()
+    try:
+        egos = frozenset(fleet_egos(run)) if is_fleet(run) else None
+        paths = collision_snapshots(run, rows, egos)
+        out["snapshots"] = [str(p.relative_to(run)) for p in paths if p.suffix == ".png"]
+    except Exception as exc:  # noqa: BLE001 - a figure must never cost the run's outputs
+        out["snapshot_error"] = f"{type(exc).__name__}: {exc}"
+    out["snapshot_wall"] = time.perf_counter() - w
+    summary = run / "summary.json"
+    if update_summary and summary.is_file():
+        try:
+            data = json.loads(summary.read_text(encoding="utf-8"))
+            for key in ("snapshots", "snapshot_error", "snapshot_wall"):
+                data.pop(key, None)
+            fileio.write_json(summary, data | out)
+        except (OSError, ValueError) as exc:
+            out["snapshot_error"] = f"summary.json not updated: {type(exc).__name__}: {exc}"
     return out
