@@ -45,6 +45,10 @@ Ex-ante risk of each candidate per class (recorded for the chosen one): ``ego_ri
 maxima over the parties.
 
 With N = 0: B = b ("in_range"; b / 2 under "at_risk", N = 1), E = 0, R = 0, M = b ** exponent, Ego = J = b.
+
+Each of these terms is an entry of the list in :mod:`sumo_ethics.ethics.terms` (its function, group,
+weight key, unit and label), and :func:`score` sums them from that list: a term registered there is
+scored, weighted, recorded and drawn like these.
 """
 
 from __future__ import annotations
