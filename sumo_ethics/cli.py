@@ -194,7 +194,7 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
         cfg = replace(cfg, fleet=spec)
         check_fleet_names(spec)
 
-        _print_fleet(run_fleet(cfg, make_fleet_controllers(cfg)))
+        _print_fleet(_drawn(lambda: run_fleet(cfg, make_fleet_controllers(cfg)), cfg.out))
         return
     # built before SUMO starts, so a bad weights file or setting fails at once
     view = None
@@ -202,7 +202,7 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
         from sumo_ethics.sim.gui import GuiOptions
 
         view = GuiOptions(delay_ms=gui_delay or 0.0)
-    summary = run_scenario(cfg, controller=make_controller(cfg), gui=view)
+    summary = _drawn(lambda: run_scenario(cfg, controller=make_controller(cfg), gui=view), cfg.out)
     d = summary.data
     con = _console()
     h = d["harm"]
@@ -229,6 +229,30 @@ def run(scenario: Path, ego_ids: tuple[str, ...], egos: int | None, penetration:
     for line in notes.lines(d):  # tight bends, a lonely standstill
         con.print(f"  {line}", markup=False)
     con.print(f"  outputs in {summary.out}")
+
+
+def _drawn(run_it: Any, out: Path) -> Any:
+    """``run_it()`` (a run), then the collision snapshot figures drawn from its folder and listed in
+    summary.json and the summary's data (:func:`sumo_ethics.analysis.explain.draw_snapshots`; the run
+    itself draws none); after a run that failed too, not after Ctrl-C (``explain --snapshots`` draws them)."""
+    from sumo_ethics.record.reader import collided
+
+    def draw() -> dict[str, Any]:
+        if not collided(out):
+            return {}
+        from sumo_ethics.analysis.explain import draw_snapshots
+
+        return draw_snapshots(out)
+
+    try:
+        summary = run_it()
+    except (KeyboardInterrupt, ConfigError):  # stopped, or bad input (nothing was run)
+        raise
+    except Exception:
+        draw()
+        raise
+    summary.data.update(draw())
+    return summary
 
 
 def _others_line(c: dict, out: Path) -> str:
@@ -292,8 +316,11 @@ def _print_fleet(summary: Any) -> None:
               "--collision and --conflict then need it to be a party.")
 @click.option("--out", type=click.Path(path_type=Path), help="Figure path without suffix; .png and .svg are written "
               "(default RUN_DIR/explain/step_NNNNNN; a fleet ego's in RUN_DIR/explain/<ego>/).")
+@click.option("--snapshots", is_flag=True, help="Draw the collision snapshots of RUN_DIR instead "
+              "(RUN_DIR/snapshots/collision_<event>.png and .svg, listed in summary.json), as 'run' does when a run "
+              "ends: e.g. for a run stopped by Ctrl-C, or drawn again.")
 def explain(run_dir: Path, step: int | None, at_time: float | None, collision: int | None, conflict: int | None,
-            ego: str | None, out: Path | None) -> None:
+            ego: str | None, out: Path | None, snapshots: bool) -> None:
     """Draw one recorded planning step of RUN_DIR: the scene, predictions, candidates and the cost terms of the choice.
 
     Every run keeps the last decision before each ego collision (--collision K); other steps need a run made with
@@ -301,6 +328,10 @@ def explain(run_dir: Path, step: int | None, at_time: float | None, collision: i
     """
     from sumo_ethics.analysis.recorded import conflict_mark, decisions_of, hit_of, resolve_step
     from sumo_ethics.analysis.explain import explain as draw
+
+    if snapshots:
+        _draw_snapshots_of(run_dir, (step, at_time, collision, conflict, ego, out))
+        return
 
     who = decisions_of(run_dir, ego)
     k = resolve_step(run_dir, step=step, time=at_time, collision=collision, conflict=conflict, ego=who)
@@ -310,6 +341,25 @@ def explain(run_dir: Path, step: int | None, at_time: float | None, collision: i
     d = res.decision
     click.echo(f"{'' if who is None else f'ego {who!r}, '}step {d.step} (t={d.time:g} s): chose candidate {d.chosen} "
                f"of {d.n_candidates}; figure {res.paths[0]} (+ .svg)")
+
+
+def _draw_snapshots_of(run_dir: Path, others: tuple[Any, ...]) -> None:
+    """``explain RUN_DIR --snapshots``: the run's collision snapshot figures."""
+    from sumo_ethics.analysis.explain import draw_snapshots
+    from sumo_ethics.runner.loop import is_run_folder
+
+    if any(v is not None for v in others):
+        raise click.BadParameter("--snapshots draws every collision's figure: drop --step, --time, --collision, "
+                                 "--conflict, --ego and --out")
+    if not run_dir.is_dir() or not is_run_folder(run_dir):
+        raise click.BadParameter(f"{run_dir} is not a run folder (no config.json or summary.json of a run)")
+    got = draw_snapshots(run_dir)
+    if "snapshot_error" in got:
+        raise click.ClickException(f"the snapshots could not be drawn: {got['snapshot_error']}")
+    if not got.get("snapshots"):
+        click.echo(f"{run_dir}: no ego collision with a recorded decision: no snapshot to draw")
+    for snap in got.get("snapshots", []):
+        click.echo(f"collision snapshot: {run_dir / snap} (+ .svg)")
 
 
 @cli.command()

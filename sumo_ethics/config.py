@@ -208,8 +208,8 @@ def _plain(value: Any) -> Any:
     """JSON-ready copy: enums by value, tuples as lists."""
     import enum
 
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, dict):  # a CostConfig without registered terms' weights: config.json keeps its bytes
+        return {k: _plain(v) for k, v in value.items() if not (k == "term_weights" and not v)}
     if isinstance(value, (list, tuple)):
         return [_plain(v) for v in value]
     if isinstance(value, enum.Enum):

@@ -3,14 +3,15 @@
 The runner hands a controller a :class:`Scene` every step and takes back a :class:`Decision`
 holding an :class:`EgoCommand`; the reference path (:class:`RoutePath`, with its junction links
 and tight bends) is built by the SUMO adapter (:mod:`sumo_ethics.sim.route`) and read here as plain
-arrays. A hook ends a run by raising :class:`StopRun`. Nothing here imports libsumo, so planners,
-predictors and the ethics can be built and tested without SUMO.
+arrays. What a run does every step besides driving the ego is a :class:`StepHook` (hazards, rule
+breakers, a CommonRoad replay); a hook ends a run by raising :class:`StopRun`. Nothing here
+imports libsumo, so planners, predictors and the ethics can be built and tested without SUMO.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Callable, Mapping, Protocol
 
 import numpy as np
 
@@ -136,3 +137,80 @@ class Controller(Protocol):
     def act(self, scene: Scene) -> Decision:
         """Scene in, command for the next step out."""
         ...
+
+
+class StepHook:
+    """What a run does every step besides driving the ego: hazards, rule breakers, a CommonRoad
+    replay, a probe in a test. Subclass it and override the phases you need (like traci's
+    ``StepListener``); every method here does nothing. The run loop (:mod:`sumo_ethics.runner.loop`)
+    calls them in this order:
+
+    ``start(world)``
+        once, after the takeover and before the first step; a :class:`RoutePath` returned replaces
+        the ego's reference path (the last hook's that returns one wins);
+    every step, for the state at time t:
+
+    ``on_read(snapshot, world)``
+        after the state is read (``sim.world.Snapshot``; ``world``: the ``sim.world.SumoWorld``),
+        before the scene is built; may act on SUMO (only code under ``sumo_ethics/sim`` should);
+    ``desired_speed(t, s)``
+        while the scene is built: the highest speed [m/s] the ego should aim at, at time t [s] and
+        arc length s [m] on its path, or None; the lowest any hook asks for is the scene's
+        ``desired_speed``;
+    ``before_act(scene)``
+        the :class:`Scene` built, right before the controller acts (hazards command their actors
+        here for the same step);
+    ``after_step(snapshot, world, row)``
+        after SUMO stepped, collisions were detected and the step's ``steps.parquet`` row (``row``,
+        read only) was recorded; ``snapshot`` is the state after the step;
+
+    ``route_end(t)``
+        when the ego passes its route's end at time t: ``(status, message)`` to end the run with,
+        or None (the first hook's answer counts; none: completed);
+    ``summary()``
+        at the end: a dict merged into summary.json.
+
+    ``on_read`` and ``after_step`` end the run by raising :class:`StopRun`. A fleet run takes no
+    hooks. A plain callable ``hook(snapshot, world)`` is still accepted by ``runner.run``: it is
+    wrapped as :class:`FunctionHook` (its ``on_read``).
+    """
+
+    def start(self, world: Any) -> RoutePath | None:
+        return None
+
+    def on_read(self, snapshot: Any, world: Any) -> None:
+        return None
+
+    def desired_speed(self, t: float, s: float) -> float | None:
+        return None
+
+    def before_act(self, scene: Scene) -> None:
+        return None
+
+    def after_step(self, snapshot: Any, world: Any, row: Mapping[str, Any]) -> None:
+        return None
+
+    def route_end(self, t: float) -> tuple[RunStatus, str] | None:
+        return None
+
+    def summary(self) -> dict[str, Any]:
+        return {}
+
+
+class FunctionHook(StepHook):
+    """A callable ``fn(snapshot, world)`` as a :class:`StepHook`: called at ``on_read``."""
+
+    def __init__(self, fn: Callable[[Any, Any], None]) -> None:
+        self.fn = fn
+
+    def on_read(self, snapshot: Any, world: Any) -> None:
+        self.fn(snapshot, world)
+
+
+def as_hook(hook: StepHook | Callable[[Any, Any], None]) -> StepHook:
+    """``hook`` as a :class:`StepHook` (a plain callable wrapped in :class:`FunctionHook`)."""
+    if isinstance(hook, StepHook):
+        return hook
+    if callable(hook):
+        return FunctionHook(hook)
+    raise TypeError(f"a run hook is a StepHook or a callable hook(snapshot, world), got {hook!r}")

@@ -4,8 +4,9 @@ A TOML file for ``run`` may also have a ``[conflicts]`` table (:class:`~sumo_eth
 enabled, ttc, pet, gap, crossing_angle, everyone; sweeps read ``[planner]`` alone). A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, normalise, predictor,
 predictor_weights, calibrated, max_risk, braking_prior, lateral_prior, lateral_onset, selection, envelope, entry,
 evasive, occlusion, phantoms) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]``,
-``[planner.principles]`` (custom J_origin weights) and ``[planner.perception]`` (the sensor, memory and
-phantoms: :class:`~sumo_ethics.plan.perception.PerceptionConfig`); unknown keys are errors. ``probability =
+``[planner.principles]`` (custom J_origin weights), ``[planner.perception]`` (the sensor, memory and
+phantoms: :class:`~sumo_ethics.plan.perception.PerceptionConfig`) and ``[planner.terms]`` (the weights of
+cost terms registered in :mod:`sumo_ethics.ethics.terms`, by weight key); unknown keys are errors. ``probability =
 "origin"`` (or ``"shapes"``) is short for ``[planner.probability] method = ...``. A ``run`` file's
 ``[perception]`` table is the same as ``[planner.perception]`` and may also switch ``occlusion`` and
 ``phantoms`` (``[perception] occlusion = true``).
@@ -204,6 +205,15 @@ PLANNER_KEYS = COST_KEYS + ("predictor", "predictor_weights", "calibrated", "max
 SET_PLANNER_KEYS = tuple(k for k in PLANNER_KEYS if k != "omega_u")
 
 
+def registered_weight_keys() -> set[str]:
+    """The weight keys ``[planner.terms]`` takes: those of the cost terms registered beside the
+    built-in ones (:func:`sumo_ethics.ethics.terms.register`; the built-in weights have their own
+    keys: ``weights``, ``[planner.principles]``, ``[planner.perception] weight``)."""
+    from sumo_ethics.ethics.terms import BUILTIN, cost_terms
+
+    return {t.weight for t in cost_terms() if t.weight and t not in BUILTIN}
+
+
 def planner_config(table: dict[str, Any] | None = None, step: float | None = None, step_source: str | None = None,
                    **overrides: Any):
     """A validated PlannerConfig from a ``[planner]`` table and command-line overrides (None = unset).
@@ -223,10 +233,10 @@ def planner_config(table: dict[str, Any] | None = None, step: float | None = Non
         raise ConfigError(f"[planner] must be a table, got {table!r}")
     t = dict(table or {})
     t.update({k: v for k, v in overrides.items() if v is not None})
-    _known(t, set(PLANNER_KEYS) | {"sampling", "probability", "principles", "perception"}, "[planner]")
+    _known(t, set(PLANNER_KEYS) | {"sampling", "probability", "principles", "perception", "terms"}, "[planner]")
     if isinstance(t.get("probability"), str):  # probability = "origin" is short for [planner.probability] method
         t["probability"] = {"method": t["probability"]}
-    for sub in ("sampling", "probability", "principles", "perception"):
+    for sub in ("sampling", "probability", "principles", "perception", "terms"):
         if not isinstance(t.get(sub, {}), dict):
             raise ConfigError(f"[planner.{sub}] must be a table, got {t[sub]!r}")
     try:
@@ -237,9 +247,12 @@ def planner_config(table: dict[str, Any] | None = None, step: float | None = Non
             weights = PrincipleWeights(**{**{f.name: getattr(weights, f.name) for f in fields(PrincipleWeights)},
                                           **{k: _weight(f"principles.{k}", v) for k, v in p.items()}})
         utility = t.get("utility", UtilityMode.CANDIDATE_MEAN.value)
+        terms = t.get("terms", {})  # the weights of registered cost terms (sumo_ethics.ethics.terms)
+        _known(terms, registered_weight_keys(), "[planner.terms]")
         cost = CostConfig(weights=weights, omega_o=_weight("omega_o", t.get("omega_o", 1.0)),
                           omega_u=_omega_u(t.get("omega_u", DEFAULT_OMEGA_U)), utility=utility,
-                          normalise=t.get("normalise", "in_range"))
+                          normalise=t.get("normalise", "in_range"),
+                          term_weights={k: _weight(f"terms.{k}", v) for k, v in terms.items()})
         sampling = dict(t.get("sampling", {}))  # the caller's table stays as it was
         _known(sampling, {f.name for f in fields(SamplingConfig)}, "[planner.sampling]")
         if "horizons" in sampling:

@@ -204,19 +204,40 @@ def test_unavoidable_collision_writes_its_snapshot(tmp_path):
     from sumo_ethics.plan.ethical import EthicalPlanner
     from sumo_ethics.runner import run
     from sumo_ethics.sim.hazards import HazardInjector
-    from sumo_ethics.suite.controller import HazardController
     from sumo_ethics.suite.spec import load
 
     spec = load(DILEMMAS / "d0000")
     pcfg = PlannerConfig(predictor="cv")
     out = tmp_path / "runs" / "r1"
     summary = run(spec.run_config(out, pcfg, record_decisions="collisions"),
-                  controller=HazardController(EthicalPlanner(pcfg), HazardInjector(spec.hazards)))
+                  controller=EthicalPlanner(pcfg), hooks=(HazardInjector(spec.hazards),))
     assert summary.data["status"] == "collision"
     coll = pd.read_parquet(out / "collisions.parquet")
     ev = coll[coll["involves_ego"]].iloc[0]
-    assert summary.data["snapshots"] == [f"snapshots/collision_{ev['event']}.png"]
+    # the run draws no figures (issue 58): they are drawn from the folder, as 'run' and evaluate do when it ends
+    assert "snapshots" not in summary.data and not (out / "snapshots").exists()
+    from sumo_ethics.analysis.explain import draw_snapshots
+
+    drawn = draw_snapshots(out)
+    assert drawn["snapshots"] == [f"snapshots/collision_{ev['event']}.png"] and "snapshot_error" not in drawn
     assert (out / "snapshots" / f"collision_{ev['event']}.svg").is_file()
+    assert json.loads((out / "summary.json").read_text())["snapshots"] == drawn["snapshots"]  # listed there too
+    png = out / drawn["snapshots"][0]
+    first = png.read_bytes()
+    # on request: explain RUN --snapshots draws the same figure again
+    import shutil
+
+    shutil.rmtree(out / "snapshots")
+    res = CliRunner().invoke(cli, ["explain", str(out), "--snapshots"])
+    assert res.exit_code == 0, res.output
+    assert f"collision snapshot: {png}" in res.output and png.read_bytes() == first
+    # the run command draws them when the run returns (cli._drawn around runner.run), into its summary's data
+    from sumo_ethics.cli import _drawn
+    from sumo_ethics.runner import RunSummary
+
+    shutil.rmtree(out / "snapshots")
+    after = _drawn(lambda: RunSummary(summary.status, summary.message, out, dict(summary.data)), out)
+    assert after.data["snapshots"] == drawn["snapshots"] and png.read_bytes() == first
     kept = rec.recorded_steps(out)  # the 5 s before impact, ending with the step of the impact
     assert kept[-1] == ev["step"] and len(kept) == 50 and kept == list(range(ev["step"] - 49, ev["step"] + 1))
     # analyze's report links it

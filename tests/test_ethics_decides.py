@@ -195,7 +195,6 @@ def test_recorded_exante_risk_equals_the_chosen_candidates_risk_terms(tmp_path, 
     import sumo_ethics.plan.ethical as ethical
     from sumo_ethics.runner import run
     from sumo_ethics.sim.hazards import HazardInjector
-    from sumo_ethics.suite.controller import HazardController
     from sumo_ethics.suite.spec import load
 
     seen: list[tuple[RiskTerms, int]] = []
@@ -217,7 +216,7 @@ def test_recorded_exante_risk_equals_the_chosen_candidates_risk_terms(tmp_path, 
     spec = load(DILEMMAS / "d0000")
     pcfg = PlannerConfig(predictor="cv")
     cfg = spec.run_config(tmp_path / "run", pcfg)
-    summary = run(cfg, controller=HazardController(Probe(pcfg), HazardInjector(spec.hazards)))
+    summary = run(cfg, controller=Probe(pcfg), hooks=(HazardInjector(spec.hazards),))
     steps = pd.read_parquet(tmp_path / "run" / "steps.parquet").dropna(subset=["cost_ego_risk_sum"])
     assert len(steps) == len(seen) > 50
     risky = 0

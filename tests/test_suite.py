@@ -193,15 +193,14 @@ def test_hazard_fires_at_its_trigger(kind, tmp_path):
     from sumo_ethics.config import RunConfig
     from sumo_ethics.runner import make_controller, run
     from sumo_ethics.sim.hazards import HazardInjector
-    from sumo_ethics.suite.controller import HazardController
     from sumo_ethics.types import RoadUserClass
 
     spec = HazardSpec.parse("h", {"id": "h0", "type": kind, **HAZARDS[kind]})
     cfg = RunConfig(scenario=TESTBED, out=tmp_path / kind, seed=1, end=30.0, ego_from="main_0", ego_to="main_1",
                     controller="baseline", progress=False, stop_at_collision=False)
     inj = HazardInjector([spec])
-    probe = Probe(HazardController(make_controller(cfg), inj), inj)
-    run(cfg, controller=probe)
+    probe = Probe(make_controller(cfg), inj)
+    run(cfg, controller=probe, hooks=(inj,))
     ev = {e["event"]: e for e in inj.events}
     assert "spawn" in ev and "trigger" in ev, inj.events
     t = ev["trigger"]
@@ -246,7 +245,6 @@ def test_parked_vehicle_stays_put_off_the_carriageway(tmp_path):
     from sumo_ethics.config import RunConfig
     from sumo_ethics.runner import make_controller, run
     from sumo_ethics.sim.hazards import HazardInjector
-    from sumo_ethics.suite.controller import HazardController
 
     spec = HazardSpec.parse("h", {"id": "h0", "type": "parked", "anchor": {"edge": "main_1", "pos": 100}})
     cfg = RunConfig(scenario=TESTBED, out=tmp_path / "p", seed=1, end=25.0, ego_from="main_0", ego_to="main_1",
@@ -260,8 +258,8 @@ def test_parked_vehicle_stays_put_off_the_carriageway(tmp_path):
                 lanes.add(libsumo.vehicle.getLaneID("hazard_h0"))
             return super().act(scene)
 
-    probe = LaneProbe(HazardController(make_controller(cfg), inj), inj)
-    run(cfg, controller=probe)
+    probe = LaneProbe(make_controller(cfg), inj)
+    run(cfg, controller=probe, hooks=(inj,))
     pts = np.array([p[:2] for p in probe.seen.values()])
     assert len(pts) > 10 and np.ptp(pts[:, 0]) < 0.05 and abs(pts[0, 0] - 302) < 0.5
     # SUMO files it on the sidewalk beside it (main_1_0), not on the lane its traffic drives in:

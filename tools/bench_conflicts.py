@@ -36,12 +36,11 @@ def one(spec, out: Path, on: bool, controller: str, predictor: str) -> tuple[flo
     from sumo_ethics.runner import make_controller, run
     from sumo_ethics.settings import planner_config
     from sumo_ethics.sim.hazards import HazardInjector
-    from sumo_ethics.suite.controller import HazardController
 
     cfg = spec.run_config(out, planner_config(None, predictor=predictor), overwrite=True)
     cfg = replace(cfg, controller=controller, conflicts=ConflictConfig(enabled=on))
     cpu = time.process_time()
-    s = run(cfg, controller=HazardController(make_controller(cfg), HazardInjector(spec.hazards)))
+    s = run(cfg, controller=make_controller(cfg), hooks=(HazardInjector(spec.hazards),))
     cpu = time.process_time() - cpu
     share = 0.0
     if on:

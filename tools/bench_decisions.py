@@ -24,10 +24,11 @@ def one(spec, out: Path, mode: str) -> tuple[float, int, int, bytes]:
     from sumo_ethics.runner import make_controller, run
     from sumo_ethics.settings import planner_config
     from sumo_ethics.sim.hazards import HazardInjector
-    from sumo_ethics.suite.controller import HazardController
+    from sumo_ethics.suite.outcome import snapshots_of
 
     cfg = spec.run_config(out, planner_config(None), record_decisions=mode, overwrite=True)
-    s = run(cfg, controller=HazardController(make_controller(cfg), HazardInjector(spec.hazards)))
+    s = run(cfg, controller=make_controller(cfg), hooks=(HazardInjector(spec.hazards),))
+    s.data.update(snapshots_of(out))  # the figures are drawn from the folder after the run, as evaluate does
     dec = s.data.get("decisions", {})
     return s.data["wall_time"] + s.data.get("snapshot_wall", 0.0), dec.get("bytes", 0), dec.get("steps", 0), \
         (out / "steps.parquet").read_bytes()

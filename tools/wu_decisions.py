@@ -28,7 +28,6 @@ def _run(args: tuple[str, dict, tuple[float, ...], str]) -> dict:
     from sumo_ethics.runner import run
     from sumo_ethics.settings import planner_config
     from sumo_ethics.sim.hazards import HazardInjector
-    from sumo_ethics.suite.controller import HazardController
     from sumo_ethics.suite.spec import load
 
     records: list[tuple[bool, list[int], list[float]]] = []
@@ -54,7 +53,7 @@ def _run(args: tuple[str, dict, tuple[float, ...], str]) -> dict:
     pcfg = planner_config(None, **options)
     cfg = spec.run_config(Path(out_dir), pcfg, overwrite=True)
     try:
-        run(cfg, controller=HazardController(Probe(pcfg), HazardInjector(spec.hazards)))
+        run(cfg, controller=Probe(pcfg), hooks=(HazardInjector(spec.hazards),))
     except Exception as exc:  # noqa: BLE001 - a failed run still reports its steps
         print(f"{spec.name}: {exc}", file=sys.stderr)
     return {"scenario": spec.name, "records": records}

@@ -1,6 +1,7 @@
 """Pictures of recorded decisions: ``sumo-ethics explain`` (one planning step) and the collision
-snapshots a run writes (reading the run: :mod:`recorded`; drawing: :mod:`drawing`; the frames of
-``sumo-ethics replay``: :mod:`replay`).
+snapshots drawn from a finished run folder (:func:`draw_snapshots`: by ``sumo-ethics run`` when the
+run ends, ``evaluate`` and sweeps, or ``sumo-ethics explain RUN --snapshots``; reading the run:
+:mod:`recorded`; drawing: :mod:`drawing`; the frames of ``sumo-ethics replay``: :mod:`replay`).
 
 A decision figure has three parts. Left, the scene: the road from the SUMO network, every road
 user as its true box coloured by class, each predicted trajectory (mean and 1- / 2-sigma ellipses
@@ -20,33 +21,41 @@ import numpy as np
 from sumo_ethics.analysis.drawing import (CLASS_COLOURS, EGO_COLOUR, HIDDEN_COLOUR, PHANTOM_COLOUR, VALIDITY_COLOURS,
                                           VALIDITY_LABELS, draw_agents, draw_candidates, draw_road, draw_view, fmt,
                                           window)
-from sumo_ethics.analysis.recorded import collision_mark, decisions_of, load_checked, party_label, road_of, weights_of
+from sumo_ethics.analysis.recorded import (collision_mark, decisions_of, fleet_egos, is_fleet, load_checked, party_label,
+                                            road_of, weights_of)
+from sumo_ethics.ethics.terms import BUILTIN, CostTerm, cost_terms, term
 from sumo_ethics.record import decisions as rec
 from sumo_ethics.record.decisions import RecordedDecision
 from sumo_ethics.types import EXCLUSIONS, RoadUserClass
 
-PANEL_TERMS = (
-    ("j_risk", "J_risk = w_o J_origin + w_u J_util."),
-    ("j_origin", "J_origin"),
-    ("j_utility", "J_utility"),
-    ("bayes", "Bayes (risk sum / 2N)"),
-    ("equality", "Equality (risk spread)"),
-    ("maximin", "Maximin (max harm^10)"),
-    ("ego", "Ego (own risk)"),
-    ("responsibility", "Responsibility"),
-    ("progress", "progress (speed deficit)"),
-    ("lateral", "lateral offset"),
-    ("penalty", "envelope + entry"),
-    ("selection", "selection total"),
-    ("ego_risk_sum", "risk to the ego"),
-    ("other_risk_sum", "risk to third parties"),
-    ("vru_risk_sum", "  of which VRUs"),
-    ("boundary_harm", "leaving the road (ego harm)"),
-    ("phantom", "phantoms: weight x risk"),
-    ("phantom_risk", "phantoms' risk (x existence)"),
-)
+#: the rows that are no cost term: what the selection rule added and what it minimised
+SELECTION_ROWS = (("penalty", "envelope + entry"), ("selection", "selection total"))
+#: the aggregates at the panel's top, in this order
+HEAD_TERMS = ("j_risk", "j_origin", "j_utility")
+
+
+def panel_rows() -> list[tuple[str, str, bool]]:
+    """The cost panel's rows (name, label, optional) from the registered cost terms
+    (:func:`sumo_ethics.ethics.terms.cost_terms`): J_risk, J_origin and J_utility; the terms summed
+    into J_origin (principles, then progress, lateral and any registered "origin" term); the
+    selection's penalty and total; the recorded quantities with a label; each "total" term, its
+    weighted value first. An optional row is drawn only where the decision has the term."""
+    terms = cost_terms()
+    by_name = {t.name: t for t in terms}
+    rows = [(n, by_name[n].label or n, False) for n in HEAD_TERMS]
+    rows += [(t.name, t.label or t.name, t.optional) for t in terms if t.group in ("principle", "origin")]
+    rows += [(n, label, False) for n, label in SELECTION_ROWS]
+    rows += [(t.name, t.label, t.optional) for t in terms if t.group == "record" and t.label]
+    for t in terms:
+        if t.group == "total" and t.weighted:
+            rows += [(t.weighted, t.weighted_label or t.weighted, t.optional), (t.name, t.label or t.name, t.optional)]
+    return rows
+
+
+#: the rows of a decision with every built-in term (panel_rows() reads the registry when it draws)
+PANEL_TERMS = tuple((name, label) for name, label, _ in panel_rows())
 #: rows shown only where the decision has the term (``[planner] phantoms``)
-OPTIONAL_TERMS = ("phantom", "phantom_risk")
+OPTIONAL_TERMS = tuple(name for name, _, optional in panel_rows() if optional)
 
 
 @dataclass(frozen=True)
@@ -74,14 +83,24 @@ def _term(d: RecordedDecision, k: int, name: str, weights: dict[str, float] | No
     if name == "penalty":
         return float(d.selection[k] - d.j_risk[k])
     value = float(d.terms.get(name, np.full(d.n_candidates, np.nan))[k])
-    if weights is not None and name in PRINCIPLES:
-        value *= weights.get("risk", 1.0) * weights.get(name, 1.0)
-    elif weights is not None and name in ("progress", "lateral"):
-        value *= weights.get("velocity" if name == "progress" else "lateral", 1.0)
+    t = _summed(name)
+    if weights is not None and t is not None:
+        scale = weights.get("risk", 1.0) if t.group == "principle" else 1.0
+        value *= scale * weights.get(t.weight or name, 1.0)
     return value
 
 
-PRINCIPLES = ("bayes", "equality", "maximin", "ego", "responsibility")
+def _summed(name: str) -> CostTerm | None:
+    """The registered term ``name`` if it is weighted into J_origin (a principle or an "origin" term)."""
+    try:
+        t = term(name)
+    except KeyError:
+        return None
+    return t if t.group in ("principle", "origin") else None
+
+
+#: the principles' names (the built-in "principle" terms)
+PRINCIPLES = tuple(t.name for t in BUILTIN if t.group == "principle")
 
 
 def excluded_note(d: RecordedDecision, k: int) -> str:
@@ -108,15 +127,15 @@ def cost_panel(ax: Any, d: RecordedDecision, alt: int | None, weights: dict[str,
         head.append(f"best of another class:\n{VALIDITY_LABELS[int(d.validity[alt])]}{' *' if note else ''}")
 
     def label_of(name: str, label: str) -> str:
-        if weights is None:
+        t = _summed(name)
+        if weights is None or t is None:
             return label
-        if name in PRINCIPLES:
-            return f"{label.split(' (')[0]} x {weights.get('risk', 1.0):g} x {weights.get(name, 1.0):g}"
-        if name in ("progress", "lateral"):
-            return f"{label} x {weights.get('velocity' if name == 'progress' else 'lateral', 1.0):g}"
-        return label
+        w = weights.get(t.weight or name, 1.0)
+        if t.group == "principle":
+            return f"{label.split(' (')[0]} x {weights.get('risk', 1.0):g} x {w:g}"
+        return f"{label} x {w:g}"
 
-    rows = [(name, label) for name, label in PANEL_TERMS if name not in OPTIONAL_TERMS or name in d.terms]
+    rows = [(name, label) for name, label, optional in panel_rows() if not optional or name in d.terms]
     cells = [[label_of(name, label)] + [fmt(_term(d, d.chosen, name, weights))]
              + ([fmt(_term(d, alt, name, weights))] if alt is not None else []) for name, label in rows]
     table = ax.table(cellText=cells, colLabels=head, loc="upper center", cellLoc="right", colLoc="center",
@@ -333,4 +352,49 @@ def collision_snapshots(run: Path, rows: list[dict[str, Any]], egos: frozenset[s
             res = explain(run, int(r["step"]), snaps / f"collision_{r['event']}_{rec.ego_folder(ego)}.png",
                           title=title, hit=collision_mark(r, ego), ego=ego)
             out.extend(res.paths)
+    return out
+
+
+def draw_snapshots(run: Path, update_summary: bool = True) -> dict[str, Any]:
+    """Draw the collision snapshot figures of run folder ``run`` from what it recorded
+    (collisions.parquet and the decisions kept: :func:`collision_snapshots`; in a fleet run one per
+    ego party), as ``sumo-ethics run`` does when a run ends (the run loop itself draws nothing) and
+    ``sumo-ethics explain RUN --snapshots`` on request; ``evaluate`` and sweeps draw them for each run.
+
+    Returns summary.json's keys for them: ``snapshots`` (the .png files, relative to ``run``),
+    ``snapshot_wall`` [s] and, when drawing failed (never raised: the decisions stay on disk for
+    ``explain``), ``snapshot_error``; empty when the run booked no ego collision. With
+    ``update_summary`` those keys are written into the run's summary.json (when it has one)."""
+    import json
+    import time
+
+    from sumo_ethics import fileio
+    from sumo_ethics.collision import is_booked
+    from sumo_ethics.record.reader import read_table
+
+    run = Path(run)
+    try:
+        rows = read_table(run, "collisions").to_pylist()
+    except Exception:  # noqa: BLE001 - no run folder, or an unreadable table: nothing to draw
+        return {}
+    if not any(is_booked(r) for r in rows):
+        return {}
+    out: dict[str, Any] = {}
+    w = time.perf_counter()
+    try:
+        egos = frozenset(fleet_egos(run)) if is_fleet(run) else None
+        paths = collision_snapshots(run, rows, egos)
+        out["snapshots"] = [str(p.relative_to(run)) for p in paths if p.suffix == ".png"]
+    except Exception as exc:  # noqa: BLE001 - a figure must never cost the run's outputs
+        out["snapshot_error"] = f"{type(exc).__name__}: {exc}"
+    out["snapshot_wall"] = time.perf_counter() - w
+    summary = run / "summary.json"
+    if update_summary and summary.is_file():
+        try:
+            data = json.loads(summary.read_text(encoding="utf-8"))
+            for key in ("snapshots", "snapshot_error", "snapshot_wall"):
+                data.pop(key, None)
+            fileio.write_json(summary, data | out)
+        except (OSError, ValueError) as exc:
+            out["snapshot_error"] = f"summary.json not updated: {type(exc).__name__}: {exc}"
     return out

@@ -272,17 +272,20 @@ def net_file(run: Path) -> Path | None:
 
 
 def weights_of(run: Path, ego: str | None = None) -> dict[str, float] | None:
-    """The run's cost weights (``planner.cost.weights`` of config.json), or those of fleet ego
+    """The run's cost weights (``planner.cost.weights`` of config.json, and the registered terms'
+    ``planner.cost.term_weights``), or those of fleet ego
     ``ego``'s planner (a ``[planners.NAME]`` table of the fleet, else the preset of its name, as
     :func:`sumo_ethics.runner.fleet.make_fleet_controllers` builds it); None when unknown."""
     try:
         cfg = json.loads((Path(run) / "config.json").read_text())
-        w = cfg["planner"]["cost"]["weights"]
+        cost = cfg["planner"]["cost"]
+        w = {**cost["weights"], **cost.get("term_weights", {})}
         if ego is not None:
             name = fleet_egos(run)[ego]
             named = {n: pc for n, pc in cfg["fleet"].get("planners", [])}
             if name in named:
-                w = named[name]["cost"]["weights"]
+                cost = named[name]["cost"]
+                w = {**cost["weights"], **cost.get("term_weights", {})}
             else:
                 from dataclasses import asdict
 

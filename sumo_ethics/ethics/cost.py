@@ -45,18 +45,26 @@ Ex-ante risk of each candidate per class (recorded for the chosen one): ``ego_ri
 maxima over the parties.
 
 With N = 0: B = b ("in_range"; b / 2 under "at_risk", N = 1), E = 0, R = 0, M = b ** exponent, Ego = J = b.
+
+Each of these terms is an entry of the list in :mod:`sumo_ethics.ethics.terms` (its function, group,
+weight key, unit and label), and :func:`score` sums them from that list: a term registered there is
+scored, weighted, recorded and drawn like these.
 """
 
 from __future__ import annotations
 
 import enum
+import functools
 import math
-from dataclasses import dataclass, fields
+import operator
+from dataclasses import dataclass, field, fields
+from typing import Any, Mapping
 
 import numpy as np
 
 from sumo_ethics.ethics.probability import EthicsConfigError, _check_number
 from sumo_ethics.ethics.risk import RiskTerms
+from sumo_ethics.ethics.terms import BUILTIN, TermInputs, cost_terms, weight_of
 from sumo_ethics.types import Candidates, CostBreakdown
 
 __all__ = ["PrincipleWeights", "PRESETS", "UtilityMode", "NORMALISE", "CostConfig", "score", "TERMS", "tolerance_bound"]
@@ -141,7 +149,9 @@ class CostConfig:
     utility: UtilityMode (or its value string); desired_speed: default v_desired [m/s] for
     :func:`score`; maximin_exponent: M = h_max ** exponent [-]; utility_scale: cost units per
     unit of risk in J_utility [-]; normalise: the N that Bayes, Equality and Responsibility divide
-    by, one of :data:`NORMALISE` (see the module doc).
+    by, one of :data:`NORMALISE` (see the module doc); term_weights: the weights of registered cost
+    terms by their weight key (:mod:`sumo_ethics.ethics.terms`; a term not named here weighs its
+    ``default_weight``).
     """
 
     weights: PrincipleWeights = PrincipleWeights()
@@ -152,8 +162,13 @@ class CostConfig:
     maximin_exponent: float = 10.0
     utility_scale: float = UTILITY_SCALE
     normalise: str = "in_range"
+    term_weights: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.term_weights, dict):
+            object.__setattr__(self, "term_weights", dict(self.term_weights))
+        for key, value in self.term_weights.items():
+            _check_number("CostConfig.term_weights", str(key), value)
         if self.normalise not in NORMALISE:
             raise EthicsConfigError(f"normalise must be one of {', '.join(NORMALISE)}, got {self.normalise!r}")
         if isinstance(self.weights, str):
@@ -174,13 +189,9 @@ class CostConfig:
             _check_number("CostConfig", "desired_speed", self.desired_speed)
 
 
-#: Names of the (K,) terms in every CostBreakdown from :func:`score`, in order.
-TERMS = (
-    "bayes", "equality", "maximin", "ego", "responsibility", "progress", "lateral", "j_origin",
-    "j_total_risk", "j_mean", "j_utility", "j_risk",
-    "ego_risk_sum", "other_risk_sum", "vru_risk_sum", "ego_risk_max", "other_risk_max", "vru_risk_max",
-    "boundary_harm", "max_harm", "n_norm",
-)
+#: Names of the (K,) terms in every CostBreakdown from :func:`score` without extra inputs (no
+#: phantoms, no registered terms), in order: the built-in terms of :mod:`sumo_ethics.ethics.terms`.
+TERMS = tuple(t.name for t in BUILTIN if not t.optional)
 
 
 def score(
@@ -189,11 +200,16 @@ def score(
     cfg: CostConfig = CostConfig(),
     desired_speed: float | None = None,
     feasible: np.ndarray | None = None,
+    extra: Mapping[str, Any] | None = None,
+    weights: Mapping[str, float] | None = None,
 ) -> CostBreakdown:
-    """Every cost term of K candidates, each (K,), and total = J_risk.
+    """Every registered cost term of K candidates (:func:`sumo_ethics.ethics.terms.cost_terms`),
+    each (K,), and total = J_risk plus the weighted "total" terms (the phantoms').
 
     desired_speed: v_desired [m/s] (default ``cfg.desired_speed``); feasible: (K,) bool, the
-    candidates J_mean averages over in CANDIDATE_MEAN mode (None: all).
+    candidates J_mean averages over in CANDIDATE_MEAN mode (None: all); extra: further inputs of
+    the terms (``TermInputs.extra``; the planner's ``phantom_risk``); weights: weights of terms
+    that neither ``cfg.weights`` nor ``cfg.term_weights`` give (:func:`~sumo_ethics.ethics.terms.weight_of`).
     """
     v_des = cfg.desired_speed if desired_speed is None else desired_speed
     if v_des is None or not math.isfinite(v_des) or v_des < 0:
@@ -203,46 +219,28 @@ def score(
     if er.shape[0] != K or risk.boundary_harm.shape != (K,):
         raise ValueError(f"risk terms are for {er.shape[0]} candidates, cand has {K}")
     N = er.shape[1]
-    w = cfg.weights
-    bh = risk.boundary_harm
-    se, so = er.sum(axis=1), orr.sum(axis=1)
-    vru_risk = orr * risk.vulnerable
-    vru = vru_risk.sum(axis=1)
-    j_total = se + so + bh
     if cfg.normalise == "at_risk":
         at_risk = ((er + orr) > 0.0) | risk.at_risk
         n_norm = np.maximum(at_risk.sum(axis=1), 1).astype(float)
     else:
         n_norm = np.full(K, float(N))
-    if N:
-        bayes = j_total / (2 * n_norm)
-        equality = np.abs(er - orr).sum(axis=1) / n_norm
-        breakers = risk.rule_breaker
-        if breakers is None:  # RiskTerms.__post_init__ makes it all False when unknown
-            raise ValueError("RiskTerms.rule_breaker is not set")
-        responsibility = (orr * ~breakers).sum(axis=1) / n_norm
-        h_max = np.maximum(np.maximum(risk.ego_harm_max.max(axis=1), risk.other_harm_max.max(axis=1)), bh)
-        maxes = er.max(axis=1), orr.max(axis=1), vru_risk.max(axis=1)
-    else:
-        bayes = bh / (2 * n_norm) if cfg.normalise == "at_risk" else bh.copy()
-        equality, h_max = np.zeros(K), bh.copy()
-        responsibility = np.zeros(K)
-        maxes = np.zeros(K), np.zeros(K), np.zeros(K)
-    maximin = h_max**cfg.maximin_exponent
-    ego = se + bh
+    inputs = TermInputs(cand, risk, cfg, float(v_des), feasible, n_norm, extra or {})
+    terms = cost_terms()
+    values: dict[str, np.ndarray] = {}
+    for t in terms:  # every term that is not a sum of the others; None: not this step
+        if t.compute is not None:
+            v = t.compute(inputs)
+            if v is not None:
+                values[t.name] = v
 
-    valid = cand.valid.astype(bool)
-    count = np.maximum(valid.sum(axis=1), 1)
-    mean_v = np.where(valid, cand.speed, 0.0).sum(axis=1) / count
-    progress = np.abs(v_des - mean_v)
-    lateral = np.where(valid, np.abs(cand.d), 0.0).sum(axis=1) / count
-    j_origin = (
-        w.risk * (w.bayes * bayes + w.equality * equality + w.maximin * maximin + w.ego * ego
-                  + w.responsibility * responsibility)
-        + w.velocity * progress
-        + w.lateral * lateral
-    )
+    # J_origin = w_risk (sum of the weighted principles) + the weighted "origin" terms, in order
+    principles = [weight_of(t, cfg, weights) * values[t.name] for t in terms if t.group == "principle"]
+    j_origin = cfg.weights.risk * functools.reduce(operator.add, principles) if principles else np.zeros(K)
+    for t in terms:
+        if t.group == "origin" and t.name in values:
+            j_origin = j_origin + weight_of(t, cfg, weights) * values[t.name]
 
+    j_total = inputs.j_total
     if cfg.utility is UtilityMode.LITERAL:
         j_mean = j_total / (N + 1)
     else:
@@ -256,13 +254,19 @@ def score(
     above = j_total > j_mean + _TIE_RTOL * np.abs(j_mean)
     j_utility = np.where(above, cfg.utility_scale * j_total, 0.0)
     j_risk = cfg.omega_o * j_origin + cfg.omega_u * j_utility
+    values.update(j_origin=j_origin, j_mean=j_mean, j_utility=j_utility, j_risk=j_risk)
 
-    values = (
-        bayes, equality, maximin, ego, responsibility, progress, lateral, j_origin,
-        j_total, j_mean, j_utility, j_risk,
-        se, so, vru, *maxes, bh, h_max, n_norm,
-    )
-    return CostBreakdown(terms=dict(zip(TERMS, values)), total=j_risk)
+    total = j_risk
+    out: dict[str, np.ndarray] = {}
+    for t in terms:  # the breakdown in the registry's order; a "total" term's weighted value after it
+        if t.name not in values:
+            continue
+        out[t.name] = values[t.name]
+        if t.group == "total" and t.weighted:
+            weighted = weight_of(t, cfg, weights) * values[t.name]
+            out[t.weighted] = weighted
+            total = total + weighted
+    return CostBreakdown(terms=out, total=total)
 
 
 def tolerance_bound(cost: CostBreakdown, risk: RiskTerms, cfg: CostConfig = CostConfig(),

@@ -28,7 +28,7 @@ from sumo_ethics.ethics.risk import assess_risk
 from sumo_ethics.contract import Decision, EgoCommand, Scene
 from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.perception import Perception, PerceptionConfig, SightMap
-from sumo_ethics.plan.phantoms import phantom_risk, with_phantom_term
+from sumo_ethics.plan.phantoms import phantom_risk
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
 from sumo_ethics.predict import registry
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior, recent_motion
@@ -460,13 +460,15 @@ class EthicalPlanner:
         classes = [legal & ~overlap & on_road & (worst < self.cfg.max_risk), legal & ~overlap & on_road,
                    ~overlap, np.ones(len(fc), dtype=bool)]
         # J_mean averages over the candidates the selection rule chooses among
-        cost = score(fc, risk, self.cfg.cost, desired_speed=v_desired,
-                     feasible=self.pool(classes, legal, on_road, overlap, evasive))
         ph_risk = None
         if percept is not None and percept.phantoms is not None:  # the phantoms' risk: a term of its own
             ph_risk = phantom_risk(fc, percept.phantoms, scene.ego, self.cfg.probability, self.cfg.perception.reaction,
                                    veh.max_decel)
-            cost = with_phantom_term(cost, ph_risk.sum(axis=1), self.cfg.perception.weight)
+        # every registered cost term (sumo_ethics.ethics.terms), the phantoms' among them
+        cost = score(fc, risk, self.cfg.cost, desired_speed=v_desired,
+                     feasible=self.pool(classes, legal, on_road, overlap, evasive),
+                     extra={} if ph_risk is None else {"phantom_risk": ph_risk.sum(axis=1)},
+                     weights={"phantom": self.cfg.perception.weight})
         w3 = time.perf_counter()
         envelope = self.cfg.envelope * overlap
         entry = self.cfg.entry * np.maximum(horizon_steps - first_hit, 0) / horizon_steps

@@ -38,10 +38,10 @@ from sumo_ethics.ethics.risk import assess_risk
 from sumo_ethics.geometry import OrientedBoxes
 from sumo_ethics.predict import features as F
 from sumo_ethics.predict.constant_velocity import ConstantVelocityPredictor
-from sumo_ethics.types import AgentStates, Candidates, CostBreakdown, Prediction, RoadUserClass
+from sumo_ethics.types import AgentStates, Candidates, Prediction, RoadUserClass
 from sumo_ethics.visibility import View, boxes
 
-__all__ = ["Phantoms", "place", "phantom_risk", "with_phantom_term", "SIZES", "KINDS"]
+__all__ = ["Phantoms", "place", "phantom_risk", "SIZES", "KINDS"]
 
 #: the phantom kinds and their class and size (length, width) [m]: Frenetix-Occlusion's phantom agents
 KINDS = ("pedestrian", "cyclist", "vehicle")
@@ -324,13 +324,3 @@ def phantom_risk(cand: Candidates, ph: Phantoms, ego: AgentStates, prob_cfg: Pro
     r = assess_risk(braked, ph.prediction, ph.agents, ego_mass=float(ego.mass[0]), ego_cls=int(ego.cls[0]),
                     ego_length=float(ego.length[0]), ego_width=float(ego.width[0]), prob_cfg=prob_cfg, steps=False)
     return (r.ego_risk + r.other_risk) * ph.existence[None, :]
-
-
-def with_phantom_term(cost: CostBreakdown, risk: np.ndarray, weight: float) -> CostBreakdown:
-    """``cost`` with the terms ``phantom_risk`` (K,) (expected risk summed over the phantoms) and
-    ``phantom`` = weight x phantom_risk, which is added to the total (J_risk)."""
-    total = np.asarray(risk, dtype=float)
-    terms = dict(cost.terms)
-    terms["phantom_risk"] = total
-    terms["phantom"] = weight * total
-    return CostBreakdown(terms, cost.total + weight * total)

@@ -105,3 +105,15 @@ def recover_summary(folder: Path) -> dict[str, Any]:
         "sim_time": float(steps[-1]["time"]) if steps else None,
         "controller": cfg.get("controller"), "reconstructed": True,
     }
+
+
+def collided(folder: Path) -> bool:
+    """Whether the run in ``folder`` booked an ego collision (summary.json's ``collided``): whether it
+    has collision snapshots to draw (:func:`sumo_ethics.analysis.explain.draw_snapshots`, which
+    callers import only then: the analysis package loads pandas)."""
+    try:
+        data = json.loads((Path(folder) / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and bool(data.get("collided"))
+

@@ -3,7 +3,7 @@
 :func:`run` starts the one simulation loop (:mod:`sumo_ethics.runner.loop`) with one ego, or with a
 fleet of them (:mod:`sumo_ethics.runner.fleet`, which drives each ego as the loop does), and picks
 what drives the ego (:func:`make_controller`). Each step: read (``SumoWorld.read`` -> Scene) -> act
-(``controller.act`` -> Decision) -> step (``SumoWorld.step``: moveToXY, simulationStep) -> detect
+(``controller.act`` -> Decision; the run's :class:`~sumo_ethics.contract.StepHook` s around it) -> step (``SumoWorld.step``: moveToXY, simulationStep) -> detect
 (``collision.CollisionBook``) -> record (``record.recorder.RunRecorder.step``). Whatever happens (a
 SUMO error, the ego leaving the network, Ctrl-C), the rows recorded so far and a summary saying why
 the run ended are written to the run folder.
@@ -12,12 +12,12 @@ the run ended are written to the run folder.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any, Callable
 
 from sumo_ethics.config import RunConfig
-from sumo_ethics.contract import Controller
+from sumo_ethics.contract import Controller, StepHook, as_hook
 from sumo_ethics.errors import ConfigError
-from sumo_ethics.runner.loop import (OUTPUT_NAMES, Run, RunSummary, StepHook, execute, prepare_out,
-                                     resolved_end)
+from sumo_ethics.runner.loop import OUTPUT_NAMES, Run, RunSummary, execute, prepare_out, resolved_end
 from sumo_ethics.sim.gui import GuiOptions
 from sumo_ethics.sim.lanes import SumoMapSource
 from sumo_ethics.sim.sight import sight_map
@@ -61,13 +61,14 @@ def _imported(cfg: RunConfig, hooks: tuple[StepHook, ...]) -> tuple[RunConfig, t
     return replace(cfg, ego_id="ego"), hooks + (CommonRoadHook(marker),)
 
 
-def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepHook, ...] = (),
+def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepHook | Callable[[Any, Any], None], ...] = (),
         gui: GuiOptions | None = None) -> RunSummary:
     """Run one scenario; writes the run folder and returns the summary.
 
-    hooks: callables ``hook(snapshot, world)`` called every ego step after the scene is read
-    and before the controller acts (they may act on SUMO, e.g. inject hazards; only code
-    under ``sumo_ethics/sim`` should). gui: run in sumo-gui through TraCI, the view following
+    hooks: :class:`~sumo_ethics.contract.StepHook` s, called at the loop's phases (start,
+    on_read, desired_speed, before_act, after_step, route_end, summary; they may act on SUMO,
+    e.g. inject hazards; only code under ``sumo_ethics/sim`` should); a plain callable
+    ``hook(snapshot, world)`` is wrapped as :class:`~sumo_ethics.contract.FunctionHook` (its ``on_read``). gui: run in sumo-gui through TraCI, the view following
     the ego and each decision drawn (single ego only; the same outputs as without).
 
     Raises ConfigError for bad input (the run folder is left as it was). Everything else ends
@@ -90,7 +91,7 @@ def run(cfg: RunConfig, controller: Controller | None = None, hooks: tuple[StepH
         from sumo_ethics.runner.fleet import run_fleet
 
         return run_fleet(cfg)
-    cfg, hooks = _imported(cfg, tuple(hooks))
+    cfg, hooks = _imported(cfg, tuple(as_hook(h) for h in hooks))
     controller = controller or make_controller(cfg)
     return execute(Run(cfg, controller, tuple(hooks), gui), cfg)
 

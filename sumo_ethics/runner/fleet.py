@@ -22,7 +22,7 @@ scenario's end, or when SUMO has nobody left). Every trip of the run, egos or no
 ``trips.parquet`` from SUMO's tripinfo. Each ego keeps its planner's decisions by
 ``--record-decisions`` as the single ego does, in its own log and folder
 (``RUN/decisions/<ego folder>/``, :func:`sumo_ethics.record.decisions.ego_folder`), dropped when it
-ends; each ego party of a collision gets its own snapshot figure.
+ends; each ego party of a collision gets its own snapshot figure (drawn from the folder after the run).
 """
 
 from __future__ import annotations
@@ -500,9 +500,11 @@ class FleetRun(Run):
             obs = Observation(time=t, dt=dt, history=u.history[idx], valid=u.valid[idx], current=snap.others,
                               ego=snap.ego)
         line, a.red_s = stop_line(a.world, a.s + a.half)
+        if a.rules is not None:  # the ego's one hook: its rule breakers (a fleet run takes no others)
+            a.rules.on_read(snap, a.world)
         a.scene = Scene(time=t, dt=dt, ego=snap.ego, others=snap.others, route=route, s=a.s, d=a.d,
                         stop_s=line, vehicle=a.vehicle, history=obs,
-                        rule_breakers=a.rules.breakers(snap.others) if a.rules is not None else frozenset())
+                        rule_breakers=a.rules.current if a.rules is not None else frozenset())
         return a.scene
 
     def _observe_all(self, now: float, dt: float, w: tuple[float, float]) -> None:
@@ -666,16 +668,16 @@ class FleetRun(Run):
             self._trips()
         return super().finish(wall, error)
 
-    def _snapshots(self) -> None:
-        """What the egos' logs kept (summary.json ``decisions``: the totals; each ego's in ``egos``)
-        and a figure of each ego party's last decision before each ego collision
-        (RUN/snapshots/collision_<event>_<ego folder>.png)."""
+    def _decisions(self) -> None:
+        """What the egos' logs kept (summary.json ``decisions``: the totals; each ego's in ``egos``).
+        The figure of each ego party's last decision before each ego collision
+        (RUN/snapshots/collision_<event>_<ego folder>.png) is drawn from the run folder afterwards
+        (:func:`sumo_ethics.analysis.explain.draw_snapshots`)."""
         kept = [a.decisions() for a in self.agents]
         self.meta["decisions"] = {"mode": self.cfg.record_decisions, "steps": sum(k.get("steps", 0) for k in kept),
                                   "bytes": sum(k.get("bytes", 0) for k in kept),
                                   "thinned": sum(k.get("thinned", 0) for k in kept),
                                   "egos": sum(k.get("steps", 0) > 0 for k in kept)}
-        self._draw_snapshots(frozenset(self.egos))
 
     def _trips(self) -> None:
         """trips.parquet from SUMO's tripinfo (written when SUMO closed)."""

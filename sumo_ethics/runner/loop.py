@@ -1,9 +1,12 @@
 """The one simulation loop, one ego (:class:`Run`, :func:`execute`); several: :mod:`sumo_ethics.runner.fleet`.
 
-Each step: read (``SumoWorld.read`` -> Scene) -> act (``controller.act`` -> Decision) -> step
-(``SumoWorld.step``: moveToXY, simulationStep) -> detect (``collision.CollisionBook``) -> record
-(``record.recorder.RunRecorder.step``: the step's rows and the decision, kept by
-``--record-decisions``). The ego is brought in by ``sim.ego``; no libsumo here. Whatever
+Each step: read (``SumoWorld.read``; hooks' ``on_read`` -> Scene; hooks' ``before_act``) -> act
+(``controller.act`` -> Decision) -> step (``SumoWorld.step``: moveToXY, simulationStep) -> detect
+(``collision.CollisionBook``) -> record (``record.recorder.RunRecorder.step``: the step's rows and the
+decision, kept by ``--record-decisions``; hooks' ``after_step``). The hooks are
+:class:`~sumo_ethics.contract.StepHook` s. The run draws no figures: the collision snapshots are
+drawn from the run folder afterwards (:func:`sumo_ethics.analysis.explain.draw_snapshots`). The ego
+is brought in by ``sim.ego``; no libsumo here. Whatever
 happens (a SUMO error, the ego leaving the network, Ctrl-C), the rows recorded so far and a
 summary saying why the run ended are written to the run folder.
 """
@@ -16,17 +19,18 @@ import shutil
 import time as wallclock
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from types import MappingProxyType
+from typing import Any, Iterable
 
 import numpy as np
 
 from sumo_ethics import __version__
-from sumo_ethics.collision import CollisionBook, booked_outcome, is_booked
+from sumo_ethics.collision import CollisionBook, booked_outcome
 from sumo_ethics.interrupt import sigterm_as_interrupt, sigterm_deferred
 from sumo_ethics.config import RunConfig
 from sumo_ethics.errors import ConfigError, OutputError, SimulationError, SumoEthicsError, Terminated, add_note
 from sumo_ethics.notes import RunNotes, blocker_ahead, held
-from sumo_ethics.contract import Controller, Scene, StopRun
+from sumo_ethics.contract import Controller, Scene, StepHook, StopRun
 from sumo_ethics.plan.feasibility import ROAD_CURVATURE_TOL
 from sumo_ethics.plan.history import History
 from sumo_ethics.record.recorder import RunRecorder
@@ -44,16 +48,9 @@ from sumo_ethics.sumo_options import format_time
 from sumo_ethics.sim.world import STOP_STATES, Snapshot, SumoWorld
 from sumo_ethics.types import VULNERABLE, RoadUserClass, RunStatus
 
-#: called every ego step with (snapshot, world) before the controller acts. A hook may also have
-#: ``at_takeover(world) -> RoutePath | None`` (called once, after the takeover and before the first
-#: step; a path returned replaces the ego's reference path),
-#: ``at_route_end(t) -> (status, message)`` (how a run ends when the ego passes its route's end,
-#: instead of completed), ``desired_speed(t, s) -> float | None`` (every step, after the hooks ran:
-#: the highest speed [m/s] the ego should aim at, at time t [s] and arc length s [m] on its reference
-#: path; the lowest any hook asks for is the scene's ``desired_speed``) and ``summary() -> dict``
-#: (merged into summary.json); it ends the run by raising :class:`StopRun`.
-#: sumo_ethics.sim.commonroad_run uses all of them.
-StepHook = Callable[[Snapshot, SumoWorld], None]
+# the run's per-step hooks are :class:`sumo_ethics.contract.StepHook` (re-exported here and by
+# sumo_ethics.runner; its phases: start, on_read, desired_speed, before_act, after_step, route_end,
+# summary): the loop calls nothing else of them
 
 
 @dataclass(frozen=True)
@@ -288,9 +285,8 @@ class Run:
         route = world.takeover()
         if self.gui is not None:
             self.view = View(ego_id)
-        for hook in self.hooks:
-            if hasattr(hook, "at_takeover"):  # may return another reference path for the ego
-                route = hook.at_takeover(world) or route
+        for hook in self.hooks:  # may return another reference path for the ego
+            route = hook.start(world) or route
         self.notes = notes = RunNotes(tight_bends(route, cfg.ego.max_curvature), cfg.ego.max_curvature,
                                       ROAD_CURVATURE_TOL)
         self.meta.update(step_length=dt, route_edges=list(edges), route_length=route.length,
@@ -315,6 +311,7 @@ class Run:
         progress = _progress(cfg.progress, snap.time, end)
         history = History(dt) if getattr(controller, "needs_history", False) else None
         rules = RuleMonitor() if getattr(controller, "needs_rules", False) else None
+        hooks = self.hooks + ((rules,) if rules is not None else ())  # the rule breakers of this step: a hook too
         try:
             while True:
                 t = snap.time
@@ -325,12 +322,10 @@ class Run:
                     return
                 w0 = wallclock.perf_counter()
                 try:
-                    for hook in self.hooks:  # e.g. hazards injected relative to the ego
-                        hook(snap, world)
+                    for hook in hooks:  # e.g. a CommonRoad replay; the rule breakers
+                        hook.on_read(snap, world)
                 except StopRun as stop:
-                    self.status, self.message = stop.status, stop.message
-                    if stop.status is RunStatus.TIMEOUT:  # e.g. a CommonRoad goal's last time step
-                        self._held(snap, route, s, half)
+                    self._stopped(stop, snap, route, s, half)
                     return
                 # read
                 obs = None
@@ -339,8 +334,10 @@ class Run:
                     obs = history.observation(t, snap.ego, snap.others)
                 scene = Scene(time=t, dt=dt, ego=snap.ego, others=snap.others, route=route, s=s, d=d,
                               stop_s=self.stop_line(s + half), vehicle=cfg.ego, history=obs,
-                              rule_breakers=rules.breakers(snap.others) if rules is not None else frozenset(),
+                              rule_breakers=rules.current if rules is not None else frozenset(),
                               desired_speed=self._desired_speed(t, s))
+                for hook in hooks:  # e.g. hazards injected relative to the ego, for this step
+                    hook.before_act(scene)
                 # act
                 decision = controller.act(scene)
                 self.n_fallback += int(decision.info.get("n_fallback", 0))
@@ -391,6 +388,13 @@ class Run:
                 self.rec.step(row, timing, decision.trace, t, ego_hit)
                 notes.step(row["time"], s, row["speed"], row["n_neighbours"], row["stop_s"], row["lane"],
                            row.get("validity", float("nan")))
+                try:
+                    seen = MappingProxyType(row)  # read only: the row is recorded already
+                    for hook in hooks:
+                        hook.after_step(new, world, seen)
+                except StopRun as stop:
+                    self._stopped(stop, new, route, s, half)
+                    return
                 snap = new
                 if progress is not None and self.step % 50 == 0:
                     progress[0].update(progress[1], completed=min(snap.time, end))
@@ -408,6 +412,13 @@ class Run:
             self.meta["loop_wall"] = wallclock.perf_counter() - self.t_start  # s, before outputs are written
             if progress is not None:
                 progress[0].stop()
+
+    def _stopped(self, stop: StopRun, snap: Snapshot, route: Any, s: float, half: float) -> None:
+        """A hook ended the run (:class:`StopRun`): its status and message, and at a timeout what
+        held the ego."""
+        self.status, self.message = stop.status, stop.message
+        if stop.status is RunStatus.TIMEOUT:  # e.g. a CommonRoad goal's last time step
+            self._held(snap, route, s, half)
 
     def _held(self, snap: Snapshot, route: Any, s: float, half: float) -> None:
         """A timeout: what held the ego (summary.json ``held``, sumo_ethics.notes.held), the words
@@ -461,15 +472,16 @@ class Run:
     def _desired_speed(self, t: float, s: float) -> float | None:
         """The lowest of the speeds [m/s] the hooks ask the ego to aim at now (``desired_speed(t, s)``);
         None when none asks."""
-        asked = [v for h in self.hooks if hasattr(h, "desired_speed") and (v := h.desired_speed(t, s)) is not None]
+        asked = [v for h in self.hooks if (v := h.desired_speed(t, s)) is not None]
         return min(asked) if asked else None
 
     def _route_end(self, t: float) -> tuple[RunStatus, str]:
         """How the run ends when the ego passes its route's end at time t: completed, unless a hook
         says otherwise (an imported CommonRoad scenario completes only in its goal region)."""
         for hook in self.hooks:
-            if hasattr(hook, "at_route_end"):
-                return hook.at_route_end(t)
+            ended = hook.route_end(t)
+            if ended is not None:
+                return ended
         return RunStatus.COMPLETED, f"goal reached at t={format_time(t)}"
 
     def _rows(self, now: Snapshot, before: Snapshot, decision: Any, s: float, d: float, dt: float,
@@ -491,8 +503,8 @@ class Run:
             except OSError as exc:  # e.g. a full disk: the chunks written so far stay in partial/
                 self.status, self.message = RunStatus.ERROR, f"cannot write the outputs to {out}: {exc.strerror or exc}"
                 error = error if isinstance(error, KeyboardInterrupt) else OutputError(self.message)
-            if not isinstance(error, KeyboardInterrupt):  # a stopped run leaves the drawing to 'explain'
-                self._snapshots()
+            if not isinstance(error, KeyboardInterrupt):  # what was kept (the figures: drawn from the folder)
+                self._decisions()
             data = self.summary(wall)
             try:
                 write_json(out / "summary.json", data)
@@ -505,30 +517,15 @@ class Run:
             shutil.rmtree(self.replaced, ignore_errors=True)
         return data, error
 
-    def _snapshots(self) -> None:
-        """A figure of the last decision before each ego collision (RUN/snapshots/); a failure to draw
-        is noted in the summary, never fatal: the decisions stay on disk for 'sumo-ethics explain'."""
+    def _decisions(self) -> None:
+        """summary.json's ``decisions``: what the run kept (mode, steps, bytes, thinned). The run draws
+        no figures: the collision snapshots are drawn from the run folder by
+        :func:`sumo_ethics.analysis.explain.draw_snapshots` (``sumo-ethics run`` does when a run ends)."""
         log = self.rec.decisions
         if log is None:
             return
         self.meta["decisions"] = {"mode": log.mode, "steps": len(log.written), "bytes": log.bytes,
                                   "thinned": log.thinned}
-        self._draw_snapshots()
-
-    def _draw_snapshots(self, egos: frozenset[str] | None = None) -> None:
-        """The collision snapshot figures (of each ego party among a fleet's ``egos``), listed in
-        the summary; a failure is noted there (``snapshot_error``)."""
-        if not any(is_booked(r) for r in self.rec.collisions):
-            return
-        w = wallclock.perf_counter()
-        try:
-            from sumo_ethics.analysis.explain import collision_snapshots
-
-            paths = collision_snapshots(self.cfg.out, self.rec.collisions, egos)
-            self.meta["snapshots"] = [str(p.relative_to(self.cfg.out)) for p in paths if p.suffix == ".png"]
-        except Exception as exc:  # noqa: BLE001 - a figure must never cost the run's outputs
-            self.meta["snapshot_error"] = f"{type(exc).__name__}: {exc}"
-        self.meta["snapshot_wall"] = wallclock.perf_counter() - w
 
     def summary(self, wall: float) -> dict[str, Any]:
         ego_rows, harm, faults = booked_outcome(self.rec.collisions)
@@ -553,7 +550,7 @@ class Run:
             "wall_time": wall,
             **{k: v for k, v in self.meta.items() if k != "last_time"},
             **(self.notes.summary(self.status is RunStatus.COMPLETED) if self.notes is not None else {}),
-            **{k: v for h in self.hooks if hasattr(h, "summary") for k, v in h.summary().items()},
+            **{k: v for h in self.hooks for k, v in h.summary().items()},
             "versions": {"sumo_ethics": __version__, "sumo": self.meta.get("sumo_version", "unknown"),
                          "python": platform.python_version(), "numpy": np.__version__},
         }

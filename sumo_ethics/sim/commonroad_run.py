@@ -1,6 +1,6 @@
 """Running a folder written by ``sumo-ethics import-commonroad`` (``commonroad.json`` beside the sumocfg).
 
-:class:`CommonRoadHook` is a run hook (``runner.StepHook``) that
+:class:`CommonRoadHook` is a run hook (:class:`sumo_ethics.contract.StepHook`) that
 
 - at the takeover places the ego at the planning problem's initial state (position, heading,
   speed) for the first controlled step, which is CommonRoad time step ``first_step``: simulation
@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from sumo_ethics.contract import StepHook, StopRun
 from sumo_ethics.goal import Goal, Pace
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.sim.backend import sumo
@@ -51,7 +52,7 @@ class GoalReached(Exception):
     pass
 
 
-class CommonRoadHook:
+class CommonRoadHook(StepHook):
     """Replay, goal check and initial state of an imported CommonRoad scenario (see the module doc)."""
 
     def __init__(self, marker: Path) -> None:
@@ -92,11 +93,11 @@ class CommonRoadHook:
     def step_at(self, t: float) -> float:
         """CommonRoad time step (fractional between recorded steps) at simulation time t."""
         if self.t0 is None:
-            raise RuntimeError("the CommonRoad replay has no start time before at_takeover")
+            raise RuntimeError("the CommonRoad replay has no start time before its start (the takeover)")
         return self.first + (t - self.t0) / self.dt_cr
 
     # ---- the runner's calls -------------------------------------------------------------
-    def at_takeover(self, world: Any) -> Any:
+    def start(self, world: Any) -> Any:
         """Right after the takeover, before the runner's first step: the ego and the obstacles are
         placed for that step's end, which is CommonRoad step ``first_step``. Returns the ego's
         reference path, changing to the goal's lanes where the route reaches them, with the goal's
@@ -139,7 +140,8 @@ class CommonRoadHook:
         the window is open, or the ego is late)."""
         return None if self.pace is None else self.pace.speed(self.step_at(t), s)
 
-    def __call__(self, snap: Any, world: Any) -> None:
+    def on_read(self, snap: Any, world: Any) -> None:
+        """Ends the run in the goal region (StopRun), else places the obstacles for the coming step."""
         u = self.step_at(snap.time)
         k = int(round(u))
         self._check(snap.time, u)
@@ -147,14 +149,12 @@ class CommonRoadHook:
         if abs(u - k) < 1e-6 and self.goal.completes(k, float(ego.x[0]), float(ego.y[0]), float(ego.yaw[0]),
                                                      float(ego.speed[0]), self.completion):
             self.goal_reached, self.goal_time, self.goal_step = True, float(snap.time), k
-            from sumo_ethics.contract import StopRun
-
             late = " (late: after the goal's time window, counted as the paper's evaluation does)" \
                 if self.goal.late(k) else ""
             raise StopRun(RunStatus.COMPLETED, f"CommonRoad goal reached at t={snap.time:g} s (time step {k}){late}")
         self._place(snap.time + sumo.simulation.getDeltaT())
 
-    def at_route_end(self, t: float) -> tuple[RunStatus, str]:
+    def route_end(self, t: float) -> tuple[RunStatus, str]:
         """The ego passed its route's end (past the goal lanes) outside the goal region: not completed."""
         k = self.step_at(t)
         return RunStatus.TIMEOUT, (f"end of the route reached at t={t:g} s (time step {k:.0f}) without reaching the "

@@ -1,7 +1,9 @@
 """Hazards injected through libsumo at run time, relative to the ego.
 
-A :class:`HazardInjector` is called once per step, before the ego's command is applied, with
-the controller's :class:`~sumo_ethics.contract.Scene`. Each hazard (a
+A :class:`HazardInjector` is a run hook (:class:`~sumo_ethics.contract.StepHook`, passed to
+``runner.run(..., hooks=(injector,))``): every step, right before the controller acts and so before
+the ego's command is applied, it gets the controller's :class:`~sumo_ethics.contract.Scene`
+(``before_act``). Each hazard (a
 :class:`~sumo_ethics.suite.spec.HazardSpec`) waits for its spawn/trigger condition, measured
 from the ego's front bumper along the ego's reference path, then drives its actor
 kinematically: a pose is commanded every step with ``moveToXY`` (exact pose; see the _KEEP_*
@@ -19,6 +21,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from sumo_ethics.contract import StepHook
 from sumo_ethics.sim.backend import sumo
 from sumo_ethics.sim.frames import centre_to_front
 
@@ -98,8 +101,9 @@ class HazardState:
         return t - self.t_trigger
 
 
-class HazardInjector:
-    """Spawns and drives the hazards of one scenario; call :meth:`on_step` every step."""
+class HazardInjector(StepHook):
+    """Spawns and drives the hazards of one scenario: a run hook (``before_act``), or call
+    :meth:`on_step` every step."""
 
     def __init__(self, hazards: Sequence[Any]) -> None:
         self.states = [HazardState(h) for h in hazards]
@@ -108,6 +112,10 @@ class HazardInjector:
         self._ready = False
 
     # ---- the per-step hook --------------------------------------------------------------
+    def before_act(self, scene: Any) -> None:
+        """The run hook's phase: :meth:`on_step` with the scene the controller is about to act on."""
+        self.on_step(scene)
+
     def on_step(self, scene: Any) -> None:
         """Scene at time t -> spawn/trigger/move every hazard actor for time t + dt."""
         if not self._ready:

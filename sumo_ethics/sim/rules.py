@@ -23,9 +23,11 @@ charges the risk put on road users who are *not* rule breakers.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
+from sumo_ethics.contract import StepHook
 from sumo_ethics.geometry import Polyline, wrap_angle
 from sumo_ethics.sim.backend import sumo
 from sumo_ethics.types import AgentStates, RoadUserClass
@@ -46,10 +48,13 @@ def outside_lane(lateral: float, lane_width: float, width: float, tol: float = O
     return abs(lateral) > (lane_width - width) / 2.0 + tol
 
 
-class RuleMonitor:
-    """Tracks the neighbours' lanes from step to step and names the rule breakers (module doc)."""
+class RuleMonitor(StepHook):
+    """Tracks the neighbours' lanes from step to step and names the rule breakers (module doc).
+    As a run hook (the loop adds one for a controller that ``needs_rules``) it reads them every
+    step (:meth:`on_read`) into :attr:`current`, the scene's ``rule_breakers``."""
 
     def __init__(self) -> None:
+        self.current: frozenset[str] = frozenset()  # the rule breakers at the last read
         self._lane: dict[str, str] = {}  # vehicle -> lane at the last step
         self._red: set[str] = set()  # vehicles that entered their junction at red
         self._shapes: dict[str, tuple[Polyline, float]] = {}  # lane -> (centre line, width)
@@ -68,6 +73,10 @@ class RuleMonitor:
             if link[4] == via:
                 return link[5]
         return ""
+
+    def on_read(self, snapshot: Any, world: Any) -> None:
+        """The rule breakers among the snapshot's neighbours, into :attr:`current`."""
+        self.current = self.breakers(snapshot.others)
 
     def breakers(self, others: AgentStates) -> frozenset[str]:
         """Ids of the rule-breaking vehicles among ``others`` (their states now)."""

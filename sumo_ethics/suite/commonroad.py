@@ -154,7 +154,7 @@ def _line(row: dict[str, Any]) -> str:
 
 def run_one(scenario_dir: str, planner: Any, out_dir: str, record_decisions: str = "risky") -> dict[str, Any]:
     """One imported CommonRoad folder with one planner -> a result row for evaluate (never raises)."""
-    from sumo_ethics.suite.outcome import read_summary
+    from sumo_ethics.suite.outcome import read_summary, snapshots_of
 
     t0 = time.perf_counter()
     folder = Path(scenario_dir)
@@ -175,6 +175,7 @@ def run_one(scenario_dir: str, planner: Any, out_dir: str, record_decisions: str
             data = read_summary(Path(out_dir)) or {"status": "error", "message": str(exc)}
             if not data.get("message"):
                 data["message"] = f"{type(exc).__name__}: {exc}"
+        data.update(snapshots_of(Path(out_dir)))
         row.update(_row(meta, Path(out_dir), data))
     except Exception as exc:  # noqa: BLE001
         row.update(status="error", completed=False, total=0.0, ego=0.0, third_party=0.0, vru=0.0,

@@ -31,7 +31,8 @@ from sumo_ethics.analysis.exante import run_risk_file
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.ethics.cost import DEFAULT_OMEGA_U
 from sumo_ethics.predict import one_thread
-from sumo_ethics.suite.outcome import FAULTS, HARD_BRAKE, WARRANT_AFTER, WARRANT_BEFORE, outcome, read_summary
+from sumo_ethics.suite.outcome import (FAULTS, HARD_BRAKE, WARRANT_AFTER, WARRANT_BEFORE, outcome, read_summary,
+                                       snapshots_of)
 
 #: the paper's planner: attention predictor, J_utility at this weight (see docs/suite.md, "The planners of evaluate")
 PAPER_OMEGA_U = DEFAULT_OMEGA_U
@@ -157,7 +158,6 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str, record_decisi
         from sumo_ethics.runner import make_controller, run
         from sumo_ethics.settings import planner_config
         from sumo_ethics.sim.hazards import HazardInjector
-        from sumo_ethics.suite.controller import HazardController
         from sumo_ethics.suite.spec import load
 
         spec = load(Path(scenario_dir))
@@ -166,7 +166,7 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str, record_decisi
         cfg = spec.run_config(Path(out_dir), pcfg, overwrite=True, record_decisions=record_decisions)
         injector = HazardInjector(spec.hazards)
         try:
-            summary = run(cfg, controller=HazardController(make_controller(cfg), injector))
+            summary = run(cfg, controller=make_controller(cfg), hooks=(injector,))
             data = summary.data
         except Exception as exc:  # noqa: BLE001 - a failed run is a row with status error
             data = read_summary(Path(out_dir)) or {"status": "error", "message": str(exc)}
@@ -175,6 +175,7 @@ def run_one(scenario_dir: str, planner: PlannerSpec, out_dir: str, record_decisi
         finally:
             Path(out_dir).mkdir(parents=True, exist_ok=True)
             (Path(out_dir) / "hazard_events.json").write_text(json.dumps(injector.events, indent=1))
+        data.update(snapshots_of(Path(out_dir)))  # drawn from the run folder (the run draws none)
         harm = data.get("harm", {})
         fired = sorted({e["type"] for e in injector.events if e["event"] == "trigger"})
         row.update(status=data.get("status", "error"), completed=bool(data.get("completed", False)),

@@ -17,6 +17,19 @@ def read_summary(out: Path) -> dict[str, Any] | None:
         return None
 
 
+def snapshots_of(out: Path) -> dict[str, Any]:
+    """The collision snapshot figures of the run in ``out``, drawn from the folder when it booked an
+    ego collision (:func:`sumo_ethics.analysis.explain.draw_snapshots`: the run draws none; listed in
+    summary.json); the summary keys written ({} when there was nothing to draw)."""
+    from sumo_ethics.record.reader import collided
+
+    if not collided(out):
+        return {}
+    from sumo_ethics.analysis.explain import draw_snapshots
+
+    return draw_snapshots(out)
+
+
 def _ego_collisions(out: Path) -> Any:
     """The run's booked ego collisions (collisions.parquet without the unconfirmed SUMO reports), None
     if the file cannot be read."""

@@ -16,27 +16,22 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from sumo_ethics.contract import Decision, Scene
+from sumo_ethics.contract import Scene, StepHook
 
 
-class _Recording:
-    """A controller wrapper: record the traffic, inject the hazards, then let ``inner`` act."""
+class _Recording(StepHook):
+    """A run hook: every step, after the hazards (the hook before it) and before the controller
+    acts, record every road user but the ego."""
 
-    def __init__(self, inner: Any, injector: Any) -> None:
-        self.inner, self.injector = inner, injector
-        self.name = inner.name
-        self.needs_history = getattr(inner, "needs_history", False)
-        self.needs_rules = getattr(inner, "needs_rules", False)
+    def __init__(self) -> None:
         self.recorder: Any = None
 
-    def act(self, scene: Scene) -> Decision:
+    def before_act(self, scene: Scene) -> None:
         from sumo_ethics.sim.trajectories import TrafficRecorder
 
         if self.recorder is None:
             self.recorder = TrafficRecorder(skip=tuple(scene.ego.ids))
-        self.injector.on_step(scene)
         self.recorder.step()
-        return self.inner.act(scene)
 
 
 def record_scenario(scenario_dir: Path | str, scratch_root: str | None = None) -> tuple[pd.DataFrame, Any]:
@@ -55,14 +50,14 @@ def record_scenario(scenario_dir: Path | str, scratch_root: str | None = None) -
         # the ethical planner with constant-velocity prediction: it avoids most hazards, so the
         # run (and the hazard actors' tracks) goes on after them; it is fast
         cfg = spec.run_config(Path(tmp) / "run", planner_config(None, predictor="cv"), overwrite=True)
-        ctrl = _Recording(make_controller(cfg), HazardInjector(spec.hazards))
+        traffic = _Recording()
         try:
-            run(cfg, controller=ctrl)
+            run(cfg, controller=make_controller(cfg), hooks=(HazardInjector(spec.hazards), traffic))
         except Exception:  # noqa: BLE001 - a run that ends in an error still leaves its trajectories
             pass
-    if ctrl.recorder is None:
+    if traffic.recorder is None:
         return pd.DataFrame(), None
-    c = ctrl.recorder.cols
+    c = traffic.recorder.cols
     df = pd.DataFrame({
         "time": np.array(c["time"]), "agent_id": np.array(c["agent_id"], dtype=str),
         "cls": np.array(c["cls"], dtype=np.int8), "x": np.array(c["x"]), "y": np.array(c["y"]),
@@ -75,4 +70,4 @@ def record_scenario(scenario_dir: Path | str, scratch_root: str | None = None) -
         "blinker": np.array(c["blinker"], dtype=np.int8),
         "after_lane": np.array(c["after_lane"], dtype=np.int32),
     })
-    return df, ctrl.recorder.graph
+    return df, traffic.recorder.graph

@@ -32,6 +32,7 @@ def execute_run(spec: dict[str, Any], runs_dir: str) -> dict[str, Any]:
     sumo-ethics errors propagate (the caller records the run as failed).
     """
     from sumo_ethics.errors import OutputError, SumoEthicsError
+    from sumo_ethics.record.reader import collided
     from sumo_ethics.record.writer import write_json
 
     s = RunSpec.from_dict(spec)
@@ -55,6 +56,10 @@ def execute_run(spec: dict[str, Any], runs_dir: str) -> dict[str, Any]:
         if not (tmp / "summary.json").exists():
             tmp.mkdir(parents=True, exist_ok=True)
             write_json(tmp / "summary.json", {"status": "error", "message": str(exc), "completed": False})
+    if collided(tmp):  # the collision snapshots, drawn from the run folder (the run draws none)
+        from sumo_ethics.analysis.explain import draw_snapshots
+
+        draw_snapshots(tmp)
     wall = time.perf_counter() - t0
     write_json(tmp / "params.json", {"run_id": s.run_id, "params": s.params, "scenario": s.scenario,
                                      "wall_time": wall, "cpu_time": time.process_time() - c0})
