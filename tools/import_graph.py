@@ -25,9 +25,9 @@ PACKAGE = "sumo_ethics"
 
 # the house plan, ground floor first: a room may import rooms on its own floor or below
 FLOORS: list[tuple[str, ...]] = [
-    # 0 the ground: datatypes, errors, geometry, files, signals, the run processes' forkserver, SUMO's option
+    # 0 the ground: datatypes, errors, geometry, files, signals, one process per run (its forkserver), SUMO's option
     # values, the C heap's trim, the kernels' threads; and the package's __init__
-    ("sumo_ethics", "errors", "types", "geometry", "interrupt", "_worker_signals", "forkserver", "processes", "fileio",
+    ("sumo_ethics", "errors", "types", "geometry", "interrupt", "_worker_signals", "processes", "fileio",
      "cli_types", "sumo_options", "heap", "cores"),
     # 1 configuration, the runner/controller contract, the goal region, what a sensor sees, the ethics and safety maths
     ("config", "contract", "goal", "visibility", "ethics", "safety", "collision", "notes"),
