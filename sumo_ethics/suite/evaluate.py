@@ -2,7 +2,7 @@
 
 Each (scenario, planner) run is one task in a fresh process (libsumo: one simulation per
 process, and none after a fatal SUMO error): :func:`sumo_ethics.processes.run_each`, forked
-from a forkserver that has imported torch, libsumo and the package once (a spawned worker
+from a forkserver that has imported torch, libsumo and the package once (a spawned process
 would re-import torch for every run). Every planner meets the same
 scenarios with the same seeds, so the comparison is paired.
 
