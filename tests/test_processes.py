@@ -160,3 +160,29 @@ def test_sigterm_stops_the_parent_as_ctrl_c_does_and_kills_its_children():
     out, err = parent.communicate(timeout=30)
     assert parent.returncode == 0 and out.strip() == "terminated" and not err, err
     _gone(children)
+
+
+@pytest.mark.sumo
+def test_an_evaluation_keeps_a_row_for_a_run_whose_process_is_killed(tmp_path):
+    """evaluate through run_each: the run process of the first scenario killed with SIGKILL (as the
+    OOM killer would) is an error row naming the signal; the second scenario runs on."""
+    import threading
+    from pathlib import Path
+
+    from sumo_ethics.suite.evaluate import parse_planners, run_suite
+
+    suite = Path(__file__).resolve().parents[1] / "scenarios" / "suite"
+    rows: list[dict] = []
+    before = _run_processes(os.getpid())
+    worker = threading.Thread(target=lambda: rows.extend(run_suite([suite / "s0000", suite / "s0001"],
+                                                                   parse_planners(["baseline"]), tmp_path, workers=1)))
+    worker.start()
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not (_alive(_run_processes(os.getpid())) - before):
+        time.sleep(0.02)
+    (first,) = _alive(_run_processes(os.getpid())) - before
+    os.kill(first, signal.SIGKILL)
+    worker.join(timeout=300)
+    assert [(r["scenario"], r["planner"]) for r in rows] == [("s0000", "baseline"), ("s0001", "baseline")]
+    assert rows[0]["status"] == "error" and rows[0]["message"] == "run process died (killed by signal 9)"
+    assert rows[0]["network"] and rows[1]["status"] in ("completed", "collision", "timeout"), rows
