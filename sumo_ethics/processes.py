@@ -189,7 +189,8 @@ def run_each(fn: Callable[[J], R], jobs: Iterable[J], workers: int, *, preload: 
             recv.close()
             _stop(proc)  # one that sent its result and hung on the way out (or an interrupt here)
             code = proc.exitcode
-            proc.close()
+            if code is not None:  # reaped (a process stuck in the kernel is left to the system)
+                proc.close()
         if status == "ok":
             return value
         if status == "error":
