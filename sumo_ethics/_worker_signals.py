@@ -1,16 +1,21 @@
-"""Imported only by the sweep's and the evaluation's forkservers (never by a main process).
+"""Imported by the run processes' forkserver alone (:func:`sumo_ethics.processes.forkserver_context`
+preloads it; never imported by a main process): the one routine by which run processes ignore
+Ctrl-C and die with their parent, for evaluate, sweeps and dataset recording alike.
 
-Every run process forked from them
+Every run process forked from that server
 
-- ignores Ctrl-C (SIGINT) from its first instruction: a terminal's Ctrl-C reaches the whole
-  process group; the parent owns cancellation and terminates its runs, whereas a SIGINT landing
-  in a run process printed a traceback;
-- dies with the sweep (or evaluation) that started it, even when that is killed with ``kill -9``:
-  :func:`watch_parent`, called first in the run process, kills the process as soon as the
-  starting process's sentinel pipe closes (the forkserver itself stays alive while its children
-  hold its pipe, so a parent-death signal alone is not enough); and on Linux
-  ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` right after the fork kills it when the forkserver dies.
-  The run's temporary folder is removed when the sweep starts again.
+- never sees Ctrl-C (SIGINT) or SIGTERM: the server ignores SIGINT and holds both blocked, and
+  its children inherit that from their first instruction. A terminal's Ctrl-C reaches the whole
+  process group, and a SIGTERM may too; the parent owns cancellation and kills its runs (SIGKILL,
+  :func:`sumo_ethics.processes.run_each`), whereas a signal landing in a run process printed a
+  traceback or ended the run as a crash;
+- dies with the process that started it (the evaluation, sweep or dataset build), even when that
+  is killed with ``kill -9``: :func:`watch_parent`, called first in the run process, kills the
+  process as soon as the starting process's sentinel pipe closes (the forkserver itself stays
+  alive while its children hold its pipe, so a parent-death signal alone is not enough); and on
+  Linux ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` right after the fork kills it when the forkserver dies.
+  A killed sweep's temporary run folders are removed when it starts again; a dataset build keeps
+  only finished runs.
 """
 
 import os
@@ -18,6 +23,7 @@ import signal
 import sys
 
 signal.signal(signal.SIGINT, signal.SIG_IGN)
+signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
 
 FORKSERVER_PID = os.getpid()
 PR_SET_PDEATHSIG = 1

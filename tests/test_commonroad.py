@@ -542,3 +542,22 @@ def run_with(cfg: Path, out: Path, hook):
     from sumo_ethics.runner import run
 
     return run(RunConfig(scenario=cfg, out=out, controller="baseline", progress=False), hooks=(hook,))
+
+
+@needs_cr
+def test_importing_on_two_workers_gives_the_rows_of_one(tmp_path: Path) -> None:
+    """The imports of evaluate's CommonRoad folders on several workers (one fresh process per file,
+    sumo_ethics.processes.run_each): the same rows in the same order as on one."""
+    from sumo_ethics.suite import commonroad
+
+    src = tmp_path / "in"
+    src.mkdir()
+    (src / "ZAM_Tutorial-1_1_T-1.xml.gz").write_bytes(ZAM.read_bytes())
+    (src / "BEL_Putte-1_1_T-1.xml.gz").write_bytes(BEL.read_bytes())
+    (src / "broken.xml").write_text('<?xml version="1.0"?><commonRoad><foo></commonRoad>')
+    runs = [commonroad.prepare(src, tmp_path / f"out{n}", "replay", n) for n in (1, 2)]
+    (one_dirs, one), (two_dirs, two) = runs
+    assert [(Path(r["file"]).name, r["status"], r["cause"]) for r in one] == \
+        [(Path(r["file"]).name, r["status"], r["cause"]) for r in two]
+    assert [r["status"] for r in two] == ["imported", "imported", "failed"]
+    assert [p.name for p in one_dirs] == [p.name for p in two_dirs]

@@ -30,7 +30,7 @@ def report(conn):
 
 if __name__ == "__main__":
     if sys.argv[1] == "fixed":
-        from sumo_ethics.forkserver import forkserver_context
+        from sumo_ethics.processes import forkserver_context
         ctx = forkserver_context(["sumo_ethics"])
     else:
         import multiprocessing

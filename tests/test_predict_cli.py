@@ -285,25 +285,25 @@ def test_dataset_reports_a_scenario_that_crashes_sumo_in_one_line(tmp_path, caps
 
 
 def test_runs_in_fresh_processes_come_as_they_finish_and_a_crash_is_named():
-    """The dataset's runs (isolated_map): each (job, result) as soon as it finishes, not held back
-    behind a longer job started before it (a stopped build keeps every finished run); a process
+    """The dataset's runs (processes.run_each): each (job, result) as soon as it finishes, not held
+    back behind a longer job started before it (a stopped build keeps every finished run); a process
     that dies mid-run (SUMO crashing after a good start) is named instead of waited for forever."""
     import os
     import time
 
     from sumo_ethics.errors import SimulationError
-    from sumo_ethics.recording.isolated import isolated_map
+    from sumo_ethics.processes import run_each
 
-    def crashed(job: int) -> SimulationError:
-        return SimulationError(f"SUMO crashed while simulating job {job}")
+    def crashed(job: int, why: str):
+        raise SimulationError(f"SUMO crashed while simulating job {job} ({why})")
 
-    assert sorted(isolated_map(abs, [-3, 1, -2], 2, crashed)) == [(-3, 3), (-2, 2), (1, 1)]
+    assert sorted(run_each(abs, [-3, 1, -2], 2, on_crash=crashed)) == [(-3, 3), (-2, 2), (1, 1)]
     # two workers: the 6 s job starts first, the two short ones finish (one after the other) before it
-    assert [job for job, _ in isolated_map(time.sleep, [6.0, 0.1, 0.2], 2, crashed)] == [0.1, 0.2, 6.0]
-    with pytest.raises(SimulationError, match="SUMO crashed while simulating job 7"):
-        list(isolated_map(os._exit, [7], 2, crashed))  # the process dies: exit code 7
+    assert [job for job, _ in run_each(time.sleep, [6.0, 0.1, 0.2], 2, on_crash=crashed)] == [0.1, 0.2, 6.0]
+    with pytest.raises(SimulationError, match=r"SUMO crashed while simulating job 7 \(run process died \(exit code 7\)\)"):
+        list(run_each(os._exit, [7], 2, on_crash=crashed))  # the process dies: exit code 7
     with pytest.raises(ValueError, match="invalid literal for int"):  # a worker's own exception, raised here
-        list(isolated_map(int, ["12", "x"], 1, crashed))
+        list(run_each(int, ["12", "x"], 1, on_crash=crashed))
 
 
 def test_dataset_writes_nothing_next_to_the_scenario(tmp_path):

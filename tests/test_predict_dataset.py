@@ -69,6 +69,16 @@ def _children(pid: int) -> list[int]:
     return out
 
 
+def _family(pid: int) -> list[int]:
+    """Every descendant of ``pid``: its forkserver and the run processes forked from it, too."""
+    out, todo = [], _children(pid)
+    while todo:
+        child = todo.pop()
+        out.append(child)
+        todo += _children(child)
+    return out
+
+
 def _children_alive(pids: list[int]) -> list[int]:
     """Those of ``pids`` still running: a zombie has ended (an init that reaps no orphans, as in
     some containers, leaves multiprocessing's resource tracker so)."""
@@ -100,7 +110,7 @@ def _long_dataset_command(out: Path, env: dict | None = None, suite: bool = Fals
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
 def test_ctrl_c_while_dataset_workers_start_prints_one_line_and_leaves_no_process(tmp_path):
-    """A terminal's Ctrl-C reaches the whole process group. The spawned SUMO workers used to print
+    """A terminal's Ctrl-C reaches the whole process group. The SUMO run processes used to print
     KeyboardInterrupt tracebacks when it came while they were still importing; now they do not see
     it, and the command terminates them and prints one line."""
     import os
@@ -111,11 +121,11 @@ def test_ctrl_c_while_dataset_workers_start_prints_one_line_and_leaves_no_proces
     deadline = time.monotonic() + 60
     workers: set[int] = set()
     while time.monotonic() < deadline and proc.poll() is None and not workers:
-        workers = _spawned_workers_alive(proc.pid)  # a SUMO worker, not the resource tracker
+        workers = _run_processes_alive(proc.pid)  # a SUMO run process, not the forkserver or resource tracker
         time.sleep(0.02)
     assert workers, "no worker process started"
     time.sleep(0.3)  # the worker is importing now
-    workers = sorted(workers | set(_children(proc.pid)))
+    workers = sorted(workers | set(_family(proc.pid)))
     os.killpg(proc.pid, signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130 and err.strip() == "error: interrupted; no dataset is written", err[-2000:]
@@ -157,7 +167,7 @@ def test_a_dataset_stopped_mid_run_leaves_no_scratch_folder_and_no_worker(tmp_pa
         time.sleep(0.05)
     assert running(), "no run started"
     time.sleep(1.0)
-    workers = sorted(_children(proc.pid))
+    workers = sorted(_family(proc.pid))
     if how.startswith("ctrl-c"):
         os.killpg(proc.pid, signal.SIGINT)
     else:
@@ -171,27 +181,28 @@ def test_a_dataset_stopped_mid_run_leaves_no_scratch_folder_and_no_worker(tmp_pa
     assert not (tmp_path / "ds").exists()
 
 
-def _spawned_workers_alive(pid: int) -> set[int]:
-    """Live children of ``pid`` that are multiprocessing spawn workers (not its resource tracker)."""
+def _run_processes_alive(pid: int) -> set[int]:
+    """Live run processes of ``pid``: the children of its forkserver (not the server, not its
+    resource tracker)."""
     out = set()
     for child in _children_alive(_children(pid)):
         try:
-            if b"spawn_main" in Path(f"/proc/{child}/cmdline").read_bytes():
-                out.add(child)
+            if b"forkserver" in Path(f"/proc/{child}/cmdline").read_bytes():
+                out |= set(_children_alive(_children(child)))
         except OSError:
             continue
     return out
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
-def test_isolated_map_terminates_its_running_workers_when_interrupted():
+def test_run_each_kills_its_running_processes_when_interrupted():
     """Two workers sleeping 60 s; an exception in the caller (here from a timer signal, as a
     Ctrl-C) ends them at once: they never see Ctrl-C themselves, so nothing else would."""
     import os
     import signal
     import time
 
-    from sumo_ethics.recording.isolated import isolated_map
+    from sumo_ethics.processes import run_each
 
     class Stop(Exception):
         pass
@@ -199,9 +210,9 @@ def test_isolated_map_terminates_its_running_workers_when_interrupted():
     def stop(signum, frame):
         raise Stop
 
-    before = _spawned_workers_alive(os.getpid())
+    before = _run_processes_alive(os.getpid())
     old = signal.signal(signal.SIGALRM, stop)
-    jobs = isolated_map(time.sleep, [60.0, 60.0, 60.0], 2, lambda job: RuntimeError("crashed"))
+    jobs = run_each(time.sleep, [60.0, 60.0, 60.0], 2)
     t0 = time.monotonic()
     try:
         signal.setitimer(signal.ITIMER_REAL, 4.0)  # the two workers have started by then
@@ -211,7 +222,7 @@ def test_isolated_map_terminates_its_running_workers_when_interrupted():
         signal.setitimer(signal.ITIMER_REAL, 0.0)
         signal.signal(signal.SIGALRM, old)
     assert time.monotonic() - t0 < 15.0
-    assert not _spawned_workers_alive(os.getpid()) - before
+    assert not _run_processes_alive(os.getpid()) - before
 
 
 def test_run_store_keeps_finished_runs_whole_and_refuses_another_plan(tmp_path):
@@ -290,13 +301,13 @@ def test_a_stopped_dataset_keeps_its_finished_runs_and_the_same_command_resumes_
     assert first.read_bytes() == kept
 
     simulated: list[int] = []
-    real_map = D.isolated_map
+    real_run_each = D.run_each
 
-    def watched(fn, jobs, workers, crashed):
+    def watched(fn, jobs, workers, **kw):
         simulated.extend(job.run_id for job in jobs if isinstance(job, D.RunSpec))
-        return real_map(fn, jobs, workers, crashed)
+        return real_run_each(fn, jobs, workers, **kw)
 
-    monkeypatch.setattr(D, "isolated_map", watched)
+    monkeypatch.setattr(D, "run_each", watched)
     assert main([*args, str(out)]) == 0
     assert simulated == [1, 2] and not (out / "partial").exists()
     assert capsys.readouterr().err.strip() == f"resuming: 1 of 3 runs finished before and are kept in {out / 'partial'}"
@@ -366,9 +377,9 @@ def test_the_first_worker_of_a_fresh_process_holds_ctrl_c_and_sigterm_too():
     import sys
 
     code = ("import functools, signal\n"
-            "from sumo_ethics.recording.isolated import isolated_map\n"
+            "from sumo_ethics.processes import run_each\n"
             "mask = functools.partial(signal.pthread_sigmask, signal.SIG_BLOCK)\n"
-            "print(sorted(int(s) for _, blocked in isolated_map(mask, [[], []], 1, RuntimeError) for s in blocked))\n"
+            "print(sorted(int(s) for _, blocked in run_each(mask, [[], []], 1) for s in blocked))\n"
             "print(sorted(int(s) for s in signal.pthread_sigmask(signal.SIG_BLOCK, [])))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
@@ -406,13 +417,13 @@ def test_a_worker_dies_with_its_killed_parent():
     import sys
     import time
 
-    code = ("import time\nfrom sumo_ethics.recording.isolated import isolated_map\n"
-            "list(isolated_map(time.sleep, [60.0], 1, RuntimeError))\n")
+    code = ("import time\nfrom sumo_ethics.processes import run_each\n"
+            "list(run_each(time.sleep, [60.0], 1))\n")
     parent = subprocess.Popen([sys.executable, "-c", code])
     deadline = time.monotonic() + 60
     workers: set[int] = set()
     while time.monotonic() < deadline and not workers:
-        workers = _spawned_workers_alive(parent.pid)
+        workers = _run_processes_alive(parent.pid)
         time.sleep(0.05)
     assert workers, "no worker started"
     time.sleep(1.0)  # the worker is in its job now

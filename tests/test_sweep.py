@@ -319,48 +319,17 @@ def test_ctrl_c_stops_cleanly_and_resumes(tmp_path):
 def test_a_crashing_run_process_fails_alone(tmp_path):
     """One run's process crashes (here: a controller that does not exist, past validation); the
     other run is unaffected, the crash is reported with its message and leaves no folder."""
-    from sumo_ethics.sweep import LocalPool
+    from sumo_ethics.sweep import local_runs
 
     sw = make_sweep(TESTBED, "0.5", "0-1", options={**FAST, "end": 5.0})
     good, bad = (s.to_dict() for s in sw.specs())
     bad["options"]["controller"] = "nonexistent"
-    pool = LocalPool(2)
-    jobs = {pool.submit(good, str(tmp_path)): "good", pool.submit(bad, str(tmp_path)): "bad"}
-    results = {}
-    while len(results) < 2:
-        for job in pool.wait([j for j in jobs if jobs[j] not in results]):
-            try:
-                results[jobs[job]] = job.result()
-            except RuntimeError as exc:
-                results[jobs[job]] = str(exc)
-    pool.close()
-    assert results["good"]["status"] == "timeout"
-    assert "unknown controller 'nonexistent'" in results["bad"]
+    results = {spec["run_id"]: result for spec, result in
+               local_runs([good, bad], str(tmp_path), 2, lambda spec, line: {"status": "failed", "message": line})}
+    assert results[good["run_id"]]["status"] == "timeout"
+    assert results[bad["run_id"]]["status"] == "failed"
+    assert "unknown controller 'nonexistent'" in results[bad["run_id"]]["message"]
     assert [p.name for p in tmp_path.iterdir()] == [good["run_id"]]
-
-
-def test_a_ctrl_c_while_a_run_process_starts_waits_for_the_start():
-    """SIGINT inside ``ctrl_c_after`` is raised as KeyboardInterrupt when the block is done, not in
-    the middle of it (a process start cut in two left its child printing a traceback)."""
-    from sumo_ethics.sweep.executors import ctrl_c_after
-
-    # Python's own Ctrl-C handler, as in a terminal (a shell starting pytest in the background
-    # leaves SIGINT ignored, and then there is nothing to hold)
-    before = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        reached = []
-        with pytest.raises(KeyboardInterrupt):
-            with ctrl_c_after():
-                os.kill(os.getpid(), signal.SIGINT)
-                time.sleep(0.05)  # the signal is handled in here
-                reached.append("end of block")
-        assert reached == ["end of block"]
-        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
-        with ctrl_c_after():  # no Ctrl-C: nothing raised
-            reached.append("quiet")
-        assert reached == ["end of block", "quiet"]
-    finally:
-        signal.signal(signal.SIGINT, before)
 
 
 def test_report_command_line_round_trips_its_set_values():

@@ -26,10 +26,10 @@ PACKAGE = "sumo_ethics"
 # the house plan, ground floor first: a room may import rooms on its own floor or below
 FLOORS: list[tuple[str, ...]] = [
     # 0 the ground: the package's __init__ (its version), errors, datatypes (types), geometry, signals (interrupt:
-    # Ctrl-C and SIGTERM; _worker_signals: a worker dies with its parent), the run processes' forkserver, files
-    # written whole (fileio), the click parameter types (cli_types), SUMO's option values (sumo_options), the C
-    # heap's trim (heap), the kernels' threads (cores)
-    ("sumo_ethics", "errors", "types", "geometry", "interrupt", "_worker_signals", "forkserver", "fileio",
+    # Ctrl-C and SIGTERM; _worker_signals: a worker dies with its parent), one process per run from a forkserver
+    # (processes), files written whole (fileio), the click parameter types (cli_types), SUMO's option values
+    # (sumo_options), the C heap's trim (heap), the kernels' threads (cores)
+    ("sumo_ethics", "errors", "types", "geometry", "interrupt", "_worker_signals", "processes", "fileio",
      "cli_types", "sumo_options", "heap", "cores"),
     # 1 configuration (config), the runner/controller contract, the goal region (goal), what a sensor sees
     # (visibility), the ethics and safety maths (ethics, safety), collisions found and booked (collision), a run's

@@ -1,6 +1,6 @@
 """Training samples for the predictors from recorded trajectories (no torch, no SUMO).
 
-A dataset folder (written by :func:`sumo_ethics.recording.build.build_dataset`, which runs every scenario x seed (one libsumo simulation per spawned
+A dataset folder (written by :func:`sumo_ethics.recording.build.build_dataset`, which runs every scenario x seed (one libsumo simulation per fresh
 process, ``--step-length 0.1 --lanechange.duration 2``, demand scaled with ``--scale``
 varying by seed) holds:
 

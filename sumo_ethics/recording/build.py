@@ -1,5 +1,5 @@
-"""Prediction datasets recorded from SUMO: every scenario x seed simulated, one libsumo run per spawned
-process, the trajectories turned into training samples (:mod:`sumo_ethics.predict.samples`).
+"""Prediction datasets recorded from SUMO: every scenario x seed simulated, one libsumo run per fresh
+process (:func:`sumo_ethics.processes.run_each`), the trajectories turned into training samples (:mod:`sumo_ethics.predict.samples`).
 
 ``build_dataset`` runs every scenario x seed (``--step-length 0.1 --lanechange.duration 2``, demand
 scaled with ``--scale`` varying by seed) and the suite scenarios with their hazards, and writes the
@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import closing, contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 import pandas as pd
@@ -28,7 +29,7 @@ from sumo_ethics.interrupt import signals_held
 from sumo_ethics.predict import features as F
 from sumo_ethics.predict.graph_files import write_dataset_graphs
 from sumo_ethics.predict.samples import SIM_DT, SUITE_SEED0, build_samples, split_counts, split_seeds
-from sumo_ethics.recording.isolated import isolated_map
+from sumo_ethics.processes import run_each
 from sumo_ethics.recording.runstore import RunStore
 from sumo_ethics.sim.frames import front_to_centre
 
@@ -36,6 +37,9 @@ log = logging.getLogger(__name__)
 
 #: what sim.trajectories writes; a stopped build resumes only with the same (2: no rows without a position)
 RECORDER_VERSION = 2
+
+#: what the run processes' forkserver imports once (:func:`sumo_ethics.processes.run_each`)
+PRELOAD = ("sumo_ethics.recording.build", "sumo_ethics.sim.trajectories")
 
 
 
@@ -141,10 +145,10 @@ def check_scenarios(scenarios: list[Path]) -> None:
     malformed config, an option plain sumo lacks, e.g. a gui-only ``osg-view``) raises ConfigError
     with SUMO's reason, so nothing is simulated in vain; one that crashes SUMO, too."""
 
-    def crashed(scenario: Path) -> ConfigError:  # SUMO may crash outright on a broken file
-        return ConfigError(f"dataset: SUMO crashed while loading {scenario} (a malformed network or route file?)")
+    def crashed(scenario: Path, why: str) -> NoReturn:  # SUMO may crash outright on a broken file
+        raise ConfigError(f"dataset: SUMO crashed while loading {scenario} (a malformed network or route file?)")
 
-    for _, problem in isolated_map(_probe, scenarios, 1, crashed):
+    for _, problem in run_each(_probe, scenarios, 1, preload=PRELOAD, on_crash=crashed):
         if problem:
             raise ConfigError(f"dataset: {problem}")
 
@@ -173,16 +177,16 @@ def _simulate_safely(spec: RunSpec) -> tuple[pd.DataFrame, F.LaneGraph]:
         return _simulate(spec)
 
 
-def _crashed_run(name: str) -> Exception:
+def _crashed_run(name: str) -> NoReturn:
     from sumo_ethics.errors import SimulationError
 
-    return SimulationError(f"dataset: SUMO crashed while simulating {name}")
+    raise SimulationError(f"dataset: SUMO crashed while simulating {name}")
 
 
 @contextmanager
 def _scratch_root() -> Iterator[str]:
     """A temporary folder for the scratch folders of a batch of runs, removed on leaving (the
-    runs' processes must be gone by then: :func:`isolated_map` closed first)."""
+    runs' processes must be gone by then: :func:`~sumo_ethics.processes.run_each` closed first)."""
     import shutil
     import tempfile
 
@@ -194,7 +198,7 @@ def _scratch_root() -> Iterator[str]:
 
 
 def simulate_runs(specs: list[RunSpec], store: RunStore, workers: int = 1) -> None:
-    """Run every spec not yet in ``store`` in a fresh spawned process (:func:`isolated_map`) and
+    """Run every spec not yet in ``store`` in a fresh process (:func:`~sumo_ethics.processes.run_each`) and
     keep each run's trajectory rows and lane graph there as soon as it ends.
 
     The runs' scratch folders (the scenarios' own outputs) go in one temporary folder, removed
@@ -202,12 +206,12 @@ def simulate_runs(specs: list[RunSpec], store: RunStore, workers: int = 1) -> No
     SIGTERM cannot remove its own."""
     done = store.done()
     todo = [spec for spec in specs if spec.run_id not in done]
-    def crashed(spec: RunSpec) -> Exception:
-        return _crashed_run(_run_name(spec))
+    def crashed(spec: RunSpec, why: str) -> NoReturn:
+        _crashed_run(_run_name(spec))
 
     with _scratch_root() as root:
         jobs = [replace(spec, scratch_root=root) for spec in todo]
-        with closing(isolated_map(_simulate_safely, jobs, workers, crashed)) as results:  # closed: no process runs on
+        with closing(run_each(_simulate_safely, jobs, workers, preload=PRELOAD, on_crash=crashed)) as results:  # closed: no process runs on
             for i, (spec, (df, graph)) in enumerate(results):
                 store.put(spec.run_id, df, graph)
                 log.info("run %d/%d: %s seed %d scale %.2f -> %d rows", i + 1, len(todo), spec.scenario.name,
@@ -236,15 +240,15 @@ def _simulate_suite(args: tuple[int, Path, str | None]) -> tuple[pd.DataFrame, F
 
 
 def simulate_suite(scenarios: list[Path], first_run_id: int, store: RunStore, workers: int = 1) -> None:
-    """Record the suite scenarios not yet in ``store`` (hazards included), one spawned process each
-    (:func:`isolated_map`), numbered from ``first_run_id``; each kept in ``store`` as it ends."""
+    """Record the suite scenarios not yet in ``store`` (hazards included), one fresh process each
+    (:func:`~sumo_ethics.processes.run_each`), numbered from ``first_run_id``; each kept in ``store`` as it ends."""
     done = store.done()
-    def crashed(job: tuple) -> Exception:
-        return _crashed_run(_suite_name(job[1]))
+    def crashed(job: tuple, why: str) -> NoReturn:
+        _crashed_run(_suite_name(job[1]))
 
     with _scratch_root() as root:
         jobs = [(first_run_id + i, Path(s).resolve(), root) for i, s in enumerate(scenarios) if first_run_id + i not in done]
-        with closing(isolated_map(_simulate_suite, jobs, workers, crashed)) as results:
+        with closing(run_each(_simulate_suite, jobs, workers, preload=PRELOAD, on_crash=crashed)) as results:
             for (run_id, scen, _), (df, graph) in results:
                 store.put(run_id, df, graph)
                 log.info("suite run %d: %s -> %d rows", run_id, scen.name, len(df))

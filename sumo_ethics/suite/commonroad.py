@@ -3,7 +3,8 @@
 ``import-commonroad`` (holding ``commonroad.json``).
 
 Every file is imported into ``OUT/imported/<name>-<mode>`` (an import already there, of the same
-mode, is reused), in ``workers`` processes; a file that does not import is listed in
+mode, is reused), one fresh process per file, ``workers`` at a time
+(:func:`sumo_ethics.processes.run_each`: one whose process dies is a failed row); a file that does not import is listed in
 ``OUT/imports.csv`` with its one-line cause and the import time, and the evaluation goes on with
 the rest. Each imported folder is then run like a suite scenario (the run detects the import by
 its ``commonroad.json``: the planning problem's ego, replayed or SUMO-driven obstacles, completion
@@ -75,6 +76,13 @@ def _import_one(args: tuple[str, str, str, str]) -> dict[str, Any]:
     return row
 
 
+def _crashed_import(args: tuple[str, str, str, str], why: str) -> dict[str, Any]:
+    """The row of an import whose process died (the converter crashing): failed, the others go on."""
+    src, dest, mode, completion = args
+    return {"file": src, "folder": dest, "mode": mode, "completion": completion, "status": "failed",
+            "message": f"internal error: {why}", "cause": "internal error: run process died", "seconds": 0.0}
+
+
 def _kind(marker: Path) -> tuple[Any, Any, Any]:
     """(source, mode, completion rule) of an imported folder's ``commonroad.json``."""
     m = json.loads(marker.read_text())
@@ -124,12 +132,16 @@ def prepare(folder: Path, out: Path, mode: str, workers: int = 2,
         raise ConfigError(f"two CommonRoad files named {dup[0]} in {folder}: scenario names must be unique")
     if todo:
         (out / "imported").mkdir(parents=True, exist_ok=True)
-        if workers > 1 and len(todo) > 1:
-            import multiprocessing as mp
-            from concurrent.futures import ProcessPoolExecutor
+        if workers > 1 and len(todo) > 1:  # one fresh process per file, in the files' order
+            from contextlib import closing
 
-            with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
-                for row in pool.map(_import_one, todo):
+            from sumo_ethics.processes import run_each
+
+            # the evaluation's modules too: its runs are forked from the same server, started here
+            results = run_each(_import_one, todo, workers, preload=("sumo_ethics.suite.preload", __name__),
+                               on_crash=_crashed_import, ordered=True)
+            with closing(results):  # closed: no import process runs on
+                for _, row in results:
                     rows.append(row)
                     if progress is not None:
                         progress(_line(row))

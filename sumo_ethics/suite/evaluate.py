@@ -1,11 +1,10 @@
 """``sumo-ethics evaluate``: every scenario of a suite with every planner -> the paper's Table 1.
 
-Each (scenario, planner) run is a process of its own (libsumo: one simulation per process, and
-none after a fatal SUMO error), at most ``workers`` at once (:func:`run_suite`): each is forked
-from a forkserver that has imported torch, libsumo and the package once (``suite/preload.py``; a
-spawned process would re-import torch for every run) and sends its row back over a pipe; one that
-dies is an error row. Every planner meets the same scenarios with the same seeds, so the
-comparison is paired.
+Each (scenario, planner) run is one task in a fresh process (libsumo: one simulation per
+process, and none after a fatal SUMO error): :func:`sumo_ethics.processes.run_each`, forked
+from a forkserver that has imported torch, libsumo and the package once (a spawned process
+would re-import torch for every run). Every planner meets the same
+scenarios with the same seeds, so the comparison is paired.
 
 Table columns as in the paper (METHOD.md section 5; docs/suite.md, "evaluate: Table 1 for a
 suite"): Completed (%), and harm summed over all runs: Total = Ego + Third party, VRU (part of
@@ -21,9 +20,10 @@ from __future__ import annotations
 import json
 import os
 import time
+from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable, cast
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
@@ -233,18 +233,9 @@ def safety_markdown(st: list[dict[str, Any]]) -> list[str]:
 
 
 # ---- many runs --------------------------------------------------------------------------
-def _child(conn: Any, args: tuple) -> None:
-    from sumo_ethics._worker_signals import watch_parent
-
-    watch_parent()  # killed when the evaluation is gone, even by kill -9
-    try:
-        row = run_one(*args)
-        try:
-            conn.send(row)
-        except OSError:  # the evaluation was interrupted and is gone; the run folder holds the run
-            pass
-    finally:
-        conn.close()
+def _run_task(task: tuple) -> dict[str, Any]:
+    """One task of :func:`run_suite` in its run process: :func:`run_one`'s row."""
+    return run_one(*task)
 
 
 def _dead_row(scenario: str, planner: PlannerSpec, why: str) -> dict[str, Any]:
@@ -291,14 +282,13 @@ def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, wor
               resume: bool = False, record_decisions: str = "risky") -> list[dict[str, Any]]:
     """Every scenario with every planner; one row per run (order: scenario, then planner).
 
-    Each run is its own process, forked from a forkserver that has the heavy modules loaded:
-    a run that crashes (a SUMO abort, a segfault, out of memory) is an error row and takes
-    no other run with it. ``resume``: runs whose folder already holds a finished run are read
-    back instead of run again.
+    Each run is its own process (:func:`sumo_ethics.processes.run_each`), forked from a
+    forkserver that has the heavy modules loaded: a run that crashes (a SUMO abort, a segfault,
+    out of memory) is an error row naming its exit code and takes no other run with it; Ctrl-C
+    or SIGTERM kills the runs in flight (a run's folder holds what it wrote). ``resume``: runs
+    whose folder already holds a finished run are read back instead of run again.
     """
-    from multiprocessing.connection import Connection, wait
-
-    from sumo_ethics.forkserver import forkserver_context
+    from sumo_ethics.processes import one_line, run_each
 
     if workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
@@ -318,33 +308,12 @@ def run_suite(scenarios: list[Path], planners: list[PlannerSpec], out: Path, wor
             done(row)
         else:
             todo.append(t)
-    ctx = forkserver_context(["sumo_ethics._worker_signals", "sumo_ethics.suite.preload"])
-    running: dict[Connection, tuple[Any, tuple]] = {}
-    try:
-        while todo or running:
-            while todo and len(running) < workers:
-                t = todo.pop(0)
-                recv, send = ctx.Pipe(duplex=False)
-                proc = ctx.Process(target=_child, args=(send, t), daemon=True)
-                running[recv] = (proc, t)  # before start: an interrupt during start still stops it
-                proc.start()
-                send.close()
-            for ready in wait(list(running)):
-                conn = cast(Connection, ready)  # wait gives back the pipe ends it is given
-                proc, t = running.pop(conn)
-                try:
-                    result = conn.recv()
-                except (EOFError, OSError):
-                    proc.join()
-                    result = _dead_row(t[0], t[1], f"run process died (exit code {proc.exitcode})")
-                conn.close()
-                proc.join()
-                done(result)
-    finally:
-        for proc, _ in running.values():
-            if proc.pid is not None:  # started
-                proc.kill()
-                proc.join()
+    results = run_each(_run_task, todo, workers, preload=["sumo_ethics.suite.preload"],
+                       on_error=lambda t, exc: _dead_row(t[0], t[1], one_line(exc)),
+                       on_crash=lambda t, why: _dead_row(t[0], t[1], why))
+    with closing(results):  # closed: no run process runs on
+        for _, row in results:
+            done(row)
     order = {(Path(s).name, p.name): i for i, (s, p, *_) in enumerate(tasks)}
     rows.sort(key=lambda r: order[(r["scenario"], r["planner"])])
     return rows

@@ -9,9 +9,10 @@ Layout of a sweep folder ``DIR``::
     DIR/dataset/collisions/...   parameters except the seed (``scenario=urban/omega_u=0.5/part-0.parquet``);
     DIR/dataset/steps/...        every row carries ``run_id`` and the sweep parameters
 
-Executors. Locally one fresh process per run (started from a forkserver with the package
-preloaded, so starting one costs milliseconds, not the imports), at most ``--workers`` at a
-time: a fatal SUMO error never leaks into the next run and a crashing run takes down only
+Executors. Locally one fresh process per run, at most ``--workers`` at a time
+(:func:`sumo_ethics.processes.run_each`, which evaluate and dataset recording use too: started
+from a forkserver with the package preloaded, so starting one costs milliseconds, not the
+imports): a fatal SUMO error never leaks into the next run and a crashing run takes down only
 itself (a ``ProcessPoolExecutor`` with ``max_tasks_per_child=1`` breaks every run in flight when
 one worker dies, and hangs at exit after Ctrl-C on Python 3.11). With a Dask scheduler the
 same :func:`execute_run` runs in a fresh Python subprocess started by the Dask task
@@ -37,21 +38,21 @@ processes, Dask); this module runs a sweep. The sweep's Parquet dataset is built
 from __future__ import annotations
 
 import time
-import traceback
+from collections.abc import Callable, Iterator
+from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from sumo_ethics.errors import ConfigError, add_note
-from sumo_ethics.sweep.executors import (DaskPool, LocalPool, RunProcess, execute_run, execute_run_isolated,
-                                         main_one)
+from sumo_ethics.sweep.executors import DaskPool, execute_run, execute_run_isolated, local_runs, main_one
 from sumo_ethics.sweep.grid import (MAX_RUNS, MAX_VALUES, PLANNER_SIMPLE, RUN_KEYS, RunSpec, Sweep,
                                     find_scenarios, known_set_keys, make_run_id, make_sweep, parse_range,
                                     parse_seeds, parse_set, planner_keys, scenario_names)
 from sumo_ethics.sweep.manifest import (FAILED, FINISHED, MANIFEST_VERSION, PENDING, Manifest, check_finished,
                                         check_out, clean_temporaries, result_from_folder)
 
-__all__ = ["DaskPool", "LocalPool", "RunProcess", "execute_run", "execute_run_isolated", "main_one", "MAX_RUNS",
+__all__ = ["DaskPool", "execute_run", "execute_run_isolated", "local_runs", "main_one", "MAX_RUNS",
            "MAX_VALUES", "PLANNER_SIMPLE", "RUN_KEYS", "RunSpec", "Sweep", "find_scenarios",
            "known_set_keys", "make_run_id", "make_sweep", "parse_range", "parse_seeds", "parse_set",
            "planner_keys", "scenario_names", "FAILED", "FINISHED", "MANIFEST_VERSION", "PENDING", "Manifest",
@@ -139,40 +140,32 @@ def _run_sweep(sweep: Sweep, out: Path, workers: int, scheduler: str | None, pro
         raise ConfigError(f"--workers must be at least 1, got {workers}")
     specs = sweep.validate()
     check_out(out, sweep)
-    executor: LocalPool | DaskPool = DaskPool(scheduler) if scheduler else LocalPool(workers)
+    dask = DaskPool(scheduler) if scheduler else None
     try:
         t0, runs_dir, manifest, todo, skipped = _start(sweep, out, specs,
                                                        {"scheduler": scheduler} if scheduler else {"workers": workers})
     except BaseException:
-        executor.close()
+        if dask is not None:
+            dask.close()
         raise
     failed = errors = 0
     failures: list[str] = []
+
+    def started() -> Iterator[dict[str, Any]]:  # each run counted as its process starts
+        for s in todo:
+            manifest.runs[s.run_id]["attempts"] += 1
+            yield s.to_dict()
+
+    def crashed(spec: dict[str, Any], line: str) -> dict[str, Any]:  # a crash of the tool on this run
+        return {"run_id": spec["run_id"], "status": FAILED, "error": line, "message": line}
+
+    results = dask.runs(started(), str(runs_dir), crashed) if dask is not None else \
+        local_runs(started(), str(runs_dir), workers, crashed)
     with _progress(progress, len(specs)) as bar:
         task = bar.add_task("runs", total=len(specs), completed=skipped, failed=0, errors=0)
-        running: dict[Any, RunSpec] = {}
-        queue = list(todo)
-
-        def fill() -> None:
-            # local: a process per run, so exactly `workers` at a time; Dask: keep its queue fed
-            limit = executor.workers if isinstance(executor, LocalPool) else 2 * executor.workers
-            while queue and len(running) < limit:
-                s = queue.pop(0)
-                manifest.runs[s.run_id]["attempts"] += 1
-                running[executor.submit(s.to_dict(), str(runs_dir))] = s
-
         try:
-            fill()
-            while running:
-                done_set = executor.wait(running)
-                for fut in done_set:
-                    s = running.pop(fut)
-                    try:
-                        result = fut.result()
-                    except Exception as exc:  # noqa: BLE001 - a crash of the tool on this run
-                        line = str(exc) if isinstance(exc, RuntimeError) and str(exc) else \
-                            "".join(traceback.format_exception_only(type(exc), exc)).strip().splitlines()[-1]
-                        result = {"run_id": s.run_id, "status": FAILED, "error": line, "message": line}
+            with closing(results):  # closed: no run process runs on
+                for _, result in results:
                     manifest.update(result)
                     if result["status"] == FAILED:
                         failed += 1
@@ -183,13 +176,13 @@ def _run_sweep(sweep: Sweep, out: Path, workers: int, scheduler: str | None, pro
                         on_result(result)
                     manifest.write()
                     bar.update(task, advance=0 if result["status"] == FAILED else 1, failed=failed, errors=errors)
-                fill()
         except BaseException:
-            executor.close(cancel=True)
             manifest.sync(runs_dir)
             manifest.write()
             raise
-    executor.close()
+        finally:
+            if dask is not None:
+                dask.close()
     manifest.write()
     from sumo_ethics.analysis.sweep_tables import build_dataset
 

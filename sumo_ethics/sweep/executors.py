@@ -1,6 +1,7 @@
 """Executing runs: :func:`execute_run` (one grid point into its run folder), local processes
-(:class:`LocalPool`, a fresh process per run from a forkserver) and a Dask cluster
-(:class:`DaskPool`, each run in a fresh subprocess on a worker)."""
+(:func:`local_runs`, a fresh process per run from the forkserver of :mod:`sumo_ethics.processes`)
+and a Dask cluster (:class:`DaskPool`, each run in a fresh subprocess on a worker). Both give
+``(spec, result)`` as runs finish, a failed run as the caller's ``failed(spec, line)``."""
 
 from __future__ import annotations
 
@@ -8,18 +9,16 @@ import json
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import time
-import traceback
 import uuid
-from contextlib import AbstractContextManager
+from collections.abc import Callable, Generator, Iterable
+from functools import partial
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 from sumo_ethics.errors import ConfigError
-from sumo_ethics.interrupt import signals_held
 from sumo_ethics.predict import one_thread
 from sumo_ethics.sweep.grid import RunSpec
 from sumo_ethics.sweep.manifest import result_from_folder
@@ -88,119 +87,19 @@ def execute_run_isolated(spec: dict[str, Any], runs_dir: str, timeout: float | N
     raise RuntimeError(f"run process died (exit code {proc.returncode}): {tail}")
 
 
-def _child(conn: Any, spec: dict[str, Any], runs_dir: str) -> None:
-    """Body of one run process: :func:`execute_run`, its result (or error line) sent back."""
-    from sumo_ethics._worker_signals import watch_parent
-
-    watch_parent()  # killed when the sweep is gone, even by kill -9
-    try:
-        result = execute_run(spec, runs_dir)
-        conn.send(("ok", result))
-    except BaseException as exc:  # noqa: BLE001 - reported to the parent, which records the run as failed
-        from sumo_ethics.errors import SumoEthicsError
-
-        line = str(exc) if isinstance(exc, SumoEthicsError) and str(exc) else \
-            "".join(traceback.format_exception_only(type(exc), exc)).strip().splitlines()[-1]
-        try:
-            conn.send(("error", line))
-        except OSError:
-            pass
-    finally:
-        conn.close()
+#: what the run processes' forkserver imports once (:func:`sumo_ethics.processes.run_each`)
+PRELOAD = ("sumo_ethics.sweep", "sumo_ethics.runner", "sumo_ethics.plan.ethical")
 
 
-def ctrl_c_after() -> AbstractContextManager[None]:
-    """Hold a Ctrl-C (SIGINT) that arrives inside the block until the block is done, then raise it
-    (:func:`sumo_ethics.interrupt.signals_held`).
+def local_runs(specs: Iterable[dict[str, Any]], runs_dir: str, workers: int,
+               failed: Callable[[dict[str, Any], str], dict[str, Any]]) -> Generator[tuple[dict[str, Any], dict[str, Any]], None, None]:
+    """``(spec, result)`` of every run, each :func:`execute_run` in a fresh local process, ``workers``
+    at a time (:func:`sumo_ethics.processes.run_each`); a run that raised or whose process died is
+    ``failed(spec, one line)``."""
+    from sumo_ethics.processes import one_line, run_each
 
-    Starting a process from the forkserver is two steps: the forkserver forks the child, then this
-    process writes it what to run. A KeyboardInterrupt between the two left the child reading an
-    empty pipe, and it printed ``EOFError: Ran out of input`` under the sweep's one error line."""
-    return signals_held(signal.SIGINT)
-
-
-class RunProcess:
-    """One run in its own process; ``result()`` like a Future's (raises RuntimeError on a crash)."""
-
-    def __init__(self, ctx: Any, spec: dict[str, Any], runs_dir: str) -> None:
-        self.conn, child = ctx.Pipe(duplex=False)
-        self.proc = ctx.Process(target=_child, args=(child, spec, runs_dir), name=f"run-{spec['run_id']}",
-                                daemon=True)
-        with ctrl_c_after():  # the child gets what to run even when Ctrl-C comes now
-            self.proc.start()
-        child.close()
-        self._msg: tuple | None = None
-
-    def ready_handles(self) -> list[Any]:
-        return [self.conn, self.proc.sentinel]
-
-    def done(self) -> bool:
-        if self._msg is None and self.conn.poll():
-            try:
-                self._msg = self.conn.recv()
-            except (EOFError, OSError):
-                self._msg = ("died", None)
-        if self._msg is None and not self.proc.is_alive():
-            self._msg = ("died", None)
-        return self._msg is not None
-
-    def result(self) -> dict[str, Any]:
-        assert self._msg is not None
-        self.proc.join(timeout=30)
-        kind, value = self._msg
-        if kind == "ok":
-            return value
-        if kind == "error":
-            raise RuntimeError(value)
-        code = self.proc.exitcode
-        how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit code {code}"
-        raise RuntimeError(f"run process died ({how})")
-
-    def stop(self) -> None:
-        if self.proc.is_alive():
-            self.proc.terminate()
-        self.proc.join(timeout=10)
-        if self.proc.is_alive():
-            self.proc.kill()
-            self.proc.join(timeout=5)
-
-
-class LocalPool:
-    """Local processes, one fresh process per run (forkserver with the package preloaded, so a
-    run starts in milliseconds; a SUMO crash takes down only its own run)."""
-
-    def __init__(self, workers: int) -> None:
-        from sumo_ethics.forkserver import forkserver_context
-
-        self.workers = workers
-        self.ctx = forkserver_context(["sumo_ethics._worker_signals", "sumo_ethics.sweep", "sumo_ethics.runner",
-                                       "sumo_ethics.plan.ethical"])
-        self.jobs: list[RunProcess] = []
-
-    def submit(self, spec: dict[str, Any], runs_dir: str) -> RunProcess:
-        job = RunProcess(self.ctx, spec, runs_dir)
-        self.jobs.append(job)
-        return job
-
-    def wait(self, running: Iterable[Any]) -> set[Any]:
-        from multiprocessing.connection import wait as mp_wait
-
-        jobs = list(running)
-        while True:
-            done = {j for j in jobs if j.done()}
-            if done:
-                for j in done:
-                    self.jobs.remove(j)
-                return done
-            mp_wait([h for j in jobs for h in j.ready_handles()], timeout=1.0)
-
-    def close(self, cancel: bool = False) -> None:
-        for j in self.jobs:
-            if cancel:
-                j.stop()
-            else:
-                j.proc.join()
-        self.jobs = []
+    return run_each(partial(execute_run, runs_dir=runs_dir), specs, workers, preload=PRELOAD,
+                    on_error=lambda spec, exc: failed(spec, one_line(exc)), on_crash=failed)
 
 
 class DaskPool:
@@ -225,24 +124,40 @@ class DaskPool:
                               f"(or it is not a Dask scheduler): {msg}") from None
         self.workers = max(1, sum(self.client.nthreads().values()))
 
-        self._done: Any = None
-
-    def submit(self, spec: dict[str, Any], runs_dir: str) -> Any:
+    def runs(self, specs: Iterable[dict[str, Any]], runs_dir: str,
+             failed: Callable[[dict[str, Any], str], dict[str, Any]]) -> Generator[tuple[dict[str, Any], dict[str, Any]], None, None]:
+        """``(spec, result)`` of every run as it finishes, as :func:`local_runs` gives them: each
+        :func:`execute_run_isolated` on a worker, twice as many submitted as the cluster has threads
+        (its queue kept fed); a run that raised or whose process died is ``failed(spec, one line)``."""
         from distributed import as_completed
 
-        key = f"run-{spec['run_id']}-{uuid.uuid4().hex[:6]}"
-        fut = self.client.submit(execute_run_isolated, spec, runs_dir, key=key, pure=False, retries=0)
-        if self._done is None:
-            self._done = as_completed([fut])
-        else:
-            self._done.add(fut)
-        return fut
+        from sumo_ethics.processes import one_line
 
-    def wait(self, running: Iterable[Any]) -> set[Any]:
-        first = next(self._done)
-        return {first, *self._done.next_batch(block=False)}
+        todo = iter(specs)
+        running: dict[Any, dict[str, Any]] = {}
+        done = as_completed()
 
-    def close(self, cancel: bool = False) -> None:
+        def fill() -> None:
+            while len(running) < 2 * self.workers and (spec := next(todo, None)) is not None:
+                key = f"run-{spec['run_id']}-{uuid.uuid4().hex[:6]}"
+                fut = self.client.submit(execute_run_isolated, spec, runs_dir, key=key, pure=False, retries=0)
+                running[fut] = spec
+                done.add(fut)
+
+        fill()
+        while running:
+            for fut in [next(done), *done.next_batch(block=False)]:
+                spec = running.pop(fut)
+                try:
+                    result = fut.result()
+                except RuntimeError as exc:  # the run's process died: execute_run_isolated's own line
+                    result = failed(spec, str(exc) or one_line(exc))
+                except Exception as exc:  # noqa: BLE001 - a crash of the tool on this run
+                    result = failed(spec, one_line(exc))
+                yield spec, result
+            fill()
+
+    def close(self) -> None:
         self.client.close()
 
 
