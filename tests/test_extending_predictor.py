@@ -1,4 +1,4 @@
-"""docs/extending_predictor.md works as written: its code blocks make a constant-acceleration
+"""docs/extending.md's "A new predictor" works as written: its code blocks make a constant-acceleration
 predictor module and an entry point for it (in a package of a temporary folder on sys.path), and
 the predictor is then listed by the registry, predicts what a person computes by hand, plans a
 step in the ethical planner without SUMO, is a choice of the command line (and drives a short
@@ -26,7 +26,13 @@ from sumo_ethics.predict import registry
 from sumo_ethics.types import AgentStates, Observation
 
 ROOT = Path(__file__).resolve().parents[1]
-DOC = ROOT / "docs" / "extending_predictor.md"
+DOC = ROOT / "docs" / "extending.md"
+
+
+def _section() -> str:
+    """The page's "A new predictor" section, up to the cost term's."""
+    text = DOC.read_text(encoding="utf-8")
+    return text[text.index("## A new predictor"):text.index("## A cost term")]
 MODULE = "my_predictors/constant_acceleration.py"
 SHIPPED = ("map_cslstm", "map", "attention", "cslstm", "cv")
 #: a fenced block (possibly indented inside a list item): its language and its text, dedented
@@ -34,7 +40,7 @@ BLOCK = re.compile(r"^( *)```(\w+)\n(.*?)^\1```", re.M | re.S)
 
 
 def doc_blocks() -> list[tuple[str, str]]:
-    return [(lang, textwrap.dedent(body)) for _, lang, body in BLOCK.findall(DOC.read_text(encoding="utf-8"))]
+    return [(lang, textwrap.dedent(body)) for _, lang, body in BLOCK.findall(_section())]
 
 
 def module_text() -> str:
@@ -142,6 +148,7 @@ def test_the_command_line_offers_it(plugin):
     assert bad.exit_code == 2 and "'cq' is not one of" in bad.output
 
 
+@pytest.mark.sumo
 def test_a_run_of_the_command_line_in_a_new_process_predicts_with_it(tmp_path):
     """The page's package on PYTHONPATH (as if installed): ``sumo-ethics run --predictor ca`` in a
     process of its own finds it through the entry point and records it in summary.json."""

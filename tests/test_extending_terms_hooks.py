@@ -1,4 +1,4 @@
-"""docs/extending_terms_hooks.md (issue 58): its code blocks, run as written. The comfort term is
+"""docs/extending.md's cost term and step hook sections (issue 58): its code blocks, run as written. The comfort term is
 registered, scored to the values worked out by hand, weighted by CostConfig.term_weights and
 [planner.terms], recorded and drawn; at weight 0 it changes no decision. The step hook runs in a
 short SUMO run and logs what steps.parquet holds."""
@@ -18,7 +18,13 @@ from sumo_ethics.ethics import terms as term_registry
 from sumo_ethics.ethics.cost import CostConfig, score
 from sumo_ethics.types import AgentStates, Candidates
 
-DOC = ROOT / "docs" / "extending_terms_hooks.md"
+DOC = ROOT / "docs" / "extending.md"
+
+
+def _section() -> str:
+    """The page's cost term and step hook sections."""
+    text = DOC.read_text(encoding="utf-8")
+    return text[text.index("## A cost term"):]
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -28,7 +34,7 @@ else:  # pragma: no cover
 
 def blocks(lang: str) -> list[str]:
     """The doc's fenced code blocks in ``lang``, in order."""
-    return re.findall(rf"```{lang}\n(.*?)```", DOC.read_text(encoding="utf-8"), flags=re.S)
+    return re.findall(rf"```{lang}\n(.*?)```", _section(), flags=re.S)
 
 
 @pytest.fixture

@@ -22,7 +22,7 @@ The weight of a term is read by :func:`weight_of`: a field of ``CostConfig.weigh
 
 Adding a term is one function and one :func:`register` call; ``score`` sums it, the CostBreakdown,
 steps.parquet (``cost_<name>``), the recorded decisions and explain's panel carry it
-(``docs/extending_terms_hooks.md``). The built-in terms keep their order, so the columns and the
+(``docs/extending.md``). The built-in terms keep their order, so the columns and the
 floats of existing runs are unchanged; registered terms come after them.
 """
 
