@@ -34,6 +34,7 @@ import multiprocessing.forkserver
 import os
 import pickle
 import signal
+import tempfile
 import traceback
 from collections.abc import Callable, Generator, Iterable, Sequence
 from multiprocessing import resource_tracker
@@ -42,7 +43,6 @@ from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 from sumo_ethics.errors import SumoEthicsError
 from sumo_ethics.interrupt import signals_held, sigterm_as_interrupt
-from sumo_ethics.sumo_options import NO_SUMO_ENV
 
 if TYPE_CHECKING:
     from multiprocessing.context import ForkServerContext  # defined on POSIX only
@@ -54,6 +54,10 @@ R = TypeVar("R")
 CHILD_SETUP = ("sumo_ethics._worker_signals", "sumo_ethics.processes")
 
 _END = object()
+
+
+#: the longest temporary folder the forkserver's socket is made in ([bytes]; its path adds about 32)
+MAX_SOCKET_DIR = 70
 
 
 def forkserver_context(preload: Sequence[str] = ()) -> ForkServerContext:
@@ -71,17 +75,19 @@ def forkserver_context(preload: Sequence[str] = ()) -> ForkServerContext:
     ctx.set_forkserver_preload([*CHILD_SETUP, *(m for m in preload if m not in CHILD_SETUP)])
     before = os.environ.get("PYTHONSAFEPATH")
     os.environ["PYTHONSAFEPATH"] = "1"
-    # the server outlives the test that starts it: it does not keep the tests' bar on SUMO starts
-    barred = os.environ.pop(NO_SUMO_ENV, None)
+    # the server listens on a Unix socket in a folder of the temporary folder, and an AF_UNIX path
+    # holds at most 107 bytes: under a long TMPDIR (a batch system's, a test's) the socket goes to /tmp
+    tmp_before = tempfile.tempdir
+    if len(tempfile.gettempdir()) > MAX_SOCKET_DIR and os.path.isdir("/tmp") and os.access("/tmp", os.W_OK):
+        tempfile.tempdir = "/tmp"
     try:
         multiprocessing.forkserver.ensure_running()
     finally:
+        tempfile.tempdir = tmp_before
         if before is None:
             os.environ.pop("PYTHONSAFEPATH", None)
         else:
             os.environ["PYTHONSAFEPATH"] = before
-        if barred is not None:
-            os.environ[NO_SUMO_ENV] = barred
     return ctx
 
 

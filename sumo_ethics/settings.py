@@ -196,7 +196,7 @@ def _read_toml(path: Path, tables: set[str]) -> tuple[dict[str, Any], dict[str, 
 
 
 #: the [planner] table's keys that are not sub-tables: the cost's (CostConfig), then PlannerConfig's own
-#: fields (tests/test_sweep.py checks they are all of them)
+#: fields (tests/sweep/test_sweep.py checks they are all of them)
 COST_KEYS = ("omega_u", "omega_o", "weights", "utility", "normalise")
 PLANNER_KEYS = COST_KEYS + ("predictor", "predictor_weights", "calibrated", "max_risk", "braking_prior", "lateral_prior",
                             "lateral_onset", "selection", "envelope", "entry", "evasive", "replan_every",

@@ -113,18 +113,21 @@ def _is_number(t: str) -> bool:
         return False
 
 
-#: an environment variable: when it holds a file path, every start of SUMO or netconvert is refused
-#: (RuntimeError) and the file is written; the test suite sets it for the tests not marked ``sumo``
-#: (tests/conftest.py), so that ``pytest -m "not sumo"`` starts no SUMO. Unset in normal use.
+#: an environment variable: when it holds the path of a file in a folder that exists, every start of
+#: SUMO, sumo-gui or netconvert is refused (RuntimeError) and the file is written; the test suite sets
+#: it for the tests not marked ``sumo`` (tests/conftest.py), so that ``pytest -m "not sumo"`` starts no
+#: SUMO, and removes the folder after each test (a process that outlives the test, such as a
+#: forkserver started in it, keeps the variable but is no longer barred). Unset in normal use.
 NO_SUMO_ENV = "SUMO_ETHICS_NO_SUMO"
 
 
 def refuse_if_barred(what: str) -> None:
-    """Raise RuntimeError (after writing ``what`` to the file it names) when :data:`NO_SUMO_ENV` is set."""
+    """Raise RuntimeError (after writing ``what`` to the file it names) when :data:`NO_SUMO_ENV` names
+    a file in a folder that exists."""
     import os
 
     flag = os.environ.get(NO_SUMO_ENV)
-    if flag:
+    if flag and os.path.isdir(os.path.dirname(flag)):
         with open(flag, "a", encoding="utf-8") as f:
             f.write(f"{what} (process {os.getpid()})\n")
         raise RuntimeError(f"{what} refused: {NO_SUMO_ENV} is set (a test not marked sumo)")

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import os
 import shutil
+import subprocess
 import tempfile
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -79,9 +81,9 @@ _NO_SUMO_FLAG = pytest.StashKey[Path]()
 @pytest.hookimpl(tryfirst=True)
 def pytest_runtest_setup(item):
     """A test not marked ``sumo`` may not start SUMO, sumo-gui or netconvert, in this process or in
-    any process it starts, nor may the fixtures set up for it (sumo_options.NO_SUMO_ENV; the
-    forkserver's run processes excepted: the server outlives the test). A start raises there, and
-    the test fails here even when the raise was caught (:func:`pytest_runtest_makereport`)."""
+    any process it starts, nor may the fixtures set up for it (sumo_options.NO_SUMO_ENV, whose
+    folder lives as long as the test). A start raises there, and the test fails here even when the
+    raise was caught (:func:`pytest_runtest_makereport`)."""
     if item.get_closest_marker("sumo"):
         os.environ.pop(NO_SUMO_ENV, None)
         return
@@ -128,3 +130,27 @@ def straight_road_scene(others, history, desired_speed: float | None = None, dt:
     obs = Observation(time=0.0, dt=dt, history=hist, valid=np.ones(hist.shape[:2], bool), current=others, ego=ego)
     return Scene(time=0.0, dt=dt, ego=ego, others=others, route=route, s=10.0, d=0.0, stop_s=None,
                  vehicle=EgoVehicle(), history=obs, desired_speed=desired_speed)
+
+
+def build_signalised(folder):
+    """A road W (-100, 0) -> C (0, 0) -> E (100, 0) with a side road S -> C -> N, C a traffic light
+    held red for every link (an additional tlLogic); returns (net, additional file)."""
+
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "n.nod.xml").write_text(
+        '<nodes><node id="W" x="-100" y="0"/><node id="E" x="100" y="0"/><node id="S" x="0" y="-100"/>'
+        '<node id="N" x="0" y="100"/><node id="C" x="0" y="0" type="traffic_light"/></nodes>')
+    (folder / "e.edg.xml").write_text(
+        '<edges><edge id="WC" from="W" to="C" numLanes="1" speed="13.89"/>'
+        '<edge id="CE" from="C" to="E" numLanes="1" speed="13.89"/>'
+        '<edge id="SC" from="S" to="C" numLanes="1" speed="13.89"/>'
+        '<edge id="CN" from="C" to="N" numLanes="1" speed="13.89"/></edges>')
+    net = folder / "x.net.xml"
+    subprocess.run([sumo_binary("netconvert"), "-n", "n.nod.xml", "-e", "e.edg.xml",
+                    "-o", net.name, "--offset.disable-normalization", "true", "--no-turnarounds", "true",
+                    "--no-warnings", "true"], cwd=folder, check=True, capture_output=True)
+    n_links = len(next(ET.parse(net).getroot().iter("tlLogic")).find("phase").get("state"))
+    add = folder / "red.add.xml"
+    add.write_text(f'<additional><tlLogic id="C" type="static" programID="red" offset="0">'
+                   f'<phase duration="1000" state="{"r" * n_links}"/></tlLogic></additional>')
+    return net, add

@@ -4,7 +4,7 @@
     python tools/cli_reference.py --check    # exit 1 if the committed page is stale
 
 The help is rendered at a fixed width (100 columns), so the page does not depend on the terminal;
-tests/test_docs.py checks that the committed page is what this script writes.
+tests/project/test_docs.py checks that the committed page is what this script writes.
 """
 
 from __future__ import annotations

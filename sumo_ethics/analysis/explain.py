@@ -160,7 +160,7 @@ def cost_panel(ax: Any, d: RecordedDecision, alt: int | None, weights: dict[str,
 def overflowing_text(fig: Any) -> list[str]:
     """The texts of a drawn figure that do not fit: a title, axis label, drawn tick label, unclipped
     annotation, legend entry or table cell reaching beyond the canvas, or a table cell's text beyond
-    its cell. Empty when every text fits (tests/test_decisions.py checks the explain figure)."""
+    its cell. Empty when every text fits (tests/record/test_decisions.py checks the explain figure)."""
     from matplotlib.table import Table
 
     fig.canvas.draw()

@@ -284,7 +284,7 @@ def tolerance_bound(cost: CostBreakdown, risk: RiskTerms, cfg: CostConfig = Cost
 
     The bound is w_o w_risk (w_B dB + w_E dE + w_M dM + w_ego dEgo + w_R dR) + that J_utility part;
     in the exact mode it is 0. The tolerance mode's chosen candidate costs, in exact terms, at
-    most its bound plus the exact choice's bound more than the exact choice (tests/test_risk_tolerance.py,
+    most its bound plus the exact choice's bound more than the exact choice (tests/ethics/test_risk_tolerance.py,
     ``tools/tolerance_check.py`` on recorded planning steps)."""
     K = cost.total.shape[0]
     if risk.slack is None or risk.slack.shape[2] == 0:

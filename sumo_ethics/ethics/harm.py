@@ -134,7 +134,7 @@ class MassModel:
 
 
 #: SUMO 1.28's default ``mass`` [kg] per vClass, measured with libsumo on vTypes that set only
-#: ``vClass`` (tests/test_masses.py checks it against the running SUMO). A vClass not listed
+#: ``vClass`` (tests/ethics/test_masses.py checks it against the running SUMO). A vClass not listed
 #: (and a vType without a vClass) gets SUMO's passenger default, 1500 kg.
 SUMO_CLASS_MASS: dict[str, float] = {
     "delivery": 5000.0, "emergency": 5000.0, "truck": 4500.0, "trailer": 13000.0, "bus": 12000.0,

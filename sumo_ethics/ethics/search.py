@@ -28,7 +28,7 @@ those of the exhaustive path, the same function on the same numbers. The harm is
 :func:`_order_harm`'s: :func:`~sumo_ethics.ethics.harm.crash_outcome`'s model within ``_DH``,
 the larger of the two areas' harms on an impact-area boundary. In the exact mode the terms are the
 exhaustive path's to rounding (1e-12), in the tolerance mode below them by at most their slack
-(tests/test_search.py, tests/test_risk_tolerance.py).
+(tests/ethics/test_search.py, tests/ethics/test_risk_tolerance.py).
 """
 
 from __future__ import annotations
@@ -207,7 +207,7 @@ def order_harm(a, b, coeffs) -> np.ndarray:
     """(4, M) the search's harm intervals (a low, a high, b low, b high) for parties a and b
     (:class:`~sumo_ethics.ethics.harm.Party` of (M,) arrays each; speeds >= 0) under ``coeffs``
     (HarmCoefficients): :func:`~sumo_ethics.ethics.harm.crash_outcome`'s harm_a, harm_b lie
-    within ``_DH`` of them (tests/test_search.py)."""
+    within ``_DH`` of them (tests/ethics/test_search.py)."""
     from sumo_ethics.types import VULNERABLE
 
     m = np.broadcast_shapes(np.shape(a.x), np.shape(b.x))

@@ -95,7 +95,7 @@ def _phi_pos(x: float) -> float:
 @_jit
 def _owen_base(h: float, a: float) -> float:
     """Owen's T(h, a) for 0 <= h <= 8.3, 0 <= a <= 1: bicubic Hermite interpolation of the table
-    (error < 2e-9 against scipy's ``owens_t`` on 200,000 random points, tests/test_shapes.py)."""
+    (error < 2e-9 against scipy's ``owens_t`` on 200,000 random points, tests/ethics/test_shapes.py)."""
     x = h * (_NH / _H_FAR)
     y = a * _NA
     i = min(int(x), _NH - 1)

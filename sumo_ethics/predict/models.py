@@ -78,7 +78,7 @@ history is encoded once in its own frame (origin now, +x its heading, normalised
 class scale) and placed into a target's grid with its pose there, ``act(H + W_pose [x, y,
 cos dyaw, sin dyaw])`` (x, y by the target's scale). Training still feeds per-pair rows and
 converts them (``agent_inputs``, needs ``nbr_yaw``); the run-time ``scene_forward`` encodes
-the M agents once and gives the same result (tests/test_predictor_fast.py).
+the M agents once and gives the same result (tests/predict/test_predictor_fast.py).
 
 The cslstm/attention parameters are built exactly as before (same names, same order), so
 their shipped files and seeded initialisations are unchanged. Weight files of the map kinds
@@ -448,7 +448,7 @@ class TrajectoryLSTM(nn.Module):
         """(B, N_CELLS * enc) social grids, cell-major (lon, lat, channel) -> (B, soc_size): the two
         convolutions and the pooling as matrix products over strided windows of the grid, without
         autograd (about 2x faster than Conv2d for a few dozen targets; equal to it within float
-        rounding, see tests/test_predictor_fast.py)."""
+        rounding, see tests/predict/test_predictor_fast.py)."""
         b, e = grid.shape[0], self.enc_size
         row = F.GRID_LAT * e  # one lon row of the grid: 3 cells x enc channels
         w1 = self.soc_conv.weight.permute(0, 2, 3, 1).reshape(self.soc_conv.out_channels, -1)  # (o, kh kw c)
@@ -471,7 +471,7 @@ class TrajectoryLSTM(nn.Module):
 
         Without autograd, ``nbr_frame="agent"`` models take the input projection once and run
         the recurrence by hand (:func:`lstm_recurrence`, equal to nn.LSTM within float rounding, see
-        tests/test_predictor_fast.py; its speed: docs/predictor_latency.md).
+        tests/predict/test_predictor_fast.py; its speed: docs/predictor_latency.md).
         Older models keep nn.LSTM, so their shipped outputs stay bit for bit."""
         b = enc.shape[0]
         if self.nbr_frame != "agent" or torch.is_grad_enabled():
