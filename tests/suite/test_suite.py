@@ -292,6 +292,7 @@ def test_a_scenario_folder_is_a_suite_of_one():
     assert [s.name for s in specs] == ["s0027"] and specs[0].folder == SUITE / "s0027"
 
 
+@pytest.mark.sumo
 def test_ctrl_c_stops_an_evaluation_without_tracebacks_and_resumes(tmp_path):
     import os
     import signal
