@@ -176,11 +176,10 @@ def on_run_step(cfg: RunConfig, step: float, source: str) -> RunConfig:
     set to it (config.json records the step the planner plans on). A configured ``[planner.sampling]
     dt`` that differs is refused earlier, where the settings are read (``settings.planner_config``)."""
     from sumo_ethics.plan.ethical import PlannerConfig
-    from sumo_ethics.settings import check_grid_bounds
+    from sumo_ethics.settings import planning_step
 
-    def at_step(planner: Any) -> Any:
-        check_grid_bounds(planner.sampling, step, source)
-        return replace(planner, sampling=replace(planner.sampling, dt=step))
+    def at_step(planner: Any) -> Any:  # no [planner.sampling] table here: its dt was checked where it was read
+        return replace(planner, sampling=planning_step(planner.sampling, {}, step, source))
 
     if cfg.controller != "ethical" and cfg.fleet is None:  # the baseline plans nothing
         return cfg
