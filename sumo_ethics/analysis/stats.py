@@ -24,15 +24,15 @@ MAX_BOOT = 100_000
 HARM_UNIT = "harm [-] (P(MAIS 3+), summed over the run's ego collisions)"
 
 
-def resample(n: int, n_boot: int = 2000, seed: int = 0) -> np.ndarray:
+def resample(n: int, n_boot: int = 2000, seed: int | np.random.Generator = 0) -> np.ndarray:
     """(n_boot, n) int indices into n samples, every one drawn uniformly from 0..n-1 with replacement
     (``np.random.default_rng(seed).integers(0, n, (n_boot, n))``): the draw of every bootstrap of
-    the package. n >= 1."""
+    the package. n >= 1. ``seed`` may be a Generator: several bootstraps then draw from one stream."""
     return np.random.default_rng(seed).integers(0, n, size=(n_boot, n))
 
 
 def bootstrap(samples: np.ndarray, stat: Callable[[np.ndarray], np.ndarray], n_boot: int = 2000,
-              seed: int = 0) -> np.ndarray:
+              seed: int | np.random.Generator = 0) -> np.ndarray:
     """``stat`` of ``n_boot`` uniform resamples (:func:`resample`) of ``samples`` (n, ...): rows are
     resampled whole (the two values of a pair, a numerator with its denominator). ``stat`` maps the
     resamples (n_boot, n, ...) to (n_boot, ...); returns that."""

@@ -474,7 +474,8 @@ def paired_risk(rows: list[dict[str, Any]], planners: list[str], reference: str,
                 seed: int = 0) -> list[dict[str, Any]]:
     """Per planner and risk metric: mean over scenarios of (planner - reference) [95 % paired
     bootstrap CI], scenarios lower / higher, Wilcoxon p, over the scenarios where both have a value
-    (the CI resamples those uniformly, as :func:`table` does, seeded with ``seed`` for each metric)."""
+    (the CI resamples those uniformly, as :func:`table` does; one stream seeded with ``seed`` serves
+    every planner and metric in turn)."""
     scen = sorted({r["scenario"] for r in rows})
     idx = {sc: i for i, sc in enumerate(scen)}
     val = {p: np.full((len(scen), len(RISK_METRICS)), np.nan) for p in planners}
@@ -483,6 +484,7 @@ def paired_risk(rows: list[dict[str, Any]], planners: list[str], reference: str,
             val[r["planner"]][idx[r["scenario"]]] = [float(r.get(m, np.nan)) for m in RISK_METRICS]
     from sumo_ethics.analysis.stats import bootstrap
 
+    rng = np.random.default_rng(seed)
     out = []
     for p in planners:
         if p == reference:
@@ -492,7 +494,7 @@ def paired_risk(rows: list[dict[str, Any]], planners: list[str], reference: str,
             d = d[~np.isnan(d)]
             if not len(d):
                 continue
-            boot = bootstrap(d, lambda r: r.mean(axis=1), n_boot, seed)  # uniform over the scenarios both have
+            boot = bootstrap(d, lambda r: r.mean(axis=1), n_boot, rng)  # uniform over the scenarios both have
             pval = _wilcoxon_p(d)
             out.append({"planner": p, "reference": reference, "metric": m, "difference": float(d.mean()),
                         "lo": float(np.percentile(boot, 2.5)), "hi": float(np.percentile(boot, 97.5)),
