@@ -317,13 +317,29 @@ class Polyline:
         equals the total heading change, and a finely sampled circle of radius R gives 1/R
         away from its ends.
         """
-        s = np.asarray(s, dtype=float)
+        return np.interp(np.asarray(s, dtype=float), self.s, self.vertex_curvature, left=0.0, right=0.0)
+
+    @functools.cached_property
+    def vertex_curvature(self) -> np.ndarray:
+        """(M,) the curvature [1/m] at the vertices that :meth:`curvature_at` interpolates (computed once)."""
         k = np.zeros(len(self.s))
         if len(self.heading) >= 2:
             seg_len = np.diff(self.s)
             dtheta = wrap_angle(np.diff(self.heading))
             k[1:-1] = dtheta / (0.5 * (seg_len[:-1] + seg_len[1:]))
-        return np.interp(s, self.s, k, left=0.0, right=0.0)
+        k.setflags(write=False)
+        return k
+
+    @functools.cached_property
+    def vertex_heading(self) -> np.ndarray:
+        """(M,) the smooth heading [rad, unwrapped] at the vertices: each interior vertex the mean of its
+        two segments' (unwrapped) headings, the end vertices their segment's (computed once)."""
+        h = np.unwrap(self.heading)
+        hv = np.empty(len(self.s))
+        hv[0], hv[-1] = h[0], h[-1]
+        hv[1:-1] = 0.5 * (h[:-1] + h[1:])
+        hv.setflags(write=False)
+        return hv
 
 
 def ellipses(mean: np.ndarray, cov: np.ndarray, k: float = 1.0, n: int = 32) -> np.ndarray:

@@ -294,8 +294,10 @@ class Candidates:
         return int(self.x.shape[0])
 
     def take(self, index: np.ndarray) -> "Candidates":
-        """The candidates at integer positions ``index`` (K',)."""
+        """The candidates at integer positions ``index`` (K',); all of them in order: these same ones."""
         idx = np.asarray(index, dtype=int)
+        if idx.ndim == 1 and len(idx) == len(self) and np.array_equal(idx, np.arange(len(self))):
+            return self  # frozen arrays: nothing to copy
         return Candidates(self.dt, self.x[idx], self.y[idx], self.yaw[idx], self.speed[idx], self.accel[idx],
                           self.curvature[idx], self.s[idx], self.d[idx], self.horizon[idx], self.valid[idx],
                           None if self.road_curvature is None else self.road_curvature[idx])

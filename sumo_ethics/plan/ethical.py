@@ -217,32 +217,44 @@ EVASIVE_SPEEDS, EVASIVE_OFFSETS = 5, 9
 
 def evasive_candidates(path, state: FrenetState, grid: SamplingConfig, decel: float, v_max: float,
                        left: np.ndarray | float | None, right: np.ndarray | float | None,
-                       margin: float) -> Candidates:
+                       margin: float, out: np.ndarray | None = None, row: int = 0) -> Candidates:
     """Candidates that brake at once while moving sideways: :func:`sample` from ``state`` as if the
     ego already decelerated at ``decel`` [m/s^2] (its quartics start at s'' = -decel), on horizons
     of 1 s, 2 s and the grid's longest (those below it), :data:`EVASIVE_SPEEDS` end speeds and
     :data:`EVASIVE_OFFSETS` lateral end offsets over the drivable area; (3 x 5 x 9 = 135, K, T) with
     the grid's T. Like the straight braking candidates (:func:`brake_candidates`) they jump to the
     deceleration at the first step; the feasibility check judges their acceleration, curvature and
-    lateral acceleration as any other's."""
+    lateral acceleration as any other's. out, row: as :func:`sample`'s."""
+    ev = evasive_grid(grid)
+    return sample(path, replace(state, s_ddot=-float(decel)), ev, v_max=v_max, left=left, right=right, margin=margin,
+                  out=out, row=row)
+
+
+def evasive_grid(grid: SamplingConfig) -> SamplingConfig:
+    """The evasive candidates' grid beside ``grid`` (:func:`evasive_candidates`)."""
     top = max(grid.horizons)
     horizons = tuple(h for h in (1.0, 2.0) if h < top) + (top,)
-    ev = replace(grid, horizons=horizons, n_speeds=EVASIVE_SPEEDS, n_offsets=EVASIVE_OFFSETS)
-    return sample(path, replace(state, s_ddot=-float(decel)), ev, v_max=v_max, left=left, right=right, margin=margin)
+    return replace(grid, horizons=horizons, n_speeds=EVASIVE_SPEEDS, n_offsets=EVASIVE_OFFSETS)
 
 
-def concat(a: Candidates, b: Candidates) -> Candidates:
-    """Candidates a followed by b (same dt and T). road_curvature: None if neither knows it, else
-    0 (a straight road: the strict limit) for the side that does not."""
+#: the order of :func:`sample`'s block (its ``out``): the Candidates' (K, T) float arrays
+BLOCK_FIELDS = ("x", "y", "yaw", "speed", "accel", "curvature", "s", "d", "road_curvature")
+
+
+def concat(*parts: Candidates) -> Candidates:
+    """The candidates of ``parts`` one after another (same dt and T), each array copied once.
+    road_curvature: None if no part knows it, else 0 (a straight road: the strict limit) for the
+    parts that do not."""
     road = None
-    if a.road_curvature is not None or b.road_curvature is not None:
+    if any(c.road_curvature is not None for c in parts):
         road = np.concatenate([np.zeros_like(c.curvature) if c.road_curvature is None else c.road_curvature
-                               for c in (a, b)])
-    def cat(f: str) -> np.ndarray:
-        return np.concatenate([getattr(a, f), getattr(b, f)])
+                               for c in parts])
 
-    return Candidates(a.dt, cat("x"), cat("y"), cat("yaw"), cat("speed"), cat("accel"), cat("curvature"), cat("s"),
-                      cat("d"), cat("horizon"), cat("valid"), road_curvature=road)
+    def cat(f: str) -> np.ndarray:
+        return np.concatenate([getattr(c, f) for c in parts])
+
+    return Candidates(parts[0].dt, cat("x"), cat("y"), cat("yaw"), cat("speed"), cat("accel"), cat("curvature"),
+                      cat("s"), cat("d"), cat("horizon"), cat("valid"), road_curvature=road)
 
 
 def select(classes: list[np.ndarray], total: np.ndarray, first_hit: np.ndarray | None = None, steps: int = 0,
@@ -352,6 +364,7 @@ class EthicalPlanner:
         self._lateral = (0.0, 0.0)  # d', d'' of the last chosen candidate at the next step
         self._accel = 0.0
         self._sampling: SamplingConfig | None = None
+        self._evasive_grid: SamplingConfig = evasive_grid(self.cfg.sampling)
         self._plan: Plan | None = None  # the committed plan (replan_every > 1)
         self._shares_plans = cfg.share_plans and callable(getattr(self.predictor, "publish", None))
         self.replan_reason = REPLAN["no_plan"]
@@ -393,6 +406,7 @@ class EthicalPlanner:
         if self._sampling is None:  # plan at the simulation's step so commands fall on samples (the one step:
             # settings.planner_config refuses a sampling dt that differs, runner.loop.on_run_step sets it)
             self._sampling = replace(self.cfg.sampling, dt=scene.dt)
+            self._evasive_grid = evasive_grid(self._sampling)
         sc = self._sampling
         w0 = time.perf_counter()
         horizon_steps = int(round(max(sc.horizons) / sc.dt))
@@ -418,15 +432,23 @@ class EthicalPlanner:
         # the sampled candidates start at the ego's speed v (not at s_dot = v: see at_speed)
         state = FrenetState.at_speed(route.path, scene.s, scene.d, v, s_ddot=self._accel, d_dot=self._lateral[0],
                                      d_ddot=self._lateral[1])
-        cand = sample(route.path, state, sc, v_max=v_limit, left=route.left, right=route.right,
-                      margin=ego_width / 2.0)
-        brakes = brake_candidates(route.path, replace(state, s_dot=v), cand.x.shape[1], sc.dt,  # their speed is v - b t
-                                  np.array([veh.comfort_decel, 0.5 * (veh.comfort_decel + veh.max_decel), veh.max_decel]))
-        cand = concat(cand, brakes)
-        n_plain = len(cand)
-        if self.cfg.evasive:  # braking and swerving at once (appended: the grid's indices stay as they were)
-            cand = concat(cand, evasive_candidates(route.path, state, sc, veh.max_decel, v_limit, route.left,
-                                                   route.right, ego_width / 2.0))
+        # one block for the grid, the straight braking and the evasive candidates (appended: the grid's
+        # indices stay as they were), each written in place (no copy to put them together)
+        decels = np.array([veh.comfort_decel, 0.5 * (veh.comfort_decel + veh.max_decel), veh.max_decel])
+        n_grid, n_plain = sc.n_candidates, sc.n_candidates + len(decels)
+        block = np.empty((9, n_plain + (self._evasive_grid.n_candidates if self.cfg.evasive else 0), sc.n_steps))
+        grid = sample(route.path, state, sc, v_max=v_limit, left=route.left, right=route.right, margin=ego_width / 2.0,
+                      out=block, row=0)
+        brakes = brake_candidates(route.path, replace(state, s_dot=v), sc.n_steps, sc.dt, decels)  # speed v - b t
+        for f, name in enumerate(BLOCK_FIELDS):
+            block[f, n_grid:n_plain] = getattr(brakes, name)
+        parts = [grid, brakes]
+        if self.cfg.evasive:  # braking and swerving at once
+            parts.append(evasive_candidates(route.path, state, sc, veh.max_decel, v_limit, route.left, route.right,
+                                            ego_width / 2.0, out=block, row=n_plain))
+        x, y, yaw, speed, accel, curvature, s, d, road = block
+        cand = Candidates(sc.dt, x, y, yaw, speed, accel, curvature, s, d, np.concatenate([c.horizon for c in parts]),
+                          np.ones(block.shape[1:], dtype=bool), road_curvature=road)
         # an ego above the limit (e.g. at takeover) must be allowed to slow down to it
         feas = check(cand, route, veh, speed_limit_factor=max(1.0, (v + 0.01) / max(v_limit, 0.1)))
         w2 = time.perf_counter()
@@ -563,7 +585,9 @@ class EthicalPlanner:
             self.replan_reason = REPLAN["off_plan"]
             return None
         w0 = time.perf_counter()
-        pred, n_fallback = self._predict(scene.history, T - j, dt)
+        # the step's prediction over the planning horizon (a fleet's shared one), its first T - j steps
+        full, n_fallback = self._predict(scene.history, T, dt)
+        pred = full.map_modes(lambda m: Prediction(m.ids, m.dt, m.mean[:, :T - j], m.cov[:, :T - j], m.yaw[:, :T - j]))
         rest = c.take_steps(j)
         others = scene.others
         pc = self.cfg.probability

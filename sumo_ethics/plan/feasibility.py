@@ -143,23 +143,13 @@ def check(cand: Candidates, route: RouteLike, vehicle: EgoVehicle,
         f(cand.speed, dtype=float), f(cand.accel, dtype=float), f(cand.curvature, dtype=float),
         f(np.zeros((K, T)) if road is None else road, dtype=float), road is not None, f(cand.yaw, dtype=float),
         f(cand.s, dtype=float), f(cand.d, dtype=float), f(cand.valid, dtype=np.bool_), f(path.s, dtype=float),
-        f(_vertex_heading(path)), f(np.asarray(route.left, dtype=float)), f(np.asarray(route.right, dtype=float)),
+        path.vertex_heading, f(np.asarray(route.left, dtype=float)), f(np.asarray(route.right, dtype=float)),
         f(np.asarray(limit, dtype=float)) if use_limit else np.zeros(len(path.s)), use_limit,
         float(speed_limit_factor or 1.0), float(vehicle.max_speed), float(vehicle.max_decel), float(vehicle.max_accel),
         float(vehicle.max_curvature), float(vehicle.max_lat_accel), float(vehicle.length), float(vehicle.width),
         ROAD_CURVATURE_TOL, _TOL)
     return Feasibility(speed_ok=res[0], accel_ok=res[1], curvature_ok=res[2], lat_accel_ok=res[3], on_road=res[4],
                        beyond_limit=res[5], lat_accel_peak=res[6])
-
-
-def _vertex_heading(path: Polyline) -> np.ndarray:
-    """(M,) the smooth heading at the path's vertices that :func:`sumo_ethics.plan.sampling.reference_heading`
-    interpolates [rad, unwrapped]."""
-    h = np.unwrap(path.heading)
-    hv = np.empty(len(path.s))
-    hv[0], hv[-1] = h[0], h[-1]
-    hv[1:-1] = 0.5 * (h[:-1] + h[1:])
-    return hv
 
 
 @numba.njit(cache=True, nogil=True)
@@ -188,12 +178,20 @@ def _check_kernel(v, a, k, kr, has_kr, yaw, s, d, valid, ps, hv, left, right, li
     beyond = np.zeros(K, dtype=np.bool_)
     peak = np.zeros(K)
     for i in range(K):
+        j = 0
         for t in range(T):
             if not valid[i, t]:
                 continue
             x = s[i, t]
-            j = np.searchsorted(ps, x, side="right") - 1  # the last vertex at or before s
-            j = min(max(j, 0), n - 1)
+            # the last vertex at or before s (np.searchsorted(ps, x, "right") - 1 clipped to [0, n - 1]),
+            # walked from the previous step's: a candidate's s moves a vertex or two per step
+            if x != x:
+                j = n - 1  # NaN sorts last
+            else:
+                while j + 1 < n and ps[j + 1] <= x:
+                    j += 1
+                while j > 0 and ps[j] > x:
+                    j -= 1
             vi = v[i, t]
             ok = vi >= -tol and vi <= max_speed + tol
             if use_limit:

@@ -12,17 +12,19 @@ states are what the ego would do next, so they stay ``valid``; ``Candidates.hori
 
 Candidate k is grid point (i_T, i_v, i_d) in C order: k = (i_T * n_speeds + i_v) * n_offsets + i_d.
 
-Pure numpy, vectorised over candidates and steps; no Python loops over either.
+The coefficients and the path lookups are numpy on the small (horizon, end speed, step) arrays; the
+full-size (candidate, step) part is one numba kernel (:func:`_cartesian_kernel`, nogil: a fleet's egos
+sample on several threads at once).
 """
 
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass, fields
 
 from typing import cast
 
+import numba
 import numpy as np
 
 from sumo_ethics.errors import ConfigError, is_number
@@ -237,23 +239,7 @@ def reference_heading(path: Polyline, s: np.ndarray) -> np.ndarray:
     the ends). Unlike ``Polyline.heading_at`` it does not jump at vertices, so headings built
     on it can be differenced into a curvature. Result is not wrapped.
     """
-    h = np.unwrap(path.heading)
-    hv = np.empty(len(path.s))
-    hv[0], hv[-1] = h[0], h[-1]
-    hv[1:-1] = 0.5 * (h[:-1] + h[1:])
-    return np.interp(s, path.s, hv)
-
-
-_LOCAL = threading.local()
-
-
-def _scratch(shape: tuple[int, ...]) -> np.ndarray:
-    """A per-thread scratch array of ``shape``, reused between calls (contents undefined)."""
-    buf = getattr(_LOCAL, "buf", None)
-    if buf is None or buf.shape != shape:
-        buf = np.empty(shape)
-        _LOCAL.buf = buf
-    return buf
+    return np.interp(s, path.s, path.vertex_heading)
 
 
 def _bound_at(bound: float | np.ndarray | None, path: Polyline, s: np.ndarray, default: float) -> np.ndarray:
@@ -288,9 +274,87 @@ def _heading_curvature(heading: np.ndarray, heading0: float, speed: np.ndarray, 
     np.copyto(out, 0.0, where=~moved)
 
 
+@numba.njit(cache=True, nogil=True)
+def _cartesian_kernel(de, lat, along_path, low, dth0, yaw0, v_start, dt, out, row0):  # pragma: no cover - compiled
+    """The full-size part of :func:`sample`, one pass per candidate: de (nH, nV, nD) lateral end offsets;
+    lat (6, nH, 1 or nV, T) the lateral quintic's value, 1st and 2nd derivative for end offset 0, then
+    per metre of it; along_path (10, nH, nV, T) the path's x, y, sin and cos of its heading, curvature,
+    reference heading, then s_dot, s_ddot, s and the road's curvature at each station; writes x, y, yaw,
+    speed, accel, curvature, s, d, road_curvature into rows row0 ... row0 + nH nV nD - 1 of out (9, K', T),
+    candidate (h, v, k) at row row0 + (h nV + v) nD + k. The arithmetic is the numpy formulation's,
+    operation for operation."""
+    nH, nV, nD = de.shape
+    nT = lat.shape[3]
+    q0, q1, q2, b0, b1, b2 = lat[0], lat[1], lat[2], lat[3], lat[4], lat[5]
+    xc, yc, sin_h, cos_h, kr = along_path[0], along_path[1], along_path[2], along_path[3], along_path[4]
+    href, sd, sdd, s_abs, kref = along_path[5], along_path[6], along_path[7], along_path[8], along_path[9]
+    per_speed = lat.shape[2] > 1
+    two_pi = 2.0 * np.pi
+    inv_two_pi = 1.0 / (2.0 * np.pi)
+    for h in range(nH):
+        for v in range(nV):
+            w = v if per_speed else 0
+            for k in range(nD):
+                r = row0 + (h * nV + v) * nD + k
+                e = de[h, v, k]
+                held = dth0
+                for t in range(nT):
+                    d = e * b0[h, w, t] + q0[h, w, t]
+                    d_dot = e * b1[h, w, t] + q1[h, w, t]
+                    d_ddot = e * b2[h, w, t] + q2[h, w, t]
+                    out[0, r, t] = xc[h, v, t] - d * sin_h[h, v, t]
+                    out[1, r, t] = d * cos_h[h, v, t] + yc[h, v, t]
+                    one = 1.0 - kr[h, v, t] * d
+                    s1 = sd[h, v, t]
+                    s2 = sdd[h, v, t]
+                    rel = 0.0
+                    if low:
+                        rel = math.atan2(d_dot, one)  # d(s) is a geometric path: its slope exists at standstill
+                        d_ddot = d_ddot * (s1 * s1) + d_dot * s2  # d_ddot = d'' s_dot^2 + d' s_ddot
+                        d_dot = d_dot * s1  # d_dot = d' s_dot
+                    along = s1 * one
+                    speed = math.sqrt(along * along + d_dot * d_dot)
+                    still = speed < _STILL
+                    acc = ((s2 * one - (s1 * kr[h, v, t]) * d_dot) * along) + d_dot * d_ddot
+                    acc = s2 if still else acc / speed
+                    if not low:
+                        if still:  # hold the heading from the last moving step
+                            rel = held
+                        else:
+                            rel = math.atan2(d_dot, along)
+                            held = rel
+                    out[2, r, t] = rel + href[h, v, t]  # unwrapped for the curvature below
+                    out[3, r, t] = speed
+                    out[4, r, t] = acc
+                    out[6, r, t] = s_abs[h, v, t]
+                    out[7, r, t] = d
+                    out[8, r, t] = kref[h, v, t]
+                # curvature: central difference of yaw over the distance travelled (trapezoidal in |speed|),
+                # one-sided at the last step, from the start pose before step 0
+                prev_yaw, prev_speed = yaw0, v_start
+                for t in range(nT):
+                    yaw_t, speed_t = out[2, r, t], out[3, r, t]
+                    step = (speed_t + prev_speed) * (0.5 * dt)
+                    dh = yaw_t - prev_yaw
+                    if t + 1 < nT:
+                        step_next = (out[3, r, t + 1] + speed_t) * (0.5 * dt)
+                        num = dh + (out[2, r, t + 1] - yaw_t)
+                        den = step + step_next
+                    else:
+                        num, den = dh, step
+                    out[5, r, t] = num / den if den > _MIN_TRAVEL else 0.0
+                    prev_yaw, prev_speed = yaw_t, speed_t
+                for t in range(nT):  # wrap the heading into [-pi, pi]; sign the speed where s runs backwards
+                    y = out[2, r, t]
+                    out[2, r, t] = y - np.rint(y * inv_two_pi) * two_pi
+                    if sd[h, v, t] < 0.0:
+                        out[3, r, t] = -out[3, r, t]
+                        out[4, r, t] = -out[4, r, t]
+
+
 def sample(path: Polyline, start: FrenetState, cfg: SamplingConfig, v_max: float,
            left: float | np.ndarray | None = None, right: float | np.ndarray | None = None,
-           margin: float = 0.0) -> Candidates:
+           margin: float = 0.0, out: np.ndarray | None = None, row: int = 0) -> Candidates:
     """Sample the candidate grid from ``start`` along ``path``.
 
     v_max: highest end speed here [m/s] (e.g. the speed limit, capped by the ego's top speed).
@@ -322,6 +386,10 @@ def sample(path: Polyline, start: FrenetState, cfg: SamplingConfig, v_max: float
     curvature exactly; beside the path the candidate's curvature differs from it by what it adds
     (a parallel curve on the inside of a bend is tighter than the path).
     horizon: (K,) T of each candidate [s]; valid: all True.
+
+    out, row: where the arrays go: rows row ... row + K - 1 of a (9, K', T) float64 block (x, y, yaw,
+    speed, accel, curvature, s, d, road_curvature; the Candidates' arrays are views of it), so that
+    several samplings and other candidates share one block without a copy; None: a block of their own.
     """
     v_max = float(v_max)
     if not math.isfinite(v_max) or v_max < 0:
@@ -358,7 +426,6 @@ def sample(path: Polyline, start: FrenetState, cfg: SamplingConfig, v_max: float
     else:
         d_end = lo[..., None] + (hi - lo)[..., None] * np.linspace(0.0, 1.0, nD)
 
-    shape = (nH, nV, nD, nT)
     s_full = s_rel[:, :, None, :]  # (nH, nV, 1, T): broadcast over offsets
     s_dot_f = s_dot[:, :, None, :]
     s_ddot_f = s_ddot[:, :, None, :]
@@ -395,100 +462,40 @@ def sample(path: Polyline, start: FrenetState, cfg: SamplingConfig, v_max: float
     s_abs = start.s + s_full  # (nH, nV, 1, T)
     xc, yc, _ = path.to_xy(s_abs, 0.0)
     hseg = path.heading_at(s_abs)
-    cos_h, sin_h = np.cos(hseg), np.sin(hseg)
     kr = path.curvature_at(s_abs)
     href = reference_heading(path, s_abs)
-    sd, sdd = s_dot_f, s_ddot_f
     kr0 = float(path.curvature_at(start.s))
     one0 = 1.0 - kr0 * start.d
     v_start = math.sqrt((start.s_dot * one0) ** 2 + start.d_dot**2)
-
-    # Full-size work is done in place: the outputs share one fresh block, the temporaries live
-    # in a per-thread scratch block reused between calls (fresh 300 kB temporaries cost page
-    # faults that dominated the run time).
-    out = np.empty((9,) + shape)
-    x, y, yaw, speed, accel, curvature, s_out, d, road = out
-    d_dot, d_ddot, one, along, tmp = _scratch((5,) + shape)
-    de = d_end[..., None]  # (nH, nV, nD, 1)
-    np.multiply(de, b0, out=d)
-    d += q0
-    np.multiply(de, b1, out=d_dot)  # dd/dt (time mode) or dd/dsigma (low-speed mode)
-    d_dot += q1
-    np.multiply(de, b2, out=d_ddot)
-    d_ddot += q2
-    np.multiply(d, sin_h, out=x)  # x, y = path.to_xy(s, d)
-    np.subtract(xc, x, out=x)
-    np.multiply(d, cos_h, out=y)
-    y += yc
-    np.multiply(kr, d, out=one)
-    np.subtract(1.0, one, out=one)  # 1 - kappa_r d
     if low:
-        np.arctan2(d_dot, one, out=yaw)  # d(s) is a geometric path: its slope exists at standstill
         dth0 = math.atan2(p1, one0)
-        np.multiply(d_dot, sdd, out=tmp)  # d_ddot = d'' s_dot^2 + d' s_ddot
-        d_ddot *= sd * sd
-        d_ddot += tmp
-        d_dot *= sd  # d_dot = d' s_dot
-    np.multiply(sd, one, out=along)  # speed component along the path direction
-    np.multiply(along, along, out=speed)
-    np.multiply(d_dot, d_dot, out=tmp)
-    speed += tmp
-    np.sqrt(speed, out=speed)  # |speed| for now
-    still = speed < _STILL
-    # accel = d|v|/dt = (along (s_ddot (1 - kr d) - s_dot kr d_dot) + d_dot d_ddot) / |v|
-    np.multiply(sdd, one, out=accel)
-    np.multiply(sd * kr, d_dot, out=tmp)
-    accel -= tmp
-    accel *= along
-    np.multiply(d_dot, d_ddot, out=tmp)
-    accel += tmp
-    np.divide(accel, speed, out=accel, where=~still)
-    np.copyto(accel, np.broadcast_to(sdd, shape), where=still)
-    if not low:
-        np.arctan2(d_dot, along, out=yaw)
+    else:
         dth0 = math.atan2(start.d_dot, start.s_dot * one0) if v_start >= _STILL else 0.0
-        rows = still.reshape(-1, nT).any(axis=1)
-        if rows.any():  # hold the heading while (nearly) still: only the few candidates that stop
-            yk = yaw.reshape(-1, nT)
-            idx = np.where(still.reshape(-1, nT)[rows], 0, np.arange(1, nT + 1))  # into [dth0, row...]
-            idx = np.maximum.accumulate(idx, axis=-1)
-            full = np.concatenate([np.full((int(rows.sum()), 1), dth0), yk[rows]], axis=-1)
-            yk[rows] = np.take_along_axis(full, idx, axis=-1)
-    yaw += href  # unwrapped heading
     href0 = float(reference_heading(path, np.asarray(start.s)))
-    yaw0 = href0 + dth0
-    # curvature: central difference of yaw over the distance travelled (trapezoidal in |speed|)
-    _heading_curvature(yaw, yaw0, speed, v_start, dt, curvature, one, along, tmp)  # scratch reused
-    # the road's own curvature along the candidate: the same central difference of the path's
-    # heading over the distance the path covers (trapezoidal in |s_dot|). It depends on s only, so
-    # it is computed on (nH, nV, 1, T); on the path (d = 0, d_dot = 0) speed == |s_dot| and the
-    # two agree bit for bit
-    sd_abs = np.abs(sd)
+    # the road's own curvature along the candidate: the central difference of the path's heading over
+    # the distance the path covers (trapezoidal in |s_dot|). It depends on s only, so it is computed on
+    # (nH, nV, 1, T); on the path (d = 0, d_dot = 0) speed == |s_dot| and it agrees with the
+    # candidate's curvature bit for bit
+    sd_abs = np.abs(s_dot_f)
     kref = np.empty_like(href)
     _heading_curvature(href, href0, sd_abs, abs(start.s_dot), dt, kref, *(np.empty_like(sd_abs) for _ in range(3)))
-    np.copyto(road, np.broadcast_to(kref, shape))
-    np.multiply(yaw, 1.0 / (2.0 * np.pi), out=tmp)  # wrap into [-pi, pi]
-    np.rint(tmp, out=tmp)
-    tmp *= 2.0 * np.pi
-    yaw -= tmp
-    back = sd < 0.0
-    if back.any():  # signed speed: negative where the quartic runs backwards
-        sign = np.where(back, -1.0, 1.0)
-        speed *= sign
-        accel *= sign
-    np.copyto(s_out, np.broadcast_to(s_abs, shape))
 
+    # the lateral parts (nH, 1 or nV, T) and the path's lookups along each station (nH, nV, T), each one block
+    lat = np.stack(np.broadcast_arrays(q0, q1, q2, b0, b1, b2))
+    along_path = np.stack(np.broadcast_arrays(xc, yc, np.sin(hseg), np.cos(hseg), kr, href, s_dot_f, s_ddot_f, s_abs,
+                                              kref))
     K = nH * nV * nD
-
-    def flat(a: np.ndarray) -> np.ndarray:
-        return a.reshape(K, nT)
-
-    horizon = np.repeat(H, nV * nD)
-    return Candidates(
-        dt=dt, x=flat(x), y=flat(y), yaw=flat(yaw), speed=flat(speed), accel=flat(accel),
-        curvature=flat(curvature),
-        s=flat(s_out), d=flat(d), horizon=horizon, valid=np.ones((K, nT), dtype=bool), road_curvature=flat(road),
-    )
+    if out is None:
+        out, row = np.empty((9, K, nT)), 0
+    elif out.dtype != np.float64 or out.ndim != 3 or out.shape[0] != 9 or out.shape[2] != nT or not (
+            0 <= row and row + K <= out.shape[1]) or not out.flags.c_contiguous or not out.flags.writeable:
+        raise ValueError(f"out must be a writable C-contiguous float64 (9, K', {nT}) block with rows {row} to "
+                         f"{row + K - 1}, got {out.dtype} {out.shape}")
+    _cartesian_kernel(np.ascontiguousarray(d_end, dtype=float), lat.reshape(6, nH, -1, nT),
+                      along_path.reshape(10, nH, nV, nT), low, dth0, href0 + dth0, v_start, dt, out, row)
+    x, y, yaw, speed, accel, curvature, s_out, d, road = out[:, row:row + K]
+    return Candidates(dt=dt, x=x, y=y, yaw=yaw, speed=speed, accel=accel, curvature=curvature, s=s_out, d=d,
+                      horizon=np.repeat(H, nV * nD), valid=np.ones((K, nT), dtype=bool), road_curvature=road)
 
 
 if __name__ == "__main__":  # timing: python -m sumo_ethics.plan.sampling

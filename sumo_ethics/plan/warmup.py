@@ -4,7 +4,8 @@ numba compiles a kernel the first time it is called and keeps the machine code i
 (``__pycache__`` beside the source, or numba's user cache where that is not writable), from which
 later processes load it in a fraction of a second. On a fresh install the first planning step
 would spend about 9 s compiling :mod:`sumo_ethics.ethics.search`, the envelope kernel of
-:mod:`sumo_ethics.ethics.shapes` and the feasibility check of :mod:`sumo_ethics.plan.feasibility`.
+:mod:`sumo_ethics.ethics.shapes`, the feasibility check of :mod:`sumo_ethics.plan.feasibility` and the
+candidates' kernel of :mod:`sumo_ethics.plan.sampling`.
 
 So ``sumo-ethics run``, ``evaluate`` and ``sweep`` call :func:`start` first thing: two separate
 processes (a second core where there is one) compile the kernels for the argument types the planner
@@ -62,6 +63,7 @@ def compile_kernels(search_kernel: bool = True) -> None:
     from sumo_ethics.ethics.shapes import envelope_first_hit
     from sumo_ethics.geometry import Polyline
     from sumo_ethics.plan.feasibility import check
+    from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, sample
     from sumo_ethics.types import Candidates
 
     K, T, N = 2, 3, 1
@@ -82,6 +84,7 @@ def compile_kernels(search_kernel: bool = True) -> None:
                       left=np.full(2, 3.0), right=np.full(2, -3.0), links=())
     z = np.zeros((K, T))
     check(Candidates(0.1, ex, ey, eyaw, ev, z, z, ex, z, np.full(K, 0.3), valid, road_curvature=z), route, EgoVehicle())
+    sample(path, FrenetState(s=1.0, d=0.0, s_dot=5.0), SamplingConfig(horizons=(0.2,), n_speeds=2, n_offsets=2), 10.0)
 
 
 def start() -> None:
