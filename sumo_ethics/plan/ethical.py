@@ -32,7 +32,7 @@ from sumo_ethics.plan.phantoms import phantom_risk
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
 from sumo_ethics.predict import registry
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior, recent_motion
-from sumo_ethics.predict.constant_velocity import replace_non_finite
+from sumo_ethics.predict.constant_velocity import non_finite, replace_non_finite
 from sumo_ethics.predict.protocols import MapSourceFactory, Predictor
 from sumo_ethics.types import Candidates, DecisionTrace, Observation, Prediction
 
@@ -368,6 +368,8 @@ class EthicalPlanner:
         self._plan: Plan | None = None  # the committed plan (replan_every > 1)
         self._shares_plans = cfg.share_plans and callable(getattr(self.predictor, "publish", None))
         self.replan_reason = REPLAN["no_plan"]
+        # the settings that shape _priors (a fleet's shared prediction caches its rows under them)
+        self._prior_key = (cfg.lateral_prior, cfg.lateral_onset, cfg.braking_prior)
         # [planner] occlusion / phantoms: the ego's own sensor, memory and phantoms (plan/perception.py)
         self.perception = (Perception(cfg.perception, cfg.occlusion, cfg.phantoms, sight)
                            if cfg.occlusion or cfg.phantoms else None)
@@ -537,13 +539,26 @@ class EthicalPlanner:
         return Decision(cmd, info=info, timings_ms=timings, trace=trace)
 
     def _predict(self, obs: Observation | None, horizon_steps: int, dt: float) -> tuple[Prediction, int]:
-        """The prediction of ``obs``' road users with the priors, and how many fell back to constant velocity."""
+        """The prediction of ``obs``' road users with the priors, and how many fell back to constant velocity.
+        A fleet's shared prediction does the priors once per step for every ego's road users together
+        (``prepared``: the same rows, as the priors treat each road user on its own)."""
         if obs is None:
             raise ValueError("the ethical planner needs the neighbours' history in its scene (needs_history)")
+        prepared = getattr(self.predictor, "prepared", None)
+        if prepared is not None and self.perception is None:  # (a sensor's view has its own histories)
+            got = prepared(obs, horizon_steps, dt, self._shares_plans, self._prior_key,
+                           lambda pred, union: self._priors(pred, union, horizon_steps, dt))
+            if got is not None:
+                return got
         if self._shares_plans:  # the other egos' committed plans instead of their predictions
             pred = self.predictor.predict(obs, horizon_steps, dt, plans=True)  # type: ignore[call-arg]
         else:
             pred = self.predictor.predict(obs, horizon_steps, dt)
+        pred, replaced = self._priors(pred, obs, horizon_steps, dt)
+        return pred, int(replaced.sum())
+
+    def _priors(self, pred: Prediction, obs: Observation, horizon_steps: int, dt: float) -> tuple[Prediction, np.ndarray]:
+        """``pred`` with the priors, and (N,) bool: the road users that fell back to constant velocity."""
         # the priors treat every mode of a multi-modal prediction alike (they map over the modes)
         if self.cfg.lateral_prior > 0.0:  # first: a car braking to a stand also stops moving sideways
             travel, lateral = recent_motion(obs) if self.cfg.lateral_onset else (None, None)
@@ -552,7 +567,10 @@ class EthicalPlanner:
         if self.cfg.braking_prior > 0.0:
             pred = apply_braking_prior(pred, obs.current, self.cfg.braking_prior)
         # an agent with a non-finite mean, covariance or yaw in any mode is predicted at constant velocity
-        return replace_non_finite(pred, obs, horizon_steps, dt)
+        replaced = non_finite(pred)
+        if replaced.any():
+            pred, _ = replace_non_finite(pred, obs, horizon_steps, dt)
+        return pred, replaced
 
     def follow(self, scene: Scene) -> Decision | None:
         """The committed plan's next state (``replan_every`` > 1), or None where the planner must

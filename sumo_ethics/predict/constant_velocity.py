@@ -70,6 +70,20 @@ class ConstantVelocityPredictor:
         return Prediction(ids=tuple(ids), dt=dt, mean=mean, cov=cov, yaw=np.repeat(yaw[:, None], tn, axis=1))
 
 
+def non_finite(pred: Prediction) -> np.ndarray:
+    """(N,) bool: the agents whose mean, covariance or yaw is non-finite in any mode (or whose mode
+    weights are), or whose covariance has a negative principal variance (no Gaussian has it:
+    :func:`sumo_ethics.geometry.not_psd`): those :func:`replace_non_finite` replaces."""
+    bad = np.zeros(len(pred.ids), dtype=bool)
+    for m, _ in pred.by_mode():
+        finite = np.isfinite(m.cov).all(axis=(1, 2, 3))
+        bad |= ~(np.isfinite(m.mean).all(axis=(1, 2)) & finite & np.isfinite(m.yaw).all(axis=1))
+        bad |= finite & not_psd(np.where(np.isfinite(m.cov), m.cov, 0.0)).any(axis=1)
+    if pred.weight is not None:
+        bad |= ~np.isfinite(pred.weight).all(axis=1)
+    return bad
+
+
 def replace_non_finite(pred: Prediction, obs: Observation, horizon_steps: int, dt: float,
                        fallback: ConstantVelocityPredictor | None = None) -> tuple[Prediction, int]:
     """(prediction, number of agents replaced): every agent whose mean, covariance or yaw is
@@ -78,13 +92,7 @@ def replace_non_finite(pred: Prediction, obs: Observation, horizon_steps: int, d
     constant-velocity prediction from its current state in every mode, with weights (1, 0, ...).
     Agents already valid are returned as they were (the same arrays when none is replaced); the
     planner records the count as ``n_fallback``."""
-    bad = np.zeros(len(pred.ids), dtype=bool)
-    for m, _ in pred.by_mode():
-        finite = np.isfinite(m.cov).all(axis=(1, 2, 3))
-        bad |= ~(np.isfinite(m.mean).all(axis=(1, 2)) & finite & np.isfinite(m.yaw).all(axis=1))
-        bad |= finite & not_psd(np.where(np.isfinite(m.cov), m.cov, 0.0)).any(axis=1)
-    if pred.weight is not None:
-        bad |= ~np.isfinite(pred.weight).all(axis=1)
+    bad = non_finite(pred)
     if not bad.any():
         return pred, 0
     cv = (fallback or ConstantVelocityPredictor()).predict(obs, horizon_steps, dt)

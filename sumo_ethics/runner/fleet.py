@@ -32,7 +32,7 @@ import time as wallclock
 import zlib
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Hashable
 
 import numpy as np
 
@@ -164,12 +164,12 @@ class SharedPrediction:
         self.base = base
         self.obs: Observation | None = None
         self.index: dict[str, int] = {}
-        self.cache: dict[tuple[int, float, bool], Prediction] = {}
+        self.cache: dict[tuple, Any] = {}  # this step's predictions, by horizon, dt, plans (and prepare's key)
         self.calls = 0  # batched predictions made
         self.plans: dict[str, tuple[float, np.ndarray, np.ndarray, np.ndarray]] = {}  # published this step
         self.shared: dict[str, tuple[float, np.ndarray, np.ndarray, np.ndarray]] = {}  # usable this step
         self.horizons: set[float] = set()  # [s] the horizons of the planners using it (see fill)
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()  # prepared() computes under it and calls _union, which takes it too
 
     def __getattr__(self, name: str) -> Any:  # kind, path, model, calibration ...
         return getattr(self.base, name)
@@ -202,6 +202,10 @@ class SharedPrediction:
     def predict(self, obs: Observation, horizon_steps: int, dt: float, plans: bool = False) -> Prediction:
         if self.obs is None:
             return self.base.predict(obs, horizon_steps, dt)
+        return self._union(horizon_steps, dt, plans).take([self.index[k] for k in obs.current.ids])
+
+    def _union(self, horizon_steps: int, dt: float, plans: bool) -> Prediction:
+        """The step's prediction of the whole union (with the shared plans' rows where ``plans``)."""
         pred = self._base(horizon_steps, dt)
         if plans:
             key = (horizon_steps, float(dt), True)
@@ -209,7 +213,24 @@ class SharedPrediction:
                 if key not in self.cache:
                     self.cache[key] = self._with_plans(pred, dt)
                 pred = self.cache[key]
-        return pred.take([self.index[k] for k in obs.current.ids])
+        return pred
+
+    def prepared(self, obs: Observation, horizon_steps: int, dt: float, plans: bool, key: Hashable,
+                 prepare: Callable[[Prediction, Observation], tuple[Prediction, np.ndarray]]) -> tuple[Prediction, int] | None:
+        """A planner's prediction after its own per-agent steps (priors, fallbacks), done once per step for
+        the whole union: ``prepare`` (union prediction, union observation) -> (prediction, (N,) bool rows it
+        replaced), cached under ``key`` (the planner's settings that shape it); returns the rows of
+        ``obs``' agents and how many of them were replaced. ``prepare`` must treat each agent on its
+        own (the rows are then what the planner's own call would give); None before the first step."""
+        if self.obs is None:
+            return None
+        ck = ("prepared", horizon_steps, float(dt), plans, key)
+        with self.lock:
+            if ck not in self.cache:
+                self.cache[ck] = prepare(self._union(horizon_steps, dt, plans), self.obs)
+            pred, replaced = self.cache[ck]
+        rows = [self.index[k] for k in obs.current.ids]
+        return pred.take(rows), int(replaced[rows].sum())
 
     def _with_plans(self, pred: Prediction, dt: float) -> Prediction:
         """``pred`` with the rows of the egos whose plans are shared replaced by them (one mode)."""

@@ -365,6 +365,44 @@ def test_shared_prediction_is_one_call_giving_each_ego_its_rows():
     assert shared.calls == 1
 
 
+def test_the_priors_done_once_for_the_union_give_each_ego_its_own_rows():
+    """A fleet's planners take their priors (lateral drift, hard braking) from the shared prediction,
+    done once per step for every road user any ego sees: each ego's rows are exactly what its own
+    priors on its own road users give, and the priors did move them (a braking car held within its
+    stopping distance)."""
+    from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
+    from sumo_ethics.plan.history import History
+    from sumo_ethics.predict import ConstantVelocityPredictor
+    from sumo_ethics.runner.fleet import SharedPrediction
+
+    ids = ["a", "b", "c", "d"]
+    h = History(0.1)
+    for k in range(12):  # a drifts left at 1.5 m/s; b brakes at 6 m/s^2 from 12 m/s; d stands
+        t = 0.1 * k
+        st = AgentStates(tuple(ids), np.array([10.0 * t, 20.0 + 12.0 * t - 3.0 * t * t, 40.0 + 8.0 * t, 60.0]),
+                         np.array([1.5 * t, 3.5, -3.5, 0.0]), np.zeros(4), np.array([10.0, 12.0 - 6.0 * t, 8.0, 0.0]),
+                         np.array([0.0, -6.0, 0.0, 0.0]), np.full(4, 4.5), np.full(4, 1.8), np.full(4, 1500.0),
+                         np.zeros(4, np.int8), ("car",) * 4)
+        h.push(st)
+    shared = SharedPrediction(ConstantVelocityPredictor())
+    shared.begin(h.observation(1.1, AgentStates.empty(), st))
+    cfg = PlannerConfig(predictor="cv")
+    for sub_ids in (["b", "a"], ["c", "a", "d"]):
+        sub = st.take([st.index[k] for k in sub_ids])
+        obs = h.observation(1.1, st.take([3]), sub)
+        via_union, n_union = EthicalPlanner(cfg, predictor=shared)._predict(obs, 40, 0.1)
+        own, n_own = EthicalPlanner(cfg, predictor=ConstantVelocityPredictor())._predict(obs, 40, 0.1)
+        raw = ConstantVelocityPredictor().predict(obs, 40, 0.1)
+        assert via_union.ids == own.ids == tuple(sub_ids) and n_union == n_own == 0
+        for f in ("mean", "cov", "yaw"):
+            np.testing.assert_array_equal(getattr(via_union, f), getattr(own, f))
+        if "b" in sub_ids:  # b: 12 - 6 x 1.1 = 5.4 m/s at -6 m/s^2 stops within 5.4^2 / 12 = 2.43 m (cv: 21.6 m in 4 s)
+            b = sub_ids.index("b")
+            assert np.hypot(*(own.mean[b, -1] - st.xy[1])) == pytest.approx(5.4**2 / 12.0, abs=0.05)
+            assert np.hypot(*(raw.mean[b, -1] - st.xy[1])) == pytest.approx(21.6, abs=0.05)
+    assert sum(1 for key in shared.cache if key[0] == "prepared") == 1  # one union, one set of priors
+
+
 @pytest.mark.sumo
 def test_a_fleet_of_planners_is_the_same_bytes_on_one_or_two_threads(tmp_path):
     """The egos plan on the kernels' threads (sumo_ethics.cores), their results taken in order: the
