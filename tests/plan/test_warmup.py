@@ -17,7 +17,7 @@ from sumo_ethics.plan import feasibility, sampling, warmup
 warmup.compile_kernels()
 print(json.dumps({f.__name__: [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]
                   for f in (search._search_kernel, shapes._envelope_kernel, feasibility._check_kernel,
-                            sampling._cartesian_kernel)}))
+                            sampling._profile_kernel, sampling._cartesian_kernel)}))
 """
 
 
@@ -26,7 +26,7 @@ def test_background_compile_fills_the_cache_a_new_process_loads(tmp_path, monkey
     warmup.start()
     warmup.wait()
     for kernel in ("search._search_kernel", "shapes._envelope_kernel", "feasibility._check_kernel",
-                   "sampling._cartesian_kernel"):
+                   "sampling._profile_kernel", "sampling._cartesian_kernel"):
         assert any(tmp_path.rglob(f"*{kernel}*.nbi")), kernel
     out = subprocess.run([sys.executable, "-c", PROBE], env=dict(os.environ), capture_output=True, text=True,
                          check=True, timeout=300).stdout
