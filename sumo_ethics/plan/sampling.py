@@ -243,7 +243,7 @@ def _bound_at(bound: float | np.ndarray | None, path: Polyline, default: float) 
 
 
 # --------------------------------------------------------------------------- sampling
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _interp_walk(x, xp, fp, j, left, right):  # pragma: no cover - compiled
     """(np.interp(x, xp, fp, left, right), j): numpy's formula, with j the last xp <= x walked from the
     caller's previous j (a candidate's stations move a vertex or so per step)."""
@@ -264,7 +264,29 @@ def _interp_walk(x, xp, fp, j, left, right):  # pragma: no cover - compiled
     return slope * (x - xp[j]) + fp[j], j
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _horner5(c5, c4, c3, c2, c1, c0, u):  # pragma: no cover - compiled
+    """Value, first and second derivative of c0 + c1 u + ... + c5 u^5 at u (Horner's scheme)."""
+    v, d1, d2 = c5, 0.0, 0.0
+    d2 = d2 * u + 2.0 * d1
+    d1 = d1 * u + v
+    v = v * u + c4
+    d2 = d2 * u + 2.0 * d1
+    d1 = d1 * u + v
+    v = v * u + c3
+    d2 = d2 * u + 2.0 * d1
+    d1 = d1 * u + v
+    v = v * u + c2
+    d2 = d2 * u + 2.0 * d1
+    d1 = d1 * u + v
+    v = v * u + c1
+    d2 = d2 * u + 2.0 * d1
+    d1 = d1 * u + v
+    v = v * u + c0
+    return v, d1, d2
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _profile_kernel(H, ve, fracs, nT, dt, s0, d0, v0, a0, dd0, ddd0, low, p1, p2, ps, pxy, phead, pk, ph, left, right,
                     margin, max_offset, href0, lat, along_path, d_end):  # pragma: no cover - compiled
     """The (horizon, end speed) part of :func:`sample`: per (h, v) the quartic s(t) with its speed and
@@ -317,17 +339,9 @@ def _profile_kernel(H, ve, fracs, nT, dt, s0, d0, v0, a0, dd0, ddd0, low, p1, p2
                 s_ddot = (12.0 * c4 * tau + 6.0 * c3) * tau + 2.0 * c2
                 u = tau if not low else min(max(s_rel, 0.0), L)
                 # Horner with derivatives, as _horner: the quintic (d0, x1, q2c, q3, q4, q5) and B(w) = 10 w^3 - 15 w^4 + 6 w^5
-                qv, qd1, qd2 = q5, 0.0, 0.0
-                for c in (q4, q3, q2c, x1, d0):
-                    qd2 = qd2 * u + 2.0 * qd1
-                    qd1 = qd1 * u + qv
-                    qv = qv * u + c
+                qv, qd1, qd2 = _horner5(q5, q4, q3, q2c, x1, d0, u)
                 w = u / L
-                bv, bd1, bd2 = 6.0, 0.0, 0.0
-                for c in (-15.0, 10.0, 0.0, 0.0, 0.0):
-                    bd2 = bd2 * w + 2.0 * bd1
-                    bd1 = bd1 * w + bv
-                    bv = bv * w + c
+                bv, bd1, bd2 = _horner5(6.0, -15.0, 10.0, 0.0, 0.0, 0.0, w)
                 bd1 = bd1 / L
                 bd2 = bd2 / L**2
                 if low:
@@ -375,7 +389,7 @@ def _profile_kernel(H, ve, fracs, nT, dt, s0, d0, v0, a0, dd0, ddd0, low, p1, p2
                 prev_h, prev_v = h_i, v_i
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _cartesian_kernel(de, lat, along_path, low, dth0, yaw0, v_start, dt, out, row0):  # pragma: no cover - compiled
     """The full-size part of :func:`sample`, one pass per candidate: de (nH, nV, nD) lateral end offsets;
     lat (6, nH, 1 or nV, T) the lateral quintic's value, 1st and 2nd derivative for end offset 0, then

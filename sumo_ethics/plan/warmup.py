@@ -31,8 +31,9 @@ _pending: list[subprocess.Popen] = []
 
 
 def compile_helpers() -> None:
-    """Compile (or load) the envelope and feasibility kernels and the search kernel's late helpers
-    on their own: the second of :func:`start`'s two processes. The search kernel's compile, in the
+    """Compile (or load) the search kernel's late helpers, then the envelope and feasibility kernels
+    on their own: the second of :func:`start`'s two processes (the first: the candidates' kernels,
+    then the search kernel). The search kernel's compile, in the
     first, then finds these in the cache instead of compiling them itself (numba caches every
     function apart)."""
     from sumo_ethics.ethics import search, shapes
@@ -43,7 +44,7 @@ def compile_helpers() -> None:
                        tuple(float(c) for c in _coefficients()))
     search._upper(1.0, 0.5, 1.0, 0.0, 2.25, 0.9, 1.0, 0.0, 0.5, 0.5, 2.25, 0.9)
     search._lower(1.0, 0.5, 1.0, 0.0, 1.0, 0.0, 2.25, 0.9, 2.25, 0.9, 1.0, 0.0, 0.5, 0.5, 2.25, 0.9)
-    compile_kernels(search_kernel=False)
+    compile_kernels(search_kernel=False, sampling=False)
 
 
 def _coefficients() -> np.ndarray:
@@ -52,10 +53,12 @@ def _coefficients() -> np.ndarray:
     return HarmCoefficients().as_array()
 
 
-def compile_kernels(search_kernel: bool = True) -> None:
+def compile_kernels(search_kernel: bool = True, sampling: bool = True) -> None:
     """Call every kernel the planner uses once on a tiny input (types as in a planning step):
-    numba compiles them, or loads them from its cache (``search_kernel=False``: all but the
-    risk's search kernel)."""
+    numba compiles them, or loads them from its cache (``search_kernel=False``: not the risk's
+    search kernel; ``sampling=False``: not the candidates' kernels). The candidates' kernels come
+    first: in :func:`start`'s first process they compile while the second compiles the search
+    kernel's helpers, which the search kernel then loads."""
     from sumo_ethics.config import EgoVehicle
     from sumo_ethics.contract import RoutePath
     from sumo_ethics.ethics.harm import HarmCoefficients
@@ -74,17 +77,19 @@ def compile_kernels(search_kernel: bool = True) -> None:
     mx, my, psi, av = np.full((N, T), 4.0), np.full((N, T), 1.0), np.zeros((N, T)), np.zeros((N, T))
     var = np.full((N, T), 0.25)
     one = np.ones(N)
+    path = Polyline.from_points(np.array([[0.0, 0.0], [100.0, 0.0]]))
+    if sampling:
+        sample(path, FrenetState(s=1.0, d=0.0, s_dot=5.0), SamplingConfig(horizons=(0.2,), n_speeds=2, n_offsets=2),
+               10.0)
     if search_kernel:
         bounded_terms(ex, ey, eyaw, ev, valid, mx, my, psi, av, var, np.zeros((N, T)), var, np.full(N, 4.5),
                       np.full(N, 1.8), 4.5, 1.8, np.full(N, 3.0), 6.0, 1e-3, 1e-2, 1e-4, False, one, 1475.0, False,
                       np.full(N, 1400.0), np.zeros(N, bool), HarmCoefficients().as_array())
     envelope_first_hit(ex, ey, eyaw, ev, valid, mx, my, psi, np.full(N, 5.5), np.full(N, 2.3), 4.5, 1.8, 8.0)
-    path = Polyline.from_points(np.array([[0.0, 0.0], [100.0, 0.0]]))
     route = RoutePath(edges=("e",), path=path, lane_of_vertex=("e_0", "e_0"), speed_limit=np.full(2, 14.0),
                       left=np.full(2, 3.0), right=np.full(2, -3.0), links=())
     z = np.zeros((K, T))
     check(Candidates(0.1, ex, ey, eyaw, ev, z, z, ex, z, np.full(K, 0.3), valid, road_curvature=z), route, EgoVehicle())
-    sample(path, FrenetState(s=1.0, d=0.0, s_dot=5.0), SamplingConfig(horizons=(0.2,), n_speeds=2, n_offsets=2), 10.0)
 
 
 def start() -> None:
