@@ -234,12 +234,13 @@ def reference_heading(path: Polyline, s: np.ndarray) -> np.ndarray:
 
 def _bound_at(bound: float | np.ndarray | None, path: Polyline, default: float) -> np.ndarray:
     """(M,) a lateral bound at the path's vertices [m]: one number everywhere, or the given values; None: ``default``."""
-    b = np.asarray(default if bound is None else bound, dtype=float)
+    b = np.array(default if bound is None else bound, dtype=float)  # a copy, read-only like the path's arrays
     if b.ndim == 0:
-        return np.full(path.s.shape, float(b))
-    if b.shape != path.s.shape:
+        b = np.full(path.s.shape, float(b))
+    elif b.shape != path.s.shape:
         raise ConfigError(f"lateral bounds must be a number or one value per path vertex {path.s.shape}, got {b.shape}")
-    return np.ascontiguousarray(b)
+    b.setflags(write=False)  # (one type for the kernel whatever the caller passes: one compile)
+    return b
 
 
 # --------------------------------------------------------------------------- sampling
