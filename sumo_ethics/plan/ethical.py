@@ -193,7 +193,14 @@ def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: 
     """Straight-line braking at constant decelerations ``decels`` (B,) [m/s^2] from the first
     step, keeping the lateral offset: the quartic profiles take a second to build up braking
     (they start from the current acceleration), these do not. They head along the path (yaw =
-    reference heading), so all their curvature is the road's (road_curvature = curvature)."""
+    reference heading). Their curvature is the central difference of that heading over the distance
+    travelled (as :func:`~sumo_ethics.plan.sampling.sample`'s), from the ego's heading now: the
+    path's plus atan2(d_dot, s_dot (1 - kappa d)) of ``state``. An ego moving sideways (a lane
+    change under way) would turn onto the path's heading within the first step, so there the
+    curvature is that turn over the first step's distance alone (one-sided: the heading changes in
+    that step, not over two), which :func:`~sumo_ethics.plan.feasibility.check` weighs against the
+    lateral acceleration limit; road_curvature is the central difference from the path's own heading
+    (equal to curvature when the ego moves along the path)."""
     t = dt * np.arange(1, n_steps + 1)[None, :]  # (1, T)
     b = np.asarray(decels, dtype=float)[:, None]  # (B, 1)
     v0 = max(state.s_dot, 0.0)
@@ -206,9 +213,34 @@ def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: 
     x, y, _ = path.to_xy(s, d)
     yaw = reference_heading(path, s)
     shape = s.shape
-    k = path.curvature_at(s)
+    href0 = float(reference_heading(path, np.asarray(state.s)))
+    one0 = 1.0 - float(path.curvature_at(state.s)) * state.d
+    along0 = state.s_dot * one0
+    dth0 = math.atan2(state.d_dot, along0) if math.hypot(along0, state.d_dot) >= 1e-2 else 0.0
+    road = central_curvature(yaw, href0, v, v0, dt)
+    k = road
+    if dth0 != 0.0:  # the turn onto the path happens within the first step: judged over that step alone
+        k = central_curvature(yaw, href0 + dth0, v, v0, dt)
+        into = (v[:, 0] + v0) * (0.5 * dt)  # (B,) the distance of the first step [m]
+        k[:, 0] = np.where(into > 1e-3, (yaw[:, 0] - (href0 + dth0)) / np.where(into > 1e-3, into, 1.0), k[:, 0])
     return Candidates(dt=dt, x=x, y=y, yaw=yaw, speed=v, accel=a, curvature=k, s=s, d=d,
-                      horizon=np.full(shape[0], n_steps * dt), valid=np.ones(shape, dtype=bool), road_curvature=k)
+                      horizon=np.full(shape[0], n_steps * dt), valid=np.ones(shape, dtype=bool), road_curvature=road)
+
+
+def central_curvature(heading: np.ndarray, heading0: float, speed: np.ndarray, speed0: float, dt: float) -> np.ndarray:
+    """(..., T) curvature [1/m] of a motion sampled every ``dt`` [s]: the central difference of the unwrapped
+    ``heading`` [rad] over the distance travelled (trapezoidal in ``|speed|`` [m/s]), one-sided at the
+    last step, from ``heading0`` and ``speed0`` just before step 0; 0 where that distance is under 1 mm
+    (:func:`~sumo_ethics.plan.sampling.sample`'s definition)."""
+    h = np.concatenate([np.full(heading.shape[:-1] + (1,), heading0), heading], axis=-1)
+    v = np.abs(np.concatenate([np.full(speed.shape[:-1] + (1,), speed0), speed], axis=-1))
+    step = (v[..., 1:] + v[..., :-1]) * (0.5 * dt)  # distance into each step [m]
+    dh = np.diff(h, axis=-1)  # heading change into each step
+    num = dh.copy()
+    den = step.copy()
+    num[..., :-1] += dh[..., 1:]
+    den[..., :-1] += step[..., 1:]
+    return np.where(den > 1e-3, num / np.where(den > 1e-3, den, 1.0), 0.0)
 
 
 #: the evasive candidates' grid (:func:`evasive_candidates`): end speeds and lateral end offsets

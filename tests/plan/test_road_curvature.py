@@ -165,3 +165,23 @@ def test_when_no_candidate_keeps_the_lateral_limit_the_least_excess_ones_remain(
     none = check(hand_made([-0.56], [-0.5], [3.0]), WIDE, EgoVehicle(), speed_limit_factor=None)
     ok, limit = none.least_lateral()
     assert not ok.any() and math.isnan(limit)  # nothing keeps the other limits: the emergency brake
+
+
+def test_a_straight_brake_from_a_lane_change_carries_its_turn_onto_the_path():
+    """At 10 m/s on a straight road while moving left at 1 m/s (a lane change under way), braking
+    straight turns the heading from atan2(1, 10) = 0.0997 rad back onto the road within the first step.
+    Worked by hand for 3 m/s^2: speeds 10 now, 9.7 after the step; the step covers (10 + 9.7) / 2 x 0.1
+    = 0.985 m, so its curvature is -0.0997 / 0.985 = -0.1012 1/m and it pushes 9.7^2 x 0.1012 = 9.52 m/s^2
+    sideways (the ego's heading turns by 5.7 degrees in 0.1 s): over the limit of 4, so the check
+    rejects it. Without the
+    lateral motion it stays straight and feasible."""
+    path = Polyline.from_points(np.array([[0.0, 0.0], [500.0, 0.0]]))
+    road = type("R", (), {"path": path, "left": np.full(2, 5.0), "right": np.full(2, -5.0)})()
+    moving = brake_candidates(path, FrenetState(s=20.0, d=0.5, s_dot=10.0, d_dot=1.0), 40, 0.1, np.array([3.0]))
+    dth0 = math.atan2(1.0, 10.0)
+    assert moving.curvature[0, 0] == pytest.approx(-dth0 / 0.985, rel=1e-12)
+    assert moving.curvature[0, 1] == pytest.approx(0.0, abs=1e-15) and moving.road_curvature[0, 0] == 0.0
+    f = check(moving, road, EgoVehicle(max_lat_accel=4.0), speed_limit_factor=None)
+    assert f.lat_accel_peak[0] == pytest.approx(9.7**2 * dth0 / 0.985, rel=1e-12) and not f.lat_accel_ok[0]
+    still = brake_candidates(path, FrenetState(s=20.0, d=0.5, s_dot=10.0), 40, 0.1, np.array([3.0]))
+    assert (still.curvature == 0.0).all() and check(still, road, EgoVehicle(), speed_limit_factor=None).feasible[0]
