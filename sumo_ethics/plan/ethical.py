@@ -29,7 +29,7 @@ from sumo_ethics.contract import Decision, EgoCommand, Scene
 from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.perception import Perception, PerceptionConfig, SightMap
 from sumo_ethics.plan.phantoms import phantom_risk
-from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, reference_heading, sample
+from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, quintic_coeffs, reference_heading, sample
 from sumo_ethics.predict import registry
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior, recent_motion
 from sumo_ethics.predict.constant_velocity import non_finite, replace_non_finite
@@ -189,18 +189,22 @@ def first_overlap(cand: Candidates, pred: Prediction, length: np.ndarray, width:
     return np.where(first >= tp, T, first)  # the kernel sees tp steps: "never" comes back as tp
 
 
+#: the straight brakes let the ego's sideways motion settle over the arc length they cover in this time [s]
+BRAKE_SETTLE = 1.0
+
+
 def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: np.ndarray) -> Candidates:
-    """Straight-line braking at constant decelerations ``decels`` (B,) [m/s^2] from the first
-    step, keeping the lateral offset: the quartic profiles take a second to build up braking
-    (they start from the current acceleration), these do not. They head along the path (yaw =
-    reference heading). Their curvature is the central difference of that heading over the distance
-    travelled (as :func:`~sumo_ethics.plan.sampling.sample`'s), from the ego's heading now: the
-    path's plus atan2(d_dot, s_dot (1 - kappa d)) of ``state``. An ego moving sideways (a lane
-    change under way) would turn onto the path's heading within the first step, so there the
-    curvature is that turn over the first step's distance alone (one-sided: the heading changes in
-    that step, not over two), which :func:`~sumo_ethics.plan.feasibility.check` weighs against the
-    lateral acceleration limit; road_curvature is the central difference from the path's own heading
-    (equal to curvature when the ego moves along the path)."""
+    """Braking at constant decelerations ``decels`` (B,) [m/s^2] from the first step: the quartic profiles
+    take a second to build up braking (they start from the current acceleration), these do not.
+
+    Laterally they keep the offset, but an ego moving sideways (a lane change or a swerve under way,
+    ``state.d_dot``) does not turn onto the path within one step: its slope across the path,
+    d' = d_dot / s_dot (clipped to 1, 0 below 0.1 m/s), settles to 0 over the arc length Sigma the brake
+    covers in :data:`BRAKE_SETTLE` s (or until it stops), a quintic d(sigma) with d''= 0 at both ends
+    ending at d + d' Sigma / 2, then d stays. Its heading is the path's plus atan2(d', 1 - kappa d): no
+    jump at the start, and none at a standstill (a function of the distance travelled). Curvature and
+    road_curvature are :func:`central_curvature` of the heading and of the path's own heading from the
+    ego's (the same when the ego moves along the path); speed is the along-path speed v0 - b t."""
     t = dt * np.arange(1, n_steps + 1)[None, :]  # (1, T)
     b = np.asarray(decels, dtype=float)[:, None]  # (B, 1)
     v0 = max(state.s_dot, 0.0)
@@ -209,20 +213,29 @@ def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: 
     s = state.s + v0 * tc - 0.5 * b * tc**2
     v = np.maximum(v0 - b * t, 0.0)
     a = np.where(t <= t_stop, -b, 0.0) * np.ones_like(s)
-    d = np.full_like(s, state.d)
-    x, y, _ = path.to_xy(s, d)
-    yaw = reference_heading(path, s)
-    shape = s.shape
+    p1 = float(np.clip(state.d_dot / state.s_dot, -1.0, 1.0)) if state.s_dot >= 0.1 else 0.0
+    href = reference_heading(path, s)
     href0 = float(reference_heading(path, np.asarray(state.s)))
-    one0 = 1.0 - float(path.curvature_at(state.s)) * state.d
-    along0 = state.s_dot * one0
-    dth0 = math.atan2(state.d_dot, along0) if math.hypot(along0, state.d_dot) >= 1e-2 else 0.0
-    road = central_curvature(yaw, href0, v, v0, dt)
-    k = road
-    if dth0 != 0.0:  # the turn onto the path happens within the first step: judged over that step alone
-        k = central_curvature(yaw, href0 + dth0, v, v0, dt)
-        into = (v[:, 0] + v0) * (0.5 * dt)  # (B,) the distance of the first step [m]
-        k[:, 0] = np.where(into > 1e-3, (yaw[:, 0] - (href0 + dth0)) / np.where(into > 1e-3, into, 1.0), k[:, 0])
+    if p1 == 0.0:
+        d = np.full_like(s, state.d)
+        yaw, yaw0 = href, href0
+    else:
+        ts = np.minimum(BRAKE_SETTLE, t_stop)  # (B, 1)
+        sig_end = v0 * ts - 0.5 * b * ts**2  # (B, 1) the arc length the sideways motion settles over [m]
+        travels = sig_end >= 1e-3
+        L = np.where(travels, sig_end, 1.0)
+        c = quintic_coeffs(state.d, p1, 0.0, state.d + 0.5 * p1 * L, L)  # (B, 1, 6)
+        u = np.clip(s - state.s, 0.0, L)
+        d = sum(c[..., i] * u**i for i in range(6))
+        slope = sum(i * c[..., i] * u ** (i - 1) for i in range(1, 6))
+        d = np.where(travels, d, state.d)
+        slope = np.where(travels & (u < L), slope, 0.0)
+        yaw = href + np.arctan2(slope, 1.0 - path.curvature_at(s) * d)
+        yaw0 = href0 + math.atan2(p1, 1.0 - float(path.curvature_at(state.s)) * state.d)
+    x, y, _ = path.to_xy(s, d)
+    shape = s.shape
+    road = central_curvature(href, href0, v, v0, dt)
+    k = road if p1 == 0.0 else central_curvature(yaw, yaw0, v, v0, dt)
     return Candidates(dt=dt, x=x, y=y, yaw=yaw, speed=v, accel=a, curvature=k, s=s, d=d,
                       horizon=np.full(shape[0], n_steps * dt), valid=np.ones(shape, dtype=bool), road_curvature=road)
 

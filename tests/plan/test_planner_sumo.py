@@ -2,9 +2,16 @@
 
 from __future__ import annotations
 
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
 import pandas as pd
 import pytest
 
+from sumo_ethics.cli import main
 from sumo_ethics.config import EgoVehicle, RunConfig
 from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
 from sumo_ethics.runner import run
@@ -59,3 +66,26 @@ def test_pedestrian_stepping_out_is_not_hit(scenario_dir, tmp_path):
     steps = pd.read_parquet(out / "steps.parquet")
     assert steps.speed.min() < 8.0  # it braked for the walker
     assert_physical(steps)
+
+
+@pytest.mark.sumo
+def test_every_executed_step_keeps_the_lateral_limit_where_a_straight_brake_snapped(tmp_path):
+    """Suite scenario s0048 (an emergency stop ahead on a multilane road): the ego, moving right at
+    about 0.8 m/s, used to brake straight and so turn its heading onto the road within one 0.1 s step
+    (6.1 degrees at 7.2 m/s: 7.6 m/s^2 sideways against the limit of 4.0). The recorded motion of the
+    run must keep |v dpsi / dt| within the limit (0.5 m/s^2 of slack for SUMO's own speed rounding and
+    the road's bends) at every step."""
+    suite = Path(__file__).resolve().parents[2] / "scenarios" / "suite"
+    one = tmp_path / "suite"
+    one.mkdir()
+    for name in ("networks", "s0048"):
+        (one / name).symlink_to(suite / name, target_is_directory=True)
+    shutil.copy(suite / "suite.json", one / "suite.json")
+    assert main(["evaluate", str(one), "--planner", "ours", "--workers", "1", "--quiet", "--out", str(tmp_path / "e")]) == 0
+    steps = pd.read_parquet(tmp_path / "e" / "runs" / "ours" / "s0048" / "steps.parquet")
+    limit = float(json.loads((tmp_path / "e" / "runs" / "ours" / "s0048" / "summary.json").read_text())["ego_limits"]
+                  ["max_lat_accel"])
+    turn = np.angle(np.exp(1j * np.diff(steps["yaw"].to_numpy())))
+    lateral = np.abs(steps["speed"].to_numpy()[1:] * turn / np.diff(steps["time"].to_numpy()))
+    assert len(steps) > 300 and limit == 4.0
+    assert lateral.max() <= limit + 0.5, (float(lateral.max()), math.degrees(float(np.abs(turn).max())))

@@ -19,7 +19,7 @@ from sumo_ethics.config import EgoVehicle
 from sumo_ethics.geometry import Polyline
 from sumo_ethics.plan.ethical import brake_candidates, concat
 from sumo_ethics.plan.feasibility import ROAD_CURVATURE_TOL, check
-from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, sample
+from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, quintic_coeffs, sample
 from sumo_ethics.types import Candidates
 
 R = 2.0  # m, radius of the test bend
@@ -167,21 +167,27 @@ def test_when_no_candidate_keeps_the_lateral_limit_the_least_excess_ones_remain(
     assert not ok.any() and math.isnan(limit)  # nothing keeps the other limits: the emergency brake
 
 
-def test_a_straight_brake_from_a_lane_change_carries_its_turn_onto_the_path():
-    """At 10 m/s on a straight road while moving left at 1 m/s (a lane change under way), braking
-    straight turns the heading from atan2(1, 10) = 0.0997 rad back onto the road within the first step.
-    Worked by hand for 3 m/s^2: speeds 10 now, 9.7 after the step; the step covers (10 + 9.7) / 2 x 0.1
-    = 0.985 m, so its curvature is -0.0997 / 0.985 = -0.1012 1/m and it pushes 9.7^2 x 0.1012 = 9.52 m/s^2
-    sideways (the ego's heading turns by 5.7 degrees in 0.1 s): over the limit of 4, so the check
-    rejects it. Without the
-    lateral motion it stays straight and feasible."""
+def test_a_straight_brake_from_a_lane_change_lets_the_sideways_motion_settle():
+    """At 10 m/s on a straight road while moving left at 1 m/s (a lane change under way: slope
+    d' = 0.1), braking at 3 m/s^2 covers 10 - 1.5 = 8.5 m in the first second; over that arc the slope
+    settles to 0 along the quintic with d(0) = 0.5, d'(0) = 0.1, d''(0) = 0 and d(8.5) = 0.5 + 0.1 x 8.5 / 2
+    = 0.925, d'(8.5) = d''(8.5) = 0 (evaluated here with numpy's polynomials). So the heading starts at the
+    ego's, atan(0.1), instead of snapping onto the road's within the first step (9.5 m/s^2 sideways),
+    and the brake stays within the lateral limit of 4."""
     path = Polyline.from_points(np.array([[0.0, 0.0], [500.0, 0.0]]))
     road = type("R", (), {"path": path, "left": np.full(2, 5.0), "right": np.full(2, -5.0)})()
     moving = brake_candidates(path, FrenetState(s=20.0, d=0.5, s_dot=10.0, d_dot=1.0), 40, 0.1, np.array([3.0]))
-    dth0 = math.atan2(1.0, 10.0)
-    assert moving.curvature[0, 0] == pytest.approx(-dth0 / 0.985, rel=1e-12)
-    assert moving.curvature[0, 1] == pytest.approx(0.0, abs=1e-15) and moving.road_curvature[0, 0] == 0.0
+    sigma = moving.s[0] - 20.0
+    q = np.polynomial.Polynomial(quintic_coeffs(0.5, 0.1, 0.0, 0.925, 8.5))
+    inside = sigma < 8.5
+    np.testing.assert_allclose(moving.d[0, inside], q(sigma[inside]), atol=1e-12)
+    np.testing.assert_allclose(moving.d[0, ~inside], 0.925, atol=1e-12)
+    np.testing.assert_allclose(moving.yaw[0, inside], np.arctan(q.deriv()(sigma[inside])), atol=1e-12)
+    assert moving.y[0, -1] == pytest.approx(0.925, abs=1e-12) and moving.yaw[0, -1] == 0.0
     f = check(moving, road, EgoVehicle(max_lat_accel=4.0), speed_limit_factor=None)
-    assert f.lat_accel_peak[0] == pytest.approx(9.7**2 * dth0 / 0.985, rel=1e-12) and not f.lat_accel_ok[0]
+    assert f.feasible[0] and 0.5 < f.lat_accel_peak[0] < 4.0
+    # the first step turns by what the quintic turns over 0.985 m, not by atan(0.1)
+    assert abs(moving.yaw[0, 0] - math.atan(0.1)) < 0.01
     still = brake_candidates(path, FrenetState(s=20.0, d=0.5, s_dot=10.0), 40, 0.1, np.array([3.0]))
-    assert (still.curvature == 0.0).all() and check(still, road, EgoVehicle(), speed_limit_factor=None).feasible[0]
+    assert (still.curvature == 0.0).all() and (still.d == 0.5).all()
+    assert check(still, road, EgoVehicle(), speed_limit_factor=None).feasible[0]
