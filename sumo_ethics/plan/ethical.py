@@ -193,15 +193,18 @@ def first_overlap(cand: Candidates, pred: Prediction, length: np.ndarray, width:
 BRAKE_SETTLE = 1.0
 
 
-def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: np.ndarray) -> Candidates:
+def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: np.ndarray,
+                     max_curvature: float = 0.2) -> Candidates:
     """Braking at constant decelerations ``decels`` (B,) [m/s^2] from the first step: the quartic profiles
     take a second to build up braking (they start from the current acceleration), these do not.
 
     Laterally they keep the offset, but an ego moving sideways (a lane change or a swerve under way,
     ``state.d_dot``) does not turn onto the path within one step: its slope across the path,
-    d' = d_dot / s_dot (clipped to 1, 0 below 0.1 m/s), settles to 0 over the arc length Sigma the brake
-    covers in :data:`BRAKE_SETTLE` s (or until it stops), a quintic d(sigma) with d''= 0 at both ends
-    ending at d + d' Sigma / 2, then d stays. Its heading is the path's plus atan2(d', 1 - kappa d): no
+    d' = d_dot / s_dot (clipped to 1, 0 below 0.1 m/s), settles to 0 along a quintic d(sigma) with d'' = 0
+    at both ends, ending at d + d' Sigma / 2, then d stays. Sigma is the arc length the brake covers in
+    :data:`BRAKE_SETTLE` s, but at least 2 |d'| / ``max_curvature`` [1/m] (the quintic's sharpest turn
+    is 1.875 |d'| / Sigma): a brake that stops sooner stands at an angle to the path, as a car braking
+    with its wheels held would, instead of turning faster than it can steer. Its heading is the path's plus atan2(d', 1 - kappa d): no
     jump at the start, and none at a standstill (a function of the distance travelled). Curvature and
     road_curvature are :func:`central_curvature` of the heading and of the path's own heading from the
     ego's (the same when the ego moves along the path); speed is the along-path speed v0 - b t."""
@@ -221,7 +224,7 @@ def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: 
         yaw, yaw0 = href, href0
     else:
         ts = np.minimum(BRAKE_SETTLE, t_stop)  # (B, 1)
-        sig_end = v0 * ts - 0.5 * b * ts**2  # (B, 1) the arc length the sideways motion settles over [m]
+        sig_end = np.maximum(v0 * ts - 0.5 * b * ts**2, 2.0 * abs(p1) / max_curvature)  # (B, 1) [m]
         travels = sig_end >= 1e-3
         L = np.where(travels, sig_end, 1.0)
         c = quintic_coeffs(state.d, p1, 0.0, state.d + 0.5 * p1 * L, L)  # (B, 1, 6)
@@ -486,7 +489,8 @@ class EthicalPlanner:
         block = np.empty((9, n_plain + (self._evasive_grid.n_candidates if self.cfg.evasive else 0), sc.n_steps))
         grid = sample(route.path, state, sc, v_max=v_limit, left=route.left, right=route.right, margin=ego_width / 2.0,
                       out=block, row=0)
-        brakes = brake_candidates(route.path, replace(state, s_dot=v), sc.n_steps, sc.dt, decels)  # speed v - b t
+        brakes = brake_candidates(route.path, replace(state, s_dot=v), sc.n_steps, sc.dt, decels,  # speed v - b t
+                                  max_curvature=veh.max_curvature)
         for f, name in enumerate(BLOCK_FIELDS):
             block[f, n_grid:n_plain] = getattr(brakes, name)
         parts = [grid, brakes]

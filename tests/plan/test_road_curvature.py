@@ -191,3 +191,17 @@ def test_a_straight_brake_from_a_lane_change_lets_the_sideways_motion_settle():
     still = brake_candidates(path, FrenetState(s=20.0, d=0.5, s_dot=10.0), 40, 0.1, np.array([3.0]))
     assert (still.curvature == 0.0).all() and (still.d == 0.5).all()
     assert check(still, road, EgoVehicle(), speed_limit_factor=None).feasible[0]
+
+
+def test_a_brake_that_stops_sooner_than_it_could_steer_stands_at_an_angle():
+    """At 0.3 m/s moving sideways at 0.12 m/s (slope 0.4) braking at 3 m/s^2 stops within 0.1 s, 1.5 cm on:
+    settling the slope over that would turn at 0.4 x 1.875 / 0.015 = 50 1/m. The slope settles over
+    2 x 0.4 / 0.2 = 4 m instead (the ego's limit 0.2 1/m), so the brake stops at nearly the ego's angle to
+    the path and stays within the curvature limit: a candidate the check keeps."""
+    path = Polyline.from_points(np.array([[0.0, 0.0], [500.0, 0.0]]))
+    road = type("R", (), {"path": path, "left": np.full(2, 5.0), "right": np.full(2, -5.0)})()
+    slow = brake_candidates(path, FrenetState(s=20.0, d=0.5, s_dot=0.3, d_dot=0.12), 40, 0.1, np.array([3.0]),
+                            max_curvature=0.2)
+    assert slow.s[0, -1] - 20.0 == pytest.approx(0.3**2 / 6.0, rel=1e-12)
+    assert abs(slow.yaw[0, -1] - math.atan(0.4)) < 0.01  # still at (nearly) the ego's angle when it stands
+    assert np.abs(slow.curvature).max() <= 0.2 and check(slow, road, EgoVehicle(), speed_limit_factor=None).feasible[0]
