@@ -511,6 +511,8 @@ class EthicalPlanner:
         if len(keep) == 0:
             dec = self._emergency(scene, {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1)})
             dec.info["n_fallback"] = float(n_fallback)
+            if percept is not None:  # what the sensor saw is recorded on every step, an emergency's too
+                dec.info.update(percept.counts())
             return dec
         fc = cand.take(keep)
         on_road = feas.on_road[keep]
@@ -550,6 +552,8 @@ class EthicalPlanner:
         if j < 0:  # every candidate's total is non-finite: none can be weighed
             dec = self._emergency(scene, {"predict_ms": 1e3 * (w1 - w0), "sample_ms": 1e3 * (w2 - w1)})
             dec.info["n_fallback"] = float(n_fallback)
+            if percept is not None:  # what the sensor saw is recorded on every step, an emergency's too
+                dec.info.update(percept.counts())
             return dec
         k = int(keep[j])
         w4 = time.perf_counter()
