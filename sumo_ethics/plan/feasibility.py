@@ -27,6 +27,7 @@ import numpy as np
 from sumo_ethics.config import EgoVehicle
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.geometry import Polyline
+from sumo_ethics.plan.sampling import interp_at, vertex_walk
 from sumo_ethics.types import Candidates
 
 __all__ = ["Feasibility", "LAT_ACCEL_RELAX", "ROAD_CURVATURE_TOL", "RouteLike", "check"]
@@ -153,23 +154,10 @@ def check(cand: Candidates, route: RouteLike, vehicle: EgoVehicle,
 
 
 @numba.njit(cache=True, nogil=True)
-def _interp(x: float, xp, fp, j: int) -> float:
-    """np.interp(x, xp, fp) with j the index of the last xp <= x (numpy's formula, bit for bit)."""
-    n = len(xp)
-    if x < xp[0]:
-        return fp[0]
-    if x >= xp[n - 1]:
-        return fp[n - 1]
-    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
-    return slope * (x - xp[j]) + fp[j]
-
-
-@numba.njit(cache=True, nogil=True)
 def _check_kernel(v, a, k, kr, has_kr, yaw, s, d, valid, ps, hv, left, right, limit, use_limit, factor, max_speed,
                   max_decel, max_accel, c, max_lat, length, width, road_tol, tol):
     """The verdicts of :func:`check` over (K, T), one pass per candidate."""
     K, T = v.shape
-    n = len(ps)
     speed_ok = np.ones(K, dtype=np.bool_)
     accel_ok = np.ones(K, dtype=np.bool_)
     curv_ok = np.ones(K, dtype=np.bool_)
@@ -183,15 +171,7 @@ def _check_kernel(v, a, k, kr, has_kr, yaw, s, d, valid, ps, hv, left, right, li
             if not valid[i, t]:
                 continue
             x = s[i, t]
-            # the last vertex at or before s (np.searchsorted(ps, x, "right") - 1 clipped to [0, n - 1]),
-            # walked from the previous step's: a candidate's s moves a vertex or two per step
-            if x != x:
-                j = n - 1  # NaN sorts last
-            else:
-                while j + 1 < n and ps[j + 1] <= x:
-                    j += 1
-                while j > 0 and ps[j] > x:
-                    j -= 1
+            j = vertex_walk(x, ps, j)  # the last vertex at or before s, walked from the step before
             vi = v[i, t]
             ok = vi >= -tol and vi <= max_speed + tol
             if use_limit:
@@ -219,9 +199,9 @@ def _check_kernel(v, a, k, kr, has_kr, yaw, s, d, valid, ps, hv, left, right, li
                 lat_ok[i] = False
             if lat > peak[i]:
                 peak[i] = lat
-            psi = yaw[i, t] - _interp(x, ps, hv, j)
+            psi = yaw[i, t] - interp_at(x, ps, hv, j)
             extent = 0.5 * length * abs(math.sin(psi)) + 0.5 * width * abs(math.cos(psi))
             di = d[i, t]
-            if not (di + extent <= _interp(x, ps, left, j) + tol and di - extent >= _interp(x, ps, right, j) - tol):
+            if not (di + extent <= interp_at(x, ps, left, j) + tol and di - extent >= interp_at(x, ps, right, j) - tol):
                 on_road[i] = False
     return speed_ok, accel_ok, curv_ok, lat_ok, on_road, beyond, peak

@@ -244,25 +244,32 @@ def _bound_at(bound: float | np.ndarray | None, path: Polyline, default: float) 
 
 
 # --------------------------------------------------------------------------- sampling
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _interp_walk(x, xp, fp, j, left, right):  # pragma: no cover - compiled
-    """(np.interp(x, xp, fp, left, right), j): numpy's formula, with j the last xp <= x walked from the
-    caller's previous j (a candidate's stations move a vertex or so per step)."""
+@numba.njit(cache=True, nogil=True)
+def vertex_walk(x: float, xp, j: int) -> int:  # pragma: no cover - compiled
+    """The last index of ``xp`` (ascending) at or before ``x``, clipped to [0, len - 1] (numpy's
+    ``searchsorted(xp, x, "right") - 1``; NaN sorts last), walked from the caller's previous ``j``: a
+    candidate's stations move a vertex or so per step, so this beats a binary search."""
     n = len(xp)
+    if x != x:
+        return n - 1
     while j + 1 < n and xp[j + 1] <= x:
         j += 1
     while j > 0 and xp[j] > x:
         j -= 1
+    return j
+
+
+@numba.njit(cache=True, nogil=True)
+def interp_at(x: float, xp, fp, j: int) -> float:  # pragma: no cover - compiled
+    """np.interp(x, xp, fp) with j from :func:`vertex_walk` (numpy's formula, bit for bit)."""
+    n = len(xp)
     if x < xp[0]:
-        return left, j
-    if x > xp[n - 1]:
-        return right, j
-    if x == xp[n - 1]:
-        return fp[n - 1], j
-    if x == xp[j]:
-        return fp[j], j
+        return fp[0]
+    if x >= xp[n - 1]:
+        return fp[n - 1]
+    j = min(j, n - 2)  # (only NaN gets here with n - 1: its result is NaN either way)
     slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
-    return slope * (x - xp[j]) + fp[j], j
+    return slope * (x - xp[j]) + fp[j]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -308,9 +315,8 @@ def _profile_kernel(H, ve, fracs, nT, dt, s0, d0, v0, a0, dd0, ddd0, low, p1, p2
             c4 = (A * T - 2.0 * V) / (4.0 * T**3)
             sig = (((c4 * T + c3) * T + c2) * T + c1) * T  # s(T) - s0
             # the lateral end offsets over the drivable interval at the end station
-            j = 0
-            r_end, j = _interp_walk(s0 + sig, ps, right, j, right[0], right[n - 1])
-            l_end, j = _interp_walk(s0 + sig, ps, left, j, left[0], left[n - 1])
+            j = vertex_walk(s0 + sig, ps, 0)
+            r_end, l_end = interp_at(s0 + sig, ps, right, j), interp_at(s0 + sig, ps, left, j)
             lo = max(r_end + margin, -max_offset)
             hi = min(l_end - margin, max_offset)
             mid = 0.5 * (lo + hi)
@@ -329,8 +335,6 @@ def _profile_kernel(H, ve, fracs, nT, dt, s0, d0, v0, a0, dd0, ddd0, low, p1, p2
             q4 = (-15.0 * D + 7.0 * D1 * L - D2 * L**2) / L**4
             q5 = (6.0 * D - 3.0 * D1 * L + 0.5 * D2 * L**2) / L**5
             jp = 0
-            jk = 0
-            jh = 0
             for i in range(nT):
                 t = dt * (i + 1)
                 tau = min(t, T)
@@ -355,22 +359,16 @@ def _profile_kernel(H, ve, fracs, nT, dt, s0, d0, v0, a0, dd0, ddd0, low, p1, p2
                 lat[3, h, v, i], lat[4, h, v, i], lat[5, h, v, i] = bv, bd1, bd2
                 # the path at s: its segment (the later one at a vertex, the end segments beyond the ends)
                 sa = s0 + s_rel
-                if sa != sa:
-                    jp = n - 1
-                else:
-                    while jp + 1 < n and ps[jp + 1] <= sa:
-                        jp += 1
-                    while jp > 0 and ps[jp] > sa:
-                        jp -= 1
-                g = min(max(jp, 0), nseg - 1)
+                jp = vertex_walk(sa, ps, jp)
+                g = min(jp, nseg - 1)
                 ds = sa - ps[g]
                 hc, hs = math.cos(phead[g]), math.sin(phead[g])
                 along_path[0, h, v, i] = pxy[g, 0] + ds * hc - 0.0 * hs
                 along_path[1, h, v, i] = pxy[g, 1] + ds * hs + 0.0 * hc
                 along_path[2, h, v, i] = hs
                 along_path[3, h, v, i] = hc
-                along_path[4, h, v, i], jk = _interp_walk(sa, ps, pk, jk, 0.0, 0.0)
-                along_path[5, h, v, i], jh = _interp_walk(sa, ps, ph, jh, ph[0], ph[n - 1])
+                along_path[4, h, v, i] = interp_at(sa, ps, pk, jp)  # 0 beyond the ends: pk's end values are 0
+                along_path[5, h, v, i] = interp_at(sa, ps, ph, jp)
                 along_path[6, h, v, i] = s_dot
                 along_path[7, h, v, i] = s_ddot
                 along_path[8, h, v, i] = sa
