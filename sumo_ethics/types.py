@@ -12,6 +12,7 @@ from __future__ import annotations
 import enum
 import functools
 from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 
@@ -78,6 +79,19 @@ def _frozen_array(a: np.ndarray) -> np.ndarray:
     a = np.asarray(a)
     a.setflags(write=False)
     return a
+
+
+def kernel_input(a: Any, dtype: Any = float) -> np.ndarray:
+    """``a`` as a C-contiguous, read-only array of ``dtype``, for a numba kernel's input (no copy
+    where it already is one; a read-only view where it is writable). numba compiles one machine code
+    per argument type and read-only is part of the type: a slice of a frozen array that stays
+    contiguous is read-only, one that does not is copied and writable. Passed through this, every
+    call has one type, so the kernel is compiled (and cached, by the warm-up) once."""
+    out = np.ascontiguousarray(a, dtype=dtype)
+    if out.flags.writeable:
+        out = out.view()
+        out.setflags(write=False)
+    return out
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,8 @@ from typing import Any
 import numba
 import numpy as np
 
+from sumo_ethics.types import kernel_input
+
 from sumo_ethics.ethics.shapes import _BLOCK, _entry_p, _gate, _phi_pos, _slab_test
 
 __all__ = ["bounded_terms", "order_harm", "p_bounds"]
@@ -309,7 +311,7 @@ def _search_kernel(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, oa,
     counts = np.zeros(3, dtype=np.int64)  # gated steps that can count, integrals, (k, n) pairs at risk
     for k in range(K):
         for n in range(N):
-            g = 0
+            g = int(0)  # (not a literal 0: that would compile a second _pop_max)
             wn = w[n]
             for b in range(nb):
                 if (ebox[k, b, 0] > abox[n, b, 1] or ebox[k, b, 1] < abox[n, b, 0]  # shapes._apart, written out
@@ -448,7 +450,7 @@ def bounded_terms(ex, ey, eyaw, ev, evalid, mx, my, psi, av, sxx, sxy, syy, othe
     """
     from sumo_ethics import cores
 
-    f = np.ascontiguousarray
+    f = kernel_input  # one argument type, whatever the caller passes: one compile
     e = [f(ex, dtype=float), f(ey, dtype=float), f(eyaw, dtype=float), f(ev, dtype=float), f(evalid, dtype=np.bool_)]
     rest = (f(mx, dtype=float), f(my, dtype=float), f(psi, dtype=float), f(av, dtype=float), f(sxx, dtype=float),
             f(sxy, dtype=float), f(syy, dtype=float), f(np.asarray(other_length, dtype=float) / 2.0),

@@ -38,6 +38,8 @@ import math
 import numba
 import numpy as np
 
+from sumo_ethics.types import kernel_input
+
 __all__ = ["shapes_sparse", "envelope_first_hit", "polygon_mass", "octagon"]
 
 _TWO_PI = 2.0 * math.pi
@@ -316,7 +318,8 @@ def _gate(ex, ey, evalid, mx, my, psi, sxx, sxy, syy, oa, ob, ea, eb, z):
             afin[n, t] = ok
             arad[n, t] = r_e + r_o + z[n] * math.sqrt(s2) if ok else 0.0
     zero = np.zeros((K, tp))
-    return nb, afin, arad, _block_boxes(ex, ey, evalid, zero, nb, tp), _block_boxes(mx, my, afin, arad, nb, tp)
+    # evalid (read-only, from the caller) copied: _block_boxes compiled once, for afin's type
+    return nb, afin, arad, _block_boxes(ex, ey, evalid.copy(), zero, nb, tp), _block_boxes(mx, my, afin, arad, nb, tp)
 
 
 @_jit
@@ -499,10 +502,9 @@ def envelope_first_hit(ex, ey, eyaw, ev, evalid, mx, my, psi, length, width, ego
     mx, my, psi: (N, Tp) the agents' mean centre and heading; length, width: (N,) [m].
     Gated by distance alone (half-diagonals of both boxes, the stretch included).
     """
-    f = np.ascontiguousarray
+    f = kernel_input  # one argument type, whatever the caller passes: one compile
     return _envelope_kernel(
-        f(ex, dtype=float), f(ey, dtype=float), f(eyaw, dtype=float), f(np.abs(ev), dtype=float),
-        f(evalid, dtype=np.bool_), f(mx, dtype=float), f(my, dtype=float), f(psi, dtype=float),
+        f(ex), f(ey), f(eyaw), f(np.abs(ev)), f(evalid, dtype=np.bool_), f(mx), f(my), f(psi),
         f(np.asarray(length, dtype=float) / 2.0), f(np.asarray(width, dtype=float) / 2.0),
         float(ego_length) / 2.0, float(ego_width) / 2.0, float(brake) if brake else 0.0,
     )

@@ -28,7 +28,7 @@ from sumo_ethics.config import EgoVehicle
 from sumo_ethics.errors import ConfigError
 from sumo_ethics.geometry import Polyline
 from sumo_ethics.plan.sampling import interp_at, vertex_walk
-from sumo_ethics.types import Candidates
+from sumo_ethics.types import Candidates, kernel_input
 
 __all__ = ["Feasibility", "LAT_ACCEL_RELAX", "ROAD_CURVATURE_TOL", "RouteLike", "check"]
 
@@ -137,7 +137,7 @@ def check(cand: Candidates, route: RouteLike, vehicle: EgoVehicle,
     path = route.path
     limit = getattr(route, "speed_limit", None)
     use_limit = speed_limit_factor is not None and limit is not None
-    f = np.ascontiguousarray
+    f = kernel_input  # one argument type, whatever the caller passes: one compile
     K, T = cand.x.shape
     road = cand.road_curvature
     res = _check_kernel(
@@ -145,7 +145,7 @@ def check(cand: Candidates, route: RouteLike, vehicle: EgoVehicle,
         f(np.zeros((K, T)) if road is None else road, dtype=float), road is not None, f(cand.yaw, dtype=float),
         f(cand.s, dtype=float), f(cand.d, dtype=float), f(cand.valid, dtype=np.bool_), f(path.s, dtype=float),
         path.vertex_heading, f(np.asarray(route.left, dtype=float)), f(np.asarray(route.right, dtype=float)),
-        f(np.asarray(limit, dtype=float)) if use_limit else np.zeros(len(path.s)), use_limit,
+        f(limit if use_limit else np.zeros(len(path.s))), use_limit,
         float(speed_limit_factor or 1.0), float(vehicle.max_speed), float(vehicle.max_decel), float(vehicle.max_accel),
         float(vehicle.max_curvature), float(vehicle.max_lat_accel), float(vehicle.length), float(vehicle.width),
         ROAD_CURVATURE_TOL, _TOL)
@@ -166,7 +166,7 @@ def _check_kernel(v, a, k, kr, has_kr, yaw, s, d, valid, ps, hv, left, right, li
     beyond = np.zeros(K, dtype=np.bool_)
     peak = np.zeros(K)
     for i in range(K):
-        j = 0
+        j = int(0)
         for t in range(T):
             if not valid[i, t]:
                 continue

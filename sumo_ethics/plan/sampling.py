@@ -315,7 +315,7 @@ def _profile_kernel(H, ve, fracs, nT, dt, s0, d0, v0, a0, dd0, ddd0, low, p1, p2
             c4 = (A * T - 2.0 * V) / (4.0 * T**3)
             sig = (((c4 * T + c3) * T + c2) * T + c1) * T  # s(T) - s0
             # the lateral end offsets over the drivable interval at the end station
-            j = vertex_walk(s0 + sig, ps, 0)
+            j = vertex_walk(s0 + sig, ps, int(0))  # (not a literal 0: that would compile a second vertex_walk)
             r_end, l_end = interp_at(s0 + sig, ps, right, j), interp_at(s0 + sig, ps, left, j)
             lo = max(r_end + margin, -max_offset)
             hi = min(l_end - margin, max_offset)
@@ -334,7 +334,7 @@ def _profile_kernel(H, ve, fracs, nT, dt, s0, d0, v0, a0, dd0, ddd0, low, p1, p2
             q3 = (10.0 * D - 4.0 * D1 * L + 0.5 * D2 * L**2) / L**3
             q4 = (-15.0 * D + 7.0 * D1 * L - D2 * L**2) / L**4
             q5 = (6.0 * D - 3.0 * D1 * L + 0.5 * D2 * L**2) / L**5
-            jp = 0
+            jp = int(0)
             for i in range(nT):
                 t = dt * (i + 1)
                 tau = min(t, T)
