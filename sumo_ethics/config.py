@@ -195,6 +195,8 @@ class RunConfig:
         if isinstance(p, dict) and not p.get("occlusion") and not p.get("phantoms"):
             for key in ("occlusion", "phantoms", "perception"):  # off: config.json keeps its bytes
                 p.pop(key, None)
+        if isinstance(p, dict) and not p.get("keep_side"):  # off: config.json keeps its bytes
+            p.pop("keep_side", None)
         if self.fleet is None:  # the single-ego run's config.json keeps its bytes
             del d["fleet"]
         else:

@@ -200,7 +200,7 @@ def _read_toml(path: Path, tables: set[str]) -> tuple[dict[str, Any], dict[str, 
 COST_KEYS = ("omega_u", "omega_o", "weights", "utility", "normalise")
 PLANNER_KEYS = COST_KEYS + ("predictor", "predictor_weights", "calibrated", "max_risk", "braking_prior", "lateral_prior",
                             "lateral_onset", "selection", "envelope", "entry", "evasive", "replan_every",
-                            "share_plans", "occlusion", "phantoms")
+                            "share_plans", "occlusion", "phantoms", "keep_side")
 #: the ones ``sweep --set`` takes: all but omega_u, which has ``--omega-u``
 SET_PLANNER_KEYS = tuple(k for k in PLANNER_KEYS if k != "omega_u")
 

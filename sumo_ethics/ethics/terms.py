@@ -176,7 +176,8 @@ def _progress(i: TermInputs) -> np.ndarray:
 
 
 def _lateral(i: TermInputs) -> np.ndarray:
-    return i.mean_over_steps(np.abs(i.cand.d))
+    ref = i.extra.get("lateral_reference")  # the side to keep (sumo_ethics.plan.side), else the lane's centre
+    return i.mean_over_steps(np.abs(i.cand.d if ref is None else i.cand.d - float(ref)))
 
 
 def _max_of(values: Callable[[TermInputs], np.ndarray]) -> Callable[[TermInputs], np.ndarray]:
@@ -202,7 +203,8 @@ BUILTIN: tuple[CostTerm, ...] = (
     CostTerm("responsibility", _responsibility, "principle", "responsibility", "risk",
              "risk put on road users who keep the rules / N", "Responsibility"),
     CostTerm("progress", _progress, "origin", "velocity", "m/s", "|v_desired - mean speed|", "progress (speed deficit)"),
-    CostTerm("lateral", _lateral, "origin", "lateral", "m", "mean |d|", "lateral offset"),
+    CostTerm("lateral", _lateral, "origin", "lateral", "m", "mean |d - d_ref| (d_ref: 0, or the side to keep)",
+             "lateral offset"),
     CostTerm("j_origin", None, "aggregate", unit="cost", description="Origin's weighted sum", label="J_origin"),
     CostTerm("j_total_risk", lambda i: i.j_total, "record", unit="risk", description="J(s): every party's risk summed"),
     CostTerm("j_mean", None, "aggregate", unit="risk", description="J_mean: the mean J of the pool"),

@@ -29,6 +29,7 @@ from sumo_ethics.contract import Decision, EgoCommand, Scene
 from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.perception import Perception, PerceptionConfig, SightMap
 from sumo_ethics.plan.phantoms import phantom_risk
+from sumo_ethics.plan.side import keep_side_reference
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, quintic_coeffs, reference_heading, sample
 from sumo_ethics.predict import registry
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior, recent_motion
@@ -91,7 +92,10 @@ class PlannerConfig:
     occlusion: the planner knows only the road users its sensor sees and remembers (``perception``:
     range, memory, ...; :mod:`~sumo_ethics.plan.perception`), else every one in the sensing radius;
     phantoms: hypothetical road users where one could come out of a shadow, their risk a cost term of
-    its own (:mod:`~sumo_ethics.plan.phantoms`); both off by default.
+    its own (:mod:`~sumo_ethics.plan.phantoms`); both off by default;
+    keep_side: while oncoming traffic approaches beside the path, the lateral term's reference moves
+    this far [m] from the lane's centre to the side away from it, within the drivable area
+    (:mod:`~sumo_ethics.plan.side`; 0: off, the default).
     """
 
     cost: CostConfig = field(default_factory=CostConfig)
@@ -114,6 +118,7 @@ class PlannerConfig:
     share_plans: bool = False
     occlusion: bool = False
     phantoms: bool = False
+    keep_side: float = 0.0
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
 
     def __post_init__(self) -> None:
@@ -132,6 +137,8 @@ class PlannerConfig:
             raise ConfigError(f"replan_every must be a whole number of steps from 1 to 100, got {self.replan_every!r}")
         if not (isinstance(self.max_risk, (int, float)) and 0.0 < self.max_risk <= 1.0):
             raise ConfigError(f"max_risk must be in (0, 1], got {self.max_risk!r}")
+        if not is_number(self.keep_side, 0.0, 5.0):
+            raise ConfigError(f"keep_side must be a distance from 0 to 5 m (0 = off), got {self.keep_side!r}")
         if not (isinstance(self.lateral_prior, (int, float)) and 0.0 <= self.lateral_prior < 1e3):
             raise ConfigError(f"lateral_prior must be a time >= 0 s (0 = off), got {self.lateral_prior!r}")
         if not (isinstance(self.braking_prior, (int, float)) and 0.0 <= self.braking_prior < 1e3):
@@ -540,9 +547,12 @@ class EthicalPlanner:
             ph_risk = phantom_risk(fc, percept.phantoms, scene.ego, self.cfg.probability, self.cfg.perception.reaction,
                                    veh.max_decel)
         # every registered cost term (sumo_ethics.ethics.terms), the phantoms' among them
+        extra: dict[str, Any] = {} if ph_risk is None else {"phantom_risk": ph_risk.sum(axis=1)}
+        d_ref = keep_side_reference(route, scene.s, v, agents, ego_width, self.cfg.keep_side)
+        if self.cfg.keep_side > 0.0:
+            extra["lateral_reference"] = d_ref
         cost = score(fc, risk, self.cfg.cost, desired_speed=v_desired,
-                     feasible=self.pool(classes, legal, on_road, overlap, evasive),
-                     extra={} if ph_risk is None else {"phantom_risk": ph_risk.sum(axis=1)},
+                     feasible=self.pool(classes, legal, on_road, overlap, evasive), extra=extra,
                      weights={"phantom": self.cfg.perception.weight})
         w3 = time.perf_counter()
         envelope = self.cfg.envelope * overlap
@@ -567,6 +577,8 @@ class EthicalPlanner:
                     utility_literal=float(self.cfg.cost.utility is UtilityMode.LITERAL))
         if scene.desired_speed is not None:
             info["desired_speed"] = v_desired
+        if self.cfg.keep_side > 0.0:
+            info["lateral_reference"] = d_ref
         if percept is not None:  # road users in range, seen, remembered; phantoms
             info.update(percept.counts())
             timings.update(percept.timings_ms)

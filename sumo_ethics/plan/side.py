@@ -1,0 +1,78 @@
+"""The side to keep while oncoming traffic passes (PlannerConfig ``keep_side``).
+
+On a two-way road a careful driver keeps to the side of the lane away from an oncoming vehicle
+while it approaches and passes, so that a drift across the centre line finds room; in a narrow
+street the ego otherwise waits or passes in the middle of its lane. While such a road user is
+ahead, :func:`keep_side_reference` moves the lateral cost term's reference (``lateral``: mean
+|d - d_ref|) from the lane's centre (d_ref = 0) by up to ``max_shift`` towards the other side,
+as far as the drivable area leaves room; the risk terms and the envelope still decide.
+
+The side comes from where the oncoming road users are, not from a setting: on a right-hand
+network they pass on the left and the ego keeps right; on SUMO's ``lefthand`` networks they pass
+on the right and the ego keeps left. Oncoming traffic on both sides (a middle lane) moves nothing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sumo_ethics.contract import RoutePath
+from sumo_ethics.types import AgentStates, RoadUserClass
+
+__all__ = ["keep_side_reference", "ONCOMING_COS", "ONCOMING_TIME", "ONCOMING_NEAR", "REACH", "MIN_OFFSET",
+           "EDGE_MARGIN", "MIN_SPEED"]
+
+#: oncoming: the road user's heading within about 45 degrees of against the path's (cos below this)
+ONCOMING_COS = -0.7
+#: ahead of the ego by at most the distance both cover in this time [s] at their present speeds ...
+ONCOMING_TIME = 6.0
+#: ... or by at most this [m] (a slow approach close by)
+ONCOMING_NEAR = 15.0
+#: beside the ego's path by at most this [m] (the next lane; a vehicle farther aside is no neighbour)
+REACH = 5.0
+#: and by at least this [m]: one on the path itself (head on) has no side
+MIN_OFFSET = 1.0
+#: the room kept between the ego's side and the drivable area's edge [m]
+EDGE_MARGIN = 0.2
+#: moving faster than this [m/s] (a parked car on the other side is no oncoming traffic)
+MIN_SPEED = 1.0
+
+
+def keep_side_reference(route: RoutePath, s: float, speed: float, agents: AgentStates, ego_width: float,
+                        max_shift: float) -> float:
+    """d_ref [m] (left positive, 0: the lane's centre): the lateral term's reference this step.
+
+    route: the ego's reference path with its drivable bounds (left > 0 > right, (M,) [m]); s: the
+    ego's arc length on it [m]; speed: the ego's speed [m/s]; agents: the road users it knows of;
+    ego_width [m]; max_shift [m] (0: off). Oncoming: not a pedestrian, faster than
+    :data:`MIN_SPEED`, heading against the path (:data:`ONCOMING_COS`), ahead within
+    :data:`ONCOMING_NEAR` or :data:`ONCOMING_TIME` of closing, :data:`MIN_OFFSET` to :data:`REACH`
+    beside the path. With such road users on one side only, d_ref is ``max_shift`` towards the
+    other, at most to :data:`EDGE_MARGIN` from the drivable edge there.
+    """
+    if max_shift <= 0.0 or len(agents) == 0:
+        return 0.0
+    moving = (agents.speed > MIN_SPEED) & (agents.cls != RoadUserClass.PEDESTRIAN)
+    reach = ONCOMING_NEAR + ONCOMING_TIME * (max(speed, 0.0) + agents.speed)  # (N,) [m]
+    ex, ey, _ = route.path.to_xy(s, 0.0)
+    near = moving & (np.hypot(agents.x - ex, agents.y - ey) < reach + REACH)
+    if not near.any():
+        return 0.0
+    idx = np.flatnonzero(near)
+    so, do = route.path.project(np.stack([agents.x[idx], agents.y[idx]], axis=-1))
+    gap = so - s
+    against = np.cos(agents.yaw[idx] - route.path.heading_at(np.clip(so, 0.0, route.length))) < ONCOMING_COS
+    ahead = (gap > 0.0) & ((gap < ONCOMING_NEAR) | (gap < ONCOMING_TIME * (max(speed, 0.0) + agents.speed[idx])))
+    beside = (np.abs(do) >= MIN_OFFSET) & (np.abs(do) <= REACH)
+    oncoming = against & ahead & beside
+    left, right = bool((oncoming & (do > 0)).any()), bool((oncoming & (do < 0)).any())
+    if left == right:  # none, or on both sides
+        return 0.0
+    i = route.vertex_at(s)
+    if left:  # keep right: towards the right bound
+        room = -float(route.right[i]) - ego_width / 2.0 - EDGE_MARGIN
+        return -min(max_shift, max(room, 0.0)) if math.isfinite(room) else 0.0
+    room = float(route.left[i]) - ego_width / 2.0 - EDGE_MARGIN
+    return min(max_shift, max(room, 0.0)) if math.isfinite(room) else 0.0

@@ -1,0 +1,178 @@
+"""The side to keep while oncoming traffic passes (sumo_ethics.plan.side, PlannerConfig.keep_side).
+
+The road: a straight single lane along +x, 3.2 m wide (drivable from -1.6 to +1.6 m about its
+centre), the ego 1.8 m wide at x = 100 m. An oncoming car in the next lane to the left, at
+y = +3.2 m, heading -x (right-hand traffic); mirrored to y = -3.2 m it is a left-hand network's.
+By hand: the room towards the right edge is 1.6 - 0.9 (half the ego) - 0.2 (EDGE_MARGIN) = 0.5 m,
+so with keep_side 0.5 the reference is -0.5 m (right), +0.5 m mirrored; with keep_side 0.3, -0.3.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sumo_ethics.config import EgoVehicle
+from sumo_ethics.contract import RoutePath, Scene
+from sumo_ethics.errors import ConfigError
+from sumo_ethics.geometry import Polyline
+from sumo_ethics.plan.ethical import EthicalPlanner, PlannerConfig
+from sumo_ethics.plan.history import History
+from sumo_ethics.plan.side import keep_side_reference
+from sumo_ethics.types import AgentStates, RoadUserClass
+
+EGO_WIDTH = 1.8
+
+
+def road(half: float = 1.6) -> RoutePath:
+    path = Polyline.from_points(np.stack([np.linspace(0, 400, 401), np.zeros(401)], axis=-1))
+    m = len(path.s)
+    return RoutePath(edges=("e",), path=path, lane_of_vertex=("e_0",) * m, speed_limit=np.full(m, 13.89),
+                     left=np.full(m, half), right=np.full(m, -half), links=())
+
+
+def agents(x, y, yaw, speed, cls=RoadUserClass.CAR) -> AgentStates:
+    n = len(x)
+    c = np.full(n, int(cls), dtype=np.int8)
+    return AgentStates(tuple(f"o{i}" for i in range(n)), np.asarray(x, float), np.asarray(y, float),
+                       np.asarray(yaw, float), np.asarray(speed, float), np.zeros(n), np.full(n, 4.5),
+                       np.full(n, 1.8), np.full(n, 1400.0), c)
+
+
+@pytest.mark.parametrize(("y", "expected"), [(3.2, -0.5), (-3.2, 0.5)])
+def test_the_side_away_from_oncoming_traffic(y, expected):
+    """Oncoming on the left (right-hand traffic): keep right; on the right (a left-hand network): keep left."""
+    ref = keep_side_reference(road(), 100.0, 10.0, agents([140.0], [y], [math.pi], [10.0]), EGO_WIDTH, 0.5)
+    assert ref == pytest.approx(expected, abs=1e-12)
+    ref = keep_side_reference(road(), 100.0, 10.0, agents([140.0], [y], [math.pi], [10.0]), EGO_WIDTH, 0.3)
+    assert ref == pytest.approx(expected * 0.6, abs=1e-12)
+
+
+def test_room_bounds_the_shift():
+    """A 2.6 m lane leaves 1.3 - 0.9 - 0.2 = 0.2 m; a lane as wide as the ego leaves none."""
+    others = agents([140.0], [3.0], [math.pi], [10.0])
+    assert keep_side_reference(road(1.3), 100.0, 10.0, others, EGO_WIDTH, 0.5) == pytest.approx(-0.2, abs=1e-12)
+    assert keep_side_reference(road(0.9), 100.0, 10.0, others, EGO_WIDTH, 0.5) == 0.0
+
+
+@pytest.mark.parametrize(("x", "y", "yaw", "speed", "cls", "why"), [
+    (140.0, 3.2, 0.0, 10.0, RoadUserClass.CAR, "same direction"),
+    (140.0, 3.2, math.pi / 2, 10.0, RoadUserClass.CAR, "crossing"),
+    (60.0, 3.2, math.pi, 10.0, RoadUserClass.CAR, "behind (already passed)"),
+    (140.0, 3.2, math.pi, 0.0, RoadUserClass.CAR, "parked"),
+    (140.0, 3.2, math.pi, 1.3, RoadUserClass.PEDESTRIAN, "a pedestrian"),
+    (140.0, 0.3, math.pi, 10.0, RoadUserClass.CAR, "head on in the ego's lane: no side"),
+    (140.0, 7.0, math.pi, 10.0, RoadUserClass.CAR, "two lanes away"),
+    (240.0, 3.2, math.pi, 10.0, RoadUserClass.CAR, "140 m ahead: 7 s at 20 m/s closing"),
+])
+def test_no_shift_without_oncoming_traffic_beside_the_path(x, y, yaw, speed, cls, why):
+    ref = keep_side_reference(road(), 100.0, 10.0, agents([x], [y], [yaw], [speed], cls), EGO_WIDTH, 0.5)
+    assert ref == 0.0, why
+
+
+def test_reach_in_time_and_both_sides():
+    """115 m ahead closes in 5.75 s at 10 + 10 m/s (within 6 s); oncoming on both sides moves nothing;
+    an oncoming cyclist counts."""
+    one = agents([215.0], [3.2], [math.pi], [10.0])
+    assert keep_side_reference(road(), 100.0, 10.0, one, EGO_WIDTH, 0.5) == pytest.approx(-0.5)
+    both = agents([140.0, 150.0], [3.2, -3.2], [math.pi, math.pi], [10.0, 10.0])
+    assert keep_side_reference(road(), 100.0, 10.0, both, EGO_WIDTH, 0.5) == 0.0
+    bike = agents([130.0], [2.5], [math.pi], [5.0], RoadUserClass.BICYCLE)
+    assert keep_side_reference(road(), 100.0, 10.0, bike, EGO_WIDTH, 0.5) == pytest.approx(-0.5)
+    assert keep_side_reference(road(), 100.0, 10.0, one, EGO_WIDTH, 0.0) == 0.0  # off
+
+
+def scene(oncoming_y: float | None) -> Scene:
+    """The road above, the ego at x = 100 m, 8 m/s; an oncoming car 40 m ahead at 8 m/s (or none)
+    with 3 s of straight history."""
+    route = road()
+    ego = AgentStates(("ego",), np.array([100.0]), np.array([0.0]), np.zeros(1), np.array([8.0]), np.zeros(1),
+                      np.array([4.5]), np.array([EGO_WIDTH]), np.array([1475.0]), np.zeros(1, np.int8))
+    others = agents([] if oncoming_y is None else [140.0], [] if oncoming_y is None else [oncoming_y],
+                    [] if oncoming_y is None else [math.pi], [] if oncoming_y is None else [8.0])
+    hist = History(0.1)
+    for k in range(31):
+        dtk = (k - 30) * 0.1
+        hist.push(AgentStates(others.ids, others.x + others.speed * np.cos(others.yaw) * dtk, others.y,
+                              others.yaw, others.speed, others.accel, others.length, others.width, others.mass,
+                              others.cls))
+    return Scene(time=0.0, dt=0.1, ego=ego, others=others, route=route, s=100.0, d=0.0, stop_s=None,
+                 vehicle=EgoVehicle(width=EGO_WIDTH), history=hist.observation(0.0, ego, others))
+
+
+@pytest.mark.parametrize(("oncoming_y", "side"), [(3.2, -1.0), (-3.2, 1.0)])
+def test_the_planner_moves_to_the_side_away_while_the_oncoming_car_approaches(oncoming_y, side):
+    """With keep_side 0.5 the chosen candidate ends 0.4-0.6 m to the side away from the oncoming
+    car (the grid's end offsets are 0.0875 m apart across -0.7..0.7 m); without it at the centre
+    (within one grid step); with no oncoming car at the centre either way."""
+    on = EthicalPlanner(PlannerConfig(predictor="cv", keep_side=0.5))
+    dec = on.act(scene(oncoming_y))
+    d_end = float(dec.trace.candidates.d[dec.trace.chosen, -1])
+    assert dec.info["lateral_reference"] == pytest.approx(0.5 * side)
+    assert 0.4 <= side * d_end <= 0.6, d_end
+    off = EthicalPlanner(PlannerConfig(predictor="cv")).act(scene(oncoming_y))
+    assert abs(float(off.trace.candidates.d[off.trace.chosen, -1])) <= 0.09
+    assert "lateral_reference" not in off.info
+    alone = EthicalPlanner(PlannerConfig(predictor="cv", keep_side=0.5)).act(scene(None))
+    assert alone.info["lateral_reference"] == 0.0
+    assert abs(float(alone.trace.candidates.d[alone.trace.chosen, -1])) <= 0.09
+
+
+@pytest.mark.parametrize("bad", [-0.1, 6.0, float("nan"), True, "wide"])
+def test_keep_side_refuses_what_is_no_distance(bad):
+    with pytest.raises(ConfigError, match="keep_side"):
+        PlannerConfig(keep_side=bad)
+
+
+@pytest.fixture(scope="module")
+def narrow_streets(tmp_path_factory):
+    """A 300 m two-way street of one 3.2 m lane each way, built right-hand and left-hand
+    (netconvert --lefthand), with an oncoming car every 10 s on the other lane."""
+    from sumo_ethics.sim.netbuild import PlainNet
+
+    made = {}
+    for hand in ("right", "left"):
+        folder = tmp_path_factory.mktemp(f"narrow_{hand}")
+        net = PlainNet("narrow", {"walkingareas": "false", **({"lefthand": "true"} if hand == "left" else {})})
+        net.node("A", 0, 0, type="priority")
+        net.node("B", 300, 0, type="priority")
+        net.two_way("f", "b", "A", "B", numLanes=1, width=3.2, speed=13.89)
+        net.build(folder)
+        (folder / "narrow.rou.xml").write_text(
+            '<routes><vType id="car" length="4.5" width="1.8"/>'
+            '<flow id="onc" type="car" begin="0" end="60" period="10" from="b" to="b" departSpeed="8"/></routes>\n')
+        (folder / "narrow.sumocfg").write_text(
+            '<configuration><input><net-file value="narrow.net.xml"/><route-files value="narrow.rou.xml"/></input>'
+            '<time><begin value="0"/><end value="40"/><step-length value="0.1"/></time></configuration>\n')
+        made[hand] = folder / "narrow.sumocfg"
+    return made
+
+
+@pytest.mark.sumo
+@pytest.mark.parametrize(("hand", "side"), [("right", -1.0), ("left", 1.0)])
+def test_in_sumo_the_ego_keeps_the_side_away_from_oncoming_cars(narrow_streets, tmp_path, hand, side):
+    """In SUMO, on the right-hand street the ego keeps right of its lane's centre while the oncoming
+    cars pass, on the left-hand one left: by hand 1.6 - 0.9 - 0.2 = 0.5 m. Never towards them, and
+    the motion within the ego's limits."""
+    import pandas as pd
+
+    from sumo_ethics.config import RunConfig
+    from sumo_ethics.runner import run
+
+    out = tmp_path / "run"
+    s = run(RunConfig(narrow_streets[hand], out, ego_from="f", ego_to="f", end=30.0, progress=False),
+            controller=EthicalPlanner(PlannerConfig(predictor="cv", keep_side=0.5)))
+    assert s.status.value in ("completed", "timeout"), s.message
+    steps = pd.read_parquet(out / "steps.parquet")
+    on = steps[steps.lateral_reference != 0.0]
+    assert len(on) >= 20 and set(np.round(on.lateral_reference, 9)) == {0.5 * side}
+    assert (side * steps.d).min() > -0.05  # never towards the oncoming cars
+    settled = on.iloc[len(on) // 2:]  # the second half of the steps with an oncoming car ahead
+    assert 0.4 <= (side * settled.d).median() <= 0.6, settled.d.describe()
+    limits = EgoVehicle()
+    assert steps.accel.between(-limits.max_decel - 1e-6, limits.max_accel + 1e-6).all()
+    yaw_rate = np.diff(np.unwrap(steps.yaw.values)) / 0.1
+    lat = 0.5 * (steps.speed.values[1:] + steps.speed.values[:-1]) * np.abs(yaw_rate)
+    assert lat.max() <= 1.2 * limits.max_lat_accel
