@@ -29,7 +29,7 @@ from sumo_ethics.contract import Decision, EgoCommand, Scene
 from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.perception import Perception, PerceptionConfig, SightMap
 from sumo_ethics.plan.phantoms import phantom_risk
-from sumo_ethics.plan.side import keep_side_reference
+from sumo_ethics.plan.side import oncoming_side, side_room
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, quintic_coeffs, reference_heading, sample
 from sumo_ethics.predict import registry
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior, recent_motion
@@ -201,7 +201,8 @@ BRAKE_SETTLE = 1.0
 
 
 def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: np.ndarray,
-                     max_curvature: float = 0.2) -> Candidates:
+                     max_curvature: float = 0.2, d_end: float | None = None,
+                     max_lat_accel: float = 4.0) -> Candidates:
     """Braking at constant decelerations ``decels`` (B,) [m/s^2] from the first step: the quartic profiles
     take a second to build up braking (they start from the current acceleration), these do not.
 
@@ -214,7 +215,13 @@ def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: 
     with its wheels held would, instead of turning faster than it can steer. Its heading is the path's plus atan2(d', 1 - kappa d): no
     jump at the start, and none at a standstill (a function of the distance travelled). Curvature and
     road_curvature are :func:`central_curvature` of the heading and of the path's own heading from the
-    ego's (the same when the ego moves along the path); speed is the along-path speed v0 - b t."""
+    ego's (the same when the ego moves along the path); speed is the along-path speed v0 - b t.
+
+    ``d_end`` [m]: brakes to the side instead (the side to keep, :mod:`~sumo_ethics.plan.side`): the
+    quintic runs from (d, d', 0) to (d_end, 0, 0) over all the arc L the brake covers within the
+    horizon (none below 0.5 m: it stays), or as far towards d_end as turns within 0.9 of
+    ``max_curvature`` and of ``max_lat_accel`` [m/s^2] / v0^2 (a shift by D turns at most
+    10 / sqrt(3) |D| / L^2 sharp); the feasibility check judges it as any other."""
     t = dt * np.arange(1, n_steps + 1)[None, :]  # (1, T)
     b = np.asarray(decels, dtype=float)[:, None]  # (B, 1)
     v0 = max(state.s_dot, 0.0)
@@ -226,15 +233,25 @@ def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: 
     p1 = float(np.clip(state.d_dot / state.s_dot, -1.0, 1.0)) if state.s_dot >= 0.1 else 0.0
     href = reference_heading(path, s)
     href0 = float(reference_heading(path, np.asarray(state.s)))
-    if p1 == 0.0:
+    if p1 == 0.0 and d_end is None:
         d = np.full_like(s, state.d)
         yaw, yaw0 = href, href0
     else:
-        ts = np.minimum(BRAKE_SETTLE, t_stop)  # (B, 1)
-        sig_end = np.maximum(v0 * ts - 0.5 * b * ts**2, 2.0 * abs(p1) / max_curvature)  # (B, 1) [m]
-        travels = sig_end >= 1e-3
+        if d_end is None:  # settle the sideways slope
+            ts = np.minimum(BRAKE_SETTLE, t_stop)  # (B, 1)
+            sig_end = np.maximum(v0 * ts - 0.5 * b * ts**2, 2.0 * abs(p1) / max_curvature)  # (B, 1) [m]
+            travels = sig_end >= 1e-3
+        else:  # move towards d_end over the whole arc, as far as the curvature limit lets it
+            sig_end = s[:, -1:] - state.s
+            travels = sig_end >= 0.5
         L = np.where(travels, sig_end, 1.0)
-        c = quintic_coeffs(state.d, p1, 0.0, state.d + 0.5 * p1 * L, L)  # (B, 1, 6)
+        if d_end is None:
+            target = state.d + 0.5 * p1 * L
+        else:  # a quintic shift by D over L turns at most 10 / sqrt(3) |D| / L^2 sharp (from the straight)
+            sharpest = min(max_curvature, max_lat_accel / max(v0 * v0, 1e-6))  # at the starting speed
+            reach = 0.9 * sharpest * L**2 / (10.0 / math.sqrt(3.0))
+            target = state.d + np.clip(d_end - state.d, -reach, reach)
+        c = quintic_coeffs(state.d, p1, 0.0, target, L)  # (B, 1, 6)
         u = np.clip(s - state.s, 0.0, L)
         d = sum(c[..., i] * u**i for i in range(6))
         slope = sum(i * c[..., i] * u ** (i - 1) for i in range(1, 6))
@@ -245,7 +262,7 @@ def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: 
     x, y, _ = path.to_xy(s, d)
     shape = s.shape
     road = central_curvature(href, href0, v, v0, dt)
-    k = road if p1 == 0.0 else central_curvature(yaw, yaw0, v, v0, dt)
+    k = road if p1 == 0.0 and d_end is None else central_curvature(yaw, yaw0, v, v0, dt)
     return Candidates(dt=dt, x=x, y=y, yaw=yaw, speed=v, accel=a, curvature=k, s=s, d=d,
                       horizon=np.full(shape[0], n_steps * dt), valid=np.ones(shape, dtype=bool), road_curvature=road)
 
@@ -492,15 +509,28 @@ class EthicalPlanner:
         # one block for the grid, the straight braking and the evasive candidates (appended: the grid's
         # indices stay as they were), each written in place (no copy to put them together)
         decels = np.array([veh.comfort_decel, 0.5 * (veh.comfort_decel + veh.max_decel), veh.max_decel])
-        n_grid, n_plain = sc.n_candidates, sc.n_candidates + len(decels)
+        # the side to keep while oncoming traffic passes (keep_side): the lateral term's reference, and
+        # brakes that end at the side (as far as the drivable area leaves room) beside the straight ones
+        side = oncoming_side(route, scene.s, v, agents) if self.cfg.keep_side > 0.0 else 0
+        room = side_room(route, scene.s, ego_width, side)
+        d_ref = side * min(self.cfg.keep_side, room)
+        n_side = len(decels) if side and abs(side * room - scene.d) > 0.05 else 0
+        n_grid, n_plain = sc.n_candidates, sc.n_candidates + len(decels) + n_side
         block = np.empty((9, n_plain + (self._evasive_grid.n_candidates if self.cfg.evasive else 0), sc.n_steps))
         grid = sample(route.path, state, sc, v_max=v_limit, left=route.left, right=route.right, margin=ego_width / 2.0,
                       out=block, row=0)
-        brakes = brake_candidates(route.path, replace(state, s_dot=v), sc.n_steps, sc.dt, decels,  # speed v - b t
-                                  max_curvature=veh.max_curvature)
-        for f, name in enumerate(BLOCK_FIELDS):
-            block[f, n_grid:n_plain] = getattr(brakes, name)
-        parts = [grid, brakes]
+        brakes = [brake_candidates(route.path, replace(state, s_dot=v), sc.n_steps, sc.dt, decels,  # speed v - b t
+                                   max_curvature=veh.max_curvature)]
+        if n_side:
+            brakes.append(brake_candidates(route.path, replace(state, s_dot=v), sc.n_steps, sc.dt, decels,
+                                           max_curvature=veh.max_curvature, d_end=side * room,
+                                           max_lat_accel=veh.max_lat_accel))
+        row = n_grid
+        for part in brakes:
+            for f, name in enumerate(BLOCK_FIELDS):
+                block[f, row:row + len(part)] = getattr(part, name)
+            row += len(part)
+        parts = [grid, *brakes]
         if self.cfg.evasive:  # braking and swerving at once
             parts.append(evasive_candidates(route.path, state, sc, veh.max_decel, v_limit, route.left, route.right,
                                             ego_width / 2.0, out=block, row=n_plain))
@@ -548,7 +578,6 @@ class EthicalPlanner:
                                    veh.max_decel)
         # every registered cost term (sumo_ethics.ethics.terms), the phantoms' among them
         extra: dict[str, Any] = {} if ph_risk is None else {"phantom_risk": ph_risk.sum(axis=1)}
-        d_ref = keep_side_reference(route, scene.s, v, agents, ego_width, self.cfg.keep_side)
         if self.cfg.keep_side > 0.0:
             extra["lateral_reference"] = d_ref
         cost = score(fc, risk, self.cfg.cost, desired_speed=v_desired,

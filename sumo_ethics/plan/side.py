@@ -21,7 +21,7 @@ import numpy as np
 from sumo_ethics.contract import RoutePath
 from sumo_ethics.types import AgentStates, RoadUserClass
 
-__all__ = ["keep_side_reference", "ONCOMING_COS", "ONCOMING_TIME", "ONCOMING_NEAR", "REACH", "MIN_OFFSET",
+__all__ = ["keep_side_reference", "oncoming_side", "side_room", "ONCOMING_COS", "ONCOMING_TIME", "ONCOMING_NEAR", "REACH", "MIN_OFFSET",
            "EDGE_MARGIN", "MIN_SPEED"]
 
 #: oncoming: the road user's heading within about 45 degrees of against the path's (cos below this)
@@ -40,26 +40,21 @@ EDGE_MARGIN = 0.2
 MIN_SPEED = 1.0
 
 
-def keep_side_reference(route: RoutePath, s: float, speed: float, agents: AgentStates, ego_width: float,
-                        max_shift: float) -> float:
-    """d_ref [m] (left positive, 0: the lane's centre): the lateral term's reference this step.
-
-    route: the ego's reference path with its drivable bounds (left > 0 > right, (M,) [m]); s: the
-    ego's arc length on it [m]; speed: the ego's speed [m/s]; agents: the road users it knows of;
-    ego_width [m]; max_shift [m] (0: off). Oncoming: not a pedestrian, faster than
+def oncoming_side(route: RoutePath, s: float, speed: float, agents: AgentStates) -> int:
+    """The side to keep: -1 (right) with oncoming road users on the left only, +1 (left) with them on
+    the right only, else 0. route: the ego's reference path; s: its arc length on it [m]; speed: the
+    ego's speed [m/s]; agents: the road users it knows of. Oncoming: not a pedestrian, faster than
     :data:`MIN_SPEED`, heading against the path (:data:`ONCOMING_COS`), ahead within
     :data:`ONCOMING_NEAR` or :data:`ONCOMING_TIME` of closing, :data:`MIN_OFFSET` to :data:`REACH`
-    beside the path. With such road users on one side only, d_ref is ``max_shift`` towards the
-    other, at most to :data:`EDGE_MARGIN` from the drivable edge there.
-    """
-    if max_shift <= 0.0 or len(agents) == 0:
-        return 0.0
+    beside the path."""
+    if len(agents) == 0:
+        return 0
     moving = (agents.speed > MIN_SPEED) & (agents.cls != RoadUserClass.PEDESTRIAN)
     reach = ONCOMING_NEAR + ONCOMING_TIME * (max(speed, 0.0) + agents.speed)  # (N,) [m]
     ex, ey, _ = route.path.to_xy(s, 0.0)
     near = moving & (np.hypot(agents.x - ex, agents.y - ey) < reach + REACH)
     if not near.any():
-        return 0.0
+        return 0
     idx = np.flatnonzero(near)
     so, do = route.path.project(np.stack([agents.x[idx], agents.y[idx]], axis=-1))
     gap = so - s
@@ -68,11 +63,25 @@ def keep_side_reference(route: RoutePath, s: float, speed: float, agents: AgentS
     beside = (np.abs(do) >= MIN_OFFSET) & (np.abs(do) <= REACH)
     oncoming = against & ahead & beside
     left, right = bool((oncoming & (do > 0)).any()), bool((oncoming & (do < 0)).any())
-    if left == right:  # none, or on both sides
+    return 0 if left == right else (-1 if left else 1)
+
+
+def side_room(route: RoutePath, s: float, ego_width: float, side: int) -> float:
+    """How far [m] (>= 0) the ego's centre may move from the path towards ``side`` (-1 right, +1
+    left) and keep :data:`EDGE_MARGIN` from the drivable area's edge there (0 for side 0)."""
+    if side == 0:
         return 0.0
     i = route.vertex_at(s)
-    if left:  # keep right: towards the right bound
-        room = -float(route.right[i]) - ego_width / 2.0 - EDGE_MARGIN
-        return -min(max_shift, max(room, 0.0)) if math.isfinite(room) else 0.0
-    room = float(route.left[i]) - ego_width / 2.0 - EDGE_MARGIN
-    return min(max_shift, max(room, 0.0)) if math.isfinite(room) else 0.0
+    edge = -float(route.right[i]) if side < 0 else float(route.left[i])
+    room = edge - ego_width / 2.0 - EDGE_MARGIN
+    return max(room, 0.0) if math.isfinite(room) else 0.0
+
+
+def keep_side_reference(route: RoutePath, s: float, speed: float, agents: AgentStates, ego_width: float,
+                        max_shift: float) -> float:
+    """d_ref [m] (left positive, 0: the lane's centre): the lateral term's reference this step,
+    ``max_shift`` [m] (0: off) towards :func:`oncoming_side`, at most :func:`side_room`."""
+    if max_shift <= 0.0:
+        return 0.0
+    side = oncoming_side(route, s, speed, agents)
+    return side * min(max_shift, side_room(route, s, ego_width, side))

@@ -176,3 +176,61 @@ def test_in_sumo_the_ego_keeps_the_side_away_from_oncoming_cars(narrow_streets, 
     yaw_rate = np.diff(np.unwrap(steps.yaw.values)) / 0.1
     lat = 0.5 * (steps.speed.values[1:] + steps.speed.values[:-1]) * np.abs(yaw_rate)
     assert lat.max() <= 1.2 * limits.max_lat_accel
+
+
+def test_brakes_to_the_side_reach_what_the_lateral_limit_allows():
+    """From 8 m/s, braking at 3, 5.5 and 8 m/s^2 towards d = -0.5 m: they stop after 64 / (2 b) =
+    10.67, 5.82 and 4.00 m. A quintic shift by D over L turns at most 10 / sqrt(3) D / L^2 sharp;
+    within 0.9 of 4 m/s^2 / (8 m/s)^2 = 0.0625 1/m that is D <= 0.9 x 0.0625 L^2 / 5.7735:
+    1.108 (so the full 0.5), 0.330 and 0.156 m. Each stands still at its end offset, heading
+    along the road, and turns within the limit all the way."""
+    from sumo_ethics.plan.ethical import brake_candidates
+    from sumo_ethics.plan.feasibility import check
+    from sumo_ethics.plan.sampling import FrenetState
+
+    route = road()
+    state = FrenetState.at_speed(route.path, 100.0, 0.0, 8.0)
+    b = np.array([3.0, 5.5, 8.0])
+    c = brake_candidates(route.path, state, 40, 0.1, b, max_curvature=0.2, d_end=-0.5, max_lat_accel=4.0)
+    reach = 0.9 * 0.0625 * (64.0 / (2.0 * b)) ** 2 / (10.0 / math.sqrt(3.0))
+    assert reach == pytest.approx([1.108, 0.330, 0.156], abs=1e-3)
+    assert c.d[:, -1] == pytest.approx(-np.minimum(0.5, reach), abs=1e-9)
+    assert c.s[:, -1] == pytest.approx(100.0 + 64.0 / (2.0 * b), abs=1e-9)
+    assert c.speed[:, -1] == pytest.approx(0.0) and c.yaw[:, -1] == pytest.approx(0.0, abs=1e-9)
+    assert (c.speed**2 * np.abs(c.curvature)).max() <= 4.0
+    assert check(c, route, EgoVehicle()).feasible.all()
+    straight = brake_candidates(route.path, state, 40, 0.1, b, max_curvature=0.2)
+    assert (straight.d == 0.0).all() and np.array_equal(straight.s, c.s)  # the same braking, only sideways
+
+
+def encroaching(keep_side: float):
+    """The road above; the ego at x = 100 m, 8 m/s; a car 25 m ahead, 1.8 m to its left, coming at
+    10 m/s and drifting into the ego's lane at 1 m/s (heading pi + 0.1) for the last 3 s."""
+    route = road()
+    ego = AgentStates(("ego",), np.array([100.0]), np.array([0.0]), np.zeros(1), np.array([8.0]), np.zeros(1),
+                      np.array([4.5]), np.array([EGO_WIDTH]), np.array([1475.0]), np.zeros(1, np.int8))
+    yaw = math.pi + 0.1
+    others = agents([125.0], [1.8], [yaw], [10.0])
+    hist = History(0.1)
+    for k in range(31):
+        dtk = (k - 30) * 0.1
+        hist.push(AgentStates(others.ids, others.x + 10.0 * math.cos(yaw) * dtk, others.y + 10.0 * math.sin(yaw) * dtk,
+                              others.yaw, others.speed, others.accel, others.length, others.width, others.mass,
+                              others.cls))
+    sc = Scene(time=0.0, dt=0.1, ego=ego, others=others, route=route, s=100.0, d=0.0, stop_s=None,
+               vehicle=EgoVehicle(width=EGO_WIDTH), history=hist.observation(0.0, ego, others))
+    return EthicalPlanner(PlannerConfig(predictor="cv", keep_side=keep_side)).act(sc)
+
+
+def test_an_encroaching_car_the_ego_brakes_away_from_not_in_its_path():
+    """Every candidate meets the drifting car's predicted box, so the planner brakes hard (8 m/s^2,
+    stopped 4 m on). Without keep_side it stops on its lane's centre; with it, braking at 8 m/s^2
+    while moving right by what the lateral limit allows (0.156 m, above), which meets that box
+    a step later."""
+    on, off = encroaching(0.5), encroaching(0.0)
+    for dec, d_end in ((off, 0.0), (on, -0.156)):
+        c, j = dec.trace.candidates, dec.trace.chosen
+        assert c.accel[j, 0] == pytest.approx(-8.0) and c.speed[j, -1] == 0.0
+        assert c.s[j, -1] == pytest.approx(104.0)
+        assert c.d[j, -1] == pytest.approx(d_end, abs=1e-3)
+    assert on.trace.first_hit[on.trace.chosen] > off.trace.first_hit[off.trace.chosen]
