@@ -197,6 +197,8 @@ class RunConfig:
                 p.pop(key, None)
         if isinstance(p, dict) and not p.get("keep_side"):  # off: config.json keeps its bytes
             p.pop("keep_side", None)
+        if isinstance(p, dict) and isinstance(p.get("cost"), dict) and p["cost"].get("price") == "preset":
+            p["cost"].pop("price")  # so does the default price level
         if self.fleet is None:  # the single-ego run's config.json keeps its bytes
             del d["fleet"]
         else:

@@ -1,9 +1,9 @@
 """Planner settings from the command line and TOML files, validated before SUMO starts.
 
 A TOML file for ``run`` may also have a ``[conflicts]`` table (:class:`~sumo_ethics.config.ConflictConfig`:
-enabled, ttc, pet, gap, crossing_angle, everyone; sweeps read ``[planner]`` alone). A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, normalise, predictor,
+enabled, ttc, pet, gap, crossing_angle, everyone; sweeps read ``[planner]`` alone). A TOML file has a ``[planner]`` table (omega_u, omega_o, weights, utility, normalise, price, predictor,
 predictor_weights, calibrated, max_risk, braking_prior, lateral_prior, lateral_onset, selection, envelope, entry,
-evasive, occlusion, phantoms) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]``,
+evasive, replan_every, share_plans, occlusion, phantoms, keep_side) with optional sub-tables ``[planner.sampling]``, ``[planner.probability]``,
 ``[planner.principles]`` (custom J_origin weights), ``[planner.perception]`` (the sensor, memory and
 phantoms: :class:`~sumo_ethics.plan.perception.PerceptionConfig`) and ``[planner.terms]`` (the weights of
 cost terms registered in :mod:`sumo_ethics.ethics.terms`, by weight key); unknown keys are errors. ``probability =
@@ -197,7 +197,7 @@ def _read_toml(path: Path, tables: set[str]) -> tuple[dict[str, Any], dict[str, 
 
 #: the [planner] table's keys that are not sub-tables: the cost's (CostConfig), then PlannerConfig's own
 #: fields (tests/sweep/test_sweep.py checks they are all of them)
-COST_KEYS = ("omega_u", "omega_o", "weights", "utility", "normalise")
+COST_KEYS = ("omega_u", "omega_o", "weights", "utility", "normalise", "price")
 PLANNER_KEYS = COST_KEYS + ("predictor", "predictor_weights", "calibrated", "max_risk", "braking_prior", "lateral_prior",
                             "lateral_onset", "selection", "envelope", "entry", "evasive", "replan_every",
                             "share_plans", "occlusion", "phantoms", "keep_side")
@@ -251,7 +251,7 @@ def planner_config(table: dict[str, Any] | None = None, step: float | None = Non
         _known(terms, registered_weight_keys(), "[planner.terms]")
         cost = CostConfig(weights=weights, omega_o=_weight("omega_o", t.get("omega_o", 1.0)),
                           omega_u=_omega_u(t.get("omega_u", DEFAULT_OMEGA_U)), utility=utility,
-                          normalise=t.get("normalise", "in_range"),
+                          normalise=t.get("normalise", "in_range"), price=t.get("price", "preset"),
                           term_weights={k: _weight(f"terms.{k}", v) for k, v in terms.items()})
         sampling = dict(t.get("sampling", {}))  # the caller's table stays as it was
         _known(sampling, {f.name for f in fields(SamplingConfig)}, "[planner.sampling]")

@@ -278,6 +278,10 @@ def weights_of(run: Path, ego: str | None = None) -> dict[str, float] | None:
     :func:`sumo_ethics.runner.fleet.make_fleet_controllers` builds it); None when unknown."""
     try:
         cfg = json.loads((Path(run) / "config.json").read_text())
+        from dataclasses import asdict
+
+        from sumo_ethics.ethics.cost import PRESETS, PrincipleWeights, principle_scale
+
         cost = cfg["planner"]["cost"]
         w = {**cost["weights"], **cost.get("term_weights", {})}
         if ego is not None:
@@ -286,13 +290,12 @@ def weights_of(run: Path, ego: str | None = None) -> dict[str, float] | None:
             if name in named:
                 cost = named[name]["cost"]
                 w = {**cost["weights"], **cost.get("term_weights", {})}
-            else:
-                from dataclasses import asdict
-
-                from sumo_ethics.ethics.cost import PRESETS
-
+            else:  # a preset under the run's price level
                 w = asdict(PRESETS[name])  # KeyError for baseline: no weights
-        return {k: float(v) for k, v in w.items()}
+        w = {k: float(v) for k, v in w.items()}
+        principles = PrincipleWeights(**{k: w[k] for k in asdict(PrincipleWeights())})
+        w["risk"] *= principle_scale(principles, cost.get("price", "preset"))  # price "equal": the principles scaled
+        return w
     except (OSError, ValueError, KeyError, TypeError, AttributeError, ConfigError):
         return None
 

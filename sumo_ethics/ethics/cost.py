@@ -67,7 +67,7 @@ from sumo_ethics.ethics.risk import RiskTerms
 from sumo_ethics.ethics.terms import BUILTIN, TermInputs, cost_terms, weight_of
 from sumo_ethics.types import Candidates, CostBreakdown
 
-__all__ = ["PrincipleWeights", "PRESETS", "UtilityMode", "NORMALISE", "CostConfig", "score", "TERMS", "tolerance_bound"]
+__all__ = ["PrincipleWeights", "PRESETS", "PRICES", "REFERENCE_PRICE", "principle_scale", "UtilityMode", "NORMALISE", "CostConfig", "score", "TERMS", "tolerance_bound"]
 
 _TIE_RTOL = 1e-9
 
@@ -124,6 +124,15 @@ PRESETS: dict[str, PrincipleWeights] = {
 }
 
 
+#: the principles' price level (CostConfig.price): "preset", the weights as given (Origin's); "equal",
+#: every principle weight scaled by CostConfig.principle_scale, so that one collision that would harm
+#: the ego and one other party alike (risk r each, the other keeping the rules, N = 1) costs
+#: w_risk x REFERENCE_PRICE x r in J_origin under every preset that prices it linearly
+PRICES = ("preset", "equal")
+#: what that collision costs per unit of r (before w_risk) under "equal": the "ego" preset's own price
+REFERENCE_PRICE = 100.0
+
+
 class UtilityMode(enum.Enum):
     """How J_mean of J_utility is read; record it with every run."""
 
@@ -151,7 +160,8 @@ class CostConfig:
     unit of risk in J_utility [-]; normalise: the N that Bayes, Equality and Responsibility divide
     by, one of :data:`NORMALISE` (see the module doc); term_weights: the weights of registered cost
     terms by their weight key (:mod:`sumo_ethics.ethics.terms`; a term not named here weighs its
-    ``default_weight``).
+    ``default_weight``); price: one of :data:`PRICES`, the principles' price level
+    (:attr:`principle_scale`).
     """
 
     weights: PrincipleWeights = PrincipleWeights()
@@ -163,8 +173,11 @@ class CostConfig:
     utility_scale: float = UTILITY_SCALE
     normalise: str = "in_range"
     term_weights: dict[str, float] = field(default_factory=dict)
+    price: str = "preset"
 
     def __post_init__(self) -> None:
+        if self.price not in PRICES:
+            raise EthicsConfigError(f"price must be one of {', '.join(PRICES)}, got {self.price!r}")
         if not isinstance(self.term_weights, dict):
             object.__setattr__(self, "term_weights", dict(self.term_weights))
         for key, value in self.term_weights.items():
@@ -187,6 +200,23 @@ class CostConfig:
         _check_number("CostConfig", "utility_scale", self.utility_scale)
         if self.desired_speed is not None:
             _check_number("CostConfig", "desired_speed", self.desired_speed)
+
+    @property
+    def principle_scale(self) -> float:
+        """The factor on every principle weight: 1 under price "preset"; under "equal",
+        :data:`REFERENCE_PRICE` / (bayes + ego + responsibility): per unit of r the reference collision
+        of :data:`PRICES` costs bayes x 2r / 2 (Bayes: the risks summed over 2N) + equality x 0 + ego x r
+        + responsibility x r, and Maximin's h^exponent is no price per unit of r (a "maximin"-only
+        preset, whose sum is 0, keeps 1). "ethical" (33.3 each): 3.003; "responsible": 1.5015."""
+        return principle_scale(self.weights, self.price)
+
+
+def principle_scale(weights: PrincipleWeights, price: str) -> float:
+    """:attr:`CostConfig.principle_scale` of ``weights`` under ``price`` (one of :data:`PRICES`)."""
+    if price == "preset":
+        return 1.0
+    linear = weights.bayes + weights.ego + weights.responsibility
+    return REFERENCE_PRICE / linear if linear > 0.0 else 1.0
 
 
 #: Names of the (K,) terms in every CostBreakdown from :func:`score` without extra inputs (no
@@ -235,7 +265,8 @@ def score(
 
     # J_origin = w_risk (sum of the weighted principles) + the weighted "origin" terms, in order
     principles = [weight_of(t, cfg, weights) * values[t.name] for t in terms if t.group == "principle"]
-    j_origin = cfg.weights.risk * functools.reduce(operator.add, principles) if principles else np.zeros(K)
+    j_origin = (cfg.weights.risk * cfg.principle_scale * functools.reduce(operator.add, principles) if principles
+                else np.zeros(K))
     for t in terms:
         if t.group == "origin" and t.name in values:
             j_origin = j_origin + weight_of(t, cfg, weights) * values[t.name]
@@ -302,7 +333,7 @@ def tolerance_bound(cost: CostBreakdown, risk: RiskTerms, cfg: CostConfig = Cost
     h_up = np.maximum(np.maximum((risk.ego_harm_max + s_he).max(axis=1), (risk.other_harm_max + s_ho).max(axis=1)),
                       risk.boundary_harm)
     d_maximin = h_up**cfg.maximin_exponent - h**cfg.maximin_exponent
-    d_origin = w.risk * (w.bayes * d_bayes + w.equality * d_equality + w.maximin * d_maximin + w.ego * d_ego
+    d_origin = w.risk * cfg.principle_scale * (w.bayes * d_bayes + w.equality * d_equality + w.maximin * d_maximin + w.ego * d_ego
                          + w.responsibility * d_resp)
     d_j = (s_e + s_o).sum(axis=1)
     j, j_mean = t["j_total_risk"], t["j_mean"]

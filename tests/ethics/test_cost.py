@@ -9,7 +9,7 @@ import pytest
 
 from sumo_ethics.ethics.cost import PRESETS, TERMS, CostConfig, PrincipleWeights, UtilityMode, score
 from sumo_ethics.ethics.harm import HarmCoefficients, Party, crash_outcome, leave_road_harm
-from sumo_ethics.ethics.probability import collision_probability
+from sumo_ethics.ethics.probability import EthicsConfigError, collision_probability
 from sumo_ethics.ethics.risk import RiskTerms, assess_risk, boundary_harm
 from sumo_ethics.types import AgentStates, Candidates, Prediction, RoadUserClass
 
@@ -370,3 +370,52 @@ def test_normalise_setting_from_toml_and_sweep_and_its_errors():
     assert parse_set(["normalise=in_range,at_risk"]) == {"normalise": ["in_range", "at_risk"]}
     with pytest.raises(ConfigError, match="^normalise must be one of in_range, at_risk, got 'everyone'$"):
         planner_config({"normalise": "everyone"})
+
+
+# ------------------------------------------------------------------ presets on one price level
+# one candidate standing still on its lane (no progress or lateral cost at v_desired = 0), one other
+# party; both at risk r = 0.01 with harm 0.1 (Maximin: 0.1 ** 10 = 1e-10, no price per unit of r)
+LEVEL_CAND = candidates(x=np.zeros((1, 3)), y=0.0, yaw=0.0, speed=np.zeros((1, 3)))
+LEVEL_RISK = risk_terms(ego_risk=[[0.01]], other_risk=[[0.01]], ego_harm_max=[[0.1]], other_harm_max=[[0.1]],
+                        boundary=[0.0])
+
+
+@pytest.mark.parametrize(("preset", "preset_price", "scale"), [
+    # per unit of r before w_risk = 250: Bayes 2r / 2 = r, Equality 0, Ego r, Responsibility r
+    ("ego", 100.0, 1.0),                       # 100 r
+    ("bayes", 100.0, 1.0),                     # 100 r
+    ("ethical", 33.3, 100.0 / 33.3),           # 33.3 r (+ Maximin's 33.3e-10): a third of ego's
+    ("responsible", 66.6, 100.0 / 66.6),       # 33.3 r + 33.3 r
+])
+def test_presets_on_one_price_level(preset, preset_price, scale):
+    """price = "equal": the collision that harms the ego and one other party alike costs every preset
+    that prices risk linearly what it costs "ego": 250 x 100 x 0.01 = 250 (by hand, above), up to
+    Maximin's 250 x scale x 33.3 x 1e-10; the default price level keeps Origin's presets."""
+    maximin = PrincipleWeights.preset(preset).maximin * 1e-10
+    as_given = score(LEVEL_CAND, LEVEL_RISK, CostConfig(weights=preset), desired_speed=0.0).terms
+    assert as_given["j_origin"][0] == pytest.approx(250.0 * (preset_price * 0.01 + maximin), rel=1e-12)
+    level = CostConfig(weights=preset, price="equal")
+    assert level.principle_scale == pytest.approx(scale, rel=1e-12)
+    equal = score(LEVEL_CAND, LEVEL_RISK, level, desired_speed=0.0).terms
+    assert equal["j_origin"][0] == pytest.approx(250.0 + 250.0 * scale * maximin, rel=1e-12)
+    # every principle's own value unchanged: only their weighted sum is scaled
+    for name in ("bayes", "equality", "maximin", "ego", "responsibility"):
+        assert equal[name][0] == as_given[name][0]
+
+
+def test_price_level_keeps_maximin_alone_and_refuses_unknown_levels():
+    assert CostConfig(weights="maximin", price="equal").principle_scale == 1.0  # no linear price to level
+    assert CostConfig(weights="standard", price="equal").principle_scale == 1.0
+    with pytest.raises(EthicsConfigError, match="price must be one of preset, equal"):
+        CostConfig(price="same")
+
+
+def test_price_level_from_a_planner_table():
+    """[planner] price = "equal" (TOML, or sweep --set price=equal) reaches the cost; a wrong one is one line."""
+    from sumo_ethics.errors import ConfigError
+    from sumo_ethics.settings import planner_config
+
+    assert planner_config({"price": "equal"}).cost.principle_scale == pytest.approx(100.0 / 33.3)
+    assert planner_config({}).cost.principle_scale == 1.0
+    with pytest.raises(ConfigError, match="price must be one of"):
+        planner_config({"price": "cheap"})
