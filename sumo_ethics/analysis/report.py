@@ -162,6 +162,11 @@ def make_report(sweep_dir: Path | str, by: Sequence[str] = ("omega_u",), out: Pa
         to_markdown(tables["status"]),
         "## Ego collisions by class of the other party",
         "",
+        "`n_collisions`: the ego collisions booked (confirmed by the boxes' geometry, by SUMO, or both), with "
+        "their mean delta-v and harm per class; `n_unconfirmed`: SUMO's collision reports whose boxes do not "
+        "overlap at the recorded poses, listed in `collisions.parquet` (`detector` = `sumo_unconfirmed`) "
+        "and booked as no harm (docs/outputs.md).",
+        "",
         to_markdown(tables["collisions_by_class"]) if len(tables["collisions_by_class"]) else "No ego collisions.\n",
     ]
     if "conflicts" in tables:

@@ -223,19 +223,27 @@ def ego_collision_harm(collisions: pd.DataFrame) -> pd.DataFrame:
 
 
 def collision_table(collisions: pd.DataFrame) -> pd.DataFrame:
-    """Per class of the other party: ego collisions, mean closing speed, mean harm per class."""
-    cols = ["class_b", "n_collisions", "delta_v_mean_m_s", "harm_ego_mean", "harm_third_party_mean",
+    """Per class of the other party: the ego's booked collisions (n_collisions; confirmed by the
+    geometry, by SUMO or both) with their mean delta-v and harm per class, and n_unconfirmed: SUMO's
+    reports whose boxes do not overlap at the recorded poses (``detector`` "sumo_unconfirmed"),
+    listed in collisions.parquet and booked as no harm, so left out of the means."""
+    cols = ["class_b", "n_collisions", "n_unconfirmed", "delta_v_mean_m_s", "harm_ego_mean", "harm_third_party_mean",
             "harm_vru_mean"]
     if collisions.empty:
         return pd.DataFrame(columns=cols)
     c = collisions[collisions["involves_ego"].astype(bool)]
     if c.empty:
         return pd.DataFrame(columns=cols)
-    t = c.groupby("class_b").agg(n_collisions=("event", "size"), delta_v_mean_m_s=("delta_v", "mean"),
-                                 harm_ego_mean=("harm_ego", "mean"),
-                                 harm_third_party_mean=("harm_third_party", "mean"),
-                                 harm_vru_mean=("harm_vru", "mean"))
-    return t.reset_index()[cols]
+    unconfirmed = (c["detector"] == "sumo_unconfirmed") if "detector" in c else pd.Series(False, index=c.index)
+    booked = c[~unconfirmed]
+    t = booked.groupby("class_b").agg(n_collisions=("event", "size"), delta_v_mean_m_s=("delta_v", "mean"),
+                                      harm_ego_mean=("harm_ego", "mean"),
+                                      harm_third_party_mean=("harm_third_party", "mean"),
+                                      harm_vru_mean=("harm_vru", "mean"))
+    t = t.reindex(sorted(set(c["class_b"])))
+    t["n_collisions"] = t["n_collisions"].fillna(0).astype(int)
+    t["n_unconfirmed"] = c[unconfirmed].groupby("class_b").size().reindex(t.index).fillna(0).astype(int)
+    return t.rename_axis("class_b").reset_index()[cols]
 
 
 def to_markdown(df: pd.DataFrame, digits: int = 4) -> str:

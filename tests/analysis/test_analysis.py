@@ -191,3 +191,25 @@ def test_the_report_has_a_conflicts_section(fake_sweep, tmp_path):
     rep = make_report(fake_sweep, ["omega_u"], tmp_path / "rep", n_boot=100)
     text = rep.report.read_text()
     assert "## Conflicts (near misses) per class" in text and (tmp_path / "rep" / "conflicts.csv").exists()
+
+
+def test_collision_table_books_only_confirmed_collisions_and_counts_the_rest():
+    """Two bicycle reports (one SUMO's alone, its boxes apart: no harm; one confirmed, 0.2 to the
+    cyclist), a confirmed car at 3 m/s and a truck SUMO reported alone: the means are over the
+    booked ones, the unconfirmed counted beside them; a collision of two others is no ego's."""
+    from sumo_ethics.analysis.stats import collision_table
+
+    rows = [("bicycle", "sumo_unconfirmed", True, 4.0, 0.0, 0.0, 0.0),
+            ("bicycle", "both", True, 6.0, 0.01, 0.2, 0.2),
+            ("car", "geometry", True, 3.0, 0.02, 0.01, 0.0),
+            ("truck", "sumo_unconfirmed", True, 2.0, 0.0, 0.0, 0.0),
+            ("car", "sumo", False, 9.0, 0.0, 0.5, 0.0)]
+    df = pd.DataFrame(rows, columns=["class_b", "detector", "involves_ego", "delta_v", "harm_ego",
+                                     "harm_third_party", "harm_vru"])
+    df["event"] = range(len(df))
+    t = collision_table(df).set_index("class_b")
+    assert list(t.index) == ["bicycle", "car", "truck"]
+    assert t.n_collisions.tolist() == [1, 1, 0] and t.n_unconfirmed.tolist() == [1, 0, 1]
+    assert t.loc["bicycle", "delta_v_mean_m_s"] == 6.0 and t.loc["bicycle", "harm_vru_mean"] == 0.2
+    assert t.loc["car", "harm_third_party_mean"] == 0.01
+    assert np.isnan(t.loc["truck", "harm_ego_mean"])
