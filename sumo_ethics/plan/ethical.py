@@ -510,30 +510,31 @@ class EthicalPlanner:
         # indices stay as they were), each written in place (no copy to put them together)
         decels = np.array([veh.comfort_decel, 0.5 * (veh.comfort_decel + veh.max_decel), veh.max_decel])
         # the side to keep while oncoming traffic passes (keep_side): the lateral term's reference, and
-        # brakes that end at the side (as far as the drivable area leaves room) beside the straight ones
+        # brakes that end at the side (as far as the drivable area leaves room), for emergencies only
         side = oncoming_side(route, scene.s, v, agents) if self.cfg.keep_side > 0.0 else 0
         room = side_room(route, scene.s, ego_width, side)
         d_ref = side * min(self.cfg.keep_side, room)
         n_side = len(decels) if side and abs(side * room - scene.d) > 0.05 else 0
-        n_grid, n_plain = sc.n_candidates, sc.n_candidates + len(decels) + n_side
-        block = np.empty((9, n_plain + (self._evasive_grid.n_candidates if self.cfg.evasive else 0), sc.n_steps))
+        n_grid, n_plain = sc.n_candidates, sc.n_candidates + len(decels)
+        n_evasive = self._evasive_grid.n_candidates if self.cfg.evasive else 0
+        block = np.empty((9, n_plain + n_evasive + n_side, sc.n_steps))
         grid = sample(route.path, state, sc, v_max=v_limit, left=route.left, right=route.right, margin=ego_width / 2.0,
                       out=block, row=0)
-        brakes = [brake_candidates(route.path, replace(state, s_dot=v), sc.n_steps, sc.dt, decels,  # speed v - b t
-                                   max_curvature=veh.max_curvature)]
-        if n_side:
-            brakes.append(brake_candidates(route.path, replace(state, s_dot=v), sc.n_steps, sc.dt, decels,
-                                           max_curvature=veh.max_curvature, d_end=side * room,
-                                           max_lat_accel=veh.max_lat_accel))
-        row = n_grid
-        for part in brakes:
-            for f, name in enumerate(BLOCK_FIELDS):
-                block[f, row:row + len(part)] = getattr(part, name)
-            row += len(part)
-        parts = [grid, *brakes]
+        brakes = brake_candidates(route.path, replace(state, s_dot=v), sc.n_steps, sc.dt, decels,  # speed v - b t
+                                  max_curvature=veh.max_curvature)
+        for f, name in enumerate(BLOCK_FIELDS):
+            block[f, n_grid:n_plain] = getattr(brakes, name)
+        parts = [grid, brakes]
         if self.cfg.evasive:  # braking and swerving at once
             parts.append(evasive_candidates(route.path, state, sc, veh.max_decel, v_limit, route.left, route.right,
                                             ego_width / 2.0, out=block, row=n_plain))
+        if n_side:  # after the evasive ones, and like them eligible only in an emergency (emergency_only)
+            side_brakes = brake_candidates(route.path, replace(state, s_dot=v), sc.n_steps, sc.dt, decels,
+                                           max_curvature=veh.max_curvature, d_end=side * room,
+                                           max_lat_accel=veh.max_lat_accel)
+            for f, name in enumerate(BLOCK_FIELDS):
+                block[f, n_plain + n_evasive:] = getattr(side_brakes, name)
+            parts.append(side_brakes)
         x, y, yaw, speed, accel, curvature, s, d, road = block
         cand = Candidates(sc.dt, x, y, yaw, speed, accel, curvature, s, d, np.concatenate([c.horizon for c in parts]),
                           np.ones(block.shape[1:], dtype=bool), road_curvature=road)
@@ -553,7 +554,8 @@ class EthicalPlanner:
             return dec
         fc = cand.take(keep)
         on_road = feas.on_road[keep]
-        evasive = keep >= n_plain if self.cfg.evasive else None  # (K,) the evasive ones among them
+        # (K,) the evasive ones among them, and the brakes to the side: for emergencies only
+        evasive = keep >= n_plain if self.cfg.evasive or n_side else None
         breakers = np.array([i in scene.rule_breakers for i in agents.ids], dtype=bool)
         risk = assess_risk(fc, pred, agents, ego_mass=float(scene.ego.mass[0]), ego_cls=int(scene.ego.cls[0]),
                            ego_length=ego_length, ego_width=ego_width, prob_cfg=self.cfg.probability,
