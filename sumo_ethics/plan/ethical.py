@@ -219,8 +219,9 @@ def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: 
 
     ``d_end`` [m]: brakes to the side instead (the side to keep, :mod:`~sumo_ethics.plan.side`): the
     quintic runs from (d, d', 0) to (d_end, 0, 0) over all the arc L the brake covers within the
-    horizon (none below 0.5 m: it stays), or as far towards d_end as turns within 0.9 of
-    ``max_curvature`` and of ``max_lat_accel`` [m/s^2] / v0^2 (a shift by D turns at most
+    horizon (at least 2 |d'| / ``max_curvature``, as above; none below 0.5 m: it stays), or as far
+    towards d_end (from where settling d' alone ends) as turns within 0.9 of ``max_curvature`` and of
+    ``max_lat_accel`` [m/s^2] / v0^2, less what settling d' takes (a shift by D turns at most
     10 / sqrt(3) |D| / L^2 sharp); the feasibility check judges it as any other."""
     t = dt * np.arange(1, n_steps + 1)[None, :]  # (1, T)
     b = np.asarray(decels, dtype=float)[:, None]  # (B, 1)
@@ -242,15 +243,18 @@ def brake_candidates(path, state: FrenetState, n_steps: int, dt: float, decels: 
             sig_end = np.maximum(v0 * ts - 0.5 * b * ts**2, 2.0 * abs(p1) / max_curvature)  # (B, 1) [m]
             travels = sig_end >= 1e-3
         else:  # move towards d_end over the whole arc, as far as the curvature limit lets it
-            sig_end = s[:, -1:] - state.s
+            sig_end = np.maximum(s[:, -1:] - state.s, 2.0 * abs(p1) / max_curvature)
             travels = sig_end >= 0.5
         L = np.where(travels, sig_end, 1.0)
+        settled = state.d + 0.5 * p1 * L  # where settling the slope alone ends
         if d_end is None:
-            target = state.d + 0.5 * p1 * L
-        else:  # a quintic shift by D over L turns at most 10 / sqrt(3) |D| / L^2 sharp (from the straight)
-            sharpest = min(max_curvature, max_lat_accel / max(v0 * v0, 1e-6))  # at the starting speed
-            reach = 0.9 * sharpest * L**2 / (10.0 / math.sqrt(3.0))
-            target = state.d + np.clip(d_end - state.d, -reach, reach)
+            target = settled
+        else:  # a quintic shift by D over L turns at most 10 / sqrt(3) |D| / L^2 sharp, settling the slope
+            # p1 at most 1.875 |p1| / L: what is left of the limit at the starting speed goes to the shift
+            sharpest = min(max_curvature, max_lat_accel / max(v0 * v0, 1e-6))
+            budget = np.maximum(sharpest - 1.875 * abs(p1) / L, 0.0)
+            reach = 0.9 * budget * L**2 / (10.0 / math.sqrt(3.0))
+            target = settled + np.clip(d_end - settled, -reach, reach)
         c = quintic_coeffs(state.d, p1, 0.0, target, L)  # (B, 1, 6)
         u = np.clip(s - state.s, 0.0, L)
         d = sum(c[..., i] * u**i for i in range(6))
@@ -511,10 +515,10 @@ class EthicalPlanner:
         decels = np.array([veh.comfort_decel, 0.5 * (veh.comfort_decel + veh.max_decel), veh.max_decel])
         # the side to keep while oncoming traffic passes (keep_side): the lateral term's reference, and
         # brakes that end at the side (as far as the drivable area leaves room), for emergencies only
-        side = oncoming_side(route, scene.s, v, agents) if self.cfg.keep_side > 0.0 else 0
+        side = oncoming_side(route, scene.s, scene.d, v, agents) if self.cfg.keep_side > 0.0 else 0
         room = side_room(route, scene.s, ego_width, side)
         d_ref = side * min(self.cfg.keep_side, room)
-        n_side = len(decels) if side and abs(side * room - scene.d) > 0.05 else 0
+        n_side = len(decels) if side and side * (side * room - scene.d) > 0.05 else 0  # only towards the side
         n_grid, n_plain = sc.n_candidates, sc.n_candidates + len(decels)
         n_evasive = self._evasive_grid.n_candidates if self.cfg.evasive else 0
         block = np.empty((9, n_plain + n_evasive + n_side, sc.n_steps))

@@ -22,31 +22,35 @@ from sumo_ethics.contract import RoutePath
 from sumo_ethics.types import AgentStates, RoadUserClass
 
 __all__ = ["keep_side_reference", "oncoming_side", "side_room", "ONCOMING_COS", "ONCOMING_TIME", "ONCOMING_NEAR", "REACH", "MIN_OFFSET",
-           "EDGE_MARGIN", "MIN_SPEED"]
+           "EDGE_MARGIN", "MIN_SPEED", "PASSING"]
 
 #: oncoming: the road user's heading within about 45 degrees of against the path's (cos below this)
 ONCOMING_COS = -0.7
 #: ahead of the ego by at most the distance both cover in this time [s] at their present speeds ...
 ONCOMING_TIME = 6.0
-#: ... or by at most this [m] (a slow approach close by)
+#: ... or by at most this [m] (a slow approach close by); a road user whose centre is up to
+#: :data:`PASSING` [m] behind the ego's is still beside it
 ONCOMING_NEAR = 15.0
+PASSING = 5.0
 #: beside the ego's path by at most this [m] (the next lane; a vehicle farther aside is no neighbour)
 REACH = 5.0
-#: and by at least this [m]: one on the path itself (head on) has no side
-MIN_OFFSET = 1.0
+#: and at least this far [m] to the side of the ego itself: one straight ahead (head on) has no side,
+#: one drifting into the lane keeps the side it comes from until it is this close to the ego's line
+MIN_OFFSET = 0.5
 #: the room kept between the ego's side and the drivable area's edge [m]
 EDGE_MARGIN = 0.2
 #: moving faster than this [m/s] (a parked car on the other side is no oncoming traffic)
 MIN_SPEED = 1.0
 
 
-def oncoming_side(route: RoutePath, s: float, speed: float, agents: AgentStates) -> int:
+def oncoming_side(route: RoutePath, s: float, d: float, speed: float, agents: AgentStates) -> int:
     """The side to keep: -1 (right) with oncoming road users on the left only, +1 (left) with them on
-    the right only, else 0. route: the ego's reference path; s: its arc length on it [m]; speed: the
-    ego's speed [m/s]; agents: the road users it knows of. Oncoming: not a pedestrian, faster than
-    :data:`MIN_SPEED`, heading against the path (:data:`ONCOMING_COS`), ahead within
-    :data:`ONCOMING_NEAR` or :data:`ONCOMING_TIME` of closing, :data:`MIN_OFFSET` to :data:`REACH`
-    beside the path."""
+    the right only, else 0. route: the ego's reference path; s, d: the ego's arc length and lateral
+    offset on it [m]; speed: the ego's speed [m/s]; agents: the road users it knows of. Oncoming: not
+    a pedestrian, faster than :data:`MIN_SPEED`, heading against the path (:data:`ONCOMING_COS`),
+    ahead within :data:`ONCOMING_NEAR` or :data:`ONCOMING_TIME` of closing (or still beside, up to
+    :data:`PASSING` behind), at most :data:`REACH` beside the path and at least :data:`MIN_OFFSET`
+    to the side of the ego's own offset d."""
     if len(agents) == 0:
         return 0
     moving = (agents.speed > MIN_SPEED) & (agents.cls != RoadUserClass.PEDESTRIAN)
@@ -59,10 +63,11 @@ def oncoming_side(route: RoutePath, s: float, speed: float, agents: AgentStates)
     so, do = route.path.project(np.stack([agents.x[idx], agents.y[idx]], axis=-1))
     gap = so - s
     against = np.cos(agents.yaw[idx] - route.path.heading_at(np.clip(so, 0.0, route.length))) < ONCOMING_COS
-    ahead = (gap > 0.0) & ((gap < ONCOMING_NEAR) | (gap < ONCOMING_TIME * (max(speed, 0.0) + agents.speed[idx])))
-    beside = (np.abs(do) >= MIN_OFFSET) & (np.abs(do) <= REACH)
+    ahead = (gap > -PASSING) & ((gap < ONCOMING_NEAR) | (gap < ONCOMING_TIME * (max(speed, 0.0) + agents.speed[idx])))
+    rel = do - d  # to the side of the ego's own line
+    beside = (np.abs(rel) >= MIN_OFFSET) & (np.abs(do) <= REACH)
     oncoming = against & ahead & beside
-    left, right = bool((oncoming & (do > 0)).any()), bool((oncoming & (do < 0)).any())
+    left, right = bool((oncoming & (rel > 0)).any()), bool((oncoming & (rel < 0)).any())
     return 0 if left == right else (-1 if left else 1)
 
 
@@ -77,11 +82,11 @@ def side_room(route: RoutePath, s: float, ego_width: float, side: int) -> float:
     return max(room, 0.0) if math.isfinite(room) else 0.0
 
 
-def keep_side_reference(route: RoutePath, s: float, speed: float, agents: AgentStates, ego_width: float,
+def keep_side_reference(route: RoutePath, s: float, d: float, speed: float, agents: AgentStates, ego_width: float,
                         max_shift: float) -> float:
     """d_ref [m] (left positive, 0: the lane's centre): the lateral term's reference this step,
     ``max_shift`` [m] (0: off) towards :func:`oncoming_side`, at most :func:`side_room`."""
     if max_shift <= 0.0:
         return 0.0
-    side = oncoming_side(route, s, speed, agents)
+    side = oncoming_side(route, s, d, speed, agents)
     return side * min(max_shift, side_room(route, s, ego_width, side))

@@ -46,23 +46,35 @@ def _lanes(edge: str) -> list[str]:
     return [f"{edge}_{i}" for i in range(sumo.edge.getLaneNumber(edge))]
 
 
+def _leftwards(lanes: list[str]) -> int:
+    """+1 where a higher lane index lies further left (SUMO's right-hand networks: lane 0 at the
+    right kerb), -1 where it lies further right (``netconvert --lefthand``: lane 0 at the left
+    kerb): the side of lane 1's first point from lane 0's first segment."""
+    if len(lanes) < 2:
+        return 1
+    a = np.asarray(sumo.lane.getShape(lanes[0]), dtype=float)
+    b = np.asarray(sumo.lane.getShape(lanes[1]), dtype=float)
+    d, r = a[1] - a[0], b[0] - a[0]
+    return 1 if d[0] * r[1] - d[1] * r[0] >= 0.0 else -1
+
+
 def _drivable(edge: str, lane: str, vclass: str) -> tuple[float, float]:
-    """Lateral extent [m] of the contiguous usable lanes of ``edge`` around ``lane``."""
+    """Lateral extent [m] (left > 0 > right) of the contiguous usable lanes of ``edge`` around ``lane``."""
     lanes = _lanes(edge) if not edge.startswith(":") else [lane]
     widths = [sumo.lane.getWidth(x) for x in lanes]
     usable = [lane_allows(x, vclass) for x in lanes]
     i = lanes.index(lane)
-    left = widths[i] / 2
-    j = i + 1
-    while j < len(lanes) and usable[j]:  # higher index = further left in SUMO
-        left += widths[j]
-        j += 1
-    right = -widths[i] / 2
-    j = i - 1
-    while j >= 0 and usable[j]:
-        right -= widths[j]
-        j -= 1
-    return left, right
+    step = _leftwards(lanes)  # the index step towards the left
+
+    def extent(direction: int) -> float:
+        total = widths[i] / 2
+        j = i + direction
+        while 0 <= j < len(lanes) and usable[j]:
+            total += widths[j]
+            j += direction
+        return total
+
+    return extent(step), -extent(-step)
 
 
 def lane_change_shape(lane: str, target: str, start_xy: np.ndarray | None, length: float = 60.0) -> np.ndarray:

@@ -44,17 +44,17 @@ def agents(x, y, yaw, speed, cls=RoadUserClass.CAR) -> AgentStates:
 @pytest.mark.parametrize(("y", "expected"), [(3.2, -0.5), (-3.2, 0.5)])
 def test_the_side_away_from_oncoming_traffic(y, expected):
     """Oncoming on the left (right-hand traffic): keep right; on the right (a left-hand network): keep left."""
-    ref = keep_side_reference(road(), 100.0, 10.0, agents([140.0], [y], [math.pi], [10.0]), EGO_WIDTH, 0.5)
+    ref = keep_side_reference(road(), 100.0, 0.0, 10.0, agents([140.0], [y], [math.pi], [10.0]), EGO_WIDTH, 0.5)
     assert ref == pytest.approx(expected, abs=1e-12)
-    ref = keep_side_reference(road(), 100.0, 10.0, agents([140.0], [y], [math.pi], [10.0]), EGO_WIDTH, 0.3)
+    ref = keep_side_reference(road(), 100.0, 0.0, 10.0, agents([140.0], [y], [math.pi], [10.0]), EGO_WIDTH, 0.3)
     assert ref == pytest.approx(expected * 0.6, abs=1e-12)
 
 
 def test_room_bounds_the_shift():
     """A 2.6 m lane leaves 1.3 - 0.9 - 0.2 = 0.2 m; a lane as wide as the ego leaves none."""
     others = agents([140.0], [3.0], [math.pi], [10.0])
-    assert keep_side_reference(road(1.3), 100.0, 10.0, others, EGO_WIDTH, 0.5) == pytest.approx(-0.2, abs=1e-12)
-    assert keep_side_reference(road(0.9), 100.0, 10.0, others, EGO_WIDTH, 0.5) == 0.0
+    assert keep_side_reference(road(1.3), 100.0, 0.0, 10.0, others, EGO_WIDTH, 0.5) == pytest.approx(-0.2, abs=1e-12)
+    assert keep_side_reference(road(0.9), 100.0, 0.0, 10.0, others, EGO_WIDTH, 0.5) == 0.0
 
 
 @pytest.mark.parametrize(("x", "y", "yaw", "speed", "cls", "why"), [
@@ -68,20 +68,33 @@ def test_room_bounds_the_shift():
     (240.0, 3.2, math.pi, 10.0, RoadUserClass.CAR, "140 m ahead: 7 s at 20 m/s closing"),
 ])
 def test_no_shift_without_oncoming_traffic_beside_the_path(x, y, yaw, speed, cls, why):
-    ref = keep_side_reference(road(), 100.0, 10.0, agents([x], [y], [yaw], [speed], cls), EGO_WIDTH, 0.5)
+    ref = keep_side_reference(road(), 100.0, 0.0, 10.0, agents([x], [y], [yaw], [speed], cls), EGO_WIDTH, 0.5)
     assert ref == 0.0, why
+
+
+def test_the_side_holds_while_a_car_drifts_in_and_passes():
+    """A car drifting into the ego's lane keeps its side until it is 0.5 m from the ego's line
+    (0.9 m: still left; 0.3 m: head on, no side), and one still beside the ego, its centre 3 m
+    behind the ego's, still counts (up to PASSING, 5 m); the side is taken from the ego's own offset
+    (ego at d = -0.6: a car at d = -0.2 is 0.4 m to its left, too close to tell)."""
+    drift = lambda y, x=125.0: agents([x], [y], [math.pi + 0.1], [10.0])  # noqa: E731
+    assert keep_side_reference(road(), 100.0, 0.0, 10.0, drift(0.9), EGO_WIDTH, 0.5) == pytest.approx(-0.5)
+    assert keep_side_reference(road(), 100.0, 0.0, 10.0, drift(0.3), EGO_WIDTH, 0.5) == 0.0
+    assert keep_side_reference(road(), 100.0, 0.0, 10.0, drift(3.2, 97.0), EGO_WIDTH, 0.5) == pytest.approx(-0.5)
+    assert keep_side_reference(road(), 100.0, 0.0, 10.0, drift(3.2, 94.0), EGO_WIDTH, 0.5) == 0.0
+    assert keep_side_reference(road(), 100.0, -0.6, 10.0, drift(-0.2), EGO_WIDTH, 0.5) == 0.0
 
 
 def test_reach_in_time_and_both_sides():
     """115 m ahead closes in 5.75 s at 10 + 10 m/s (within 6 s); oncoming on both sides moves nothing;
     an oncoming cyclist counts."""
     one = agents([215.0], [3.2], [math.pi], [10.0])
-    assert keep_side_reference(road(), 100.0, 10.0, one, EGO_WIDTH, 0.5) == pytest.approx(-0.5)
+    assert keep_side_reference(road(), 100.0, 0.0, 10.0, one, EGO_WIDTH, 0.5) == pytest.approx(-0.5)
     both = agents([140.0, 150.0], [3.2, -3.2], [math.pi, math.pi], [10.0, 10.0])
-    assert keep_side_reference(road(), 100.0, 10.0, both, EGO_WIDTH, 0.5) == 0.0
+    assert keep_side_reference(road(), 100.0, 0.0, 10.0, both, EGO_WIDTH, 0.5) == 0.0
     bike = agents([130.0], [2.5], [math.pi], [5.0], RoadUserClass.BICYCLE)
-    assert keep_side_reference(road(), 100.0, 10.0, bike, EGO_WIDTH, 0.5) == pytest.approx(-0.5)
-    assert keep_side_reference(road(), 100.0, 10.0, one, EGO_WIDTH, 0.0) == 0.0  # off
+    assert keep_side_reference(road(), 100.0, 0.0, 10.0, bike, EGO_WIDTH, 0.5) == pytest.approx(-0.5)
+    assert keep_side_reference(road(), 100.0, 0.0, 10.0, one, EGO_WIDTH, 0.0) == 0.0  # off
 
 
 def scene(oncoming_y: float | None) -> Scene:
@@ -112,6 +125,10 @@ def test_the_planner_moves_to_the_side_away_while_the_oncoming_car_approaches(on
     d_end = float(dec.trace.candidates.d[dec.trace.chosen, -1])
     assert dec.info["lateral_reference"] == pytest.approx(0.5 * side)
     assert 0.4 <= side * d_end <= 0.6, d_end
+    # no emergency: the brakes to the side (3 more candidates) are not eligible, and it drives on
+    assert dec.trace.candidates.speed[dec.trace.chosen, -1] > 7.0
+    assert int(dec.info["n_candidates"]) == int(EthicalPlanner(PlannerConfig(predictor="cv")).act(
+        scene(oncoming_y)).info["n_candidates"]) + 3
     off = EthicalPlanner(PlannerConfig(predictor="cv")).act(scene(oncoming_y))
     assert abs(float(off.trace.candidates.d[off.trace.chosen, -1])) <= 0.09
     assert "lateral_reference" not in off.info
@@ -234,3 +251,41 @@ def test_an_encroaching_car_the_ego_brakes_away_from_not_in_its_path():
         assert c.s[j, -1] == pytest.approx(104.0)
         assert c.d[j, -1] == pytest.approx(d_end, abs=1e-3)
     assert on.trace.first_hit[on.trace.chosen] > off.trace.first_hit[off.trace.chosen]
+
+
+def test_no_brake_to_the_side_that_would_steer_towards_the_oncoming_car():
+    """The ego already 0.65 m to the right, beyond the 0.5 m of room the side leaves (1.6 - 0.9 -
+    0.2): a "brake to the side" would steer it back left, towards the oncoming car, so none is
+    sampled (the same number of candidates as without keep_side)."""
+    sc = scene(3.2)
+    shifted = Scene(**{**sc.__dict__, "d": -0.65,
+                       "ego": AgentStates(("ego",), np.array([100.0]), np.array([-0.65]), np.zeros(1), np.array([8.0]),
+                                          np.zeros(1), np.array([4.5]), np.array([EGO_WIDTH]), np.array([1475.0]),
+                                          np.zeros(1, np.int8))})
+    on = EthicalPlanner(PlannerConfig(predictor="cv", keep_side=0.5)).act(shifted)
+    off = EthicalPlanner(PlannerConfig(predictor="cv")).act(shifted)
+    assert on.info["lateral_reference"] == pytest.approx(-0.5)
+    assert on.info["n_candidates"] == off.info["n_candidates"]
+
+
+def test_a_brake_to_the_side_from_a_sideways_motion_stays_within_the_limits():
+    """From 6 m/s moving left at 1 m/s (slope d' = 1/6), braking towards d = -0.5 at 3, 5.5 and 8 m/s^2
+    over L = 6, 3.27 and 2.25 m (each at least 2 |d'| / 0.2 = 1.67 m). Settling the slope alone ends
+    at d' L / 2 = 0.5, 0.273, 0.1875 m and takes 1.875 |d'| / L = 0.052, 0.095, 0.139 1/m of the
+    limit, min(0.2, 4 / 6^2) = 0.111; the rest, 0.059, 0.016 and none, allows a shift of
+    0.9 x rest x L^2 / 5.7735 = 0.331, 0.026 and 0 m: ends at 0.169, 0.247, 0.1875 m by hand, all
+    three within the limits (before, without the 1.67 m floor and the settling's share, every one
+    turned too sharply and none was feasible)."""
+    from sumo_ethics.plan.ethical import brake_candidates
+    from sumo_ethics.plan.feasibility import check
+    from sumo_ethics.plan.sampling import FrenetState
+
+    route = road()
+    state = FrenetState(s=100.0, d=0.0, s_dot=6.0, d_dot=1.0)
+    b = np.array([3.0, 5.5, 8.0])
+    c = brake_candidates(route.path, state, 40, 0.1, b, max_curvature=0.2, d_end=-0.5, max_lat_accel=4.0)
+    settle = brake_candidates(route.path, state, 40, 0.1, b, max_curvature=0.2)
+    assert check(c, route, EgoVehicle()).feasible.all()
+    assert c.d[:, -1] == pytest.approx([0.169, 0.247, 0.1875], abs=1e-3)
+    assert c.d[2, -1] == pytest.approx(settle.d[2, -1])  # no limit left: only the slope settles
+    assert (c.speed[:, -1] == 0.0).all()
