@@ -3,7 +3,8 @@
 
     python tools/motion_check.py RUNS [--slack 0.5] [--top 10]
 
-RUNS: an ``evaluate`` or ``sweep`` output folder, or any folder of run folders.
+RUNS: an ``evaluate`` or ``sweep`` output folder, or any folder of run folders (a fleet run's egos are
+checked each in its own time order).
 """
 
 from __future__ import annotations

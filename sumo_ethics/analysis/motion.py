@@ -28,22 +28,53 @@ def step_lateral_accel(steps: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     return np.abs(speed) * turn / np.where(dt > 0, dt, np.nan), turn
 
 
+def _limit(run: Path) -> float:
+    """The run's max_lat_accel [m/s^2]: ``summary.json`` ``ego_limits`` (a single ego), else
+    ``config.json`` ``ego`` (a fleet: every ego, inserted or taken over, keeps the car's lateral
+    limit, sumo_ethics.sim.ego.ego_limits), else NaN."""
+    for name, keys in (("summary.json", ("ego_limits",)), ("config.json", ("ego",))):
+        try:
+            d = json.loads((run / name).read_text(encoding="utf-8"))
+            for k in keys:
+                d = d[k]
+            return float(d["max_lat_accel"])
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+    return float("nan")
+
+
 def lateral_check(runs: Path, slack: float = 0.5) -> pd.DataFrame:
-    """One row per run folder under ``runs`` (any depth; single-ego runs): ``run`` (its path below
-    ``runs``), ``limit`` (its max_lat_accel), ``max_lateral`` [m/s^2] and ``turn_deg`` (the heading change
-    of that step), ``speed`` there, ``steps_over`` (steps beyond the limit + ``slack``), ``steps``."""
+    """One row per finished run folder under ``runs`` (any depth; a fleet run's egos each in their own
+    time order, by ``ego_id``): ``run`` (its path below ``runs``), ``limit`` (its max_lat_accel),
+    ``max_lateral`` [m/s^2] and ``turn_deg`` (the heading change of that step), ``speed`` there,
+    ``ego`` (whose step, in a fleet), ``steps_over`` (steps beyond the limit + ``slack``), ``steps``."""
     rows = []
     for path in sorted(Path(runs).rglob("steps.parquet")):
-        summary = path.parent / "summary.json"
-        if not summary.is_file():
+        if not (path.parent / "summary.json").is_file():
             continue
-        limit = float(json.loads(summary.read_text(encoding="utf-8")).get("ego_limits", {}).get("max_lat_accel", np.nan))
-        steps = pd.read_parquet(path, columns=["time", "yaw", "speed"])
-        if len(steps) < 2:
+        limit = _limit(path.parent)
+        cols = pq_columns(path)
+        steps = pd.read_parquet(path, columns=["time", "yaw", "speed"] + (["ego_id"] if "ego_id" in cols else []))
+        groups = steps.groupby("ego_id", sort=False) if "ego_id" in steps else [("", steps)]
+        best, over, n = None, 0, 0
+        for ego, g in groups:
+            if len(g) < 2:
+                continue
+            lateral, turn = step_lateral_accel(g)
+            k = int(np.nanargmax(lateral))
+            if best is None or lateral[k] > best[0]:
+                best = (float(lateral[k]), float(np.degrees(turn[k])), float(g["speed"].iloc[k + 1]), str(ego))
+            over += int(np.sum(lateral > limit + slack))
+            n += len(lateral)
+        if best is None:
             continue
-        lateral, turn = step_lateral_accel(steps)
-        k = int(np.nanargmax(lateral))
-        rows.append({"run": str(path.parent.relative_to(runs)), "limit": limit, "max_lateral": float(lateral[k]),
-                     "turn_deg": float(np.degrees(turn[k])), "speed": float(steps["speed"].iloc[k + 1]),
-                     "steps_over": int(np.sum(lateral > limit + slack)), "steps": int(len(lateral))})
-    return pd.DataFrame(rows, columns=["run", "limit", "max_lateral", "turn_deg", "speed", "steps_over", "steps"])
+        rows.append({"run": str(path.parent.relative_to(runs)), "limit": limit, "max_lateral": best[0],
+                     "turn_deg": best[1], "speed": best[2], "ego": best[3], "steps_over": over, "steps": n})
+    return pd.DataFrame(rows, columns=["run", "limit", "max_lateral", "turn_deg", "speed", "ego", "steps_over", "steps"])
+
+
+def pq_columns(path: Path) -> list[str]:
+    """The column names of a Parquet file, read from its schema alone."""
+    import pyarrow.parquet as pq
+
+    return list(pq.read_schema(path).names)
