@@ -1,6 +1,6 @@
 """The same planner names in two evaluations, paired: NEW's result minus OLD's, per planner.
 
-    python tools/compare_evaluations.py OLD NEW [--label-old paper --label-new ours]
+    python tools/compare_evaluations.py OLD NEW [--label-old paper --label-new ours] [--planner ours keep]
 
 OLD and NEW are `sumo-ethics evaluate` output folders (their results.csv). For every planner name in
 both, over the scenarios both ran (same scenario, same seed): completion and total / ego / third-party
@@ -31,8 +31,13 @@ def main() -> None:
     ap.add_argument("new", type=Path)
     ap.add_argument("--label-old", default="old")
     ap.add_argument("--label-new", default="new")
+    ap.add_argument("--planner", nargs=2, metavar=("OLD_NAME", "NEW_NAME"),
+                    help="pair planner OLD_NAME of OLD with NEW_NAME of NEW (shown as OLD_NAME) instead of equal names")
     a = ap.parse_args()
     old, new = rows(a.old), rows(a.new)
+    if a.planner:
+        old = old[old.planner == a.planner[0]]
+        new = new[new.planner == a.planner[1]].assign(planner=a.planner[0])
     lo, ln = a.label_old, a.label_new
     print(f"| planner | scenarios | completed {lo} / {ln} | total harm {lo} / {ln} | {ln} - {lo}: total harm "
           f"[95 % CI] (better / worse) | ego | third party | VRU | conflicts / 100 km {lo} / {ln} "
