@@ -369,7 +369,9 @@ class LaneGraph:
     @classmethod
     def build(cls, ids, shapes, speed, links, lengths=None) -> "LaneGraph":
         """From lane ids, shapes, limits and successor ids; lane ``edge_i``'s left neighbour is
-        ``edge_{i+1}``, its right one ``edge_{i-1}`` (SUMO numbers lanes from the right)."""
+        ``edge_{i+1}``, its right one ``edge_{i-1}`` where SUMO numbers the lanes from the right (its
+        right-hand networks), the other way round where ``edge_{i+1}`` lies to the right of
+        ``edge_i`` (``netconvert --lefthand`` numbers them from the left)."""
         ids = tuple(ids)
         index = {k: i for i, k in enumerate(ids)}
         succ = [tuple(index[s] for s in nxt if s in index) for nxt in links]
@@ -378,8 +380,10 @@ class LaneGraph:
             edge, _, num = k.rpartition("_")
             if k.startswith(":") or not edge or not num.isdigit():
                 continue
-            left[i] = index.get(f"{edge}_{int(num) + 1}", -1)
-            right[i] = index.get(f"{edge}_{int(num) - 1}", -1)
+            up, down = index.get(f"{edge}_{int(num) + 1}", -1), index.get(f"{edge}_{int(num) - 1}", -1)
+            if (up >= 0 or down >= 0) and _right_of(shapes[i], shapes[up] if up >= 0 else shapes[down], up < 0):
+                up, down = down, up  # numbered from the left
+            left[i], right[i] = up, down
         if lengths is None:
             lengths = [float(np.hypot(*np.diff(np.asarray(s, dtype=float), axis=0).T).sum()) for s in shapes]
         return cls(ids, shapes, speed, succ, left, right, lengths)
@@ -490,6 +494,18 @@ class MapContext:
         return MapContext(np.full(n, -1, dtype=np.int64), np.zeros(n), np.full(n, np.inf), np.zeros(n, dtype=np.int64),
                           np.zeros(n, dtype=bool), np.full(n, -1, dtype=np.int64), np.full(n, np.inf),
                           np.zeros(n, dtype=np.int64), np.full(n, -1, dtype=np.int64))
+
+
+def _right_of(lane: np.ndarray, other: np.ndarray, lower: bool) -> bool:
+    """Whether the lanes of this edge are numbered from the left: ``other`` (the lane numbered one
+    above ``lane``, or one below where ``lower``) starts to the right of ``lane``'s first segment
+    (one below: to its left)."""
+    a, b = np.asarray(lane, dtype=float), np.asarray(other, dtype=float)
+    if len(a) < 2 or len(b) < 1:
+        return False
+    d, r = a[1] - a[0], b[0] - a[0]
+    cross = d[0] * r[1] - d[1] * r[0]
+    return bool(cross > 0.0) if lower else bool(cross < 0.0)
 
 
 def sample_path(graph: LaneGraph, path: tuple[int, ...], start: float, ds: float) -> np.ndarray:

@@ -809,3 +809,14 @@ def test_fast_file_has_five_decoder_steps_and_keeps_a_red_queue():
     assert np.all(green[:, 1:] > 1.0)
     soon, _ = moved[3, 1.0]
     assert np.all(np.abs(soon[:, 0]) < 0.1) and np.all(soon[0, 1:] > 1.0)  # stays; only the other modes go
+
+
+@pytest.mark.parametrize(("y1", "left_of_0", "right_of_0"), [(3.2, 1, -1), (-3.2, -1, 1)])
+def test_lane_neighbours_by_position_on_right_and_left_hand_networks(y1, left_of_0, right_of_0):
+    """Two lanes of edge e heading +x: e_1 at y = +3.2 (SUMO's right-hand numbering, from the right:
+    e_1 is e_0's left neighbour) or at y = -3.2 (netconvert --lefthand numbers from the left: e_1 is
+    e_0's right neighbour)."""
+    shapes = [np.array([[0.0, 0.0], [100.0, 0.0]]), np.array([[0.0, y1], [100.0, y1]])]
+    g = F.LaneGraph.build(["e_0", "e_1"], shapes, [13.9, 13.9], [(), ()])
+    assert (int(g.left[0]), int(g.right[0])) == (left_of_0, right_of_0)
+    assert (int(g.left[1]), int(g.right[1])) == ((-1, 0) if y1 > 0 else (0, -1))  # e_0 on e_1's other side
