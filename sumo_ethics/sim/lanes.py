@@ -132,7 +132,9 @@ def crossing_signals() -> CrossingSignals:
 
 def pavement(graph: LaneGraph, edge: str) -> str:
     """The lane a person stands on who is on ``edge`` but, by SUMO, on no lane: the edge's
-    rightmost lane that allows pedestrians ("" when it has none).
+    lowest-numbered lane that allows pedestrians, the one nearest the kerb (the rightmost on SUMO's
+    right-hand networks, the leftmost on ``lefthand`` ones, which netconvert numbers from the left;
+    "" when it has none).
 
     A person waiting at a stop for a ride (stage "waiting for ANY") has an empty
     ``person.getLaneID`` but its stop's edge and position along it (``getRoadID``,
