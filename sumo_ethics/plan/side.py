@@ -22,7 +22,7 @@ from sumo_ethics.contract import RoutePath
 from sumo_ethics.types import AgentStates, RoadUserClass
 
 __all__ = ["keep_side_reference", "oncoming_side", "side_room", "ONCOMING_COS", "ONCOMING_TIME", "ONCOMING_NEAR", "REACH", "MIN_OFFSET",
-           "EDGE_MARGIN", "MIN_SPEED", "PASSING"]
+           "EDGE_MARGIN", "MIN_SPEED", "PASSING", "CLEARANCE", "CLOSE_TIME"]
 
 #: oncoming: the road user's heading within about 45 degrees of against the path's (cos below this)
 ONCOMING_COS = -0.7
@@ -37,6 +37,12 @@ REACH = 5.0
 #: and at least this far [m] to the side of the ego itself: one straight ahead (head on) has no side,
 #: one drifting into the lane keeps the side it comes from until it is this close to the ego's line
 MIN_OFFSET = 0.5
+#: close: the oncoming road user's near side is less than this [m] beyond the ego's drivable edge on
+#: its side (the centre line of a two-way street), now or :data:`CLOSE_TIME` s on along its heading: a
+#: car in the middle of its own 3.2 m lane passes 0.7 m beyond it and is not close, one in a 2.7 m lane
+#: (0.45 m), a 2.5 m wide truck in a 3.2 m lane (0.35 m) or one drifting across are
+CLEARANCE = 0.5
+CLOSE_TIME = 1.0
 #: the room kept between the ego's side and the drivable area's edge [m]
 EDGE_MARGIN = 0.2
 #: moving faster than this [m/s] (a parked car on the other side is no oncoming traffic)
@@ -50,7 +56,10 @@ def oncoming_side(route: RoutePath, s: float, d: float, speed: float, agents: Ag
     a pedestrian, faster than :data:`MIN_SPEED`, heading against the path (:data:`ONCOMING_COS`),
     ahead within :data:`ONCOMING_NEAR` or :data:`ONCOMING_TIME` of closing (or still beside, up to
     :data:`PASSING` behind), at most :data:`REACH` beside the path and at least :data:`MIN_OFFSET`
-    to the side of the ego's own offset d."""
+    to the side of the ego's own offset d, and close (:data:`CLEARANCE`): an oncoming car keeping to
+    the middle of a lane as wide as the suite's 3.2 m moves nothing (at the kerb the ego would be
+    nearer the pedestrians and cyclists there: tried on every road user, the held-out suite of
+    seed 7 had 2 more pedestrians struck)."""
     if len(agents) == 0:
         return 0
     moving = (agents.speed > MIN_SPEED) & (agents.cls != RoadUserClass.PEDESTRIAN)
@@ -66,7 +75,14 @@ def oncoming_side(route: RoutePath, s: float, d: float, speed: float, agents: Ag
     ahead = (gap > -PASSING) & ((gap < ONCOMING_NEAR) | (gap < ONCOMING_TIME * (max(speed, 0.0) + agents.speed[idx])))
     rel = do - d  # to the side of the ego's own line
     beside = (np.abs(rel) >= MIN_OFFSET) & (np.abs(do) <= REACH)
-    oncoming = against & ahead & beside
+    # close: its near side within CLEARANCE beyond the ego's drivable edge, now or CLOSE_TIME s on
+    i = route.vertex_at(s)
+    half = agents.width[idx] / 2.0
+    d_later = do + CLOSE_TIME * agents.speed[idx] * np.sin(agents.yaw[idx] - route.path.heading_at(
+        np.clip(so, 0.0, route.length)))  # its offset moving along its heading
+    beyond = np.where(rel > 0, np.minimum(do, d_later) - half - float(route.left[i]),
+                      float(route.right[i]) - np.maximum(do, d_later) - half)
+    oncoming = against & ahead & beside & (beyond < CLEARANCE)
     left, right = bool((oncoming & (rel > 0)).any()), bool((oncoming & (rel < 0)).any())
     return 0 if left == right else (-1 if left else 1)
 

@@ -1,10 +1,13 @@
 """The side to keep while oncoming traffic passes (sumo_ethics.plan.side, PlannerConfig.keep_side).
 
 The road: a straight single lane along +x, 3.2 m wide (drivable from -1.6 to +1.6 m about its
-centre), the ego 1.8 m wide at x = 100 m. An oncoming car in the next lane to the left, at
-y = +3.2 m, heading -x (right-hand traffic); mirrored to y = -3.2 m it is a left-hand network's.
-By hand: the room towards the right edge is 1.6 - 0.9 (half the ego) - 0.2 (EDGE_MARGIN) = 0.5 m,
-so with keep_side 0.5 the reference is -0.5 m (right), +0.5 m mirrored; with keep_side 0.3, -0.3.
+centre), the ego 1.8 m wide at x = 100 m. An oncoming truck, 2.5 m wide, in the middle of the
+next lane to the left, at y = +3.2 m, heading -x (right-hand traffic): its near side passes
+3.2 - 1.25 - 1.6 = 0.35 m beyond the centre line, closer than CLEARANCE (0.5 m); mirrored to
+y = -3.2 m it is a left-hand network's. By hand: the room towards the right edge is 1.6 - 0.9
+(half the ego) - 0.2 (EDGE_MARGIN) = 0.5 m, so with keep_side 0.5 the reference is -0.5 m (right),
++0.5 m mirrored; with keep_side 0.3, -0.3. A 1.8 m wide car in the middle of that lane passes
+3.2 - 0.9 - 1.6 = 0.7 m beyond it and moves nothing, unless it drifts.
 """
 
 from __future__ import annotations
@@ -33,12 +36,12 @@ def road(half: float = 1.6) -> RoutePath:
                      left=np.full(m, half), right=np.full(m, -half), links=())
 
 
-def agents(x, y, yaw, speed, cls=RoadUserClass.CAR) -> AgentStates:
+def agents(x, y, yaw, speed, cls=RoadUserClass.TRUCK, width: float = 2.5) -> AgentStates:
     n = len(x)
     c = np.full(n, int(cls), dtype=np.int8)
     return AgentStates(tuple(f"o{i}" for i in range(n)), np.asarray(x, float), np.asarray(y, float),
                        np.asarray(yaw, float), np.asarray(speed, float), np.zeros(n), np.full(n, 4.5),
-                       np.full(n, 1.8), np.full(n, 1400.0), c)
+                       np.full(n, width), np.full(n, 1400.0), c)
 
 
 @pytest.mark.parametrize(("y", "expected"), [(3.2, -0.5), (-3.2, 0.5)])
@@ -52,20 +55,20 @@ def test_the_side_away_from_oncoming_traffic(y, expected):
 
 def test_room_bounds_the_shift():
     """A 2.6 m lane leaves 1.3 - 0.9 - 0.2 = 0.2 m; a lane as wide as the ego leaves none."""
-    others = agents([140.0], [3.0], [math.pi], [10.0])
+    others = agents([140.0], [3.0], [math.pi], [10.0])  # 3.0 - 1.25 - 1.3 = 0.45 m beyond: close
     assert keep_side_reference(road(1.3), 100.0, 0.0, 10.0, others, EGO_WIDTH, 0.5) == pytest.approx(-0.2, abs=1e-12)
     assert keep_side_reference(road(0.9), 100.0, 0.0, 10.0, others, EGO_WIDTH, 0.5) == 0.0
 
 
 @pytest.mark.parametrize(("x", "y", "yaw", "speed", "cls", "why"), [
-    (140.0, 3.2, 0.0, 10.0, RoadUserClass.CAR, "same direction"),
-    (140.0, 3.2, math.pi / 2, 10.0, RoadUserClass.CAR, "crossing"),
-    (60.0, 3.2, math.pi, 10.0, RoadUserClass.CAR, "behind (already passed)"),
-    (140.0, 3.2, math.pi, 0.0, RoadUserClass.CAR, "parked"),
+    (140.0, 3.2, 0.0, 10.0, RoadUserClass.TRUCK, "same direction"),
+    (140.0, 3.2, math.pi / 2, 10.0, RoadUserClass.TRUCK, "crossing"),
+    (60.0, 3.2, math.pi, 10.0, RoadUserClass.TRUCK, "behind (already passed)"),
+    (140.0, 3.2, math.pi, 0.0, RoadUserClass.TRUCK, "parked"),
     (140.0, 3.2, math.pi, 1.3, RoadUserClass.PEDESTRIAN, "a pedestrian"),
-    (140.0, 0.3, math.pi, 10.0, RoadUserClass.CAR, "head on in the ego's lane: no side"),
-    (140.0, 7.0, math.pi, 10.0, RoadUserClass.CAR, "two lanes away"),
-    (240.0, 3.2, math.pi, 10.0, RoadUserClass.CAR, "140 m ahead: 7 s at 20 m/s closing"),
+    (140.0, 0.3, math.pi, 10.0, RoadUserClass.TRUCK, "head on in the ego's lane: no side"),
+    (140.0, 7.0, math.pi, 10.0, RoadUserClass.TRUCK, "two lanes away"),
+    (240.0, 3.2, math.pi, 10.0, RoadUserClass.TRUCK, "140 m ahead: 7 s at 20 m/s closing"),
 ])
 def test_no_shift_without_oncoming_traffic_beside_the_path(x, y, yaw, speed, cls, why):
     ref = keep_side_reference(road(), 100.0, 0.0, 10.0, agents([x], [y], [yaw], [speed], cls), EGO_WIDTH, 0.5)
@@ -85,6 +88,16 @@ def test_the_side_holds_while_a_car_drifts_in_and_passes():
     assert keep_side_reference(road(), 100.0, -0.6, 10.0, drift(-0.2), EGO_WIDTH, 0.5) == 0.0
 
 
+def test_only_a_close_oncoming_road_user_moves_the_side():
+    """A 1.8 m car in the middle of the next 3.2 m lane passes 0.7 m beyond the centre line: nothing;
+    the same car heading pi + 0.1 at 10 m/s is 1 m further over in 1 s (0.3 m across: close) and so is
+    the same car in a 2.7 m wide street (2.7 - 0.9 - 1.35 = 0.45 m; room 1.35 - 0.9 - 0.2 = 0.25)."""
+    car = lambda y, yaw=math.pi: agents([140.0], [y], [yaw], [10.0], RoadUserClass.CAR, width=1.8)  # noqa: E731
+    assert keep_side_reference(road(), 100.0, 0.0, 10.0, car(3.2), EGO_WIDTH, 0.5) == 0.0
+    assert keep_side_reference(road(), 100.0, 0.0, 10.0, car(3.2, math.pi + 0.1), EGO_WIDTH, 0.5) == pytest.approx(-0.5)
+    assert keep_side_reference(road(1.35), 100.0, 0.0, 10.0, car(2.7), EGO_WIDTH, 0.5) == pytest.approx(-0.25)
+
+
 def test_reach_in_time_and_both_sides():
     """115 m ahead closes in 5.75 s at 10 + 10 m/s (within 6 s); oncoming on both sides moves nothing;
     an oncoming cyclist counts."""
@@ -92,7 +105,7 @@ def test_reach_in_time_and_both_sides():
     assert keep_side_reference(road(), 100.0, 0.0, 10.0, one, EGO_WIDTH, 0.5) == pytest.approx(-0.5)
     both = agents([140.0, 150.0], [3.2, -3.2], [math.pi, math.pi], [10.0, 10.0])
     assert keep_side_reference(road(), 100.0, 0.0, 10.0, both, EGO_WIDTH, 0.5) == 0.0
-    bike = agents([130.0], [2.5], [math.pi], [5.0], RoadUserClass.BICYCLE)
+    bike = agents([130.0], [2.0], [math.pi], [5.0], RoadUserClass.BICYCLE, width=0.65)  # 0.075 m beyond
     assert keep_side_reference(road(), 100.0, 0.0, 10.0, bike, EGO_WIDTH, 0.5) == pytest.approx(-0.5)
     assert keep_side_reference(road(), 100.0, 0.0, 10.0, one, EGO_WIDTH, 0.0) == 0.0  # off
 
@@ -118,8 +131,9 @@ def scene(oncoming_y: float | None) -> Scene:
 @pytest.mark.parametrize(("oncoming_y", "side"), [(3.2, -1.0), (-3.2, 1.0)])
 def test_the_planner_moves_to_the_side_away_while_the_oncoming_car_approaches(oncoming_y, side):
     """With keep_side 0.5 the chosen candidate ends 0.4-0.6 m to the side away from the oncoming
-    car (the grid's end offsets are 0.0875 m apart across -0.7..0.7 m); without it at the centre
-    (within one grid step); with no oncoming car at the centre either way."""
+    truck (the grid's end offsets are 0.0875 m apart across -0.7..0.7 m); without it the risk terms
+    alone move it less far (0.35 m: the truck's predicted spread reaches into the lane); with no
+    oncoming road user it keeps the centre (within one grid step) either way."""
     on = EthicalPlanner(PlannerConfig(predictor="cv", keep_side=0.5))
     dec = on.act(scene(oncoming_y))
     d_end = float(dec.trace.candidates.d[dec.trace.chosen, -1])
@@ -130,7 +144,7 @@ def test_the_planner_moves_to_the_side_away_while_the_oncoming_car_approaches(on
     assert int(dec.info["n_candidates"]) == int(EthicalPlanner(PlannerConfig(predictor="cv")).act(
         scene(oncoming_y)).info["n_candidates"]) + 3
     off = EthicalPlanner(PlannerConfig(predictor="cv")).act(scene(oncoming_y))
-    assert abs(float(off.trace.candidates.d[off.trace.chosen, -1])) <= 0.09
+    assert 0.0 <= side * float(off.trace.candidates.d[off.trace.chosen, -1]) < 0.4
     assert "lateral_reference" not in off.info
     alone = EthicalPlanner(PlannerConfig(predictor="cv", keep_side=0.5)).act(scene(None))
     assert alone.info["lateral_reference"] == 0.0
@@ -146,7 +160,8 @@ def test_keep_side_refuses_what_is_no_distance(bad):
 @pytest.fixture(scope="module")
 def narrow_streets(tmp_path_factory):
     """A 300 m two-way street of one 3.2 m lane each way, built right-hand and left-hand
-    (netconvert --lefthand), with an oncoming car every 10 s on the other lane."""
+    (netconvert --lefthand), with an oncoming truck (2.5 m wide: 0.35 m beyond the centre line)
+    every 10 s on the other lane."""
     from sumo_ethics.sim.netbuild import PlainNet
 
     made = {}
@@ -158,8 +173,8 @@ def narrow_streets(tmp_path_factory):
         net.two_way("f", "b", "A", "B", numLanes=1, width=3.2, speed=13.89)
         net.build(folder)
         (folder / "narrow.rou.xml").write_text(
-            '<routes><vType id="car" length="4.5" width="1.8"/>'
-            '<flow id="onc" type="car" begin="0" end="60" period="10" from="b" to="b" departSpeed="8"/></routes>\n')
+            '<routes><vType id="truck" vClass="truck" length="7.5" width="2.5"/>'
+            '<flow id="onc" type="truck" begin="0" end="60" period="10" from="b" to="b" departSpeed="8"/></routes>\n')
         (folder / "narrow.sumocfg").write_text(
             '<configuration><input><net-file value="narrow.net.xml"/><route-files value="narrow.rou.xml"/></input>'
             '<time><begin value="0"/><end value="40"/><step-length value="0.1"/></time></configuration>\n')
@@ -227,7 +242,7 @@ def encroaching(keep_side: float):
     ego = AgentStates(("ego",), np.array([100.0]), np.array([0.0]), np.zeros(1), np.array([8.0]), np.zeros(1),
                       np.array([4.5]), np.array([EGO_WIDTH]), np.array([1475.0]), np.zeros(1, np.int8))
     yaw = math.pi + 0.1
-    others = agents([125.0], [1.8], [yaw], [10.0])
+    others = agents([125.0], [1.8], [yaw], [10.0], RoadUserClass.CAR, width=1.8)
     hist = History(0.1)
     for k in range(31):
         dtk = (k - 30) * 0.1
