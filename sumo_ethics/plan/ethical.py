@@ -29,7 +29,7 @@ from sumo_ethics.contract import Decision, EgoCommand, Scene
 from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.perception import Perception, PerceptionConfig, SightMap
 from sumo_ethics.plan.phantoms import phantom_risk
-from sumo_ethics.plan.side import oncoming_side, side_room
+from sumo_ethics.plan.side import oncoming_side, side_room, vulnerable_on_side
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, quintic_coeffs, reference_heading, sample
 from sumo_ethics.predict import registry
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior, recent_motion
@@ -517,7 +517,8 @@ class EthicalPlanner:
         # brakes that end at the side (as far as the drivable area leaves room), for emergencies only
         side = oncoming_side(route, scene.s, scene.d, v, agents) if self.cfg.keep_side > 0.0 else 0
         room = side_room(route, scene.s, ego_width, side)
-        d_ref = side * min(self.cfg.keep_side, room)
+        vru_there = vulnerable_on_side(route, scene.s, scene.d, v, agents, side)
+        d_ref = 0.0 if vru_there else side * min(self.cfg.keep_side, room)
         n_side = len(decels) if side and side * (side * room - scene.d) > 0.05 else 0  # only towards the side
         n_grid, n_plain = sc.n_candidates, sc.n_candidates + len(decels)
         n_evasive = self._evasive_grid.n_candidates if self.cfg.evasive else 0

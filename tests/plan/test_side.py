@@ -88,14 +88,25 @@ def test_the_side_holds_while_a_car_drifts_in_and_passes():
     assert keep_side_reference(road(), 100.0, -0.6, 10.0, drift(-0.2), EGO_WIDTH, 0.5) == 0.0
 
 
-def test_only_a_close_oncoming_road_user_moves_the_side():
-    """A 1.8 m car in the middle of the next 3.2 m lane passes 0.7 m beyond the centre line: nothing;
-    the same car heading pi + 0.1 at 10 m/s is 1 m further over in 1 s (0.3 m across: close) and so is
-    the same car in a 2.7 m wide street (2.7 - 0.9 - 1.35 = 0.45 m; room 1.35 - 0.9 - 0.2 = 0.25)."""
-    car = lambda y, yaw=math.pi: agents([140.0], [y], [yaw], [10.0], RoadUserClass.CAR, width=1.8)  # noqa: E731
-    assert keep_side_reference(road(), 100.0, 0.0, 10.0, car(3.2), EGO_WIDTH, 0.5) == 0.0
-    assert keep_side_reference(road(), 100.0, 0.0, 10.0, car(3.2, math.pi + 0.1), EGO_WIDTH, 0.5) == pytest.approx(-0.5)
-    assert keep_side_reference(road(1.35), 100.0, 0.0, 10.0, car(2.7), EGO_WIDTH, 0.5) == pytest.approx(-0.25)
+@pytest.mark.parametrize(("x", "y", "cls", "ref", "why"), [
+    (130.0, -2.5, RoadUserClass.PEDESTRIAN, 0.0, "on the right sidewalk, 0.9 m beyond the edge, 30 m ahead"),
+    (120.0, -1.0, RoadUserClass.BICYCLE, 0.0, "a cyclist at the right of the ego's lane"),
+    (97.0, -2.5, RoadUserClass.PEDESTRIAN, 0.0, "3 m behind the ego's centre: still beside it"),
+    (130.0, 5.0, RoadUserClass.PEDESTRIAN, -0.5, "on the other side"),
+    (90.0, -2.5, RoadUserClass.PEDESTRIAN, -0.5, "10 m behind"),
+    (130.0, -4.7, RoadUserClass.PEDESTRIAN, -0.5, "3.1 m beyond the edge"),
+    (200.0, -2.5, RoadUserClass.PEDESTRIAN, -0.5, "100 m ahead: beyond 6 s at 10 m/s"),
+    (130.0, -2.5, RoadUserClass.MOTORCYCLE, -0.5, "a motorcycle is traffic, not a kerb user"),
+])
+def test_no_shift_towards_a_pedestrian_or_cyclist_on_that_side(x, y, cls, ref, why):
+    """With the oncoming truck of the module doc (keep right, -0.5 m), a pedestrian or cyclist ahead on
+    the right within 6 s at the ego's 10 m/s (60 m) and up to VRU_ZONE (3 m) beyond the right edge
+    (-1.6 m) keeps the ego in the middle."""
+    truck = agents([140.0], [3.2], [math.pi], [10.0])
+    kerb = agents([x], [y], [0.0], [1.3], cls, width=0.65)
+    both = AgentStates(truck.ids + ("v0",), *(np.concatenate([getattr(truck, f), getattr(kerb, f)]) for f in (
+        "x", "y", "yaw", "speed", "accel", "length", "width", "mass", "cls")))
+    assert keep_side_reference(road(), 100.0, 0.0, 10.0, both, EGO_WIDTH, 0.5) == pytest.approx(ref), why
 
 
 def test_reach_in_time_and_both_sides():
