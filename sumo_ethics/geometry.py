@@ -56,6 +56,19 @@ class OrientedBoxes:
         return np.stack([cx, cy], axis=-1)
 
 
+def start_side(shape: np.ndarray, other: np.ndarray) -> float:
+    """Which side of polyline ``shape``'s first segment the first point of ``other`` lies on (both
+    (P, 2) [m]): the cross product of that segment with the offset to the point, > 0 left, < 0 right,
+    0 on its line or where either has too few points. Two lanes of one SUMO edge start side by side,
+    so it tells which way their indices count (netconvert numbers a right-hand edge's lanes from the
+    right, a ``--lefthand`` one's from the left)."""
+    a, b = np.asarray(shape, dtype=float), np.asarray(other, dtype=float)
+    if len(a) < 2 or len(b) < 1:
+        return 0.0
+    d, r = a[1] - a[0], b[0] - a[0]
+    return float(d[0] * r[1] - d[1] * r[0])
+
+
 def boxes_overlap(a: OrientedBoxes, b: OrientedBoxes) -> np.ndarray:
     """Separating-axis test for two broadcastable sets of oriented boxes.
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sumo_ethics.geometry import wrap_angle
+from sumo_ethics.geometry import start_side, wrap_angle
 from sumo_ethics.types import RoadUserClass
 
 FEATURE_VERSION = 1
@@ -500,12 +500,8 @@ def _right_of(lane: np.ndarray, other: np.ndarray, lower: bool) -> bool:
     """Whether the lanes of this edge are numbered from the left: ``other`` (the lane numbered one
     above ``lane``, or one below where ``lower``) starts to the right of ``lane``'s first segment
     (one below: to its left)."""
-    a, b = np.asarray(lane, dtype=float), np.asarray(other, dtype=float)
-    if len(a) < 2 or len(b) < 1:
-        return False
-    d, r = a[1] - a[0], b[0] - a[0]
-    cross = d[0] * r[1] - d[1] * r[0]
-    return bool(cross > 0.0) if lower else bool(cross < 0.0)
+    cross = start_side(lane, other)
+    return cross > 0.0 if lower else cross < 0.0
 
 
 def sample_path(graph: LaneGraph, path: tuple[int, ...], start: float, ds: float) -> np.ndarray:

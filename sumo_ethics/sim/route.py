@@ -11,7 +11,7 @@ import numpy as np
 
 from sumo_ethics.errors import SimulationError
 from sumo_ethics.contract import JunctionLink, RoutePath, TightBend
-from sumo_ethics.geometry import Polyline
+from sumo_ethics.geometry import Polyline, start_side
 from sumo_ethics.sim.backend import sumo
 
 
@@ -52,10 +52,7 @@ def _leftwards(lanes: list[str]) -> int:
     kerb): the side of lane 1's first point from lane 0's first segment."""
     if len(lanes) < 2:
         return 1
-    a = np.asarray(sumo.lane.getShape(lanes[0]), dtype=float)
-    b = np.asarray(sumo.lane.getShape(lanes[1]), dtype=float)
-    d, r = a[1] - a[0], b[0] - a[0]
-    return 1 if d[0] * r[1] - d[1] * r[0] >= 0.0 else -1
+    return 1 if start_side(sumo.lane.getShape(lanes[0]), sumo.lane.getShape(lanes[1])) >= 0.0 else -1
 
 
 def _drivable(edge: str, lane: str, vclass: str) -> tuple[float, float]:
