@@ -39,9 +39,8 @@ from typing import Any
 import numba
 import numpy as np
 
-from sumo_ethics.types import kernel_input
-
 from sumo_ethics.ethics.shapes import _BLOCK, _entry_p, _gate, _phi_pos, _slab_test
+from sumo_ethics.types import kernel_input
 
 __all__ = ["bounded_terms", "order_harm", "p_bounds"]
 

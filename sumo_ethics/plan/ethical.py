@@ -29,8 +29,8 @@ from sumo_ethics.contract import Decision, EgoCommand, Scene
 from sumo_ethics.plan.feasibility import check
 from sumo_ethics.plan.perception import Perception, PerceptionConfig, SightMap
 from sumo_ethics.plan.phantoms import phantom_risk
-from sumo_ethics.plan.side import oncoming_side, side_room, vulnerable_on_side
 from sumo_ethics.plan.sampling import FrenetState, SamplingConfig, quintic_coeffs, reference_heading, sample
+from sumo_ethics.plan.side import side_to_keep
 from sumo_ethics.predict import registry
 from sumo_ethics.predict.braking import apply_braking_prior, apply_lateral_prior, recent_motion
 from sumo_ethics.predict.constant_velocity import non_finite, replace_non_finite
@@ -515,10 +515,7 @@ class EthicalPlanner:
         decels = np.array([veh.comfort_decel, 0.5 * (veh.comfort_decel + veh.max_decel), veh.max_decel])
         # the side to keep while oncoming traffic passes (keep_side): the lateral term's reference, and
         # brakes that end at the side (as far as the drivable area leaves room), for emergencies only
-        side = oncoming_side(route, scene.s, scene.d, v, agents) if self.cfg.keep_side > 0.0 else 0
-        room = side_room(route, scene.s, ego_width, side)
-        vru_there = vulnerable_on_side(route, scene.s, scene.d, v, agents, side)
-        d_ref = 0.0 if vru_there else side * min(self.cfg.keep_side, room)
+        side, room, d_ref = side_to_keep(route, scene.s, scene.d, v, agents, ego_width, self.cfg.keep_side)
         n_side = len(decels) if side and side * (side * room - scene.d) > 0.05 else 0  # only towards the side
         n_grid, n_plain = sc.n_candidates, sc.n_candidates + len(decels)
         n_evasive = self._evasive_grid.n_candidates if self.cfg.evasive else 0

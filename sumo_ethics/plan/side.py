@@ -23,9 +23,8 @@ import numpy as np
 from sumo_ethics.contract import RoutePath
 from sumo_ethics.types import AgentStates, RoadUserClass
 
-__all__ = ["keep_side_reference", "oncoming_side", "side_room", "ONCOMING_COS", "ONCOMING_TIME", "ONCOMING_NEAR", "REACH", "MIN_OFFSET",
-           "EDGE_MARGIN", "MIN_SPEED", "PASSING", "VRU_ZONE",
-           "vulnerable_on_side"]
+__all__ = ["side_to_keep", "keep_side_reference", "oncoming_side", "vulnerable_on_side", "side_room", "ONCOMING_COS",
+           "ONCOMING_TIME", "ONCOMING_NEAR", "PASSING", "REACH", "MIN_OFFSET", "VRU_ZONE", "EDGE_MARGIN", "MIN_SPEED"]
 
 #: oncoming: the road user's heading within about 45 degrees of against the path's (cos below this)
 ONCOMING_COS = -0.7
@@ -83,8 +82,10 @@ def vulnerable_on_side(route: RoutePath, s: float, d: float, speed: float, agent
     """Whether a pedestrian or cyclist is ahead on ``side`` (-1 right, +1 left) of the ego's line d:
     within :data:`ONCOMING_NEAR` or :data:`ONCOMING_TIME` s at the ego's speed ahead (:data:`PASSING`
     behind), at most :data:`VRU_ZONE` beyond the drivable edge on that side."""
+    if side == 0:
+        return False
     vru = (agents.cls == RoadUserClass.PEDESTRIAN) | (agents.cls == RoadUserClass.BICYCLE)
-    if side == 0 or not vru.any():
+    if not vru.any():
         return False
     reach = max(ONCOMING_NEAR, ONCOMING_TIME * max(speed, 0.0))
     ex, ey, _ = route.path.to_xy(s, 0.0)
@@ -110,14 +111,19 @@ def side_room(route: RoutePath, s: float, ego_width: float, side: int) -> float:
     return max(room, 0.0) if math.isfinite(room) else 0.0
 
 
+def side_to_keep(route: RoutePath, s: float, d: float, speed: float, agents: AgentStates, ego_width: float,
+                 max_shift: float) -> tuple[int, float, float]:
+    """(side, room, d_ref) this step: :func:`oncoming_side` (0 when ``max_shift`` [m] is 0: off), its
+    :func:`side_room` [m], and the lateral term's reference d_ref [m] (left positive, 0: the lane's
+    centre): ``max_shift`` towards the side, at most the room; 0 while a pedestrian or cyclist is on
+    that side ahead (:func:`vulnerable_on_side`). The planner's brakes to the side use side and room."""
+    side = oncoming_side(route, s, d, speed, agents) if max_shift > 0.0 else 0
+    room = side_room(route, s, ego_width, side)
+    vru_there = vulnerable_on_side(route, s, d, speed, agents, side)
+    return side, room, 0.0 if vru_there else side * min(max_shift, room)
+
+
 def keep_side_reference(route: RoutePath, s: float, d: float, speed: float, agents: AgentStates, ego_width: float,
                         max_shift: float) -> float:
-    """d_ref [m] (left positive, 0: the lane's centre): the lateral term's reference this step,
-    ``max_shift`` [m] (0: off) towards :func:`oncoming_side`, at most :func:`side_room`; 0 while a
-    pedestrian or cyclist is on that side ahead (:func:`vulnerable_on_side`)."""
-    if max_shift <= 0.0:
-        return 0.0
-    side = oncoming_side(route, s, d, speed, agents)
-    if vulnerable_on_side(route, s, d, speed, agents, side):
-        return 0.0
-    return side * min(max_shift, side_room(route, s, ego_width, side))
+    """d_ref [m] of :func:`side_to_keep`."""
+    return side_to_keep(route, s, d, speed, agents, ego_width, max_shift)[2]
